@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# Set up sc3d on a fresh Debian/Ubuntu machine: system OpenGL packages (EGL + OSMesa, no display
+# needed), a virtual environment in .venv, PyTorch (the CPU wheel unless a torch is already
+# there), pyrender without its PyOpenGL pin, and sc3d itself with its test extras.
+# Idempotent: rerunning it only installs what is missing.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+APT_PACKAGES="libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libxrender1 libosmesa6"
+missing=""
+for p in $APT_PACKAGES; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
+done
+if [ -n "$missing" ]; then
+  echo "[setup] installing system packages:$missing"
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -q
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q --no-install-recommends $missing
+fi
+
+PY="${PYTHON:-python3}"
+[ -x .venv/bin/python ] || "$PY" -m venv .venv
+. .venv/bin/activate
+python -m pip install -q --upgrade pip
+# torch 2.13.0: a CPU wheel on these machines; on a GPU machine install the CUDA build first.
+python -c "import torch" 2>/dev/null || python -m pip install -q "torch==2.13.0"
+# pyrender 0.1.45 pins PyOpenGL==3.1.0 (broken OSMesa); install it without deps, its deps come
+# from sc3d's pyproject with PyOpenGL 3.1.10.
+python -c "import importlib.util,sys; sys.exit(importlib.util.find_spec('pyrender') is None)" \
+  || python -m pip install -q --no-deps "pyrender==0.1.45"
+python -m pip install -q -e ".[test]"
+echo "[setup] done: activate with '. .venv/bin/activate'"
