@@ -1,0 +1,182 @@
+"""Find the meshes under a folder and name them: ``(category, model_id)`` per mesh.
+
+Layouts recognised (``root`` is what the user passes to ``--meshes``):
+
+* ShapeNetCore v1: ``SYNSET/MODEL_ID/model.obj``
+* ShapeNetCore v2: ``SYNSET/MODEL_ID/models/model_normalized.obj``
+  (``SYNSET`` is an 8-digit synset id; these two rules apply wherever the synset folder sits:
+  ``root`` may be the ShapeNetCore folder, one synset folder, or a folder above them.)
+  Inside a ShapeNet model folder only that mesh is used (textures, ``.mtl``, ``.json``,
+  ``.binvox`` are not meshes). A model folder without it is reported as a problem.
+* ``CATEGORY/NAME.ext`` (any of ``MESH_EXTENSIONS``): category = the folder's name, mapped to
+  its synset id when it is a known name (``airplane`` -> ``02691156``), model id = ``NAME``.
+* Deeper folders ``CATEGORY/A/B/NAME.ext``: category = the top-level folder under ``root``,
+  model id = the path below it without the extension (``A/B/NAME``), so ids stay unique.
+* A flat folder ``root/NAME.ext``: category = ``root``'s own folder name (mapped like above).
+
+Symlinks are followed; a symlink that leads back into one of its own ancestors is a loop and is
+reported, not followed. Hidden files and folders (name starting with ``.``) are skipped.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Iterable
+
+from sc3d_data.shapenet import is_synset_id, resolve_categories, resolve_category
+
+MESH_EXTENSIONS = (".obj", ".glb", ".gltf", ".ply", ".off", ".stl")
+SHAPENET_V1_MESH = ("model.obj",)
+SHAPENET_V2_MESH = ("models", "model_normalized.obj")
+
+
+@dataclass(frozen=True)
+class MeshEntry:
+    """One mesh found on disk.
+
+    ``path``: the mesh file; ``model_id``: ShapeNet model id, or the file stem (path below the
+    category folder without extension for deeper layouts); ``category``: ShapeNet synset id
+    where known, else the folder name."""
+
+    path: Path
+    model_id: str
+    category: str
+
+
+def _problem(source, reason: str) -> dict:
+    return {"source": str(source), "reason": reason}
+
+
+def _walk(root: Path, problems: list[dict]) -> list[tuple[Path, list[str]]]:
+    """All folders under ``root`` (``root`` included), following symlinks with loop detection.
+
+    Returns ``[(folder, sorted file names)]``; folders that cannot be read are reported."""
+    out: list[tuple[Path, list[str]]] = []
+
+    def visit(folder: Path, ancestors: frozenset) -> None:
+        try:
+            st = folder.stat()
+            key = (st.st_dev, st.st_ino)
+            if key in ancestors:
+                problems.append(_problem(folder, "symlink loop: this folder leads back to one of "
+                                                 "its own parent folders; not followed"))
+                return
+            with os.scandir(folder) as it:
+                children = sorted(it, key=lambda e: e.name)
+        except PermissionError as e:
+            problems.append(_problem(folder, f"folder cannot be read ({e.strerror or e})"))
+            return
+        except OSError as e:
+            problems.append(_problem(folder, f"folder cannot be read ({e.strerror or e})"))
+            return
+        files, dirs = [], []
+        for child in children:
+            if child.name.startswith("."):
+                continue
+            try:
+                if child.is_dir(follow_symlinks=True):
+                    dirs.append(child.name)
+                elif child.is_file(follow_symlinks=True):
+                    files.append(child.name)
+                elif child.is_symlink():
+                    problems.append(_problem(folder / child.name, "broken symlink"))
+            except OSError as e:
+                problems.append(_problem(folder / child.name, f"cannot be read ({e.strerror or e})"))
+        out.append((folder, files))
+        for d in dirs:
+            visit(folder / d, ancestors | {key})
+
+    visit(root, frozenset())
+    return out
+
+
+def _shapenet_model_dir(folder: Path) -> Path | None:
+    """The ShapeNet model folder (``SYNSET/MODEL_ID``) that ``folder`` is or lies in, if any."""
+    for cand in (folder, folder.parent):
+        if cand.parent != cand and is_synset_id(cand.parent.name) and not is_synset_id(cand.name):
+            return cand
+    return None
+
+
+def discover_meshes(root, categories=None, category_override=None
+                    ) -> tuple[list[MeshEntry], list[dict]]:
+    """Find the meshes under ``root`` (a folder, or a single mesh file).
+
+    ``categories``: names or synset ids (``"airplane,car"`` or an iterable) to keep; ``None``
+    keeps all. ``category_override``: one category (name or id) given to every mesh instead of
+    the one derived from the layout.
+
+    Returns ``(entries, problems)``: entries sorted by ``(category, model_id)`` and unique in
+    that pair (the first path in sorted order wins; the others are reported), and problems
+    ``[{"source": path, "reason": text}]``.
+    """
+    root = Path(root)
+    problems: list[dict] = []
+    if not root.exists():
+        raise FileNotFoundError(f"{root}: no such file or folder")
+    found: list[MeshEntry] = []
+    if root.is_file():
+        if root.suffix.lower() not in MESH_EXTENSIONS:
+            raise ValueError(f"{root}: not a mesh file (expected one of {', '.join(MESH_EXTENSIONS)})")
+        found.append(MeshEntry(root, root.stem, resolve_category(root.parent.name or "unknown")))
+    else:
+        root_resolved = root.resolve()
+        folders = _walk(root, problems)
+        shapenet_models: dict[Path, Path | None] = {}   # model folder -> its mesh (None: none yet)
+        for folder, files in folders:
+            model_dir = _shapenet_model_dir(folder)
+            if model_dir is not None:
+                shapenet_models.setdefault(model_dir, None)
+                v1 = model_dir / SHAPENET_V1_MESH[0]
+                v2 = model_dir.joinpath(*SHAPENET_V2_MESH)
+                if folder == model_dir and SHAPENET_V1_MESH[0] in files:
+                    shapenet_models[model_dir] = v1
+                elif (folder == v2.parent and SHAPENET_V2_MESH[-1] in files
+                      and shapenet_models[model_dir] is None):
+                    shapenet_models[model_dir] = v2
+                continue
+            meshes = [f for f in files if Path(f).suffix.lower() in MESH_EXTENSIONS]
+            if not meshes:
+                continue
+            rel = folder.relative_to(root).parts
+            for name in meshes:
+                path = folder / name
+                if not rel:      # flat folder: category = the folder's own name
+                    category = root_resolved.name or "unknown"
+                    model_id = Path(name).stem
+                else:
+                    category = rel[0]
+                    model_id = "/".join(rel[1:] + (Path(name).stem,))
+                found.append(MeshEntry(path, model_id, resolve_category(category)))
+        for model_dir, mesh in shapenet_models.items():
+            if mesh is None:
+                problems.append(_problem(model_dir, "ShapeNet model folder without its mesh "
+                                                    "(neither model.obj nor models/model_normalized.obj)"))
+            else:
+                found.append(MeshEntry(mesh, model_dir.name, model_dir.parent.name))
+
+    if category_override:
+        cat = resolve_category(str(category_override))
+        found = [replace(e, category=cat) for e in found]
+    if categories is not None:
+        wanted = resolve_categories(categories)
+        present = {e.category for e in found}
+        for c in sorted(wanted - present):
+            problems.append(_problem(root, f"requested category {c!r} matches no mesh"))
+        found = [e for e in found if e.category in wanted]
+
+    found.sort(key=lambda e: (e.category, e.model_id, str(e.path)))
+    entries: list[MeshEntry] = []
+    for e in found:
+        if entries and (entries[-1].category, entries[-1].model_id) == (e.category, e.model_id):
+            problems.append(_problem(e.path, f"duplicate id {e.category}/{e.model_id} "
+                                             f"(also {entries[-1].path}, which is used)"))
+            continue
+        entries.append(e)
+    return entries, problems
+
+
+def categories_of(entries: Iterable[MeshEntry]) -> list[str]:
+    """Sorted distinct categories of ``entries``."""
+    return sorted({e.category for e in entries})

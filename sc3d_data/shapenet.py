@@ -1,0 +1,71 @@
+"""ShapeNet synsets used by 3D-R2N2 / PTN, and name <-> synset-id resolution.
+
+``--categories airplane,car,chair`` and ``--categories 02691156,02958343`` mean the same thing.
+Names that are neither a known category name nor a synset id are kept as given (so folders of
+non-ShapeNet meshes such as ``spaceship/`` can still be selected by their folder name).
+"""
+from __future__ import annotations
+
+import re
+from typing import Iterable
+
+#: the 13 ShapeNetCore synsets of 3D-R2N2 (Choy et al. 2016): synset id -> name
+R2N2_SYNSETS: dict[str, str] = {
+    "02691156": "airplane",
+    "02828884": "bench",
+    "02933112": "cabinet",
+    "02958343": "car",
+    "03001627": "chair",
+    "03211117": "display",
+    "03636649": "lamp",
+    "03691459": "loudspeaker",
+    "04090263": "rifle",
+    "04256520": "sofa",
+    "04379243": "table",
+    "04401088": "telephone",
+    "04530566": "watercraft",
+}
+
+#: other spellings users (and other datasets) use for the same synsets: name -> synset id
+ALIASES: dict[str, str] = {
+    "plane": "02691156", "aeroplane": "02691156",
+    "monitor": "03211117", "tv": "03211117",
+    "speaker": "03691459",
+    "cellphone": "04401088", "phone": "04401088",
+    "vessel": "04530566", "boat": "04530566", "ship": "04530566",
+    "couch": "04256520",
+}
+
+_NAME_TO_SYNSET = {name: sid for sid, name in R2N2_SYNSETS.items()} | ALIASES
+_SYNSET_RE = re.compile(r"^\d{8}$")
+
+
+def is_synset_id(name: str) -> bool:
+    """True for an 8-digit WordNet offset such as ``"02691156"`` (a ShapeNet category folder)."""
+    return bool(_SYNSET_RE.match(name))
+
+
+def category_name(category: str) -> str:
+    """Readable name of a synset id (``"02691156"`` -> ``"airplane"``), else ``category`` unchanged."""
+    return R2N2_SYNSETS.get(category, category)
+
+
+def resolve_category(name: str) -> str:
+    """One category name or synset id -> synset id where known (case-insensitive for names),
+    else the name unchanged (stripped)."""
+    name = name.strip()
+    if is_synset_id(name):
+        return name
+    return _NAME_TO_SYNSET.get(name.lower(), name)
+
+
+def resolve_categories(spec: str | Iterable[str]) -> set[str]:
+    """``"airplane,car,03001627"`` (or an iterable of such items, each possibly comma separated)
+    -> ``{"02691156", "02958343", "03001627"}``. Unknown names are kept as given."""
+    items = [spec] if isinstance(spec, str) else list(spec)
+    out: set[str] = set()
+    for item in items:
+        for part in str(item).split(","):
+            if part.strip():
+                out.add(resolve_category(part))
+    return out
