@@ -1,0 +1,106 @@
+"""Training losses of the paper (SPEC "Training defaults").
+
+- ``L_3D = L_PCE + L_IoU``: binary cross-entropy with positive weight 3 (mean over voxels and
+  batch) plus the IoU loss ``exp(1 - IoU_soft) - 1`` (per object, mean over the batch; the IoU form
+  ``sum(p y) / sum(p + y - p y)`` — the paper's ``+ p y`` in the denominator is a typo).
+- ``L_2D``: binary cross-entropy of the predicted mask logits ``[B, S, S]`` (image size) vs the
+  ground-truth mask (mean over pixels and batch).
+- ``L_KL = KL(N(mu, sigma^2) || N(0, 1))`` of the shape code, *averaged* over batch and code
+  dimensions (the paper does not say; a per-dimension mean keeps the 0.02 weight on the same
+  scale as the per-voxel/per-pixel means of the other terms, whatever ``shape_dim`` is).
+- ``L_sc = 5 L_ray + 0.125 L_proj`` (:mod:`sc3d_train.self_consistency`), always with the
+  *predicted* pose; the ground-truth pose in the batch is never read here.
+
+Supervised: ``0.5 L_3D + 0.5 L_2D + 1 L_sc + 0.02 L_KL`` with L_sc on the ground-truth voxels and
+48x48 masks (``batch["voxels"]``, ``batch["masks_sc"]``): only the pose head and encoder get
+gradients from it. Semi-supervised fine-tuning (unlabelled images): ``1 L_sc + 0.02 L_KL`` with L_sc
+on the predicted occupancy ``sigmoid(voxel_logits)`` and the predicted mask ``sigmoid(mask_logits)``
+area-downsampled to 48x48 and *detached*: as in the paper, L_sc updates the encoder and the voxel
+decoder, not the mask decoder.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from .model import ModelOutput
+from .self_consistency import DEFAULT_NUM_SAMPLES, area_downsample, iou_loss, self_consistency_losses
+
+LOSS_KEYS = ("total", "l3d", "l2d", "lsc", "ray", "proj", "kl")
+
+
+@dataclass
+class LossWeights:
+    """Loss weights (paper): ``w3d`` alpha_3, ``w2d`` alpha_4, ``wsc`` alpha_5, ``wkl`` alpha_6,
+    ``ray`` alpha_1, ``proj`` alpha_2, ``pos_weight`` alpha_p; ``num_samples`` per ray."""
+
+    w3d: float = 0.5
+    w2d: float = 0.5
+    wsc: float = 1.0
+    wkl: float = 0.02
+    ray: float = 5.0
+    proj: float = 0.125
+    pos_weight: float = 3.0
+    num_samples: int = DEFAULT_NUM_SAMPLES
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def voxel_loss(voxel_logits: Tensor, voxels: Tensor, pos_weight: float = 3.0) -> Tensor:
+    """L_3D of ``voxel_logits [B, G, G, G]`` vs ``voxels [B, G, G, G]`` in {0, 1}."""
+    logits = voxel_logits.float()
+    target = voxels.float()
+    pw = torch.tensor(pos_weight, dtype=logits.dtype, device=logits.device)
+    pce = F.binary_cross_entropy_with_logits(logits, target, pos_weight=pw)
+    return pce + iou_loss(torch.sigmoid(logits), target)
+
+
+def mask_loss(mask_logits: Tensor, masks: Tensor) -> Tensor:
+    """L_2D: BCE of ``mask_logits [B, S, S]`` vs ``masks [B, S, S]`` in [0, 1]."""
+    if mask_logits.shape != masks.shape:
+        raise ValueError(f"mask logits {tuple(mask_logits.shape)} and masks {tuple(masks.shape)} differ")
+    return F.binary_cross_entropy_with_logits(mask_logits.float(), masks.float())
+
+
+def kl_loss(z_mean: Tensor, z_logvar: Tensor) -> Tensor:
+    """KL(N(mean, exp(logvar)) || N(0, 1)), mean over batch and dimensions."""
+    m, lv = z_mean.float(), z_logvar.float()
+    return (0.5 * (m.pow(2) + lv.exp() - 1.0 - lv)).mean()
+
+
+def _sc(out: ModelOutput, occupancy: Tensor, masks_sc: Tensor, batch: dict, weights: LossWeights) -> dict[str, Tensor]:
+    sc = self_consistency_losses(occupancy, masks_sc, out.azimuth, out.elevation, batch["distance"],
+                                 batch["K_sc"], weights.num_samples)
+    return {"lsc": weights.ray * sc["ray"] + weights.proj * sc["proj"], "ray": sc["ray"], "proj": sc["proj"]}
+
+
+def supervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None = None) -> dict[str, Tensor]:
+    """Supervised objective; ``batch`` needs ``voxels [B,G,G,G]``, ``masks [B,S,S]`` (image size),
+    ``masks_sc [B,48,48]``, ``K_sc [B,3,3]``, ``distance [B]``. Returns scalars ``LOSS_KEYS``."""
+    w = weights or LossWeights()
+    l3d = voxel_loss(out.voxel_logits, batch["voxels"], w.pos_weight)
+    l2d = mask_loss(out.mask_logits, batch["masks"])
+    kl = kl_loss(out.z_mean, out.z_logvar)
+    sc = _sc(out, batch["voxels"].float(), batch["masks_sc"], batch, w)
+    total = w.w3d * l3d + w.w2d * l2d + w.wsc * sc["lsc"] + w.wkl * kl
+    return {"total": total, "l3d": l3d, "l2d": l2d, "kl": kl, **sc}
+
+
+def unsupervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None = None) -> dict[str, Tensor]:
+    """Semi-supervised fine-tuning objective on unlabelled images: ``wsc L_sc + wkl L_KL`` with the
+    predicted occupancy and the (detached) predicted mask at the size of ``batch["masks_sc"]`` or,
+    without it, of ``K_sc`` for 48-pixel masks. ``batch`` needs ``K_sc``, ``distance``. Returns
+    ``LOSS_KEYS``; ``l3d`` and ``l2d`` are 0 (not computed: no labels)."""
+    w = weights or LossWeights()
+    size = batch["masks_sc"].shape[-1] if "masks_sc" in batch else 48
+    occupancy = torch.sigmoid(out.voxel_logits.float())
+    masks_pred = area_downsample(torch.sigmoid(out.mask_logits.float()).detach(), size)
+    sc = _sc(out, occupancy, masks_pred, batch, w)
+    kl = kl_loss(out.z_mean, out.z_logvar)
+    zero = torch.zeros((), device=kl.device)
+    total = w.wsc * sc["lsc"] + w.wkl * kl
+    return {"total": total, "l3d": zero, "l2d": zero, "kl": kl, **sc}

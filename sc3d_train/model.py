@@ -1,0 +1,257 @@
+"""The network of Liao, Yang & Wang (2D-3D self-consistency): encoder E, voxel decoder D_v,
+mask decoder D_m and the pose head.
+
+Shapes (B = batch, S = ``image_size``, G = ``voxel_resolution``, C = ``base_channels``):
+
+Encoder E (residual)
+    stem conv 3x3 (3 -> C) at S x S, then 5 residual blocks, each halving the resolution
+    (S/2 .. S/32) with channels C, 2C, 4C, 8C, 8C; BatchNorm + LeakyReLU(0.2). The final
+    ``8C x S/32 x S/32`` features are flattened and mapped by linear layers to the shape code
+    (``z_mean``, ``z_logvar`` ``[B, shape_dim]``; a conditional VAE: ``z_s = mean + exp(logvar/2) *
+    eps`` in training, ``z_s = mean`` in eval) and to the pose code ``z_p [B, pose_dim]``.
+Pose head
+    ONE linear layer ``pose_head: z_p -> pose_raw [B, 3]`` (see :mod:`sc3d_train.pose` for the
+    wrap-free (cos az, sin az, elevation) parameterisation).
+Voxel decoder D_v ("voxel tubes", from z_s)
+    ``3tube``: three 2D-deconvolution branches; each maps z_s to a ``G x G x G`` tensor whose
+    *channel* axis is one of x (width), y (height) or z (depth) and whose two image axes are the
+    other two in increasing order. Each is transposed into ``[x, y, z]`` order and the three
+    logit volumes are averaged. ``1tube``: only the depth (z-channel) branch.
+    Output ``voxel_logits [B, G, G, G]``, index order ``[x, y, z]`` as in the shards (SPEC).
+Mask decoder D_m (U-Net, from z_mean and z_p)
+    ``[z_mean, z_p]`` -> linear -> ``8C x S/32 x S/32``, then 5 upsampling blocks (x2 each, back
+    to S x S); each block concatenates the encoder feature map of the same resolution (U-Net
+    skips from E). Output ``mask_logits [B, S, S]`` at the *input image size* (S_m = image_size);
+    the self-consistency module works on masks area-downsampled to ``mask_size``.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from .pose import POSE_RAW_DIM, pose_from_raw
+
+NUM_ENCODER_BLOCKS = 5
+LEAKY_SLOPE = 0.2
+VOXEL_DECODERS = ("3tube", "1tube")
+
+
+@dataclass
+class ModelConfig:
+    """Architecture settings (saved with every checkpoint).
+
+    ``image_size`` input RGB size (square, divisible by 32); ``voxel_resolution`` G of the output
+    grid (divisible by 4); ``mask_size`` size of the masks of the self-consistency module (48 as in
+    the paper); ``shape_dim`` size of z_s (200); ``pose_dim`` size of z_p (16);
+    ``voxel_decoder`` "3tube" (paper) or "1tube" (ablation); ``base_channels`` width C (32; use 4-8
+    for fast CPU tests)."""
+
+    image_size: int = 64
+    voxel_resolution: int = 32
+    mask_size: int = 48
+    shape_dim: int = 200
+    pose_dim: int = 16
+    voxel_decoder: str = "3tube"
+    base_channels: int = 32
+
+    def __post_init__(self) -> None:
+        if self.image_size % 32 or self.image_size < 32:
+            raise ValueError(f"image_size must be a multiple of 32 (5 stride-2 blocks), got {self.image_size}")
+        if self.voxel_resolution % 4 or self.voxel_resolution < 8:
+            raise ValueError(f"voxel_resolution must be a multiple of 4 and >= 8, got {self.voxel_resolution}")
+        if self.voxel_decoder not in VOXEL_DECODERS:
+            raise ValueError(f"voxel_decoder must be one of {VOXEL_DECODERS}, got {self.voxel_decoder!r}")
+        for name in ("mask_size", "shape_dim", "pose_dim", "base_channels"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ModelConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"unknown ModelConfig keys {unknown}; known: {sorted(known)}")
+        return cls(**d)
+
+    @classmethod
+    def tiny(cls, **overrides) -> "ModelConfig":
+        """A small model for fast CPU tests (C = 4, z_s 16, z_p 8)."""
+        return cls(**{"base_channels": 4, "shape_dim": 16, "pose_dim": 8, **overrides})
+
+
+@dataclass
+class ModelOutput:
+    """Network outputs. ``voxel_logits [B, G, G, G]`` ([x, y, z]); ``mask_logits [B, S, S]``
+    (S = image_size); ``azimuth [B]`` degrees in [0, 360); ``elevation [B]`` degrees;
+    ``pose_raw [B, 3]`` raw pose-head output; ``z_mean``, ``z_logvar`` ``[B, shape_dim]``."""
+
+    voxel_logits: Tensor
+    mask_logits: Tensor
+    azimuth: Tensor
+    elevation: Tensor
+    pose_raw: Tensor
+    z_mean: Tensor
+    z_logvar: Tensor
+
+
+def _act() -> nn.Module:
+    return nn.LeakyReLU(LEAKY_SLOPE, inplace=True)
+
+
+class ResidualBlock(nn.Module):
+    """Pre-activation-free basic residual block: two 3x3 convs with BN, a strided 1x1 projection
+    on the shortcut; ``[B, cin, H, W] -> [B, cout, H/stride, W/stride]``."""
+
+    def __init__(self, cin: int, cout: int, stride: int = 2):
+        super().__init__()
+        self.conv1 = nn.Conv2d(cin, cout, 3, stride, 1, bias=False)
+        self.bn1 = nn.BatchNorm2d(cout)
+        self.conv2 = nn.Conv2d(cout, cout, 3, 1, 1, bias=False)
+        self.bn2 = nn.BatchNorm2d(cout)
+        self.shortcut = nn.Sequential(nn.Conv2d(cin, cout, 1, stride, bias=False), nn.BatchNorm2d(cout))
+        self.act = _act()
+
+    def forward(self, x: Tensor) -> Tensor:
+        h = self.act(self.bn1(self.conv1(x)))
+        h = self.bn2(self.conv2(h))
+        return self.act(h + self.shortcut(x))
+
+
+class Encoder(nn.Module):
+    """Image ``[B, 3, S, S]`` -> ``(features [B, 8C*(S/32)^2], skips)``, skips = the stem output and
+    the outputs of the first four blocks (resolutions S, S/2, S/4, S/8, S/16)."""
+
+    def __init__(self, config: ModelConfig):
+        super().__init__()
+        c = config.base_channels
+        self.channels = [c, 2 * c, 4 * c, 8 * c, 8 * c]
+        self.stem = nn.Sequential(nn.Conv2d(3, c, 3, 1, 1, bias=False), nn.BatchNorm2d(c), _act())
+        cins = [c] + self.channels[:-1]
+        self.blocks = nn.ModuleList(ResidualBlock(i, o) for i, o in zip(cins, self.channels))
+
+    def forward(self, x: Tensor) -> tuple[Tensor, list[Tensor]]:
+        h = self.stem(x)
+        skips = [h]
+        for block in self.blocks:
+            h = block(h)
+            skips.append(h)
+        return h.flatten(1), skips[:-1]
+
+
+def _up(cin: int, cout: int) -> nn.Sequential:
+    """x2 upsampling: transposed conv 4x4 stride 2 + BN + LeakyReLU."""
+    return nn.Sequential(nn.ConvTranspose2d(cin, cout, 4, 2, 1, bias=False), nn.BatchNorm2d(cout), _act())
+
+
+class VoxelTube(nn.Module):
+    """z_s ``[B, D]`` -> ``[B, G, G, G]``: a 2D deconvolution decoder whose G output channels are
+    one spatial axis of the grid (the "tube" axis) and whose G x G image is the other two."""
+
+    def __init__(self, config: ModelConfig):
+        super().__init__()
+        c, g = config.base_channels, config.voxel_resolution
+        self.start = g // 8 if g % 8 == 0 else g // 4
+        n_up = {g // 8: 3, g // 4: 2}[self.start]
+        chans = [8 * c, 4 * c, 2 * c, c][: n_up + 1]
+        self.c0 = chans[0]
+        self.fc = nn.Linear(config.shape_dim, self.c0 * self.start * self.start)
+        self.ups = nn.Sequential(*[_up(a, b) for a, b in zip(chans[:-1], chans[1:])])
+        self.out = nn.Conv2d(chans[-1], g, 3, 1, 1)
+
+    def forward(self, z: Tensor) -> Tensor:
+        h = F.leaky_relu(self.fc(z), LEAKY_SLOPE).view(z.shape[0], self.c0, self.start, self.start)
+        return self.out(self.ups(h))
+
+
+class VoxelDecoder(nn.Module):
+    """D_v: z_s ``[B, shape_dim]`` -> ``voxel_logits [B, G, G, G]`` in ``[x, y, z]`` order.
+
+    Branch outputs before transposition: ``x``: [B, x, y, z]; ``y``: [B, y, x, z];
+    ``z``: [B, z, x, y]. ``3tube`` averages the three (logits); ``1tube`` uses ``z`` only."""
+
+    def __init__(self, config: ModelConfig):
+        super().__init__()
+        axes = ("x", "y", "z") if config.voxel_decoder == "3tube" else ("z",)
+        self.branches = nn.ModuleDict({a: VoxelTube(config) for a in axes})
+
+    def forward(self, z: Tensor) -> Tensor:
+        vols = []
+        for axis, branch in self.branches.items():
+            v = branch(z)
+            if axis == "y":
+                v = v.permute(0, 2, 1, 3)  # [B, y, x, z] -> [B, x, y, z]
+            elif axis == "z":
+                v = v.permute(0, 2, 3, 1)  # [B, z, x, y] -> [B, x, y, z]
+            vols.append(v)
+        return torch.stack(vols, 0).mean(0)
+
+
+class MaskDecoder(nn.Module):
+    """D_m: ``[z_mean, z_p]`` + encoder skips -> ``mask_logits [B, S, S]`` with 5 upsampling
+    blocks (U-Net: each block's output is concatenated with the encoder map of its resolution and
+    fused by a 3x3 conv)."""
+
+    def __init__(self, config: ModelConfig, enc_channels: list[int]):
+        super().__init__()
+        self.start = config.image_size // 32
+        self.c0 = enc_channels[-1]
+        self.fc = nn.Linear(config.shape_dim + config.pose_dim, self.c0 * self.start * self.start)
+        # skips (deepest first): block4 (S/16, 8C), block3 (S/8, 4C), block2 (S/4, 2C),
+        # block1 (S/2, C), stem (S, C)
+        skip_ch = [enc_channels[3], enc_channels[2], enc_channels[1], enc_channels[0], enc_channels[0]]
+        out_ch = skip_ch
+        cins = [self.c0] + out_ch[:-1]
+        self.ups = nn.ModuleList(_up(i, o) for i, o in zip(cins, out_ch))
+        self.fuse = nn.ModuleList(
+            nn.Sequential(nn.Conv2d(o + s, o, 3, 1, 1, bias=False), nn.BatchNorm2d(o), _act())
+            for o, s in zip(out_ch, skip_ch))
+        self.out = nn.Conv2d(out_ch[-1], 1, 1)
+
+    def forward(self, z_mean: Tensor, z_p: Tensor, skips: list[Tensor]) -> Tensor:
+        h = F.leaky_relu(self.fc(torch.cat([z_mean, z_p], 1)), LEAKY_SLOPE)
+        h = h.view(z_mean.shape[0], self.c0, self.start, self.start)
+        for up, fuse, skip in zip(self.ups, self.fuse, reversed(skips)):
+            h = fuse(torch.cat([up(h), skip], 1))
+        return self.out(h)[:, 0]
+
+
+class SelfConsistencyNet(nn.Module):
+    """The whole network: ``forward(images [B, 3, S, S] float in [0, 1]) -> ModelOutput``.
+    The self-consistency module itself has no parameters (:mod:`sc3d_train.self_consistency`)."""
+
+    def __init__(self, config: ModelConfig):
+        super().__init__()
+        self.config = config
+        self.encoder = Encoder(config)
+        feat = self.encoder.channels[-1] * (config.image_size // 32) ** 2
+        self.fc_mean = nn.Linear(feat, config.shape_dim)
+        self.fc_logvar = nn.Linear(feat, config.shape_dim)
+        self.fc_pose_code = nn.Linear(feat, config.pose_dim)
+        self.pose_head = nn.Linear(config.pose_dim, POSE_RAW_DIM)
+        self.voxel_decoder = VoxelDecoder(config)
+        self.mask_decoder = MaskDecoder(config, self.encoder.channels)
+
+    def forward(self, images: Tensor) -> ModelOutput:
+        s = self.config.image_size
+        if images.ndim != 4 or images.shape[1] != 3 or images.shape[2] != s or images.shape[3] != s:
+            raise ValueError(f"images must be [B, 3, {s}, {s}] (model image_size {s}), got {tuple(images.shape)}")
+        feat, skips = self.encoder(images)
+        z_mean, z_logvar = self.fc_mean(feat), self.fc_logvar(feat)
+        if self.training:
+            z_s = z_mean + torch.exp(0.5 * z_logvar) * torch.randn_like(z_mean)
+        else:
+            z_s = z_mean
+        z_p = self.fc_pose_code(feat)
+        pose_raw = self.pose_head(z_p)
+        azimuth, elevation = pose_from_raw(pose_raw.float())
+        return ModelOutput(
+            voxel_logits=self.voxel_decoder(z_s),
+            mask_logits=self.mask_decoder(z_mean, z_p, skips),
+            azimuth=azimuth, elevation=elevation, pose_raw=pose_raw,
+            z_mean=z_mean, z_logvar=z_logvar)
