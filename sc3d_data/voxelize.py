@@ -91,29 +91,53 @@ def surface_voxels(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32
     return grid
 
 
+def _expand_boxes(lo: np.ndarray, ext: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """All integer cells of boxes ``lo [B, D]`` with extents ``ext [B, D]``: returns
+    ``(box index [P], cell [P, D])`` (last axis fastest)."""
+    counts = ext.prod(1)
+    b = np.repeat(np.arange(len(lo)), counts)
+    local = np.arange(len(b)) - np.repeat(np.cumsum(counts) - counts, counts)
+    cells = np.empty((len(b), lo.shape[1]), dtype=np.int64)
+    for d in range(lo.shape[1] - 1, -1, -1):
+        e = ext[b, d]
+        cells[:, d] = lo[b, d] + local % e
+        local = local // e
+    return b, cells
+
+
 def _mark_overlaps(grid, tri, lo, ext, counts) -> None:
     """Separating-axis test of every triangle against every voxel of its bounding box
-    (voxel units, half-size ``_HALF``); marks the voxels that overlap in ``grid``."""
-    t_idx = np.repeat(np.arange(len(tri)), counts)
-    local = np.arange(len(t_idx)) - np.repeat(np.cumsum(counts) - counts, counts)
-    ex = ext[t_idx]
-    ijk = lo[t_idx] + np.stack([local // (ex[:, 1] * ex[:, 2]),
-                                (local // ex[:, 2]) % ex[:, 1],
-                                local % ex[:, 2]], 1)
-    p = tri[t_idx] - (ijk + 0.5)[:, None, :]  # [P, 3 vertices, 3] relative to voxel centre
-    e = np.stack([tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 1], tri[:, 0] - tri[:, 2]], 1)[t_idx]
-    keep = np.ones(len(p), dtype=bool)
-    # plane of the triangle vs box
-    n = np.cross(e[:, 0], e[:, 1])
-    keep &= np.abs((n * p[:, 0]).sum(1)) <= _HALF * np.abs(n).sum(1) + 1e-12
-    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    (voxel units, half-size ``_HALF``); marks the voxels that overlap in ``grid``.
+    A triangle whose bounding box spans two voxels crosses the plane between them and
+    touches both: those skip the test."""
+    two = counts == 2
+    _, cells = _expand_boxes(lo[two], ext[two])
+    grid[cells[:, 0], cells[:, 1], cells[:, 2]] = True
+    tri, lo, ext = tri[~two], lo[~two], ext[~two]
+    if len(tri) == 0:
+        return
+    t_idx, ijk = _expand_boxes(lo, ext)
+    # plane of the triangle vs box first (cheap, removes most candidates of large triangles)
+    e_t = [tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 1], tri[:, 0] - tri[:, 2]]
+    n_t = np.cross(e_t[0], e_t[1])
+    n = n_t[t_idx]
+    rel0 = tri[t_idx, 0] - (ijk + 0.5)
+    on_plane = np.abs((n * rel0).sum(1)) <= _HALF * np.abs(n).sum(1) + 1e-12
+    t_idx, ijk = t_idx[on_plane], ijk[on_plane]
+    c = ijk + 0.5
+    # structure of arrays: vertex k, coordinate x/y/z relative to the voxel centre, [P]
+    x = [tri[t_idx, k, 0] - c[:, 0] for k in range(3)]
+    y = [tri[t_idx, k, 1] - c[:, 1] for k in range(3)]
+    z = [tri[t_idx, k, 2] - c[:, 2] for k in range(3)]
+    keep = np.ones(len(t_idx), dtype=bool)
     for k in range(3):  # the nine axes edge_k x unit axis
-        ex_, ey, ez = e[:, k, 0:1], e[:, k, 1:2], e[:, k, 2:3]
-        for proj, r in ((ez * y - ey * z, np.abs(ez) + np.abs(ey)),
-                        (ex_ * z - ez * x, np.abs(ex_) + np.abs(ez)),
-                        (ey * x - ex_ * y, np.abs(ey) + np.abs(ex_))):
-            r = _HALF * r[:, 0] + 1e-12
-            keep &= (proj.min(1) <= r) & (proj.max(1) >= -r)
+        e = e_t[k][t_idx]
+        ex_, ey, ez = e[:, 0], e[:, 1], e[:, 2]
+        for (pa, pb, ca, cb) in ((ez, ey, y, z), (ex_, ez, z, x), (ey, ex_, x, y)):
+            p0, p1, p2 = (pa * ca[j] - pb * cb[j] for j in range(3))
+            r = _HALF * (np.abs(pa) + np.abs(pb)) + 1e-12
+            keep &= (np.minimum(np.minimum(p0, p1), p2) <= r) & \
+                (np.maximum(np.maximum(p0, p1), p2) >= -r)
     hit = ijk[keep]
     grid[hit[:, 0], hit[:, 1], hit[:, 2]] = True
 
@@ -136,6 +160,54 @@ def winding_numbers(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray)
     return np.asarray(igl.fast_winding_number(np.ascontiguousarray(v), np.ascontiguousarray(f), q))
 
 
+def axis_ray_crossings(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32) -> np.ndarray:
+    """Signed crossing counts of the six axis-aligned rays (+x, -x, +y, -y, +z, -z) from every
+    voxel centre to infinity, int32 ``[6, G, G, G]``.
+
+    A crossing counts +1 where the ray leaves through a triangle (normal along the ray) and
+    -1 where it enters; for a closed, outward-oriented mesh every count is 1 inside and 0
+    outside, and their mean is a six-direction estimate of the generalized winding number.
+    Rays that graze an edge may count it twice or not at all; ``voxelize_triangles`` only
+    trusts these counts where all six agree.
+    """
+    v, f = _check_triangles(vertices, faces)
+    G = int(resolution)
+    tri = (v[f] + 0.5) * G  # voxel units
+    out = np.zeros((6, G, G, G), dtype=np.int32)
+    for a in range(3):
+        b, c = (a + 1) % 3, (a + 2) % 3
+        pb, pc, depth = tri[:, :, b], tri[:, :, c], tri[:, :, a]  # [m, 3]
+        # twice the signed area in the (b, c) plane = normal component along axis a
+        area = (pb[:, 1] - pb[:, 0]) * (pc[:, 2] - pc[:, 0]) - (pc[:, 1] - pc[:, 0]) * (pb[:, 2] - pb[:, 0])
+        lo = np.ceil(np.stack([pb.min(1), pc.min(1)], 1) - 0.5).astype(np.int64)
+        hi = np.floor(np.stack([pb.max(1), pc.max(1)], 1) - 0.5).astype(np.int64)
+        lo, hi = np.clip(lo, 0, G), np.clip(hi, -1, G - 1)
+        ok = (np.abs(area) > 1e-12) & (hi >= lo).all(1)
+        idx = np.nonzero(ok)[0]
+        t_idx, cols = _expand_boxes(lo[idx], hi[idx] - lo[idx] + 1)
+        t_idx = idx[t_idx]
+        qb, qc = cols[:, 0] + 0.5, cols[:, 1] + 0.5
+        B, C, D = pb[t_idx], pc[t_idx], depth[t_idx]
+        w = [(B[:, (k + 2) % 3] - B[:, (k + 1) % 3]) * (qc - C[:, (k + 1) % 3])
+             - (C[:, (k + 2) % 3] - C[:, (k + 1) % 3]) * (qb - B[:, (k + 1) % 3]) for k in range(3)]
+        sgn = np.sign(area[t_idx])
+        inside = (w[0] * sgn >= 0) & (w[1] * sgn >= 0) & (w[2] * sgn >= 0)
+        A = area[t_idx]
+        d = (w[0] * D[:, 0] + w[1] * D[:, 1] + w[2] * D[:, 2]) / A
+        d, sgn, cols = d[inside], sgn[inside], cols[inside]
+        # number of voxel centres (along a) below the crossing: the crossing is above them
+        below = np.clip(np.ceil(d - 0.5), 0, G).astype(np.int64)
+        flat = (cols[:, 0] * G + cols[:, 1]) * (G + 1) + below
+        hist = np.bincount(flat, weights=sgn, minlength=G * G * (G + 1)).reshape(G, G, G + 1)
+        prefix = np.cumsum(hist, axis=2)[:, :, :G].astype(np.int32)  # crossings at or below
+        total = prefix[:, :, -1:] + hist[:, :, G:].astype(np.int32)
+        plus, minus = total - prefix, -prefix  # [b, c, a] order
+        order = np.argsort([b, c, a])
+        out[2 * a] = plus.transpose(order)
+        out[2 * a + 1] = minus.transpose(order)
+    return out
+
+
 def voxelize_triangles(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32) -> np.ndarray:
     """Solid occupancy of a triangle mesh (rules in the module doc).
 
@@ -149,9 +221,10 @@ def voxelize_triangles(vertices: np.ndarray, faces: np.ndarray, resolution: int 
         raise ValueError(f"resolution must be positive, got {resolution}")
     surface = surface_voxels(v, f, G)
     enclosed = ndimage.binary_fill_holes(surface)
-    unknown = ~enclosed
-    centres = voxel_centers(G)[unknown]
-    w = winding_numbers(v, f, centres)
-    occupied = enclosed.copy()
-    occupied[unknown] = np.abs(w) >= WINDING_THRESHOLD
+    crossings = axis_ray_crossings(v, f, G)
+    nonzero = (crossings != 0).sum(0)
+    occupied = enclosed | (nonzero == 6)
+    ambiguous = ~occupied & (nonzero > 0)
+    w = winding_numbers(v, f, voxel_centers(G)[ambiguous])
+    occupied[ambiguous] = np.abs(w) >= WINDING_THRESHOLD
     return ndimage.binary_fill_holes(occupied)
