@@ -9,7 +9,7 @@ seeded, resumable, rank-aware sampler that draws a random view per object.
   the position; resuming at sample ``k`` reproduces the stream exactly.
 * Masks for the self-consistency module (48x48 by default) are the exact area average of the
   64x64 rendered mask (each output pixel covers 4/3 x 4/3 input pixels under the pixel-edge
-  convention of ``sc3d_data.camera``), thresholded at >= 0.5; ``K`` is scaled with
+  convention of ``sc3d_data.camera``; C1's ``area_downsample``), thresholded at >= 0.5; ``K`` is scaled with
   ``sc3d_data.camera.scale_intrinsics``, which keeps the principal point at the image centre.
 
 Batch keys (B samples): ``images`` [B,3,S,S] float in [0,1]; ``voxels`` [B,G,G,G] float {0,1}
@@ -34,32 +34,19 @@ from torch.utils.data import Dataset, Sampler
 
 from sc3d_data.camera import scale_intrinsics
 from sc3d_data.shards import load_index, read_strings, shard_files
+from sc3d_train.self_consistency import area_downsample
 
 
 class DataError(ValueError):
     """Bad training data (missing voxels, wrong image size, empty split, ...)."""
 
 
-# ----------------------------------------------------------------------------- masks
-def area_weights(old_size: int, new_size: int) -> np.ndarray:
-    """``A [new, old]``: row i holds the overlap of output pixel i, spanning
-    ``[i*old/new, (i+1)*old/new)`` in input pixels, with each input pixel ``[j, j+1)``,
-    divided by the output pixel's width (rows sum to 1)."""
-    scale = old_size / new_size
-    lo = np.arange(new_size)[:, None] * scale
-    hi = lo + scale
-    j = np.arange(old_size)[None, :]
-    overlap = np.clip(np.minimum(hi, j + 1) - np.maximum(lo, j), 0.0, None)
-    return overlap / scale
-
-
-def downsample_mask(mask: np.ndarray, new_size: int, threshold: float = 0.5) -> np.ndarray:
-    """Area-average ``mask [..., S, S]`` (any numeric) to ``[..., new_size, new_size]`` and
-    threshold (covered fraction >= ``threshold``); returns float32 in {0, 1}. The camera of the
-    result is ``scale_intrinsics(K, new_size, S)``."""
-    A = area_weights(mask.shape[-1], new_size)
-    frac = A @ (np.asarray(mask, dtype=np.float64) > 0) @ A.T
-    return (frac >= threshold - 1e-9).astype(np.float32)
+def sc_mask(mask: np.ndarray, mask_size: int) -> torch.Tensor:
+    """The self-consistency mask ``[M, M]`` float {0, 1} of a rendered mask ``[S, S]``: exact area
+    average (``sc3d_train.self_consistency.area_downsample``) thresholded at >= 0.5. Its camera
+    is ``scale_intrinsics(K, M, S)``."""
+    m = torch.from_numpy((np.asarray(mask) > 0).astype(np.float32))
+    return (area_downsample(m[None], mask_size)[0] >= 0.5 - 1e-6).float()
 
 
 # ----------------------------------------------------------------------------- objects
@@ -202,7 +189,7 @@ class ShardDataset(Dataset):
         item = {
             "images": torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1))).float() / 255.0,
             "masks": torch.from_numpy((mask > 0).astype(np.float32)),
-            "masks_sc": torch.from_numpy(downsample_mask(mask, self.mask_size)),
+            "masks_sc": sc_mask(mask, self.mask_size),
             "K": torch.from_numpy(K),
             "K_sc": torch.from_numpy(scale_intrinsics(K.astype(np.float64), self.mask_size,
                                                       self.image_size).astype(np.float32)),

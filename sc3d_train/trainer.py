@@ -1,0 +1,381 @@
+"""``sc3d-train fit``: supervised, semi-supervised and labelled-only training of the
+self-consistency network (paper Sec. 3.3) on sc3d shards.
+
+Phases (see :class:`~sc3d_train.config.RunConfig`):
+
+* ``supervised`` (all training objects) and ``labeled-only`` (the seeded labelled subset only):
+  ``supervised_loss`` (L_3D + L_2D + L_sc on ground-truth voxels/masks with the *predicted*
+  pose + KL) at ``lr``.
+* ``semi``: ``pretrain_steps`` steps as ``labeled-only``, then fine-tuning on the unlabelled
+  training objects with ``unsupervised_loss`` (L_sc on predicted voxels and masks + KL) at
+  ``semi_lr``; the Adam moments carry over, only the learning rate changes.
+
+The ground-truth pose (``azimuth``, ``elevation``, ``R``, ``t``) is removed from every training
+batch before the model and the losses see it; in the unsupervised phase the voxels and masks
+are removed too. The camera's intrinsics and distance (fixed by the dataset) stay.
+
+Run on one device or with ``torchrun`` (DDP, env ``RANK``/``WORLD_SIZE``/``LOCAL_RANK``; NCCL
+on CUDA, gloo on CPU); the global batch is split evenly over ranks. Everything that decides the
+trajectory (weights, optimiser, AMP scaler, every RNG, step, data position) is checkpointed, so
+``--resume`` continues exactly: the loss at step N equals the uninterrupted run's.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import os
+import random
+import time
+from contextlib import nullcontext
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from sc3d_train.checkpoint import (CheckpointError, build_model, last_path, load_checkpoint,
+                                   rng_state, save_checkpoint, set_rng_state)
+from sc3d_train.config import RunConfig
+from sc3d_train.data import ShardDataset, make_loader
+
+#: batch keys that carry the ground-truth pose: never given to the model or a loss
+POSE_KEYS = ("azimuth", "elevation", "R", "t")
+#: batch keys that carry 3D/2D labels: removed in the unsupervised phase
+LABEL_KEYS = ("voxels", "masks", "masks_sc")
+CSV_NAME = "metrics.csv"
+
+
+class TrainingDiverged(RuntimeError):
+    """The loss became NaN/inf; the message names the step and the last good checkpoint."""
+
+
+# ----------------------------------------------------------------------------- environment
+@dataclass
+class DistInfo:
+    rank: int = 0
+    world_size: int = 1
+    local_rank: int = 0
+
+    @property
+    def is_main(self) -> bool:
+        return self.rank == 0
+
+
+def setup_distributed(device_name: str) -> DistInfo:
+    """Join the torchrun process group when ``WORLD_SIZE > 1`` (NCCL on CUDA, else gloo)."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return DistInfo()
+    import torch.distributed as dist
+
+    info = DistInfo(int(os.environ["RANK"]), world, int(os.environ.get("LOCAL_RANK", "0")))
+    if not dist.is_initialized():
+        use_cuda = torch.cuda.is_available() and device_name != "cpu"
+        dist.init_process_group("nccl" if use_cuda else "gloo")
+    return info
+
+
+def resolve_device(name: str, dist: DistInfo) -> torch.device:
+    """``auto``: CUDA (this rank's local GPU) when available, else CPU."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda":
+        name = f"cuda:{dist.local_rank}"
+    device = torch.device(name)
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            raise RuntimeError(f"device {name} requested but CUDA is not available")
+        torch.cuda.set_device(device)
+    return device
+
+
+def resolve_amp(cfg: RunConfig, device: torch.device) -> torch.dtype | None:
+    """The autocast dtype: ``auto`` is bf16 on CUDA GPUs that support it, else fp16 on CUDA,
+    and off (fp32) on the CPU."""
+    if cfg.amp == "off" or (cfg.amp == "auto" and device.type != "cuda"):
+        return None
+    if cfg.amp == "bf16" or (cfg.amp == "auto" and torch.cuda.is_bf16_supported()):
+        return torch.bfloat16
+    return torch.float16
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % 2 ** 32)
+    torch.manual_seed(seed)
+
+
+# ----------------------------------------------------------------------------- logging
+class MetricsLog:
+    """Scalars to ``metrics.csv`` (one row per logged step) and TensorBoard (``tb/``).
+    On resume, rows at or after the resume step (written after the checkpoint by the
+    interrupted run) are dropped first, so the CSV has each step once."""
+
+    def __init__(self, run_dir: Path, start_step: int, enabled: bool = True):
+        self.path = Path(run_dir) / CSV_NAME
+        self.enabled = enabled
+        self.rows: list[dict] = []
+        if not enabled:
+            return
+        if start_step > 0 and self.path.is_file():
+            with open(self.path, newline="") as f:
+                self.rows = [r for r in csv.DictReader(f) if int(r["step"]) < start_step]
+        self.fields = list(self.rows[0].keys()) if self.rows else None
+        self._rewrite()
+        from torch.utils.tensorboard import SummaryWriter
+
+        self.tb = SummaryWriter(str(Path(run_dir) / "tb"), purge_step=start_step or None)
+
+    def _rewrite(self):
+        if self.fields is None:
+            self.path.write_text("")
+            return
+        with open(self.path, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=self.fields)
+            w.writeheader()
+            w.writerows(self.rows)
+
+    def log(self, step: int, values: dict) -> None:
+        if not self.enabled:
+            return
+        row = {"step": step, **values}
+        if self.fields is None:
+            self.fields = list(row.keys())
+            self._rewrite()
+        with open(self.path, "a", newline="") as f:
+            csv.DictWriter(f, fieldnames=self.fields, extrasaction="ignore").writerow(row)
+        self.rows.append(row)
+        for k, v in values.items():
+            if isinstance(v, (int, float)):
+                self.tb.add_scalar(k if "/" in k else f"train/{k}", v, step)
+
+    def close(self):
+        if self.enabled:
+            self.tb.close()
+
+
+def plot_curves(csv_path: Path, png_path: Path) -> None:
+    """Loss terms (log scale) and samples/s against the step, from ``metrics.csv``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with open(csv_path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        return
+    steps = [int(r["step"]) for r in rows]
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+    for key in ("total", "l3d", "l2d", "lsc", "ray", "proj", "kl"):
+        if key in rows[0]:
+            vals = [float(r[key]) if r[key] not in ("", None) else math.nan for r in rows]
+            if any(v > 0 for v in vals if not math.isnan(v)):
+                ax.plot(steps, vals, label=key)
+    ax.set_yscale("log")
+    ax.set_xlabel("step")
+    ax.set_title("training losses")
+    ax.legend(fontsize=8)
+    ax2.plot(steps, [float(r["samples_per_s"]) for r in rows])
+    ax2.set_xlabel("step")
+    ax2.set_title("samples/s")
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=80)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------------- the loop
+def training_batch(batch: dict, phase: str, device: torch.device, channels_last: bool) -> dict:
+    """Move a loader batch to ``device``, dropping the ground-truth pose (and, unsupervised,
+    the labels)."""
+    drop = POSE_KEYS + (LABEL_KEYS if phase == "unsupervised" else ())
+    out = {}
+    for k, v in batch.items():
+        if k in drop:
+            continue
+        out[k] = v.to(device, non_blocking=True) if torch.is_tensor(v) else v
+    if channels_last:
+        out["images"] = out["images"].contiguous(memory_format=torch.channels_last)
+    return out
+
+
+def _phase_dataset(cfg: RunConfig, phase: str, image_size: int | None) -> ShardDataset:
+    if phase == "unsupervised":
+        subset, needs_voxels = "unlabeled", False
+    else:
+        subset = "all" if cfg.mode == "supervised" else "labeled"
+        needs_voxels = True
+    fraction = 1.0 if cfg.mode == "supervised" else cfg.labeled_fraction
+    return ShardDataset(cfg.shards, cfg.split, subset=subset, labeled_fraction=fraction,
+                        seed=cfg.seed, mask_size=cfg.model.get("mask_size", 48),
+                        require_voxels=needs_voxels, image_size=image_size)
+
+
+def _data_position(cfg: RunConfig, step: int, local_batch: int) -> dict:
+    phase = cfg.phase_at(step)
+    start = cfg.phase_start(step)
+    return {"phase": phase, "phase_start": start, "samples_per_rank": (step - start) * local_batch}
+
+
+def fit(cfg: RunConfig, resume: bool = False) -> dict:
+    """Train according to ``cfg`` (see module doc). Returns a summary dict: ``step``,
+    ``last_losses``, ``samples_per_s``, ``checkpoint`` (path of last.pt).
+
+    Raises :class:`TrainingDiverged` on a non-finite loss, ``DataError`` / ``CheckpointError``
+    on bad inputs, before any training step."""
+    from sc3d_train.losses import LossWeights, supervised_loss, unsupervised_loss
+
+    dist_info = setup_distributed(cfg.device)
+    device = resolve_device(cfg.device, dist_info)
+    run_dir = Path(cfg.out)
+    if cfg.batch_size % dist_info.world_size:
+        raise ValueError(f"batch size {cfg.batch_size} is not divisible by {dist_info.world_size} ranks")
+    local_batch = cfg.batch_size // dist_info.world_size
+
+    # ---- datasets first: every data error surfaces before any work
+    datasets = {p: _phase_dataset(cfg, p, cfg.image_size)
+                for p in sorted({cfg.phase_at(0), cfg.phase_at(cfg.steps - 1)})}
+
+    # ---- model, optimiser, AMP
+    seed_everything(cfg.seed)
+    model = build_model(cfg).to(device)
+    amp_dtype = resolve_amp(cfg, device)
+    channels_last = cfg.channels_last == "on" or (cfg.channels_last == "auto" and device.type == "cuda")
+    if channels_last:
+        model = model.to(memory_format=torch.channels_last)
+    optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr_at(0))
+    scaler = torch.amp.GradScaler("cuda") if amp_dtype == torch.float16 else None
+    weights = LossWeights(**cfg.loss_weights)
+
+    start_step = 0
+    if resume:
+        ckpt_file = last_path(run_dir)
+        ckpt = load_checkpoint(ckpt_file)
+        saved = RunConfig.from_dict(ckpt["config"])
+        diffs = saved.differences(cfg)
+        if diffs:
+            raise CheckpointError(f"{ckpt_file}: the run config differs from the checkpoint's: "
+                                  + "; ".join(diffs))
+        model.load_state_dict(ckpt["model"])
+        optimizer.load_state_dict(ckpt["optimizer"])
+        if scaler is not None and ckpt.get("scaler"):
+            scaler.load_state_dict(ckpt["scaler"])
+        start_step = int(ckpt["step"])
+        expected = _data_position(cfg, start_step, local_batch)
+        if ckpt["data_position"] != expected:
+            raise CheckpointError(f"{ckpt_file}: data position {ckpt['data_position']} != {expected}")
+        states = ckpt["rng"]
+        if len(states) != dist_info.world_size:
+            raise CheckpointError(f"{ckpt_file}: saved with {len(states)} ranks, now {dist_info.world_size}")
+        set_rng_state(states[dist_info.rank])
+        if start_step >= cfg.steps:
+            return {"step": start_step, "last_losses": {}, "samples_per_s": 0.0,
+                    "checkpoint": str(ckpt_file)}
+    else:
+        torch.manual_seed(cfg.seed + 1000003 * dist_info.rank)  # per-rank noise (reparameterisation)
+
+    train_model = model
+    if dist_info.world_size > 1:
+        from torch.nn.parallel import DistributedDataParallel as DDP
+
+        train_model = DDP(model, device_ids=[device.index] if device.type == "cuda" else None)
+
+    if dist_info.is_main:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        cfg.save(run_dir / "config.json")
+    log = MetricsLog(run_dir, start_step, enabled=dist_info.is_main)
+    progress = None
+    if dist_info.is_main and cfg.progress:
+        from tqdm import tqdm
+
+        progress = tqdm(total=cfg.steps, initial=start_step, unit="step", dynamic_ncols=True)
+
+    def checkpoint(step_done: int) -> Path | None:
+        states = [rng_state()]
+        if dist_info.world_size > 1:
+            import torch.distributed as dist
+
+            states = [None] * dist_info.world_size
+            dist.all_gather_object(states, rng_state())
+        if not dist_info.is_main:
+            return None
+        path = save_checkpoint(run_dir, {
+            "model": model.state_dict(), "optimizer": optimizer.state_dict(),
+            "scaler": scaler.state_dict() if scaler is not None else None, "rng": states,
+            "step": step_done, "config": cfg.to_dict(),
+            "data_position": _data_position(cfg, step_done, local_batch)})
+        plot_curves(log.path, run_dir / "curves.png")
+        return path
+
+    last_good = str(last_path(run_dir)) if resume else None
+    phase, loader_iter, last_losses = None, None, {}
+    t_log, n_log, rate = time.perf_counter(), 0, 0.0
+    try:
+        for step in range(start_step, cfg.steps):
+            if cfg.phase_at(step) != phase:
+                phase = cfg.phase_at(step)
+                ds = datasets.get(phase) or _phase_dataset(cfg, phase, cfg.image_size)
+                pos = _data_position(cfg, step, local_batch)
+                loader_iter = iter(make_loader(
+                    ds, local_batch, cfg.seed + (7919 if phase == "unsupervised" else 0),
+                    start=pos["samples_per_rank"], rank=dist_info.rank,
+                    world_size=dist_info.world_size, workers=cfg.workers,
+                    pin_memory=device.type == "cuda"))
+                for group in optimizer.param_groups:
+                    group["lr"] = cfg.lr_at(step)
+                loss_fn = unsupervised_loss if phase == "unsupervised" else supervised_loss
+            batch = training_batch(next(loader_iter), phase, device, channels_last)
+            train_model.train()
+            optimizer.zero_grad(set_to_none=True)
+            autocast = torch.autocast(device.type, dtype=amp_dtype) if amp_dtype else nullcontext()
+            with autocast:
+                out = train_model(batch["images"])
+                losses = loss_fn(out, batch, weights)
+            loss = losses["total"]
+            finite = torch.isfinite(loss.detach()).float()
+            if dist_info.world_size > 1:
+                import torch.distributed as dist
+
+                dist.all_reduce(finite, op=dist.ReduceOp.MIN)
+            if finite.item() < 1:
+                raise TrainingDiverged(
+                    f"loss is {loss.item()} at step {step} (phase {phase}); "
+                    f"last good checkpoint: {last_good or 'none (no checkpoint written yet)'}")
+            if scaler is not None:
+                scaler.scale(loss).backward()
+                scaler.step(optimizer)
+                scaler.update()
+            else:
+                loss.backward()
+                optimizer.step()
+            n_log += cfg.batch_size
+            done = step + 1
+            if done % cfg.log_every == 0 or done == cfg.steps:
+                if device.type == "cuda":
+                    torch.cuda.synchronize()
+                now = time.perf_counter()
+                rate = n_log / max(now - t_log, 1e-9)
+                t_log, n_log = now, 0
+                last_losses = {k: float(v.detach()) for k, v in losses.items()
+                               if torch.is_tensor(v) and v.ndim == 0}
+                log.log(step, {"phase": phase, **last_losses, "lr": cfg.lr_at(step),
+                               "samples_per_s": round(rate, 2)})
+                if progress is not None:
+                    progress.set_postfix(loss=f"{last_losses['total']:.4f}", phase=phase,
+                                         samples_s=f"{rate:.1f}")
+            if progress is not None:
+                progress.update(1)
+            if done % cfg.checkpoint_every == 0 or done == cfg.steps:
+                path = checkpoint(done)
+                last_good = str(path) if path else last_good
+    except KeyboardInterrupt:
+        if dist_info.is_main:
+            print(f"\ninterrupted; last good checkpoint: {last_good or 'none'} "
+                  f"(resume with --resume)")
+        raise
+    finally:
+        if progress is not None:
+            progress.close()
+        log.close()
+    return {"step": cfg.steps, "last_losses": last_losses, "samples_per_s": rate,
+            "checkpoint": str(last_path(run_dir))}
