@@ -18,8 +18,8 @@ split files (``split_file``: one file, several files, or a directory)
     An id is ``synset/model_id`` (the category may also be a name such as ``chair``) or a bare
     ``model_id`` (matches that model id in any category). Empty lines and lines starting with
     ``#`` are ignored. A directory contributes every ``*.txt`` in it.
-    Objects that no file lists get no split (absent from the returned mapping: skip them) and
-    are reported; ids that match no object are reported one by one (for categories among the
+    Objects that no file lists get no split (absent from the returned mapping: the caller skips
+    and records them, as ``sc3d-data render`` does); ids that match no object are reported one by one (for categories among the
     objects) or summed up per category (for categories not among them).
 """
 from __future__ import annotations
@@ -190,10 +190,6 @@ def assign_splits(entries, spec: str = DEFAULT_SPLIT, seed: int = 0, split_file=
                        "sha256": {str(f): hashlib.sha256(f.read_bytes()).hexdigest() for f in files},
                        "format": "PTN SYNSET_{train,val,test}ids.txt (split from the file name) "
                                  "or plain 'SPLIT ID' / 'ID' (= train) lines; ID = synset/model_id"}
-        for e in entries:
-            if (e.category, e.model_id) not in splits:
-                problems.append(_problem(getattr(e, "path", f"{e.category}/{e.model_id}"),
-                                         f"{e.category}/{e.model_id} is in no split file; skipped"))
     elif spec.strip().lower() == "r2n2":
         splits = _r2n2_splits(keys)
         description = {"method": "r2n2", "train_fraction": R2N2_TRAIN_FRACTION,

@@ -1,0 +1,63 @@
+"""``sc3d-data import-r2n2``: 3D-R2N2's ShapeNetRendering + ShapeNetVox32 -> sc3d shards."""
+from __future__ import annotations
+
+import click
+
+
+@click.command("import-r2n2")
+@click.option("--renderings", required=True, type=click.Path(exists=True, file_okay=False),
+              help="ShapeNetRendering/ (SYNSET/MODEL_ID/rendering/{00..23}.png + rendering_metadata.txt).")
+@click.option("--voxels", required=True, type=click.Path(exists=True, file_okay=False),
+              help="ShapeNetVox32/ (SYNSET/MODEL_ID/model.binvox).")
+@click.option("--out", required=True, type=click.Path(file_okay=False), help="Output shard directory.")
+@click.option("--image-size", default=64, show_default=True, type=click.IntRange(8, 1024),
+              help="Images and masks are area-resized from 137x137 to this size.")
+@click.option("--background", default="255,255,255", show_default=True,
+              help="RGB the transparent background is composited on.")
+@click.option("--categories", default=None, help="Names or synset ids, e.g. airplane,car,chair (default: all).")
+@click.option("--split", default="r2n2", show_default=True,
+              help="r2n2 (per category, sorted, first 80%% train, rest test) or random:TRAIN,VAL,TEST.")
+@click.option("--split-file", multiple=True, type=click.Path(exists=True),
+              help="PTN SYNSET_{train,val,test}ids.txt files / a directory of them / a plain list "
+                   "(overrides --split). Repeatable.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed of random:... splits.")
+@click.option("--voxel-frame", type=click.Choice(["header", "centered"]), default="header", show_default=True,
+              help="header: the binvox translate/scale place the grid in the OBJ frame; centered: "
+                   "the grid is [-0.5,0.5]^3 of the OBJ frame.")
+@click.option("--objects-per-shard", default=256, show_default=True, type=click.IntRange(1))
+@click.option("--overwrite", is_flag=True, help="Replace shards already in --out.")
+@click.option("--progress/--no-progress", default=True, show_default=True)
+def import_r2n2(renderings, voxels, out, image_size, background, categories, split, split_file, seed,
+                voxel_frame, objects_per_shard, overwrite, progress):
+    """Build sc3d shards from 3D-R2N2's released renderings and voxels, without re-rendering.
+
+    Cameras are rebuilt from rendering_metadata.txt as explicit K, R, t (see README,
+    "ShapeNet and 3D-R2N2 data"); check them with `sc3d-data check --shards OUT`."""
+    from sc3d_data.r2n2_import import ImportConfig, import_r2n2 as run
+
+    try:
+        bg = tuple(int(c) for c in background.split(","))
+        assert len(bg) == 3 and all(0 <= c <= 255 for c in bg)
+    except (ValueError, AssertionError):
+        raise click.BadParameter(f"expected R,G,B in 0..255, got {background!r}", param_hint="--background")
+    config = ImportConfig(renderings=renderings, voxels=voxels, out=out, image_size=image_size,
+                          background=bg, categories=categories, split=split,
+                          split_file=list(split_file) or None, seed=seed, voxel_frame=voxel_frame,
+                          objects_per_shard=objects_per_shard, overwrite=overwrite)
+    bar = None
+    try:
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(unit="obj", desc="import-r2n2", dynamic_ncols=True)
+        summary = run(config, progress=bar.update if bar is not None else None)
+    except (FileNotFoundError, FileExistsError, ValueError) as e:
+        raise click.ClickException(str(e))
+    finally:
+        if bar is not None:
+            bar.close()
+    for f in summary["failures"]:
+        click.echo(f"failed: {f['source']}: {f['reason']}", err=True)
+    click.echo(f"imported {summary['done']} of {summary['planned']} models into {summary['out']} "
+               f"({summary['failed']} failed, {summary['skipped']} skipped; "
+               f"{summary['seconds']:.1f} s); details in index.json")

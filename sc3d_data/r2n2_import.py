@@ -1,0 +1,406 @@
+"""Import 3D-R2N2's released data (``ShapeNetRendering`` + ``ShapeNetVox32``) into sc3d shards
+without re-rendering.
+
+Input layout (Choy et al. 2016)::
+
+    ShapeNetRendering/SYNSET/MODEL_ID/rendering/00.png ... 23.png   137x137 RGBA
+    ShapeNetRendering/SYNSET/MODEL_ID/rendering/renderings.txt      PNG names, one per view
+    ShapeNetRendering/SYNSET/MODEL_ID/rendering/rendering_metadata.txt
+    ShapeNetVox32/SYNSET/MODEL_ID/model.binvox                      32^3
+
+``rendering_metadata.txt`` has one line per view: ``azimuth elevation in_plane distance_ratio
+fov`` (degrees, degrees, degrees, fraction, degrees). The camera of a view is rebuilt as
+
+* distance = ``distance_ratio * 1.75`` (3D-R2N2's ``MAX_CAMERA_DISTANCE``), camera looking at
+  the origin of the ShapeNet OBJ frame;
+* intrinsics of Blender's default camera: 35 mm lens on a 32 mm sensor, i.e.
+  ``f = 35/32 * W`` pixels (fov 49.13 deg, the same as sc3d's default); the ``fov`` column
+  (25) is *not* what the renderer used and is ignored;
+* pose: 3D-R2N2's Blender script imports the OBJ (Y up) into Blender's Z-up world
+  ``(x, y, z) -> (x, -z, y)`` and puts the camera at
+  ``d (cos el cos az, -cos el sin az, sin el)`` in Blender's world (the matrix of
+  meshrcnn's ``compute_extrinsic_matrix``, also used by pytorch3d's R2N2 loader). Back in the
+  OBJ frame that is ``d (cos el cos az, sin el, cos el sin az)``; sc3d's camera centre is
+  ``d (cos el sin a, sin el, cos el cos a)``, so **sc3d azimuth = 90 - R2N2 azimuth**
+  (mod 360), elevation unchanged, and both are look-at cameras with +Y up in the image;
+* ``in_plane`` becomes sc3d's ``roll_deg`` (it is 0 in the released files, so its sign is
+  unverified).
+
+Frames: the ShapeNet OBJ frame is taken as sc3d's canonical orientation (SPEC). The voxel grid
+of a binvox file covers ``translate + scale * [0, 1]^3`` of the OBJ frame (binvox's header);
+sc3d's voxels cover ``[-0.5, 0.5]^3``, so the canonical frame is
+``p_can = (p_obj - translate) / scale - 0.5`` and cameras are moved into it (``R`` unchanged,
+``t' = (R c + t) / scale`` with ``c = translate + scale / 2``; ``distance`` in canonical
+units). ``voxel_frame="centered"`` ignores the header and takes the grid as ``[-0.5, 0.5]^3``
+of the OBJ frame (``to_canonical`` = identity). ``sc3d-data check`` on the result is the test
+that this was read right.
+
+Images: premultiplied RGB and alpha are area-averaged (PIL box filter) to the target size,
+mask = alpha >= 0.5, RGB = composited over the background colour.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from sc3d_data import camera
+from sc3d_data.shapenet import is_synset_id, resolve_categories
+
+R2N2_NUM_VIEWS = 24
+R2N2_IMAGE_SIZE = 137
+R2N2_VOXEL_RESOLUTION = 32
+R2N2_MAX_CAMERA_DISTANCE = 1.75
+BLENDER_LENS_MM = 35.0
+BLENDER_SENSOR_MM = 32.0
+#: horizontal field of view of Blender's default camera (degrees): 2 atan(16 / 35) = 49.13
+R2N2_FOV_DEG = float(np.rad2deg(2.0 * math.atan(BLENDER_SENSOR_MM / 2.0 / BLENDER_LENS_MM)))
+VOXEL_FRAMES = ("header", "centered")
+MASK_THRESHOLD = 0.5
+
+
+@dataclass(frozen=True)
+class R2N2View:
+    """One line of ``rendering_metadata.txt`` (raw values as released)."""
+
+    azimuth: float        # degrees, 3D-R2N2 convention (see module doc)
+    elevation: float      # degrees
+    in_plane: float       # degrees
+    distance_ratio: float  # distance / 1.75
+    fov: float            # degrees; not what Blender used (see module doc)
+
+
+def parse_metadata_line(line: str) -> R2N2View:
+    """Parse ``"az el in_plane ratio fov"``; ``ValueError`` naming the problem otherwise."""
+    fields = line.split()
+    if len(fields) != 5:
+        raise ValueError(f"expected 5 numbers (azimuth elevation in_plane distance_ratio fov), "
+                         f"got {len(fields)}: {line.strip()!r}")
+    try:
+        values = [float(f) for f in fields]
+    except ValueError:
+        raise ValueError(f"not numbers: {line.strip()!r}") from None
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f"non-finite value: {line.strip()!r}")
+    if values[3] <= 0:
+        raise ValueError(f"distance ratio must be > 0: {line.strip()!r}")
+    return R2N2View(*values)
+
+
+def read_rendering_metadata(path: Path, num_views: int = R2N2_NUM_VIEWS) -> list[R2N2View]:
+    """All views of one ``rendering_metadata.txt``; ``ValueError`` naming the file and line of
+    the first problem (missing file, malformed line, wrong number of lines)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: missing")
+    lines = [ln for ln in path.read_text(errors="replace").splitlines() if ln.strip()]
+    views = []
+    for i, line in enumerate(lines, 1):
+        try:
+            views.append(parse_metadata_line(line))
+        except ValueError as e:
+            raise ValueError(f"{path}:{i}: {e}") from None
+    if len(views) != num_views:
+        raise ValueError(f"{path}: {len(views)} metadata lines, expected {num_views}")
+    return views
+
+
+def read_rendering_list(rendering_dir: Path, num_views: int = R2N2_NUM_VIEWS) -> list[str]:
+    """PNG names of the views in order: ``renderings.txt`` when present, else ``00.png``..."""
+    lst = Path(rendering_dir) / "renderings.txt"
+    if lst.is_file():
+        names = [ln.strip() for ln in lst.read_text(errors="replace").splitlines() if ln.strip()]
+        if len(names) != num_views:
+            raise ValueError(f"{lst}: {len(names)} names, expected {num_views}")
+        return names
+    return [f"{i:02d}.png" for i in range(num_views)]
+
+
+# ----------------------------------------------------------------------------- cameras
+def r2n2_to_sc3d_azimuth(azimuth_deg):
+    """3D-R2N2 azimuth -> sc3d azimuth (degrees, in [0, 360)): ``(90 - az) mod 360``."""
+    return np.mod(90.0 - np.asarray(azimuth_deg, dtype=np.float64), 360.0)
+
+
+def sc3d_to_r2n2_azimuth(azimuth_deg):
+    """Inverse of :func:`r2n2_to_sc3d_azimuth` (the map is its own inverse)."""
+    return r2n2_to_sc3d_azimuth(azimuth_deg)
+
+
+def r2n2_intrinsics(image_size: int) -> np.ndarray:
+    """``K`` [3,3] of Blender's default 35 mm / 32 mm camera at ``image_size`` pixels
+    (``f = 35/32 * image_size``)."""
+    return camera.intrinsics(image_size, R2N2_FOV_DEG)
+
+
+def r2n2_cameras(views: list[R2N2View], image_size: int,
+                 obj_to_canonical: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Cameras of ``views`` as sc3d stores them: ``K [V,3,3]``, ``R [V,3,3]``, ``t [V,3]``
+    (OpenCV, world = canonical frame), ``azimuth``/``elevation`` (sc3d convention, degrees),
+    ``distance`` (canonical units) ``[V]``.
+
+    ``obj_to_canonical``: 4x4 similarity (uniform scale ``s``, translation) from the ShapeNet
+    OBJ frame to the canonical frame; identity when ``None``."""
+    az = r2n2_to_sc3d_azimuth([v.azimuth for v in views])
+    el = np.array([v.elevation for v in views], dtype=np.float64)
+    dist = np.array([v.distance_ratio for v in views]) * R2N2_MAX_CAMERA_DISTANCE
+    roll = np.array([v.in_plane for v in views], dtype=np.float64)
+    R, t = camera.extrinsics(az, el, dist, roll_deg=roll)
+    if obj_to_canonical is not None:
+        M = np.asarray(obj_to_canonical, dtype=np.float64)
+        s = np.cbrt(np.linalg.det(M[:3, :3]))
+        # p_obj = (p_can - b) / s  ->  X_cam = R p_obj + t = (R p_can + s t - R b) / s
+        t = t * s - (R @ M[:3, 3])
+        dist = dist * s
+    K = np.broadcast_to(r2n2_intrinsics(image_size), (len(views), 3, 3)).copy()
+    return {"K": K, "R": R, "t": t, "azimuth": az, "elevation": el, "distance": dist}
+
+
+def voxel_grid_to_canonical(translate, scale: float) -> np.ndarray:
+    """4x4 OBJ -> canonical matrix for a binvox grid covering ``translate + scale * [0,1]^3``:
+    ``p_can = (p_obj - translate) / scale - 0.5``."""
+    M = np.eye(4)
+    M[:3, :3] /= float(scale)
+    M[:3, 3] = -np.asarray(translate, dtype=np.float64) / float(scale) - 0.5
+    return M
+
+
+# ----------------------------------------------------------------------------- images
+def load_rendering(path: Path, image_size: int, background=(255, 255, 255)
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """One R2N2 PNG -> ``(rgb [S,S,3] uint8, mask [S,S] uint8)`` at ``image_size``.
+
+    Premultiplied colour and alpha are area-averaged (box filter), the mask is
+    ``alpha >= 0.5`` and the colour is composited over ``background``. A PNG without an alpha
+    channel raises ``ValueError`` (no mask can be made)."""
+    from PIL import Image
+
+    with Image.open(path) as im:
+        if "A" not in im.getbands() and not (im.mode == "P" and "transparency" in im.info):
+            raise ValueError(f"{path}: image has no alpha channel ({im.mode}); cannot make a mask")
+        rgba = np.asarray(im.convert("RGBA"), dtype=np.float32) / 255.0
+    alpha = rgba[..., 3]
+    premult = rgba[..., :3] * alpha[..., None]
+    size = (image_size, image_size)
+    if rgba.shape[:2] != size:
+        def box(a: np.ndarray) -> np.ndarray:
+            return np.asarray(Image.fromarray(a, mode="F").resize(size, Image.BOX))
+        alpha = box(alpha)
+        premult = np.stack([box(np.ascontiguousarray(premult[..., c])) for c in range(3)], -1)
+    bg = np.asarray(background, dtype=np.float32) / 255.0
+    rgb = premult + (1.0 - alpha[..., None]) * bg
+    rgb8 = np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
+    return rgb8, (alpha >= MASK_THRESHOLD).astype(np.uint8)
+
+
+def border_clipped(masks: np.ndarray) -> np.ndarray:
+    """``[V]`` uint8: 1 where a mask ``[V,S,S]`` touches the image border."""
+    m = masks.astype(bool)
+    return (m[:, 0, :].any(-1) | m[:, -1, :].any(-1) | m[:, :, 0].any(-1)
+            | m[:, :, -1].any(-1)).astype(np.uint8)
+
+
+# ----------------------------------------------------------------------------- discovery
+@dataclass(frozen=True)
+class R2N2Model:
+    """One model present in ``ShapeNetRendering`` (``rendering_dir`` = its ``rendering/``)."""
+
+    category: str
+    model_id: str
+    rendering_dir: Path
+    binvox: Path
+
+
+def find_r2n2_models(renderings: Path, voxels: Path, categories=None
+                     ) -> tuple[list[R2N2Model], list[dict]]:
+    """Model folders of ``ShapeNetRendering/SYNSET/MODEL_ID`` (sorted by synset, model id),
+    paired with ``ShapeNetVox32/SYNSET/MODEL_ID/model.binvox``. Problems: folders without
+    ``rendering/``, models without a binvox file, voxel models without renderings."""
+    renderings, voxels = Path(renderings), Path(voxels)
+    for p, what in ((renderings, "--renderings"), (voxels, "--voxels")):
+        if not p.is_dir():
+            raise FileNotFoundError(f"{p}: {what} folder not found")
+    wanted = resolve_categories(categories) if categories else None
+    problems: list[dict] = []
+    models: list[R2N2Model] = []
+    synsets = sorted(d.name for d in renderings.iterdir() if d.is_dir() and is_synset_id(d.name))
+    if not synsets:
+        raise FileNotFoundError(f"{renderings}: no synset folders (8-digit names) found; expected "
+                                "ShapeNetRendering/SYNSET/MODEL_ID/rendering/")
+    for syn in synsets:
+        if wanted is not None and syn not in wanted:
+            continue
+        seen = set()
+        for mdir in sorted(d for d in (renderings / syn).iterdir() if d.is_dir()):
+            seen.add(mdir.name)
+            rdir = mdir / "rendering"
+            bv = voxels / syn / mdir.name / "model.binvox"
+            if not rdir.is_dir():
+                problems.append({"source": str(mdir), "reason": "model folder without rendering/"})
+                continue
+            if not bv.is_file():
+                problems.append({"source": str(bv), "reason": "missing binvox file for a rendered model"})
+                continue
+            models.append(R2N2Model(syn, mdir.name, rdir, bv))
+        vdir = voxels / syn
+        if vdir.is_dir():
+            for mdir in sorted(d for d in vdir.iterdir() if d.is_dir() and d.name not in seen):
+                problems.append({"source": str(mdir), "reason": "voxel model without renderings; skipped"})
+    if wanted is not None:
+        for c in sorted(wanted - set(synsets)):
+            problems.append({"source": str(renderings), "reason": f"requested category {c!r} not found"})
+    return models, problems
+
+
+# ----------------------------------------------------------------------------- import
+@dataclass
+class ImportConfig:
+    """Every option of ``sc3d-data import-r2n2`` (see ``cli/data_import_r2n2.py``)."""
+
+    renderings: Path
+    voxels: Path
+    out: Path
+    image_size: int = 64
+    background: tuple[int, int, int] = (255, 255, 255)
+    categories: str | None = None
+    split: str = "r2n2"
+    split_file: str | None = None
+    seed: int = 0
+    voxel_frame: str = "header"
+    objects_per_shard: int = 256
+    overwrite: bool = False
+
+    def settings(self) -> dict:
+        """JSON-able record of every setting (stored in the shards and the index)."""
+        return {
+            "source": "3D-R2N2", "renderings": str(Path(self.renderings).resolve()),
+            "voxels": str(Path(self.voxels).resolve()), "image_size": int(self.image_size),
+            "background": [int(c) for c in self.background], "categories": self.categories,
+            "split": self.split, "split_file": self.split_file, "seed": int(self.seed),
+            "voxel_frame": self.voxel_frame, "objects_per_shard": int(self.objects_per_shard),
+            "num_views": R2N2_NUM_VIEWS, "voxel_resolution": R2N2_VOXEL_RESOLUTION,
+            "r2n2_camera": {"distance": "distance_ratio * 1.75", "lens_mm": BLENDER_LENS_MM,
+                            "sensor_mm": BLENDER_SENSOR_MM, "fov_deg": R2N2_FOV_DEG,
+                            "azimuth": "sc3d = (90 - r2n2) mod 360", "roll": "in_plane column"},
+            "mask": f"box-filtered alpha >= {MASK_THRESHOLD}",
+        }
+
+
+def load_r2n2_object(model: R2N2Model, config: ImportConfig, split: str):
+    """Read one model into a :class:`sc3d_data.shards.ObjectRecord`; ``ValueError`` naming the
+    file and the problem on bad input (metadata, PNGs, binvox)."""
+    from sc3d_data.binvox import read_binvox
+    from sc3d_data.shards import ObjectRecord
+
+    views = read_rendering_metadata(model.rendering_dir / "rendering_metadata.txt")
+    names = read_rendering_list(model.rendering_dir)
+    vox = read_binvox(model.binvox)
+    grid = np.asarray(vox.voxels)
+    if grid.shape != (R2N2_VOXEL_RESOLUTION,) * 3:
+        raise ValueError(f"{model.binvox}: voxel grid {'x'.join(map(str, grid.shape))}, "
+                         f"expected {R2N2_VOXEL_RESOLUTION}^3")
+    if config.voxel_frame == "header":
+        to_canonical = voxel_grid_to_canonical(vox.translate, vox.scale)
+    elif config.voxel_frame == "centered":
+        to_canonical = np.eye(4)
+    else:
+        raise ValueError(f"voxel_frame must be one of {VOXEL_FRAMES}, not {config.voxel_frame!r}")
+    S = config.image_size
+    images = np.empty((len(views), S, S, 3), dtype=np.uint8)
+    masks = np.empty((len(views), S, S), dtype=np.uint8)
+    for v, name in enumerate(names):
+        png = model.rendering_dir / name
+        if not png.is_file():
+            raise ValueError(f"{png}: missing rendering (view {v})")
+        try:
+            images[v], masks[v] = load_rendering(png, S, config.background)
+        except ValueError:
+            raise
+        except Exception as e:  # PIL's errors on truncated / non-image files
+            raise ValueError(f"{png}: cannot read image ({type(e).__name__}: {e})") from None
+    arrays = r2n2_cameras(views, S, to_canonical)
+    arrays.update({"images": images, "masks": masks, "clipped": border_clipped(masks),
+                   "to_canonical": to_canonical, "voxels": grid.astype(np.uint8)})
+    return ObjectRecord(model_id=model.model_id, category=model.category, split=split,
+                        source=str(model.rendering_dir.parent), arrays=arrays)
+
+
+def import_r2n2(config: ImportConfig, progress: Callable[[int], None] | None = None) -> dict:
+    """Import ``config.renderings`` + ``config.voxels`` into shards under ``config.out``.
+
+    Models that fail (bad metadata, missing PNGs, binvox of another resolution, ...) are recorded
+    in the index's ``failures`` with the reason; the others are imported. Returns the summary
+    ``{"done", "failed", "skipped", "problems", "seconds", "out"}``."""
+    import time
+    from collections import Counter
+
+    from sc3d_data.render_pipeline import _counts
+    from sc3d_data.shards import INDEX_NAME, SCHEMA_VERSION, SHARD_PATTERN, package_version, \
+        write_json_atomic, write_shard
+    from sc3d_data.splits import assign_splits
+
+    t0 = time.monotonic()
+    out = Path(config.out)
+    out.mkdir(parents=True, exist_ok=True)
+    existing = list(out.glob("shard-*.h5")) + [p for p in [out / INDEX_NAME] if p.exists()]
+    if existing and not config.overwrite:
+        raise FileExistsError(f"{out}: already holds shards; use another --out or --overwrite")
+    for p in existing:
+        p.unlink()
+    settings = config.settings()
+    models, problems = find_r2n2_models(config.renderings, config.voxels, config.categories)
+    splits, split_desc, split_problems = assign_splits(models, spec=config.split, seed=config.seed,
+                                                       split_file=config.split_file)
+    skipped = list(split_problems)
+    plan = []
+    for m in models:
+        if (m.category, m.model_id) in splits:
+            plan.append((m, splits[(m.category, m.model_id)]))
+        else:
+            skipped.append({"source": str(m.rendering_dir.parent), "reason": "not in any split (--split-file)"})
+    failures = [dict(p, category="", model_id="") for p in problems]
+    shards, objects = [], []
+    K = max(1, int(config.objects_per_shard))
+
+    def write_index(complete: bool) -> None:
+        write_json_atomic(out / INDEX_NAME, {
+            "schema_version": SCHEMA_VERSION, "sc3d_version": package_version(),
+            "complete": complete, "settings": settings, "split": split_desc,
+            "counts": _counts(objects),
+            "clipped": {"views": sum(o["clipped_views"] for o in objects),
+                        "objects": sum(1 for o in objects if o["clipped_views"])},
+            "shards": shards, "empty_chunks": [], "objects": objects, "failures": failures,
+            "skipped": skipped, "warnings": [],
+        })
+
+    write_index(False)
+    chunk = 0
+    for start in range(0, len(plan), K):
+        records = []
+        for m, split in plan[start:start + K]:
+            try:
+                records.append(load_r2n2_object(m, config, split))
+            except (ValueError, OSError) as e:
+                failures.append({"source": str(m.rendering_dir.parent), "category": m.category,
+                                 "model_id": m.model_id, "reason": str(e)})
+            if progress is not None:
+                progress(1)
+        if records:
+            name = SHARD_PATTERN.format(chunk)
+            write_shard(out / name, records, settings)
+            for row, r in enumerate(records):
+                objects.append({"category": r.category, "model_id": r.model_id, "split": r.split,
+                                "source": r.source, "shard": name, "row": row, "chunk": chunk,
+                                "clipped_views": int(r.arrays["clipped"].sum())})
+            shards.append({"file": name, "chunk": chunk, "objects": len(records),
+                           "categories": dict(Counter(r.category for r in records)),
+                           "splits": dict(Counter(r.split for r in records))})
+            chunk += 1
+            write_index(False)
+    write_index(True)
+    return {"done": len(objects), "failed": len(failures), "skipped": len(skipped),
+            "planned": len(plan), "seconds": time.monotonic() - t0, "out": str(out),
+            "failures": failures}
