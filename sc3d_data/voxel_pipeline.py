@@ -1,0 +1,211 @@
+"""``sc3d-data voxelize`` as a library: add ``voxels`` to existing shards, or write one
+``.binvox`` per mesh.
+
+Shards (``voxelize_shards``)
+    For every object the source mesh recorded in the shard (``source``) is loaded with
+    ``sc3d_data.mesh_io.load_mesh_triangles`` (exactly the geometry the renderer drew), moved
+    into the canonical frame with the object's stored ``to_canonical`` and voxelized with
+    ``sc3d_data.voxelize.voxelize_triangles``. The ``voxels`` dataset ``[N, G, G, G]`` is added
+    to each shard atomically (``shards.replace_dataset_atomically``), one shard at a time.
+    Resume: a shard that already holds ``voxels`` at the requested resolution is skipped
+    (``overwrite=True`` redoes it). An object that fails (mesh missing or unreadable) gets an
+    all-empty grid so the shard stays rectangular, and is recorded in the index under
+    ``failures`` with ``"stage": "voxelize"``, its shard, row and reason. The index also gets
+    ``"voxels": {"resolution": G, "occupancy": ...}``.
+
+Meshes (``voxelize_meshes``)
+    Every mesh under ``meshes`` (``sc3d_data.discover`` layouts) is normalised like
+    ``render`` does (``--normalize``/``--up``/``--front``) and written to
+    ``out/<same relative path>.binvox`` (sc3d header: translate -0.5, scale 1). Existing
+    ``.binvox`` files are complete (written atomically) and skipped on a rerun; failures go
+    to ``out/failures.json``.
+"""
+from __future__ import annotations
+
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from sc3d_data.shards import (load_index, read_strings, replace_dataset_atomically, shard_files,
+                              write_json_atomic, index_path)
+
+OCCUPANCY_RULE = ("surface-touching voxels + voxel centres with |winding number| >= 0.5 "
+                  "+ enclosed voxels (sc3d_data/voxelize.py)")
+
+
+def _limit_threads() -> None:
+    import os
+
+    for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(k, "1")
+
+
+def voxelize_source(source: str, to_canonical: np.ndarray, resolution: int, max_faces: int | None = None
+                    ) -> np.ndarray:
+    """Voxels ``[G, G, G]`` bool of the mesh file ``source`` moved into the canonical frame with
+    the 4x4 ``to_canonical`` (as stored in the shard)."""
+    from sc3d_data.mesh_io import load_mesh_triangles
+
+    kwargs = {} if max_faces is None else {"max_faces": max_faces}
+    vertices, faces = load_mesh_triangles(Path(source), **kwargs)
+    return voxelize_canonical(vertices, faces, to_canonical, resolution)
+
+
+def voxelize_canonical(vertices: np.ndarray, faces: np.ndarray, to_canonical: np.ndarray,
+                       resolution: int) -> np.ndarray:
+    """Source-frame triangles -> canonical frame (4x4 ``to_canonical``) -> voxels [G, G, G]."""
+    from sc3d_data.normalize import apply_transform
+    from sc3d_data.voxelize import voxelize_triangles
+
+    return voxelize_triangles(apply_transform(vertices, to_canonical), faces, resolution)
+
+
+def _job(args):
+    source, to_canonical, resolution, max_faces = args
+    _limit_threads()
+    try:
+        return "ok", voxelize_source(source, to_canonical, resolution, max_faces)
+    except Exception as e:  # recorded per object, never aborts the shard
+        return "failed", f"{type(e).__name__}: {e}"
+
+
+def _map(jobs, workers: int):
+    if workers <= 1 or len(jobs) <= 1:
+        return [_job(j) for j in jobs]
+    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
+                             initializer=_limit_threads) as ex:
+        return list(ex.map(_job, jobs, chunksize=1))
+
+
+@dataclass
+class VoxelizeSummary:
+    shards_done: int = 0
+    shards_skipped: int = 0
+    objects: int = 0
+    failed: int = 0
+    seconds: float = 0.0
+
+
+def voxelize_shards(shard_dir: Path, resolution: int = 32, workers: int = 1, overwrite: bool = False,
+                    progress: bool = False) -> VoxelizeSummary:
+    """Add ``voxels [N, G, G, G]`` to every shard of ``shard_dir`` (module doc)."""
+    t0 = time.monotonic()
+    shard_dir = Path(shard_dir)
+    index = load_index(shard_dir)
+    max_faces = index.get("settings", {}).get("max_faces")
+    summary = VoxelizeSummary()
+    paths = shard_files(shard_dir)
+    failures = [f for f in index.get("failures", []) if f.get("stage") != "voxelize"]
+    old_voxel_failures = [f for f in index.get("failures", []) if f.get("stage") == "voxelize"]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(paths), unit="shard", desc="voxelize", dynamic_ncols=True)
+    new_failures = []
+    for path in paths:
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: listed in {index_path(shard_dir)} but missing")
+        with h5py.File(path, "r") as f:
+            if "to_canonical" not in f or "source" not in f:
+                raise ValueError(f"{path}: no to_canonical/source datasets; cannot find the meshes")
+            has = "voxels" in f and f["voxels"].shape[1:] == (resolution,) * 3
+            sources = read_strings(f["source"])
+            ids = read_strings(f["model_id"])
+            cats = read_strings(f["category"])
+            to_canonical = f["to_canonical"][()]
+        if has and not overwrite:
+            summary.shards_skipped += 1
+            new_failures += [x for x in old_voxel_failures if x.get("shard") == path.name]
+        else:
+            results = _map([(s, T, resolution, max_faces) for s, T in zip(sources, to_canonical)], workers)
+            grids = np.zeros((len(sources),) + (resolution,) * 3, dtype=np.uint8)
+            for row, (status, payload) in enumerate(results):
+                if status == "ok":
+                    grids[row] = payload
+                else:
+                    new_failures.append({"stage": "voxelize", "source": sources[row], "category": cats[row],
+                                         "model_id": ids[row], "shard": path.name, "row": row,
+                                         "reason": payload})
+                    summary.failed += 1
+            replace_dataset_atomically(path, "voxels", grids)
+            summary.shards_done += 1
+            summary.objects += len(sources)
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+    index = load_index(shard_dir)  # re-read: only our keys change
+    index["failures"] = failures + new_failures
+    index["voxels"] = {"resolution": resolution, "occupancy": OCCUPANCY_RULE,
+                       "failed": len(new_failures)}
+    write_json_atomic(index_path(shard_dir), index)
+    summary.seconds = time.monotonic() - t0
+    return summary
+
+
+def voxelize_meshes(meshes: Path, out: Path, resolution: int = 32, normalize: str = "fit",
+                    up: str = "+Y", front: str = "+Z", workers: int = 1, overwrite: bool = False,
+                    progress: bool = False) -> VoxelizeSummary:
+    """One ``.binvox`` per mesh under ``meshes``, same relative paths under ``out``."""
+    from sc3d_data.binvox import write_binvox
+    from sc3d_data.discover import discover_meshes
+
+    t0 = time.monotonic()
+    meshes, out = Path(meshes), Path(out)
+    entries, problems = discover_meshes(meshes)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = VoxelizeSummary()
+    todo = []
+    for e in entries:
+        rel = Path(e.path).relative_to(meshes) if meshes.is_dir() else Path(Path(e.path).name)
+        target = out / rel.with_suffix(".binvox")
+        if target.is_file() and not overwrite:
+            summary.shards_skipped += 1
+            continue
+        todo.append((e, target))
+    results = _map_meshes([(str(e.path), normalize, up, front, resolution) for e, _ in todo], workers, progress)
+    failures = [dict(p) for p in problems]
+    for (e, target), (status, payload) in zip(todo, results):
+        if status == "ok":
+            target.parent.mkdir(parents=True, exist_ok=True)
+            write_binvox(target, payload)
+            summary.objects += 1
+        else:
+            failures.append({"source": str(e.path), "reason": payload})
+            summary.failed += 1
+    write_json_atomic(out / "failures.json", failures)
+    summary.seconds = time.monotonic() - t0
+    return summary
+
+
+def _mesh_job(args):
+    path, normalize, up, front, resolution = args
+    _limit_threads()
+    try:
+        from sc3d_data.mesh_io import load_mesh_triangles
+        from sc3d_data.normalize import to_canonical_transform
+
+        vertices, faces = load_mesh_triangles(Path(path))
+        T = to_canonical_transform(vertices, faces, mode=normalize, up=up, front=front)
+        return "ok", voxelize_canonical(vertices, faces, T, resolution)
+    except Exception as e:
+        return "failed", f"{type(e).__name__}: {e}"
+
+
+def _map_meshes(jobs, workers: int, progress: bool):
+    if workers <= 1 or len(jobs) <= 1:
+        it = map(_mesh_job, jobs)
+        if progress:
+            from tqdm import tqdm
+
+            it = tqdm(it, total=len(jobs), unit="mesh", desc="voxelize", dynamic_ncols=True)
+        return list(it)
+    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
+                             initializer=_limit_threads) as ex:
+        return list(ex.map(_mesh_job, jobs, chunksize=1))
