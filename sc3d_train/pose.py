@@ -64,7 +64,7 @@ def pose_errors(pred_azimuth, pred_elevation, true_azimuth, true_elevation,
             out.update({f"{name}_mean": math.nan, f"{name}_median": math.nan, f"{name}_acc30": math.nan})
             continue
         out[f"{name}_mean"] = float(err.mean())
-        out[f"{name}_median"] = float(err.median())
+        out[f"{name}_median"] = float(err.quantile(0.5))
         out[f"{name}_acc30"] = float((err <= threshold_deg).double().mean())
     out["count"] = int(torch.as_tensor(pred_azimuth).numel())
     return out
