@@ -20,7 +20,8 @@ Trilinear sampling
     occupancy is 0 (``padding_mode="zeros"``).
 Probabilities (the paper's equations, per ray, ``y_i`` = sampled occupancy)
     termination ``q(i) = y_i prod_{j<i} (1 - y_j)``, escape ``q_esc = prod_i (1 - y_i)``,
-    ``L_ray(u, v) = m q_esc + (1 - m) sum_i q(i)`` averaged over pixels and batch;
+    ``L_ray(u, v) = m q_esc + (1 - m) sum_i q(i)`` averaged over pixels and batch (``sum_i q(i)
+    = 1 - q_esc``, so the loss computes only ``q_esc``, as ``exp(sum log(1 - y_i))``);
     projection ``P = 1 - q_esc``;
     ``L_proj = exp(1 - sum(P m) / sum(P + m - P m)) - 1`` per image, averaged over the batch. The
     paper prints the denominator as ``P + m + P m``, a sign typo: the IoU form (``- P m``) is used.
@@ -80,23 +81,46 @@ def ray_cube_bounds(origins: Tensor, directions: Tensor, half: float = CUBE_HALF
     return torch.where(hit, near, zero), torch.where(hit, far, zero), hit
 
 
+def _ray_depths(origins: Tensor, directions: Tensor, num_samples: int) -> Tensor:
+    """Distances ``[B, R, N]`` along each ray of the sample midpoints (see module docstring)."""
+    near, far, _ = ray_cube_bounds(origins, directions)
+    frac = (torch.arange(num_samples, device=near.device, dtype=near.dtype) + 0.5) / num_samples
+    return near[..., None] + (far - near)[..., None] * frac
+
+
 def sample_points(origins: Tensor, directions: Tensor, num_samples: int) -> Tensor:
     """World points ``[B, R, N, 3]`` at the midpoints of ``num_samples`` equal segments of each
     ray's chord through the cube (see module docstring)."""
-    near, far, _ = ray_cube_bounds(origins, directions)
-    frac = (torch.arange(num_samples, device=near.device, dtype=near.dtype) + 0.5) / num_samples
-    s = near[..., None] + (far - near)[..., None] * frac  # [B, R, N]
+    s = _ray_depths(origins, directions, num_samples)
     return origins[:, None, None, :] + s[..., None] * directions[:, :, None, :]
 
 
-def sample_occupancy(occupancy: Tensor, points: Tensor) -> Tensor:
+def _grid_coords(points_or_rays) -> Tensor:
+    """World (x, y, z) -> grid_sample's normalised (W=z, H=y, D=x) coordinates (x 1/CUBE_HALF)."""
+    return points_or_rays.flip(-1) / CUBE_HALF
+
+
+def sample_occupancy(occupancy: Tensor, points: Tensor, normalized: bool = False) -> Tensor:
     """Trilinear occupancy ``[B, R, N]`` at world points ``[B, R, N, 3]`` of the grid
-    ``occupancy [B, G, G, G]`` (``[x, y, z]`` index order, cube [-0.5, 0.5]^3, zero outside)."""
+    ``occupancy [B, G, G, G]`` (``[x, y, z]`` index order, cube [-0.5, 0.5]^3, zero outside).
+    ``normalized=True``: the points are already grid_sample coordinates (``_grid_coords``)."""
     b, r, n, _ = points.shape
-    grid = (points.flip(-1) / CUBE_HALF).reshape(b, 1, r, n, 3)  # (x, y, z) -> (W=z, H=y, D=x)
+    grid = (points if normalized else _grid_coords(points)).reshape(b, 1, r, n, 3)
     vol = occupancy[:, None]  # [B, 1, D=x, H=y, W=z]
     out = F.grid_sample(vol, grid.to(vol.dtype), mode="bilinear", padding_mode="zeros", align_corners=False)
     return out.reshape(b, r, n)
+
+
+def sample_rays(occupancy: Tensor, azimuth: Tensor, elevation: Tensor, distance: Tensor, K: Tensor,
+                mask_size: int, num_samples: int = DEFAULT_NUM_SAMPLES) -> Tensor:
+    """Occupancy ``y [B, S*S, N]`` at the N samples of every pixel ray (float32). The points are
+    built directly in grid_sample coordinates (the flip and scale act on the small per-ray tensors,
+    not on the ``[B, R, N, 3]`` one)."""
+    origins, dirs = camera_rays(azimuth.float(), elevation.float(), distance.float(), K.float(), mask_size)
+    s = _ray_depths(origins, dirs, num_samples)
+    o_n, d_n = _grid_coords(origins), _grid_coords(dirs)
+    pts = torch.addcmul(o_n[:, None, None, :], s[..., None], d_n[:, :, None, :])
+    return sample_occupancy(occupancy.float(), pts, normalized=True)
 
 
 def camera_rays(azimuth: Tensor, elevation: Tensor, distance: Tensor, K: Tensor, mask_size: int) -> tuple[Tensor, Tensor]:
@@ -132,9 +156,7 @@ def project_occupancy(occupancy: Tensor, azimuth: Tensor, elevation: Tensor, dis
     respect to the occupancy and the pose."""
     _check_inputs(occupancy, azimuth, K)
     with _fp32(occupancy.device):
-        occ = occupancy.float()
-        origins, dirs = camera_rays(azimuth.float(), elevation.float(), distance.float(), K.float(), mask_size)
-        y = sample_occupancy(occ, sample_points(origins, dirs, num_samples))  # [B, R, N]
+        y = sample_rays(occupancy, azimuth, elevation, distance, K, mask_size, num_samples)  # [B, R, N]
         transmit = torch.cumprod(1.0 - y, -1)  # prod_{j<=i} (1 - y_j)
         before = torch.cat([torch.ones_like(transmit[..., :1]), transmit[..., :-1]], -1)
         q = torch.cat([y * before, transmit[..., -1:]], -1)  # [B, R, N+1]
@@ -158,12 +180,16 @@ def self_consistency_losses(occupancy: Tensor, masks: Tensor, azimuth: Tensor, e
     and ``projection [B, S, S]``. Not weighted (see :class:`sc3d_train.losses.LossWeights`)."""
     if masks.ndim != 3 or masks.shape[1] != masks.shape[2]:
         raise ValueError(f"masks must be [B, S, S], got {tuple(masks.shape)}")
+    _check_inputs(occupancy, azimuth, K)
     s = masks.shape[-1]
-    projection, q = project_occupancy(occupancy, azimuth, elevation, distance, K, s, num_samples)
     with _fp32(occupancy.device):
+        y = sample_rays(occupancy, azimuth, elevation, distance, K, s, num_samples)
+        # escape = prod_i (1 - y_i), in log space (cheaper backward than cumprod); the sum of the
+        # termination probabilities is 1 - escape, so L_ray needs only the escape probability
+        escape = torch.exp(torch.log1p(-y.clamp(max=1.0 - 1e-6)).sum(-1))  # [B, R]
         m = masks.float().reshape(masks.shape[0], -1)
-        escape = q[..., -1]
-        ray = (m * escape + (1.0 - m) * q[..., :-1].sum(-1)).mean()
+        ray = (m * escape + (1.0 - m) * (1.0 - escape)).mean()
+        projection = (1.0 - escape).reshape(-1, s, s)
         proj = iou_loss(projection, masks.float())
     return {"ray": ray, "proj": proj, "projection": projection}
 
