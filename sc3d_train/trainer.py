@@ -105,6 +105,60 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
+def resolve_config(options: dict, model_options: dict, given: set[str], resume: bool) -> RunConfig:
+    """The full :class:`RunConfig` of a ``fit`` command line.
+
+    New run: ``options`` (RunConfig fields) plus the model config: ModelConfig defaults, the
+    image size and voxel resolution of the shards, ``--tiny`` (:data:`TINY_MODEL`),
+    ``base_channels`` and ``voxel_decoder`` from ``model_options``; loss weights are the
+    LossWeights defaults. ``--resume``: the run's saved ``config.json``, where options given on
+    the command line (``given``) may change only :data:`RESUMABLE_FIELDS`."""
+    from dataclasses import asdict
+
+    from sc3d_train.config import RESUMABLE_FIELDS, TINY_MODEL
+    from sc3d_train.data import DataError, background_of, scan_objects
+    from sc3d_train.losses import LossWeights
+    from sc3d_train.model import ModelConfig
+
+    out = Path(options["out"])
+    if resume:
+        saved_path = out / "config.json"
+        if not saved_path.is_file():
+            raise CheckpointError(f"{out}: nothing to resume (no config.json)")
+        cfg = RunConfig.load(saved_path)
+        changed = []
+        for k in sorted(given & set(options)):
+            same = (Path(options[k]).resolve() == Path(getattr(cfg, k)).resolve()) if k == "shards" \
+                else options[k] == getattr(cfg, k)
+            if k in RESUMABLE_FIELDS:
+                setattr(cfg, k, options[k])
+            elif not same:
+                changed.append(f"--{k.replace('_', '-')} {options[k]!r} (run has {getattr(cfg, k)!r})")
+        for k in sorted(given & set(model_options)):
+            v = model_options[k]
+            if k in cfg.model and v is not None and v != cfg.model[k]:
+                changed.append(f"--{k.replace('_', '-')} {v!r} (run has {cfg.model[k]!r})")
+        if changed:
+            raise CheckpointError(f"{out}: cannot change on --resume: " + ", ".join(changed))
+        return cfg
+    if (out / "checkpoints" / "last.pt").is_file():
+        raise CheckpointError(f"{out}: already holds a run (checkpoints/last.pt); use --resume "
+                              f"to continue it or choose another --out")
+    _, info = scan_objects(Path(options["shards"]))
+    if info["voxel_resolution"] is None:
+        raise DataError(f"{options['shards']}: shards have no voxels; run `sc3d-data voxelize` first")
+    model = {"image_size": info["image_size"], "voxel_resolution": info["voxel_resolution"],
+             "voxel_decoder": model_options.get("voxel_decoder") or "3tube"}
+    if model_options.get("tiny"):
+        model.update(TINY_MODEL)
+    if model_options.get("base_channels"):
+        model["base_channels"] = model_options["base_channels"]
+    model = ModelConfig.from_dict(model).to_dict()
+    return RunConfig(**options, model=model, loss_weights=asdict(LossWeights()),
+                     image_size=info["image_size"], num_views=info["num_views"],
+                     background=background_of(info))
+
+
 # ----------------------------------------------------------------------------- logging
 class MetricsLog:
     """Scalars to ``metrics.csv`` (one row per logged step) and TensorBoard (``tb/``).
