@@ -1,0 +1,202 @@
+"""``sc3d-train eval``: metrics of a checkpoint on a split of the shards (SPEC "Metrics").
+
+Every view of every object of the split is one test image (24 per object by default).
+
+* Voxel IoU at thresholds 0.4 (3D-R2N2) and 0.5 (PTN): ``|P & G| / |P | G|`` of the predicted
+  occupancy probability ``>= thr`` against the ground-truth grid, per image.
+* Mask IoU: predicted mask probability ``>= 0.5`` against the rendered mask at the size the
+  model predicts (the image size), per image.
+* Pose error: absolute wrapped azimuth and elevation error in degrees (``sc3d_train.pose``):
+  mean, median and the fraction within 30 degrees.
+
+Per category: the mean over that category's images. ``mean``: the unweighted mean of the
+per-category values (the paper's "Mean" column). ``overall``: pooled over all images.
+Thresholds are fixed in advance (never tuned on the test set).
+"""
+from __future__ import annotations
+
+import json
+import math
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from sc3d_train.checkpoint import load_model
+from sc3d_train.data import ShardDataset
+from sc3d_train.pose import pose_errors
+
+VOXEL_THRESHOLDS = (0.4, 0.5)
+MASK_THRESHOLD = 0.5
+
+
+def iou(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Per-sample IoU of boolean tensors ``[B, ...]``; 1 where both are empty."""
+    p, t = pred.flatten(1), target.flatten(1)
+    inter = (p & t).sum(1).double()
+    union = (p | t).sum(1).double()
+    return torch.where(union > 0, inter / union.clamp(min=1), torch.ones_like(union))
+
+
+@torch.no_grad()
+def predict_dataset(model, dataset: ShardDataset, device, batch_size: int = 64,
+                    keep: int = 6, keep_view: int = 3):
+    """Run ``model`` over every view of ``dataset``. Returns ``(rows, examples)``: one dict per
+    image (category, model_id, view, iou_0.4, iou_0.5, mask_iou, azimuth/elevation predicted and
+    true) and, for the first ``keep`` objects, view ``keep_view``'s input, masks, voxels and
+    poses (numpy) for the figure."""
+    from sc3d_train.self_consistency import area_downsample
+
+    loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, shuffle=False)
+    rows, examples = [], []
+    for batch in loader:
+        out = model(batch["images"].to(device))
+        probs = torch.sigmoid(out.voxel_logits.float()).cpu()
+        gt = batch["voxels"] > 0.5
+        mask_prob = torch.sigmoid(out.mask_logits.float()).cpu()
+        gt_mask = batch["masks"]
+        if gt_mask.shape[-1] != mask_prob.shape[-1]:
+            gt_mask = area_downsample(gt_mask, mask_prob.shape[-1]) >= 0.5
+        ious = {thr: iou(probs >= thr, gt) for thr in VOXEL_THRESHOLDS}
+        mask_iou = iou(mask_prob >= MASK_THRESHOLD, gt_mask > 0.5)
+        az, el = out.azimuth.float().cpu(), out.elevation.float().cpu()
+        for i in range(len(probs)):
+            obj, view = divmod(int(batch["index"][i]), dataset.num_views)
+            rows.append({"category": batch["category"][i], "model_id": batch["model_id"][i],
+                         "view": view, **{f"iou_{thr}": float(ious[thr][i]) for thr in VOXEL_THRESHOLDS},
+                         "mask_iou": float(mask_iou[i]),
+                         "azimuth_pred": float(az[i]), "elevation_pred": float(el[i]),
+                         "azimuth_true": float(batch["azimuth"][i]),
+                         "elevation_true": float(batch["elevation"][i])})
+            if view == keep_view % dataset.num_views and len(examples) < keep:
+                examples.append({
+                    "title": f"{batch['category'][i]}/{batch['model_id'][i]} view {view}",
+                    "image": batch["images"][i].permute(1, 2, 0).numpy(),
+                    "mask_true": gt_mask[i].numpy() > 0.5, "mask_pred": mask_prob[i].numpy(),
+                    "voxels_true": gt[i].numpy(), "voxels_pred": probs[i].numpy(),
+                    "K": batch["K"][i].numpy(), "distance": float(batch["distance"][i]),
+                    "azimuth_true": float(batch["azimuth"][i]), "elevation_true": float(batch["elevation"][i]),
+                    "azimuth_pred": float(az[i]), "elevation_pred": float(el[i]),
+                    "iou": float(ious[0.5][i])})
+    return rows, examples
+
+
+def summarize(rows: list[dict]) -> dict:
+    """Per-category, category-mean and pooled metrics from :func:`predict_dataset` rows."""
+    def block(rs: list[dict]) -> dict:
+        out = {"images": len(rs), "objects": len({(r["category"], r["model_id"]) for r in rs})}
+        for thr in VOXEL_THRESHOLDS:
+            out[f"voxel_iou_{thr}"] = float(np.mean([r[f"iou_{thr}"] for r in rs]))
+        out["mask_iou"] = float(np.mean([r["mask_iou"] for r in rs]))
+        pe = pose_errors(torch.tensor([r["azimuth_pred"] for r in rs]), torch.tensor([r["elevation_pred"] for r in rs]),
+                         torch.tensor([r["azimuth_true"] for r in rs]), torch.tensor([r["elevation_true"] for r in rs]))
+        pe.pop("count", None)
+        out.update({f"pose_{k}": v for k, v in pe.items()})
+        return out
+
+    by_cat = defaultdict(list)
+    for r in rows:
+        by_cat[r["category"]].append(r)
+    per_category = {c: block(rs) for c, rs in sorted(by_cat.items())}
+    keys = [k for k in next(iter(per_category.values())) if k not in ("images", "objects")]
+    mean = {k: float(np.mean([v[k] for v in per_category.values()])) for k in keys}
+    return {"per_category": per_category, "mean": mean, "overall": block(rows)}
+
+
+TABLE_COLUMNS = (("images", "n", "{:d}"), ("voxel_iou_0.4", "IoU@.4", "{:.3f}"),
+                 ("voxel_iou_0.5", "IoU@.5", "{:.3f}"), ("mask_iou", "maskIoU", "{:.3f}"),
+                 ("pose_azimuth_mean", "az err", "{:.1f}"), ("pose_azimuth_median", "az med", "{:.1f}"),
+                 ("pose_azimuth_acc30", "az<30", "{:.2f}"), ("pose_elevation_mean", "el err", "{:.1f}"),
+                 ("pose_elevation_acc30", "el<30", "{:.2f}"))
+
+
+def format_table(summary: dict) -> str:
+    """A fixed-width text table: one row per category, then ``mean`` and ``overall``."""
+    lines = [f"{'category':<14}" + "".join(f"{h:>9}" for _, h, _ in TABLE_COLUMNS)]
+    rows = list(summary["per_category"].items()) + [("mean", summary["mean"]), ("overall", summary["overall"])]
+    for name, vals in rows:
+        cells = []
+        for key, _, fmt in TABLE_COLUMNS:
+            v = vals.get(key)
+            cells.append(f"{'':>9}" if v is None else f"{fmt.format(v):>9}")
+        lines.append(f"{name[:14]:<14}" + "".join(cells))
+    return "\n".join(lines)
+
+
+def voxel_silhouette(voxels: np.ndarray, azimuth: float, elevation: float, distance: float,
+                     K: np.ndarray, image_size: int) -> np.ndarray:
+    """Silhouette ``[S, S]`` bool of a boolean grid seen from a pose (``sc3d_data.project_voxels``
+    with the camera of ``sc3d_data.camera``)."""
+    from sc3d_data.camera import extrinsics
+    from sc3d_data.project_voxels import project_voxels
+
+    R, t = extrinsics(np.float64(azimuth), np.float64(elevation), np.float64(distance))
+    return project_voxels(voxels, K, R, t, image_size)
+
+
+def plot_examples(examples: list[dict], path: Path) -> None:
+    """Rows = objects; columns = input, true mask, predicted mask, true voxels at the true pose,
+    predicted voxels (>= 0.5) at the predicted pose."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = max(len(examples), 1)
+    fig, axes = plt.subplots(n, 5, figsize=(10, 2.1 * n), squeeze=False)
+    titles = ("input", "mask (true)", "mask (pred)", "voxels (true pose)", "voxels (pred pose)")
+    for r, ex in enumerate(examples):
+        S = ex["image"].shape[0]
+        panels = (ex["image"], ex["mask_true"], ex["mask_pred"],
+                  voxel_silhouette(ex["voxels_true"], ex["azimuth_true"], ex["elevation_true"], ex["distance"], ex["K"], S),
+                  voxel_silhouette(ex["voxels_pred"] >= 0.5, ex["azimuth_pred"], ex["elevation_pred"], ex["distance"], ex["K"], S))
+        for c, img in enumerate(panels):
+            ax = axes[r, c]
+            ax.imshow(img, cmap=None if img.ndim == 3 else "gray", vmin=0, vmax=1)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                ax.set_title(titles[c], fontsize=8)
+        axes[r, 0].set_ylabel(ex["title"][:24], fontsize=6)
+        axes[r, 4].set_xlabel(f"IoU {ex['iou']:.2f}  az {ex['azimuth_pred']:.0f} (true {ex['azimuth_true']:.0f})",
+                              fontsize=6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def evaluate(checkpoint: Path, shards: Path, split: str, out: Path, device: str = "auto",
+             batch_size: int = 64, examples: int = 6) -> dict:
+    """Evaluate ``checkpoint`` on ``split`` of ``shards``; writes ``out/metrics.json`` and
+    ``out/predictions.png``; returns the metrics dict (also holding ``table``, the text table)."""
+    dev = torch.device("cuda" if device == "auto" and torch.cuda.is_available() else
+                       "cpu" if device == "auto" else device)
+    model, cfg, ckpt = load_model(checkpoint, dev)
+    dataset = ShardDataset(shards, split, subset="all", mask_size=cfg.model.get("mask_size", 48),
+                           require_voxels=True, image_size=cfg.model["image_size"])
+    if dataset.info["voxel_resolution"] != cfg.model["voxel_resolution"]:
+        raise ValueError(f"{shards}: voxels are {dataset.info['voxel_resolution']}^3 but the checkpoint "
+                         f"predicts {cfg.model['voxel_resolution']}^3")
+    rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples)
+    summary = summarize(rows)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    result = {"checkpoint": str(checkpoint), "step": int(ckpt.get("step", -1)), "shards": str(shards),
+              "split": split, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
+              **summary}
+    (out / "metrics.json").write_text(json.dumps(_finite(result), indent=1))
+    plot_examples(kept, out / "predictions.png")
+    result["table"] = format_table(summary)
+    return result
+
+
+def _finite(obj):
+    """JSON-safe copy: NaN/inf become None."""
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
