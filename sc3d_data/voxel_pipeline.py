@@ -82,6 +82,21 @@ def _map(jobs, workers: int):
         return list(ex.map(_job, jobs, chunksize=1))
 
 
+def resolve_source(source: str, meshes_root: str | None) -> str:
+    """The mesh file of a shard's ``source``: as recorded when it exists (absolute, or relative
+    to the current folder), else the longest tail of it that exists under the dataset's
+    ``meshes`` root (index settings), so shards rendered from a relative path still work."""
+    p = Path(source)
+    if p.exists() or p.is_absolute() or not meshes_root:
+        return source
+    parts = p.parts
+    for k in range(len(parts)):
+        candidate = Path(meshes_root) / Path(*parts[k:])
+        if candidate.is_file():
+            return str(candidate)
+    return source
+
+
 @dataclass
 class VoxelizeSummary:
     shards_done: int = 0
@@ -98,6 +113,7 @@ def voxelize_shards(shard_dir: Path, resolution: int = 32, workers: int = 1, ove
     shard_dir = Path(shard_dir)
     index = load_index(shard_dir)
     max_faces = index.get("settings", {}).get("max_faces")
+    meshes_root = index.get("settings", {}).get("meshes")
     summary = VoxelizeSummary()
     paths = shard_files(shard_dir)
     failures = [f for f in index.get("failures", []) if f.get("stage") != "voxelize"]
@@ -123,7 +139,8 @@ def voxelize_shards(shard_dir: Path, resolution: int = 32, workers: int = 1, ove
             summary.shards_skipped += 1
             new_failures += [x for x in old_voxel_failures if x.get("shard") == path.name]
         else:
-            results = _map([(s, T, resolution, max_faces) for s, T in zip(sources, to_canonical)], workers)
+            results = _map([(resolve_source(s, meshes_root), T, resolution, max_faces)
+                            for s, T in zip(sources, to_canonical)], workers)
             grids = np.zeros((len(sources),) + (resolution,) * 3, dtype=np.uint8)
             for row, (status, payload) in enumerate(results):
                 if status == "ok":
