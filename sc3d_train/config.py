@@ -54,6 +54,8 @@ class RunConfig:
     image_size: int = 64
     num_views: int = 24
     background: list = field(default_factory=lambda: [255, 255, 255])
+    intrinsics: list | None = None     # K [3][3] in pixels at image_size
+    camera_distance: float = 2.0       # world units
 
     def __post_init__(self):
         if self.mode not in ("supervised", "semi", "labeled-only"):

@@ -65,7 +65,8 @@ class ObjectRef:
 def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
     """All objects of a shard directory (reading only string fields) and facts about the data:
     ``{"image_size", "num_views", "voxel_resolution" (None without voxels),
-    "files_without_voxels", "settings"}``. Clear errors for a missing/empty directory."""
+    "files_without_voxels", "settings", "K" (3x3 list, pixels), "distance"}`` (camera of the
+    first view of the first object: all views share intrinsics and distance, SPEC). Clear errors for a missing/empty directory."""
     shard_dir = Path(shard_dir)
     if not shard_dir.is_dir():
         raise DataError(f"{shard_dir}: shard directory does not exist")
@@ -83,6 +84,8 @@ def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
             n, v, s = f["images"].shape[:3]
             image_sizes.add(int(s))
             views.add(int(v))
+            if not refs:
+                camera = {"K": f["K"][0, 0].tolist(), "distance": float(f["distance"][0, 0])}
             if "voxels" in f:
                 vres.add(int(f["voxels"].shape[1]))
             else:
@@ -92,7 +95,8 @@ def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
         raise DataError(f"{shard_dir}: shards disagree on image size {image_sizes} or views {views}")
     info = {"image_size": image_sizes.pop(), "num_views": views.pop(),
             "voxel_resolution": vres.pop() if len(vres) == 1 else None,
-            "files_without_voxels": no_vox, "settings": index.get("settings", {})}
+            "files_without_voxels": no_vox, "settings": index.get("settings", {}),
+            "K": camera["K"], "distance": camera["distance"]}
     return refs, info
 
 

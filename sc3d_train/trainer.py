@@ -156,7 +156,8 @@ def resolve_config(options: dict, model_options: dict, given: set[str], resume: 
     model = ModelConfig.from_dict(model).to_dict()
     return RunConfig(**options, model=model, loss_weights=asdict(LossWeights()),
                      image_size=info["image_size"], num_views=info["num_views"],
-                     background=background_of(info))
+                     background=background_of(info), intrinsics=info["K"],
+                     camera_distance=info["distance"])
 
 
 # ----------------------------------------------------------------------------- logging

@@ -1,0 +1,26 @@
+"""``sc3d-train predict``: option parsing only; the work is ``sc3d_train.predict.predict``."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+@click.command()
+@click.option("--checkpoint", type=click.Path(dir_okay=False, path_type=Path), required=True)
+@click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True)
+@click.option("--threshold", type=float, default=0.5, show_default=True, help="Occupancy threshold.")
+@click.option("--device", default="auto", show_default=True)
+def predict(checkpoint, images, out, threshold, device):
+    """Voxels (.binvox, .npz), mesh (.obj), pose (.json) and a picture (.png) per IMAGE."""
+    from sc3d_train.checkpoint import CheckpointError
+    from sc3d_train.predict import ImageError, predict as run_predict
+
+    try:
+        results = run_predict(checkpoint, list(images), out, device, threshold)
+    except (ImageError, CheckpointError, ValueError) as e:
+        raise click.ClickException(str(e)) from e
+    for r in results:
+        click.echo(f"{r['image']}: azimuth {r['azimuth_deg']:.1f} deg, elevation {r['elevation_deg']:.1f} deg, "
+                   f"{r['occupied_voxels']} voxels -> {Path(r['files']['json']).with_suffix('.*')}")
