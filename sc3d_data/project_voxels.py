@@ -88,3 +88,12 @@ def project_voxels(voxels: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarr
     inside = (cross >= -tol).all(1) | (cross <= tol).all(1)
     out[pv[inside], pu[inside]] = True
     return out
+
+
+def project_voxels_views(voxels: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+                         image_size: int, views=None) -> np.ndarray:
+    """Silhouettes of one object's voxels through several stored cameras (for ``preview`` and
+    ``check``): ``K [V,3,3]``, ``R [V,3,3]``, ``t [V,3]``; ``views`` indices (default all).
+    Returns bool ``[len(views), S, S]``."""
+    views = range(len(K)) if views is None else views
+    return np.stack([project_voxels(voxels, K[v], R[v], t[v], image_size) for v in views])

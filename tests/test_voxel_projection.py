@@ -52,3 +52,14 @@ def test_empty_grid_and_full_grid():
     full = project_voxels(np.ones((16,) * 3, bool), K, R, t, S)
     c = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
     np.testing.assert_array_equal(full, hull_silhouette(c, K, R, t))
+
+
+def test_several_views_at_once():
+    from sc3d_data.project_voxels import project_voxels_views
+
+    cams = ViewSettings().cameras()
+    vox = np.zeros((32, 32, 32), bool)
+    vox[10:20, 5:9, 12:30] = True
+    many = project_voxels_views(vox, cams["K"], cams["R"], cams["t"], S, views=[0, 7])
+    assert many.shape == (2, S, S)
+    np.testing.assert_array_equal(many[1], project_voxels(vox, cams["K"][7], cams["R"][7], cams["t"][7], S))
