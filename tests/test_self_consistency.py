@@ -8,6 +8,7 @@ import torch
 from scipy.spatial import Delaunay
 
 from sc3d_data.camera import extrinsics, intrinsics, project_points, scale_intrinsics
+from sc3d_train.pose import angular_error_deg
 from sc3d_train.self_consistency import (area_downsample, project_occupancy, project_occupancy_reference,
                                          ray_cube_bounds, self_consistency_losses)
 
@@ -143,3 +144,68 @@ def test_gradients_reach_voxels_and_pose_and_point_to_the_truth():
     (5 * out["ray"] + 0.125 * out["proj"]).backward()
     assert occ_g.grad.abs().sum() > 0 and elev.grad.abs() > 0
     assert az.grad.item() > 0  # decreasing the azimuth (towards the true 60 deg) lowers the loss
+
+
+# ----------------------------------------------------------------------------- bundled meshes
+@pytest.fixture(scope="module")
+def shard_views(sample_shards):
+    """Per bundled object: voxels, 48x48 rendered masks (area average >= 0.5) and the cameras."""
+    from sc3d_data.shards import iter_objects
+
+    objs = []
+    for obj in iter_objects(sample_shards, ("voxels", "masks", "K", "R", "t", "azimuth", "elevation", "distance")):
+        masks = area_downsample(torch.as_tensor(obj["masks"], dtype=torch.float32), S) >= 0.5
+        K = torch.as_tensor(scale_intrinsics(obj["K"].astype(np.float64), S, obj["masks"].shape[-1]),
+                            dtype=torch.float32)
+        objs.append({**obj, "masks48": masks, "K48": K})
+    assert len(objs) == 11
+    return objs
+
+
+def project_views(obj: dict, azimuth=None) -> torch.Tensor:
+    v = len(obj["azimuth"])
+    az = torch.as_tensor(obj["azimuth"] if azimuth is None else azimuth, dtype=torch.float32)
+    occ = torch.as_tensor(obj["voxels"], dtype=torch.float32)[None].expand(v, G, G, G)
+    proj, _ = project_occupancy(occ, az, torch.as_tensor(obj["elevation"]), torch.as_tensor(obj["distance"]),
+                                obj["K48"], S)
+    return proj >= 0.5
+
+
+def test_gt_voxels_reproduce_rendered_masks_with_gt_pose(shard_views):
+    """Ground-truth voxels projected at the ground-truth pose of every view: they cover the
+    rendered masks (camera, axes and pixel convention agree with the renderer), they match the
+    exact voxel-cube silhouette of sc3d_data.project_voxels (an independent rasteriser), and the
+    overlap with the rendered mask is largest at the true azimuth. The IoU with the rendered mask
+    itself is bounded by the voxelization (surface-touching voxels fatten thin parts: wings,
+    legs), so it is asserted as a floor only (measured: 0.41 glider .. 0.90 armchair)."""
+    from sc3d_data.project_voxels import project_voxels
+
+    ious = []
+    for obj in shard_views:
+        proj = project_views(obj)
+        masks = obj["masks48"]
+        coverage = float((proj & masks).sum() / masks.sum())
+        assert coverage >= 0.98, (obj["model_id"], coverage)
+        exact = torch.as_tensor(np.stack([project_voxels(obj["voxels"], obj["K48"][i].numpy(), obj["R"][i],
+                                                         obj["t"][i], S) for i in range(0, 24, 6)]))
+        assert iou(proj[::6].numpy(), exact.numpy()) >= 0.9, obj["model_id"]
+        per_view = [iou(proj[i].numpy(), masks[i].numpy()) for i in range(len(masks))]
+        shifted = project_views(obj, (np.asarray(obj["azimuth"]) + 15.0) % 360)
+        per_view_shifted = [iou(shifted[i].numpy(), masks[i].numpy()) for i in range(len(masks))]
+        assert np.mean(per_view) > np.mean(per_view_shifted) + 0.01, obj["model_id"]
+        ious.append(np.mean(per_view))
+    assert min(ious) >= 0.35 and np.mean(ious) >= 0.65, ious
+
+
+def test_sc_loss_lowest_at_true_azimuth_on_rendered_chair(shard_views):
+    """Sweep the azimuth of a real (asymmetric) object against one rendered mask: L_sc is lowest
+    at the view's true azimuth."""
+    chairs = [o for o in shard_views if "dining_chair" in o["model_id"] or "chair2" in o["model_id"]]
+    assert len(chairs) == 2, [o["model_id"] for o in shard_views]
+    for obj in chairs:
+        for view in (3, 14):
+            azimuths = np.arange(0, 360, 15.0)
+            losses = sweep_losses(torch.as_tensor(obj["voxels"], dtype=torch.float32),
+                                  obj["masks48"][view].float(), azimuths,
+                                  float(obj["elevation"][view]), float(obj["distance"][view]))
+            assert float(angular_error_deg(azimuths[int(np.argmin(losses))], float(obj["azimuth"][view]))) < 1
