@@ -1,0 +1,69 @@
+"""``sc3d-data render``: meshes -> rendered views (+ voxels) in HDF5 shards. Thin wrapper over
+``sc3d_data.render_pipeline.render_dataset``."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from sc3d_data.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS
+from sc3d_data.mesh_io import DEFAULT_MAX_FACES
+from sc3d_data.render_pipeline import SAMPLE_MESHES, RenderConfig, render_dataset
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise click.BadParameter(f"expected comma-separated numbers, got {text!r}")
+
+
+def _rgb(text: str) -> tuple[int, int, int]:
+    parts = text.split(",")
+    if len(parts) != 3 or not all(p.strip().isdigit() and 0 <= int(p) <= 255 for p in parts):
+        raise click.BadParameter(f"expected R,G,B with values 0-255, got {text!r}")
+    return tuple(int(p) for p in parts)
+
+
+@click.command()
+@click.option("--meshes", type=click.Path(exists=True, path_type=Path), default=SAMPLE_MESHES,
+              show_default="bundled assets/sample_meshes", help="Folder of meshes (ShapeNetCore layout, CATEGORY/NAME.ext, ...) or one mesh file.")
+@click.option("--out", type=click.Path(path_type=Path), required=True, help="Output folder for shards and index.json.")
+@click.option("--views", "num_views", type=click.IntRange(1), default=DEFAULT_NUM_VIEWS, show_default=True, help="Azimuths per elevation (evenly spaced from 0).")
+@click.option("--elevations", default="30", show_default=True, help="Comma-separated elevations in degrees.")
+@click.option("--image-size", type=click.IntRange(8), default=DEFAULT_IMAGE_SIZE, show_default=True)
+@click.option("--fov", "fov_deg", type=float, default=DEFAULT_FOV_DEG, show_default=True, help="Field of view, degrees.")
+@click.option("--distance", type=float, default=DEFAULT_DISTANCE, show_default=True, help="Camera distance from the origin.")
+@click.option("--background", default="255,255,255", show_default=True, help="Background colour R,G,B.")
+@click.option("--depth/--no-depth", default=False, show_default=True, help="Also store depth maps.")
+@click.option("--normalize", type=click.Choice(["fit", "diagonal"]), default="fit", show_default=True)
+@click.option("--up", default="+Y", show_default=True, help="Source axis that is up (e.g. +Z).")
+@click.option("--front", default="+Z", show_default=True, help="Source axis the object's front faces (e.g. -X).")
+@click.option("--backend", type=click.Choice(["auto", "egl", "osmesa"]), default="auto", show_default=True)
+@click.option("--voxelize/--no-voxelize", default=False, show_default=True, help="Also store solid voxel grids.")
+@click.option("--voxel-resolution", type=click.IntRange(2), default=32, show_default=True)
+@click.option("--categories", default=None, help="Only these categories (names or synset ids, comma-separated).")
+@click.option("--category", default=None, help="Give every mesh this category instead of the folder's.")
+@click.option("--split", default="random:0.7,0.1,0.2", show_default=True, help="Split rule (see sc3d_data.splits).")
+@click.option("--split-file", default=None, help="Split file(s); take precedence over --split.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--objects-per-shard", type=click.IntRange(1), default=256, show_default=True)
+@click.option("--max-faces", type=click.IntRange(1), default=DEFAULT_MAX_FACES, show_default=True, help="Reject meshes with more triangles.")
+@click.option("--bad-texture", type=click.Choice(["fail", "fallback"]), default="fail", show_default=True,
+              help="Unreadable texture: skip the object (fail) or render with material colours (fallback).")
+@click.option("--timeout", "timeout_s", type=float, default=120.0, show_default=True, help="Per-object time limit, seconds.")
+@click.option("--workers", type=click.IntRange(0), default=0, show_default="number of CPU cores")
+@click.option("--overwrite", is_flag=True, help="Delete existing shards in --out instead of resuming.")
+@click.option("--progress/--no-progress", default=True, show_default=True)
+def render(elevations, background, **options):
+    """Render every mesh under --meshes into HDF5 shards under --out (resumable)."""
+    config = RenderConfig(elevations=_floats(elevations), background=_rgb(background), **options)
+    try:
+        s = render_dataset(config)
+    except (ValueError, RuntimeError, FileNotFoundError) as e:
+        raise click.ClickException(str(e))
+    click.echo(f"done {s['done']}, resumed {s['resumed']}, skipped {s['skipped']}, failed {s['failed']} "
+               f"in {s['seconds']:.1f} s ({s['views_per_s']:.0f} views/s, {s['workers']} workers, "
+               f"backend {s['backend']}); index: {Path(s['out']) / 'index.json'}")
+    if s["failed"]:
+        click.echo(f"failures are listed with reasons by `sc3d-data info {s['out']}`")

@@ -1,0 +1,442 @@
+"""``sc3d-data render`` as a library: discover meshes, render (and optionally voxelize) them in
+worker processes, write HDF5 shards and ``index.json``.
+
+Design
+------
+- The objects to render (``plan``) are the discovered meshes that have a split, ordered by
+  ``(category, model_id)``. The plan is cut into chunks of ``objects_per_shard`` objects;
+  chunk ``c`` becomes ``shard-{c:05d}.h5`` (objects that fail are left out of it).
+- Workers are ``spawn``-ed processes (never forked after a GL context exists: the main process
+  never creates one). Each keeps ONE ``MeshRenderer`` and handles one object at a time; the
+  main process sends objects in plan order, collects results by position and writes chunk
+  after chunk in order, so the output does not depend on the number of workers.
+- Per-object time limit (``timeout_s``): a worker that takes longer (a loader that hangs, a
+  huge mesh) is killed and replaced and the object is recorded as a failure; a worker that
+  crashes is handled the same way.
+- Resume: the index is rewritten atomically after every shard. Rerunning with the same
+  settings skips chunks that are complete (their shard is listed and exists), including their
+  recorded failures; stale ``*.tmp`` files are deleted. Since shards are written in plan order,
+  complete chunks are a prefix of the plan and the resumed output equals an uninterrupted run.
+  Ctrl-C or a kill loses at most the chunks in progress (they only live in memory).
+"""
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import time
+from collections import Counter, defaultdict
+from dataclasses import asdict, dataclass, field
+from multiprocessing.connection import wait
+from pathlib import Path
+
+import numpy as np
+
+from sc3d_data.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS, ViewSettings
+from sc3d_data.mesh_io import DEFAULT_MAX_FACES
+from sc3d_data.shards import (INDEX_NAME, SCHEMA_VERSION, SHARD_PATTERN, ObjectRecord, package_version,
+                              write_json_atomic, write_shard)
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+SAMPLE_MESHES = REPO_ROOT / "assets" / "sample_meshes"
+#: settings that do not change the output; they may differ between a run and its resume
+RUNTIME_ONLY = ("workers", "progress", "timeout_s", "retry_failed")
+THREAD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+              "LP_NUM_THREADS": "1"}
+
+
+@dataclass
+class RenderConfig:
+    """Every option of ``sc3d-data render`` (see ``cli/data_render.py`` for their meaning)."""
+
+    out: Path
+    meshes: Path = SAMPLE_MESHES
+    num_views: int = DEFAULT_NUM_VIEWS
+    elevations: tuple[float, ...] = (30.0,)
+    image_size: int = DEFAULT_IMAGE_SIZE
+    fov_deg: float = DEFAULT_FOV_DEG
+    distance: float = DEFAULT_DISTANCE
+    background: tuple[int, int, int] = (255, 255, 255)
+    depth: bool = False
+    normalize: str = "fit"
+    up: str = "+Y"
+    front: str = "+Z"
+    backend: str = "auto"
+    voxelize: bool = False
+    voxel_resolution: int = 32
+    categories: str | None = None
+    category: str | None = None
+    split: str = "random:0.7,0.1,0.2"
+    split_file: str | None = None
+    seed: int = 0
+    objects_per_shard: int = 256
+    max_faces: int = DEFAULT_MAX_FACES
+    bad_texture: str = "fail"
+    timeout_s: float = 120.0
+    workers: int = 0  # 0 = number of CPU cores
+    overwrite: bool = False
+    progress: bool = True
+
+    def view_settings(self) -> ViewSettings:
+        return ViewSettings(num_views=self.num_views, elevations_deg=tuple(self.elevations),
+                            distance=self.distance, fov_deg=self.fov_deg, image_size=self.image_size)
+
+    def settings(self, backend: str) -> dict:
+        """JSON-able record of every setting that shapes the output (stored in shards and index)."""
+        d = {k: v for k, v in asdict(self).items() if k not in RUNTIME_ONLY + ("out", "overwrite")}
+        d["meshes"] = str(Path(self.meshes).resolve())
+        d["elevations"] = [float(e) for e in self.elevations]
+        d["background"] = [int(c) for c in self.background]
+        d["backend"] = backend
+        d["requested_backend"] = self.backend
+        return d
+
+
+# ----------------------------------------------------------------------------- worker side
+@dataclass(frozen=True)
+class Task:
+    pos: int
+    path: str
+    category: str
+    model_id: str
+    split: str
+
+
+def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord, list[str]]:
+    """Load, validate, normalise, render (and voxelize) one object in this process.
+    Returns the shard record and warnings; raises on bad input."""
+    from sc3d_data.mesh_io import load_mesh
+    from sc3d_data.normalize import apply_transform, to_canonical_transform
+
+    scene, vertices, faces, warnings = load_mesh(Path(task.path), config.max_faces, config.bad_texture)
+    to_canonical = to_canonical_transform(vertices, faces, config.normalize, config.up, config.front)
+    arrays = renderer.render(scene, to_canonical)
+    cams = renderer.cameras
+    arrays.update({k: cams[k] for k in ("K", "R", "t", "azimuth", "elevation", "distance")})
+    m = arrays["masks"].astype(bool)
+    arrays["clipped"] = (m[:, 0, :].any(1) | m[:, -1, :].any(1) | m[:, :, 0].any(1) | m[:, :, -1].any(1)).astype(np.uint8)
+    arrays["to_canonical"] = to_canonical
+    if config.voxelize:
+        from sc3d_data.voxelize import voxelize_triangles
+
+        arrays["voxels"] = voxelize_triangles(apply_transform(vertices, to_canonical), faces,
+                                              resolution=config.voxel_resolution)
+    record = ObjectRecord(model_id=task.model_id, category=task.category, split=task.split,
+                          source=task.path, arrays=arrays)
+    return record, warnings
+
+
+def _worker_main(conn, config: RenderConfig, backend: str) -> None:
+    """Worker process: one renderer, then (task -> result) until ``None``."""
+    for k, v in THREAD_ENV.items():
+        os.environ.setdefault(k, v)
+    from sc3d_data.render import MeshRenderer, RenderSettings
+
+    try:
+        renderer = MeshRenderer(config.view_settings(), RenderSettings(background=tuple(config.background),
+                                                                       depth=config.depth), backend)
+    except Exception as e:
+        conn.send(("dead", None, f"{type(e).__name__}: {e}"))
+        return
+    conn.send(("ready", None, None))
+    while True:
+        try:
+            task = conn.recv()
+        except (EOFError, KeyboardInterrupt):
+            break
+        if task is None:
+            break
+        try:
+            record, warnings = render_one(renderer, task, config)
+            conn.send(("ok", task.pos, (record, warnings)))
+        except KeyboardInterrupt:
+            break
+        except Exception as e:
+            msg = str(e) if type(e).__name__ == "MeshError" else f"{type(e).__name__}: {e}"
+            conn.send(("fail", task.pos, msg))
+    renderer.close()
+
+
+class _Worker:
+    def __init__(self, ctx, config: RenderConfig, backend: str):
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=_worker_main, args=(child, config, backend), daemon=True)
+        self.proc.start()
+        child.close()
+        self.ready = False
+        self.task: Task | None = None
+        self.started = 0.0
+
+    def kill(self) -> None:
+        if self.proc.is_alive():
+            self.proc.kill()
+        self.proc.join(5)
+        self.conn.close()
+
+
+class WorkerPool:
+    """``n`` spawned render workers fed one task at a time; ``run(tasks)`` yields
+    ``(pos, status, payload)`` with status ``ok`` (payload: (record, warnings)) or ``fail``
+    (payload: reason), enforcing the per-object time limit."""
+
+    def __init__(self, n: int, config: RenderConfig, backend: str):
+        for k, v in THREAD_ENV.items():
+            os.environ.setdefault(k, v)
+        self.ctx = mp.get_context("spawn")
+        self.config, self.backend = config, backend
+        self.workers = [_Worker(self.ctx, config, backend) for _ in range(n)]
+
+    def wait_ready(self) -> str | None:
+        """Block until every worker has a renderer; return None, or the first start-up error
+        (the pool is then closed)."""
+        while not all(w.ready for w in self.workers):
+            ready = wait([w.conn for w in self.workers if not w.ready], timeout=120)
+            if not ready:
+                self.close()
+                return "render workers did not start within 120 s"
+            for w in self.workers:
+                if w.conn in ready:
+                    try:
+                        status, _, payload = w.conn.recv()
+                    except (EOFError, OSError):
+                        w.proc.join(5)
+                        status, payload = "dead", f"worker exited with code {w.proc.exitcode}"
+                    if status == "dead":
+                        self.close()
+                        return payload
+                    w.ready = True
+        return None
+
+    def _replace(self, w: _Worker) -> _Worker:
+        w.kill()
+        new = _Worker(self.ctx, self.config, self.backend)
+        self.workers[self.workers.index(w)] = new
+        return new
+
+    def run(self, tasks, may_dispatch=lambda pos: True):
+        todo = list(tasks)[::-1]  # pop() from the end = plan order
+        timeout = self.config.timeout_s
+        while todo or any(w.task for w in self.workers):
+            for w in self.workers:
+                if w.ready and w.task is None and todo and may_dispatch(todo[-1].pos):
+                    w.task, w.started = todo.pop(), time.monotonic()
+                    w.conn.send(w.task)
+            busy = [w for w in self.workers if w.task is not None]
+            now = time.monotonic()
+            wait_s = min([w.started + timeout - now for w in busy], default=1.0)
+            ready = wait([w.conn for w in self.workers], timeout=max(0.0, min(wait_s, 1.0)))
+            for w in list(self.workers):
+                if w.conn in ready:
+                    try:
+                        status, pos, payload = w.conn.recv()
+                    except (EOFError, OSError):
+                        status, pos, payload = "crash", None, None
+                    if status == "ready":
+                        w.ready = True
+                    elif status == "dead":
+                        self.close()
+                        from sc3d_data.gl_backend import BackendError
+
+                        raise BackendError(f"render worker could not start a renderer: {payload}")
+                    elif status in ("ok", "fail"):
+                        w.task = None
+                        yield pos, status, payload
+                    else:  # crashed
+                        task = w.task
+                        w.proc.join(5)
+                        code = w.proc.exitcode
+                        if not w.ready:
+                            self.close()
+                            raise RuntimeError(f"a render worker died while starting (exit code {code})")
+                        self._replace(w)
+                        if task is not None:
+                            yield task.pos, "fail", f"{task.path}: render worker crashed (exit code {code})"
+                elif w.task is not None and time.monotonic() - w.started > timeout:
+                    task = w.task
+                    self._replace(w)
+                    yield task.pos, "fail", f"{task.path}: timed out after {timeout:g} s (--timeout)"
+
+    def close(self) -> None:
+        for w in self.workers:
+            try:
+                if w.proc.is_alive() and w.task is None:
+                    w.conn.send(None)
+            except OSError:
+                pass
+        for w in self.workers:
+            w.proc.join(2)
+            w.kill()
+
+
+def start_pool(n: int, config: RenderConfig) -> WorkerPool:
+    """Start ``n`` workers with ``config.backend``; ``auto`` tries EGL, then OSMesa (the
+    workers themselves are the probe: the main process never creates a GL context). Raises
+    ``BackendError`` naming the Debian packages when no backend works."""
+    from sc3d_data.gl_backend import BACKENDS, BackendError, install_hint
+
+    errors = []
+    for backend in (BACKENDS if config.backend == "auto" else (config.backend,)):
+        pool = WorkerPool(n, config, backend)
+        err = pool.wait_ready()
+        if err is None:
+            pool.backend = backend
+            return pool
+        errors.append(f"{backend}: {err}")
+    raise BackendError("no headless OpenGL backend works:\n  " + "\n  ".join(errors) + "\n" + install_hint())
+
+
+# ----------------------------------------------------------------------------- main side
+def _clean_tmp(out: Path) -> None:
+    for p in out.glob("*.tmp"):
+        p.unlink()
+
+
+def _plan(config: RenderConfig):
+    from sc3d_data.discover import discover_meshes
+    from sc3d_data.splits import assign_splits
+
+    entries, problems = discover_meshes(Path(config.meshes), categories=config.categories,
+                                        category_override=config.category)
+    splits, split_desc, split_problems = assign_splits(entries, spec=config.split, seed=config.seed,
+                                                       split_file=config.split_file)
+    tasks, skipped = [], list(split_problems)
+    for e in entries:
+        key = (e.category, e.model_id)
+        if key in splits:
+            tasks.append(Task(len(tasks), str(e.path), e.category, e.model_id, splits[key]))
+        else:
+            skipped.append({"source": str(e.path), "reason": "not in any split (--split-file)"})
+    return tasks, problems, skipped, split_desc
+
+
+def _counts(objects: list[dict]) -> dict:
+    by_cat: dict = defaultdict(Counter)
+    for o in objects:
+        by_cat[o["category"]][o["split"]] += 1
+    by_split = Counter(o["split"] for o in objects)
+    return {"total": len(objects), "by_split": dict(sorted(by_split.items())),
+            "by_category": {c: dict(sorted(v.items())) for c, v in sorted(by_cat.items())}}
+
+
+def render_dataset(config: RenderConfig) -> dict:
+    """Render ``config.meshes`` into shards under ``config.out`` (see module doc).
+
+    Returns the summary ``{"done", "skipped", "failed", "resumed", "seconds", "views",
+    "views_per_s", "out"}``; ``index.json`` holds the details."""
+    t0 = time.monotonic()
+    out = Path(config.out)
+    out.mkdir(parents=True, exist_ok=True)
+    index_file = out / INDEX_NAME
+    if config.overwrite:
+        for p in list(out.glob("shard-*.h5")) + [index_file]:
+            if p.exists():
+                p.unlink()
+    _clean_tmp(out)
+    settings = config.settings(None)
+    tasks, problems, skipped, split_desc = _plan(config)
+    K = config.objects_per_shard
+    n_chunks = (len(tasks) + K - 1) // K
+
+    # ---- resume
+    old = json.loads(index_file.read_text()) if index_file.is_file() else None
+    shards, objects, failures, warnings = [], [], [], []
+    if old is not None:
+        a = {k: v for k, v in old.get("settings", {}).items() if k not in ("backend", "requested_backend")}
+        b = {k: v for k, v in settings.items() if k not in ("backend", "requested_backend")}
+        if a != b:
+            diff = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
+            raise ValueError(f"{out}: existing shards were made with other settings ({', '.join(diff)} differ); "
+                             "use another --out or --overwrite")
+        done_chunks = {s["chunk"] for s in old.get("shards", []) if (out / s["file"]).is_file()}
+        done_chunks |= set(old.get("empty_chunks", []))
+        shards = [s for s in old.get("shards", []) if s["chunk"] in done_chunks]
+        objects = [o for o in old.get("objects", []) if o.get("chunk") in done_chunks]
+        failures = [f for f in old.get("failures", []) if f.get("chunk") in done_chunks]
+        warnings = [w for w in old.get("warnings", []) if w.get("chunk") in done_chunks]
+        empty_chunks = [c for c in old.get("empty_chunks", []) if c in done_chunks]
+    else:
+        done_chunks, empty_chunks = set(), []
+    resumed = sum(1 for t in tasks if t.pos // K in done_chunks)
+    todo = [t for t in tasks if t.pos // K not in done_chunks]
+    n_workers = max(1, min(config.workers or os.cpu_count() or 1, max(1, len(todo))))
+    pool = start_pool(n_workers, config) if todo else None
+    settings["backend"] = pool.backend if pool else (old or {}).get("settings", {}).get("backend")
+
+    def write_index(complete: bool) -> None:
+        clipped_views = sum(o["clipped_views"] for o in objects)
+        write_json_atomic(index_file, {
+            "schema_version": SCHEMA_VERSION, "sc3d_version": package_version(),
+            "complete": complete, "settings": settings, "split": split_desc,
+            "counts": _counts(objects),
+            "clipped": {"views": clipped_views, "objects": sum(1 for o in objects if o["clipped_views"])},
+            "shards": sorted(shards, key=lambda s: s["chunk"]),
+            "empty_chunks": sorted(empty_chunks),
+            "objects": objects,
+            "failures": problems + sorted(failures, key=lambda f: f["pos"]),
+            "skipped": skipped, "warnings": warnings,
+        })
+
+    write_index(False)
+    # ---- render
+    chunk_tasks = defaultdict(list)
+    for t in todo:
+        chunk_tasks[t.pos // K].append(t)
+    pending_chunks = sorted(chunk_tasks)
+    results: dict[int, tuple] = {}
+    n_done = n_failed = 0
+    bar = None
+    if config.progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(todo), unit="obj", desc="render", dynamic_ncols=True)
+
+    def flush_ready_chunks() -> None:
+        nonlocal n_done, n_failed
+        while pending_chunks and all(t.pos in results for t in chunk_tasks[pending_chunks[0]]):
+            c = pending_chunks.pop(0)
+            records = []
+            for t in chunk_tasks[c]:
+                status, payload = results.pop(t.pos)
+                if status == "ok":
+                    record, warns = payload
+                    records.append(record)
+                    warnings.extend({"source": t.path, "warning": w, "chunk": c} for w in warns)
+                else:
+                    failures.append({"source": t.path, "category": t.category, "model_id": t.model_id,
+                                     "reason": payload, "chunk": c, "pos": t.pos})
+            n_failed += len(chunk_tasks[c]) - len(records)
+            n_done += len(records)
+            if records:
+                name = SHARD_PATTERN.format(c)
+                write_shard(out / name, records, settings)
+                for row, r in enumerate(records):
+                    objects.append({"category": r.category, "model_id": r.model_id, "split": r.split,
+                                    "source": r.source, "shard": name, "row": row, "chunk": c,
+                                    "clipped_views": int(r.arrays["clipped"].sum())})
+                shards.append({"file": name, "chunk": c, "objects": len(records),
+                               "categories": dict(Counter(r.category for r in records)),
+                               "splits": dict(Counter(r.split for r in records))})
+            else:
+                empty_chunks.append(c)
+            write_index(complete=not pending_chunks)
+
+    if pool is not None:
+        first_open = lambda: pending_chunks[0] * K if pending_chunks else 0  # noqa: E731
+        try:
+            for pos, status, payload in pool.run(todo, may_dispatch=lambda p: p < first_open() + 2 * K + n_workers):
+                results[pos] = (status, payload)
+                if bar is not None:
+                    bar.update(1)
+                flush_ready_chunks()
+        finally:
+            pool.close()
+            if bar is not None:
+                bar.close()
+            _clean_tmp(out)
+    else:
+        write_index(complete=True)
+    seconds = time.monotonic() - t0
+    views = n_done * len(config.elevations) * config.num_views
+    return {"done": n_done, "resumed": resumed, "skipped": len(skipped), "failed": n_failed + len(problems),
+            "seconds": seconds, "views": views, "views_per_s": views / seconds if seconds > 0 else 0.0,
+            "out": str(out), "backend": settings["backend"], "workers": n_workers if todo else 0}
