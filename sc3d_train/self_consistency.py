@@ -231,7 +231,7 @@ def benchmark_self_consistency(batch_size: int = 48, device: str | torch.device 
                                num_samples: int = DEFAULT_NUM_SAMPLES) -> list[dict]:
     """Time forward + backward of the self-consistency loss at ``batch_size`` on ``device``:
     the baseline (:func:`project_occupancy_reference`, hand-written gather + loop) and the module
-    (grid_sample + cumprod). Returns one row per variant: ``name``, ``ms_per_batch`` (median of
+    (grid_sample + log-space escape). Returns one row per variant: ``name``, ``ms_per_batch`` (median of
     ``repeats`` after one warm-up), ``saved_mb`` (tensors kept for backward, measured with
     saved-tensor hooks; device independent) and ``peak_mb`` (CUDA peak allocation, else None)."""
     from sc3d_data.camera import intrinsics, scale_intrinsics
@@ -255,7 +255,7 @@ def benchmark_self_consistency(batch_size: int = 48, device: str | torch.device 
         return iou_loss(p, masks)
 
     rows = []
-    for name, fn in (("baseline: gather + loop (fp32)", run_reference), ("grid_sample + cumprod (fp32)", run_module)):
+    for name, fn in (("baseline: gather + loop (fp32)", run_reference), ("grid_sample + log-space escape (fp32)", run_module)):
         times, saved = [], 0
         for rep in range(repeats + 1):
             occ = occ0.to(dev).requires_grad_(True)
