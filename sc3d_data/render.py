@@ -59,8 +59,8 @@ class RenderSettings:
 
     background: tuple[int, int, int] = (255, 255, 255)
     depth: bool = False
-    light_intensity: float = 3.0
-    ambient: float = 0.35
+    light_intensity: float = 1.5
+    ambient: float = 0.2
     msaa: int = 0
 
 

@@ -89,6 +89,10 @@ class RenderConfig:
         d["background"] = [int(c) for c in self.background]
         d["backend"] = backend
         d["requested_backend"] = self.backend
+        from sc3d_data.render import RenderSettings
+
+        rs = RenderSettings()
+        d["lighting"] = {"headlight_intensity": rs.light_intensity, "ambient": rs.ambient, "msaa_samples": rs.msaa}
         return d
 
 

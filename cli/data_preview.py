@@ -1,0 +1,29 @@
+"""``sc3d-data preview``: a contact sheet PNG of a shard directory."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+@click.command()
+@click.argument("shard_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=Path("sheet.png"), show_default=True)
+@click.option("--objects", "max_objects", type=click.IntRange(1), default=8, show_default=True)
+@click.option("--views", type=click.IntRange(1), default=6, show_default=True, help="Views per object.")
+@click.option("--scale", type=click.IntRange(1, 8), default=2, show_default=True, help="Pixel magnification.")
+def preview(shard_dir: Path, out: Path, max_objects: int, views: int, scale: int):
+    """Write a contact sheet of SHARD_DIR: per object, images, masks and (with voxels) voxel
+    silhouettes (dark blue = voxels over the mask, light blue = voxels outside it, grey = mask
+    not covered by voxels) of several views."""
+    from PIL import Image
+
+    from sc3d_data.preview import contact_sheet
+
+    try:
+        sheet = contact_sheet(shard_dir, max_objects, views, scale)
+    except (FileNotFoundError, ValueError) as e:
+        raise click.ClickException(str(e))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(sheet).save(out)
+    click.echo(f"wrote {out} ({sheet.shape[1]}x{sheet.shape[0]})")

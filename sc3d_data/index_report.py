@@ -1,0 +1,47 @@
+"""Human-readable summary of a shard directory's ``index.json`` (for ``sc3d-data info``)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from sc3d_data.shards import load_index
+from sc3d_data.shapenet import category_name
+
+
+def index_report(shard_dir: Path, max_failures: int = 50) -> str:
+    """Counts per category and split, settings, shards, clipped views, failures with reasons,
+    skipped files and warnings, as plain text."""
+    index = load_index(shard_dir)
+    lines = [f"{shard_dir}: sc3d shards (schema {index.get('schema_version')}, sc3d {index.get('sc3d_version')})"
+             + ("" if index.get("complete") else "  [INCOMPLETE: rerun the same render command to resume]")]
+    counts = index.get("counts", {})
+    splits = sorted(counts.get("by_split", {}))
+    lines.append(f"\nobjects: {counts.get('total', 0)} in {len(index.get('shards', []))} shards")
+    header = f"  {'category':<24}" + "".join(f"{s:>8}" for s in splits) + f"{'total':>8}"
+    lines.append(header)
+    for cat, per in counts.get("by_category", {}).items():
+        name = category_name(cat)
+        label = f"{name} ({cat})" if name != cat else cat
+        lines.append(f"  {label:<24}" + "".join(f"{per.get(s, 0):>8}" for s in splits) + f"{sum(per.values()):>8}")
+    lines.append(f"  {'all':<24}" + "".join(f"{counts['by_split'][s]:>8}" for s in splits) + f"{counts.get('total', 0):>8}")
+    clipped = index.get("clipped", {})
+    lines.append(f"\nclipped views (mask touches the border): {clipped.get('views', 0)} in {clipped.get('objects', 0)} objects")
+    lines.append("\nsettings:")
+    for k, v in index.get("settings", {}).items():
+        lines.append(f"  {k}: {v}")
+    if "split" in index:
+        lines.append(f"  split rule: {index['split'].get('spec', index['split'].get('method'))}")
+    failures = index.get("failures", [])
+    lines.append(f"\nfailures: {len(failures)}")
+    for f in failures[:max_failures]:
+        lines.append(f"  {f.get('source')}: {f.get('reason')}")
+    if len(failures) > max_failures:
+        lines.append(f"  ... {len(failures) - max_failures} more (see index.json)")
+    skipped = index.get("skipped", [])
+    if skipped:
+        lines.append(f"\nskipped: {len(skipped)}")
+        lines.extend(f"  {s.get('source')}: {s.get('reason')}" for s in skipped[:max_failures])
+    warnings = index.get("warnings", [])
+    if warnings:
+        lines.append(f"\nwarnings: {len(warnings)}")
+        lines.extend(f"  {w.get('warning')}" for w in warnings[:max_failures])
+    return "\n".join(lines)
