@@ -149,8 +149,10 @@ def discover_meshes(root, categories=None, category_override=None
                     category = rel[0]
                     model_id = "/".join(rel[1:] + (Path(name).stem,))
                 found.append(MeshEntry(path, model_id, resolve_category(category)))
+        wanted_synsets = (resolve_categories(categories)
+                          if categories is not None and not category_override else None)
         for model_dir, mesh in shapenet_models.items():
-            if mesh is None:
+            if mesh is None and (wanted_synsets is None or model_dir.parent.name in wanted_synsets):
                 problems.append(_problem(model_dir, "ShapeNet model folder without its mesh "
                                                     "(neither model.obj nor models/model_normalized.obj)"))
             else:
