@@ -1,0 +1,89 @@
+"""Renderer, mesh loading and normalisation on the bundled sample meshes (real EGL/OSMesa
+renderer, real HDF5 shards from the session fixture ``sample_shards``)."""
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+from scipy.ndimage import binary_dilation
+
+from sc3d_data.camera import DEFAULT_IMAGE_SIZE, project_points
+from sc3d_data.mesh_io import DEFAULT_MAX_FACES, MeshError, load_mesh_triangles, validate_triangles
+from sc3d_data.normalize import apply_transform, canonical_rotation, to_canonical_transform
+from sc3d_data.shards import iter_objects, load_index
+
+
+def test_shapes_dtypes_and_nonempty_masks(sample_shards):
+    index = load_index(sample_shards)
+    assert index["complete"] and index["counts"]["total"] == 11 and index["failures"] == []
+    assert index["settings"]["num_views"] == 24 and index["settings"]["backend"] in ("egl", "osmesa")
+    S = DEFAULT_IMAGE_SIZE
+    expected = {"images": ((24, S, S, 3), np.uint8), "masks": ((24, S, S), np.uint8),
+                "K": ((24, 3, 3), np.float32), "R": ((24, 3, 3), np.float32), "t": ((24, 3), np.float32),
+                "azimuth": ((24,), np.float32), "elevation": ((24,), np.float32),
+                "distance": ((24,), np.float32), "clipped": ((24,), np.uint8),
+                "to_canonical": ((4, 4), np.float64), "voxels": ((32, 32, 32), np.uint8)}
+    n = 0
+    for obj in iter_objects(sample_shards):
+        n += 1
+        for name, (shape, dtype) in expected.items():
+            assert obj[name].shape == shape and obj[name].dtype == dtype, name
+        masks = obj["masks"].astype(bool)
+        assert masks.reshape(24, -1).any(1).all(), f"{obj['model_id']}: a view with an empty mask"
+        # RGB agrees with the mask: background colour exactly outside, object colours inside
+        assert (obj["images"][~masks] == 255).all()
+        assert (obj["images"][masks] != 255).any(-1).mean() > 0.5
+        assert not obj["clipped"].any()
+        np.testing.assert_allclose(obj["azimuth"], np.arange(24) * 15.0)
+    assert n == 11
+    with h5py.File(sample_shards / index["shards"][0]["file"]) as f:
+        assert f["images"].chunks == (1, 24, S, S, 3) and f["images"].compression == "gzip"
+        assert "settings" in f.attrs and "schema_version" in f.attrs
+
+
+def test_projected_vertices_fall_on_masks(sample_shards):
+    """Vertices of the source mesh, moved by the stored to_canonical and projected with the
+    stored K, R, t, land on the rendered silhouette; flipping image y would not."""
+    checked = 0
+    for obj in iter_objects(sample_shards, fields=("masks", "K", "R", "t", "to_canonical")):
+        if obj["category"] not in ("02958343", "03001627"):  # cars and chairs: no sub-pixel wings
+            continue
+        v, f = load_mesh_triangles(obj["source"])
+        pts = apply_transform(v[np.unique(f)], obj["to_canonical"])
+        hit, flipped = [], []
+        for k in range(24):
+            uv, z = project_points(pts, obj["K"][k].astype(np.float64), obj["R"][k].astype(np.float64),
+                                   obj["t"][k].astype(np.float64))
+            assert (z > 0).all()
+            ij = np.clip(np.floor(uv).astype(int), 0, DEFAULT_IMAGE_SIZE - 1)
+            m = binary_dilation(obj["masks"][k].astype(bool))  # vertices on thin parts: 1 px slack
+            hit.append(m[ij[:, 1], ij[:, 0]].mean())
+            flipped.append(m[DEFAULT_IMAGE_SIZE - 1 - ij[:, 1], ij[:, 0]].mean())
+        assert np.median(hit) > 0.97, (obj["model_id"], np.median(hit))
+        assert np.median(flipped) < 0.9
+        checked += 1
+    assert checked >= 4
+
+
+def test_normalize_fit_diagonal_and_axes():
+    rng = np.random.default_rng(0)
+    v = rng.normal(size=(100, 3)) * [3.0, 1.0, 0.5] + [10, -2, 4]
+    T = to_canonical_transform(v, mode="fit")
+    w = apply_transform(v, T)
+    np.testing.assert_allclose((w.max(0) + w.min(0)) / 2, 0, atol=1e-12)
+    assert np.isclose((w.max(0) - w.min(0)).max(), 1.0)
+    w = apply_transform(v, to_canonical_transform(v, mode="diagonal"))
+    assert np.isclose(np.linalg.norm(w.max(0) - w.min(0)), 1.0)
+    R = canonical_rotation(up="+Z", front="-X")
+    np.testing.assert_allclose(R @ [0, 0, 1], [0, 1, 0])
+    np.testing.assert_allclose(R @ [-1, 0, 0], [0, 0, 1])
+    assert np.isclose(np.linalg.det(R), 1.0)
+    with pytest.raises(ValueError):
+        canonical_rotation(up="+Y", front="-Y")
+
+
+def test_default_face_limit_rejects_two_million_faces():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float64)
+    validate_triangles(v, np.zeros((DEFAULT_MAX_FACES, 3), np.int64) + [0, 1, 2], "ok.obj")
+    with pytest.raises(MeshError, match="more than the limit"):
+        validate_triangles(v, np.zeros((2_000_000, 3), np.int64) + [0, 1, 2], "huge.obj")
