@@ -164,7 +164,7 @@ def test_bad_input_reported_rest_imported(fake_r2n2, tmp_path):
     assert "without rendering/" in reasons["emptyfolder"]
     assert any("'03001627/ghost'" in p["reason"] for p in index["skipped"])
     for name in ("badmeta", "shortmeta", "nopng", "nometa", "vox16"):
-        assert f"failed: " in res.output and name in res.output
+        assert "failed: " in res.output and name in res.output
     # a second run into the same folder refuses without --overwrite
     res = cli(["import-r2n2", "--renderings", tmp_path / "R", "--voxels", tmp_path / "V", "--out", out,
                "--no-progress"], expect=1)

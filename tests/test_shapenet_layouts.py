@@ -4,7 +4,6 @@ its .mtl and textures, as ShapeNet ships them), discovered and rendered with `sc
 from __future__ import annotations
 
 import hashlib
-import shutil
 from pathlib import Path
 
 import pytest
