@@ -32,3 +32,20 @@ def sample_shards(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("sample_shards")
     run_cli(main, ["render", "--meshes", SAMPLE_MESHES, "--out", out, "--voxelize", "--workers", "2"])
     return out
+
+
+#: optimiser steps of the shared short training run (tiny model, batch 8, lr 1e-3 so that it learns in few steps)
+TRAINED_RUN_STEPS = 120
+
+
+@pytest.fixture(scope="session")
+def trained_run(sample_shards, tmp_path_factory) -> Path:
+    """A short supervised run of a tiny model on the sample shards through `sc3d-train fit`
+    (run directory; checkpoints at half way and the end, every step logged)."""
+    from cli.train import main
+
+    out = tmp_path_factory.mktemp("trained_run") / "run"
+    run_cli(main, ["fit", "--shards", sample_shards, "--out", out, "--steps", TRAINED_RUN_STEPS,
+                   "--batch-size", 8, "--tiny", "--base-channels", 4, "--lr", 1e-3, "--log-every", 1,
+                   "--checkpoint-every", TRAINED_RUN_STEPS // 2, "--no-progress", "--seed", 0])
+    return out

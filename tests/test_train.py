@@ -1,0 +1,162 @@
+"""sc3d-train fit on the rendered sample shards: the loss falls and the train-set IoU rises,
+resume continues exactly, semi-supervised mode runs both phases, bad input fails early."""
+from __future__ import annotations
+
+import csv
+import shutil
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+from cli.train import main
+from tests.conftest import TRAINED_RUN_STEPS, run_cli
+
+TINY = ["--tiny", "--base-channels", "4", "--no-progress", "--log-every", "1"]
+
+
+def read_csv(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_fit_writes_the_run_and_learns(trained_run, sample_shards):
+    from sc3d_train.checkpoint import build_model, load_model
+    from sc3d_train.config import RunConfig
+    from sc3d_train.data import ShardDataset
+    from sc3d_train.evaluate import predict_dataset, summarize
+
+    for name in ("config.json", "metrics.csv", "curves.png", "checkpoints/last.pt",
+                 f"checkpoints/step_{TRAINED_RUN_STEPS:06d}.pt",
+                 f"checkpoints/step_{TRAINED_RUN_STEPS // 2:06d}.pt"):
+        assert (trained_run / name).is_file(), name
+    assert list((trained_run / "tb").glob("events.out.tfevents.*"))
+    cfg = RunConfig.load(trained_run / "config.json")
+    assert cfg.model["base_channels"] == 4 and cfg.model["image_size"] == 64 and cfg.mode == "supervised"
+
+    rows = read_csv(trained_run / "metrics.csv")
+    assert [int(r["step"]) for r in rows] == list(range(TRAINED_RUN_STEPS))
+    total = np.array([float(r["total"]) for r in rows])
+    assert np.isfinite(total).all()
+    assert total[-20:].mean() < 0.85 * total[:10].mean(), (total[:10].mean(), total[-20:].mean())
+    assert float(rows[0]["samples_per_s"]) > 0
+
+    # train-set voxel IoU: trained model vs the same network untrained (eval mode both)
+    model, cfg, _ = load_model(trained_run / "checkpoints" / "last.pt")
+    ds = ShardDataset(sample_shards, "train", image_size=64)
+    torch.manual_seed(0)
+    untrained = build_model(cfg).eval()
+    trained_iou = summarize(predict_dataset(model, ds, "cpu", 96)[0])["overall"]["voxel_iou_0.4"]
+    untrained_iou = summarize(predict_dataset(untrained, ds, "cpu", 96)[0])["overall"]["voxel_iou_0.4"]
+    assert trained_iou > untrained_iou + 0.05, (untrained_iou, trained_iou)
+    assert trained_iou > 0.25
+
+
+def test_resume_equals_uninterrupted(sample_shards, tmp_path):
+    args = ["--shards", sample_shards, "--batch-size", "4", *TINY, "--checkpoint-every", "3", "--seed", "5"]
+    whole, parts = tmp_path / "whole", tmp_path / "parts"
+    run_cli(main, ["fit", "--out", whole, "--steps", "6", *args])
+    run_cli(main, ["fit", "--out", parts, "--steps", "3", *args])
+    # an interrupted run may have logged steps after its last checkpoint: resume must drop them
+    with open(parts / "metrics.csv", "a") as f:
+        f.write("3,supervised,999,999,999,999,999,999,999,0.0002,1.0\n")
+    result = run_cli(main, ["fit", "--out", parts, "--steps", "6", "--resume", "--no-progress"])
+    assert "step 6" in result.output
+    a, b = read_csv(whole / "metrics.csv"), read_csv(parts / "metrics.csv")
+    assert [r["step"] for r in b] == [str(i) for i in range(6)]
+    for ra, rb in zip(a, b):
+        for key in ("total", "l3d", "l2d", "lsc", "kl"):
+            assert ra[key] == rb[key], (ra["step"], key, ra[key], rb[key])  # bit-identical
+    wa = torch.load(whole / "checkpoints" / "last.pt", weights_only=False)["model"]
+    wb = torch.load(parts / "checkpoints" / "last.pt", weights_only=False)["model"]
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
+
+    # a resumed run may not change what decides the trajectory
+    bad = run_cli(main, ["fit", "--out", parts, "--shards", sample_shards, "--steps", "8",
+                         "--resume", "--seed", "6"], expect_exit=1)
+    assert "cannot change on --resume" in bad.output and "--seed" in bad.output
+    again = run_cli(main, ["fit", "--out", parts, "--shards", sample_shards, "--steps", "8"], expect_exit=1)
+    assert "already holds a run" in again.output
+
+
+def test_semi_supervised_runs_both_phases(sample_shards, tmp_path):
+    from sc3d_train.data import ShardDataset
+
+    out = tmp_path / "semi"
+    run_cli(main, ["fit", "--shards", sample_shards, "--out", out, "--steps", "4", "--batch-size", "4",
+                   *TINY, "--semi", "--labeled-fraction", "0.15", "--pretrain-steps", "2"])
+    rows = read_csv(out / "metrics.csv")
+    assert [r["phase"] for r in rows] == ["supervised"] * 2 + ["unsupervised"] * 2
+    assert [float(r["lr"]) for r in rows] == [2e-4, 2e-4, 2e-5, 2e-5]
+    assert all(float(r["l3d"]) == 0 for r in rows[2:]) and all(float(r["l3d"]) > 0 for r in rows[:2])
+    assert all(float(r["lsc"]) > 0 for r in rows)
+
+    # the labelled subset is chosen by object, seeded; labelled and unlabelled are disjoint
+    lab = ShardDataset(sample_shards, "train", subset="labeled", labeled_fraction=0.15, seed=0)
+    unl = ShardDataset(sample_shards, "train", subset="unlabeled", labeled_fraction=0.15, seed=0,
+                       require_voxels=False)
+    allt = ShardDataset(sample_shards, "train")
+    assert lab.num_objects == max(1, round(0.15 * allt.num_objects))
+    assert lab.num_objects + unl.num_objects == allt.num_objects
+    assert not {o.model_id for o in lab.objects} & {o.model_id for o in unl.objects}
+    again = ShardDataset(sample_shards, "train", subset="labeled", labeled_fraction=0.15, seed=0)
+    assert [o.model_id for o in again.objects] == [o.model_id for o in lab.objects]
+
+    only = tmp_path / "labeled_only"
+    run_cli(main, ["fit", "--shards", sample_shards, "--out", only, "--steps", "1", "--batch-size", "2",
+                   *TINY, "--labeled-only"])
+    assert read_csv(only / "metrics.csv")[0]["phase"] == "supervised"
+
+
+def test_loader_masks_follow_the_camera(sample_shards):
+    """The 48 px masks come from the 64 px masks, and K_sc is K scaled by 3/4."""
+    from sc3d_train.data import ShardDataset, ViewSampler
+
+    ds = ShardDataset(sample_shards, "train")
+    item = ds[5]
+    assert item["masks_sc"].shape == (48, 48) and item["images"].shape == (3, 64, 64)
+    assert torch.allclose(item["K_sc"][:2], item["K"][:2] * 0.75)
+    frac64, frac48 = item["masks"].mean(), item["masks_sc"].mean()
+    assert frac48 > 0 and abs(frac64 - frac48) < 0.02
+    # the view stream is a pure function of (seed, position)
+    s = ViewSampler(ds.num_objects, ds.num_views, seed=3)
+    it = iter(s)
+    first = [next(it) for _ in range(30)]
+    it2 = iter(ViewSampler(ds.num_objects, ds.num_views, seed=3, start=11))
+    assert [next(it2) for _ in range(19)] == first[11:]
+    ranks = [ViewSampler(ds.num_objects, ds.num_views, seed=3, rank=r, world_size=2).epoch_indices(0)
+             for r in (0, 1)]
+    assert set(ranks[0]) | set(ranks[1]) >= set(s.epoch_indices(0))
+
+
+def test_bad_inputs_fail_before_training(sample_shards, tmp_path):
+    base = ["fit", "--out", tmp_path / "run", "--steps", "2", "--batch-size", "2", *TINY]
+    no_vox = tmp_path / "no_voxels"
+    shutil.copytree(sample_shards, no_vox)
+    shard = sorted(no_vox.glob("shard-*.h5"))[0]
+    with h5py.File(shard, "a") as f:
+        del f["voxels"]
+    r = run_cli(main, base + ["--shards", no_vox], expect_exit=1)
+    assert "voxels" in r.output and "voxelize" in r.output
+    r = run_cli(main, base + ["--shards", sample_shards, "--split", "nosuch"], expect_exit=1)
+    assert "split 'nosuch' is empty" in r.output
+    r = run_cli(main, base + ["--shards", tmp_path / "missing"], expect_exit=1)
+    assert "does not exist" in r.output
+    assert not (tmp_path / "run" / "checkpoints").exists()
+
+
+def test_nan_loss_stops_with_step_and_checkpoint(sample_shards, tmp_path):
+    """Weights corrupted with NaN in the checkpoint: the resumed run stops at its first step and
+    names the last good checkpoint."""
+    out = tmp_path / "nan"
+    run_cli(main, ["fit", "--shards", sample_shards, "--out", out, "--steps", "2", "--batch-size", "2", *TINY])
+    last = out / "checkpoints" / "last.pt"
+    ckpt = torch.load(last, weights_only=False)
+    for v in ckpt["model"].values():
+        if v.is_floating_point():
+            v.fill_(float("nan"))
+    torch.save(ckpt, last)
+    r = run_cli(main, ["fit", "--out", out, "--steps", "4", "--resume", "--no-progress"], expect_exit=1)
+    assert "at step 2" in r.output and "last good checkpoint" in r.output and "last.pt" in r.output
