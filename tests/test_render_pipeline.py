@@ -1,0 +1,164 @@
+"""``sc3d-data render`` end to end: bad input of every kind, resume after an interruption,
+parallel == serial (real renderer, real HDF5, real worker processes)."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from cli.data import main
+from conftest import REPO, SAMPLE_MESHES, run_cli
+
+FAST = ["--views", "4", "--no-progress"]
+
+
+def _write_obj(path: Path, vertices, faces, extra: str = "") -> None:
+    lines = [extra] if extra else []
+    lines += [f"v {x} {y} {z}" for x, y, z in vertices]
+    lines += ["f " + " ".join(str(i + 1) for i in f) for f in faces]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _cube():
+    v = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
+    f = [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+         [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]
+    return v, f
+
+
+def _shard_arrays(out: Path) -> dict:
+    """Every dataset of every shard plus the shard attributes, keyed by file/name."""
+    data = {}
+    for p in sorted(out.glob("shard-*.h5")):
+        with h5py.File(p) as f:
+            for k in f:
+                data[f"{p.name}/{k}"] = f[k][()]
+            data[f"{p.name}/attrs"] = dict(f.attrs)
+    return data
+
+
+def test_bad_inputs_are_recorded_and_the_run_goes_on(tmp_path):
+    d = tmp_path / "meshes" / "thing"
+    d.mkdir(parents=True)
+    v, f = _cube()
+    _write_obj(d / "good_cube.obj", v, f)
+    shutil.copy(SAMPLE_MESHES / "table" / "coffee_table_blendswap_ccby.glb", d / "good_table.glb")
+    (d / "garbage.obj").write_bytes(os.urandom(3000).replace(b"\n", b"x"))
+    (d / "empty.obj").write_bytes(b"")
+    _write_obj(d / "nan.obj", [[0, 0, 0], [1, 0, float("nan")], [0, 1, 0]], [[0, 1, 2]])
+    _write_obj(d / "flat.obj", [[0, 0, 0], [1, 1, 1], [2, 2, 2]], [[0, 1, 2], [0, 2, 1]])
+    n = 40  # a 2 * 40 * 40 = 3,200-face grid, over the test's --max-faces 1000
+    g = np.stack(np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij"), -1).reshape(-1, 2)
+    idx = lambda i, j: i * (n + 1) + j  # noqa: E731
+    faces = [[idx(i, j), idx(i + 1, j), idx(i + 1, j + 1)] for i in range(n) for j in range(n)]
+    faces += [[idx(i, j), idx(i + 1, j + 1), idx(i, j + 1)] for i in range(n) for j in range(n)]
+    _write_obj(d / "huge.obj", np.c_[g, np.zeros(len(g))], faces)
+    (d / "tex.mtl").write_text("newmtl m\nKd 1 0 0\nmap_Kd missing_texture.png\n")
+    _write_obj(d / "tex.obj", v, f, extra="mtllib tex.mtl\nusemtl m")
+    os.symlink("..", d / "loop")  # a folder that leads back to its parent
+    # a loader that hangs: the glTF's buffer is a FIFO nobody writes to
+    os.mkfifo(d / "hang.bin")
+    (d / "hang.gltf").write_text(json.dumps({
+        "asset": {"version": "2.0"}, "buffers": [{"uri": "hang.bin", "byteLength": 36}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0, 0, 0], "max": [1, 1, 0]}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}], "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}], "scene": 0}))
+    out = tmp_path / "out"
+    t0 = time.monotonic()
+    result = run_cli(main, ["render", "--meshes", tmp_path / "meshes", "--out", out, "--workers", "2",
+                            "--max-faces", "1000", "--timeout", "6", "--split", "random:1,0,0", *FAST])
+    assert time.monotonic() - t0 < 90
+    index = json.loads((out / "index.json").read_text())
+    reasons = {Path(x["source"]).name: x["reason"] for x in index["failures"]}
+    assert "parse" in reasons["garbage.obj"] or "empty" in reasons["garbage.obj"]
+    assert "empty" in reasons["empty.obj"] or "parse" in reasons["empty.obj"]
+    assert "NaN" in reasons["nan.obj"]
+    assert "zero surface area" in reasons["flat.obj"]
+    assert "3,200 triangles" in reasons["huge.obj"] and "--max-faces" in reasons["huge.obj"]
+    assert "missing_texture.png" in reasons["tex.obj"] and "not found" in reasons["tex.obj"]
+    assert "timed out" in reasons["hang.gltf"]
+    assert "symlink loop" in reasons["loop"]
+    assert sorted(o["model_id"] for o in index["objects"]) == ["good_cube", "good_table"]
+    assert index["complete"] and index["counts"]["total"] == 2
+    assert "failed 8" in result.output and "done 2" in result.output
+    info = run_cli(main, ["info", out]).output
+    assert "zero surface area" in info and "timed out" in info
+    # the texture fallback renders the object with its material colour instead
+    out2 = tmp_path / "out2"
+    run_cli(main, ["render", "--meshes", d / "tex.obj", "--out", out2, "--category", "thing",
+                   "--bad-texture", "fallback", "--workers", "1", *FAST])
+    index2 = json.loads((out2 / "index.json").read_text())
+    assert index2["counts"]["total"] == 1 and "missing_texture.png" in index2["warnings"][0]["warning"]
+
+
+def test_parallel_equals_serial(sample_shards, tmp_path):
+    """The session fixture rendered with 2 workers; one worker gives the same bytes."""
+    out = tmp_path / "serial"
+    run_cli(main, ["render", "--meshes", SAMPLE_MESHES, "--out", out, "--voxelize", "--workers", "1", "--no-progress"])
+    a, b = _shard_arrays(sample_shards), _shard_arrays(out)
+    assert a.keys() == b.keys()
+    for k in a:
+        if k.endswith("/attrs"):
+            assert a[k] == b[k]
+        else:
+            np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+def test_resume_after_kill_keeps_finished_shards(tmp_path):
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-c", "from cli.data import main; main()", "render", "--out", str(out),
+           "--objects-per-shard", "2", "--workers", "1", *FAST]
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    deadline = time.monotonic() + 60
+    try:
+        while time.monotonic() < deadline:
+            if (out / "index.json").exists() and len(json.loads((out / "index.json").read_text())["shards"]) >= 2:
+                break
+            time.sleep(0.05)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)  # the run and its worker, mid-way
+        proc.wait()
+    index = json.loads((out / "index.json").read_text())
+    kept = {s["file"] for s in index["shards"]}
+    assert 2 <= len(kept) < 6 and not index["complete"]
+    # every *.h5 on disk is complete and listed; leave a stale temporary file behind as a crash would
+    for p in out.glob("shard-*.h5"):
+        with h5py.File(p) as f:
+            assert f["images"].shape[0] == 2
+    (out / "shard-00005.h5.tmp").write_bytes(b"half a shard")
+    mtimes = {f: (out / f).stat().st_mtime_ns for f in kept}
+    result = run_cli(main, ["render", "--out", out, "--objects-per-shard", "2", "--workers", "2", *FAST])
+    assert f"resumed {2 * len(kept)}" in result.output
+    assert {f: (out / f).stat().st_mtime_ns for f in kept} == mtimes  # not redone
+    assert not list(out.glob("*.tmp"))
+    index = json.loads((out / "index.json").read_text())
+    assert index["complete"] and index["counts"]["total"] == 11 and len(index["shards"]) == 6
+    # the resumed output equals an uninterrupted run
+    full = tmp_path / "full"
+    run_cli(main, ["render", "--out", full, "--objects-per-shard", "2", "--workers", "2", *FAST])
+    a, b = _shard_arrays(out), _shard_arrays(full)
+    assert a.keys() == b.keys()
+    for k in a:
+        if not k.endswith("/attrs"):
+            np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+def test_settings_mismatch_refuses_to_mix(tmp_path):
+    out = tmp_path / "out"
+    run_cli(main, ["render", "--meshes", SAMPLE_MESHES / "table", "--out", out, "--workers", "1", *FAST])
+    result = run_cli(main, ["render", "--meshes", SAMPLE_MESHES / "table", "--out", out, "--workers", "1",
+                            "--views", "6", "--no-progress"], expect_exit=1)
+    assert "num_views" in result.output and "--overwrite" in result.output
