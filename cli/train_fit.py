@@ -7,8 +7,8 @@ import click
 
 
 @click.command()
-@click.option("--shards", type=click.Path(file_okay=False, path_type=Path), required=True,
-              help="Shard directory written by `sc3d-data render --voxelize`.")
+@click.option("--shards", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Shard directory written by `sc3d-data render --voxelize` (optional with --resume).")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Run directory: config.json, checkpoints/, metrics.csv, tb/, curves.png.")
 @click.option("--steps", type=int, default=2000, show_default=True, help="Optimiser steps (all phases).")
@@ -47,10 +47,12 @@ def fit(ctx, shards, out, steps, batch_size, lr, semi_lr, semi, labeled_only, la
 
     if semi and labeled_only:
         raise click.UsageError("--semi and --labeled-only exclude each other")
+    if shards is None and not resume:
+        raise click.UsageError("Missing option '--shards' (needed unless --resume)")
     renamed = {"no_progress": "progress", "semi": "mode", "labeled_only": "mode"}
     given = {renamed.get(name, name) for name in ctx.params
              if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE}
-    options = dict(shards=str(shards), out=str(out), steps=steps, batch_size=batch_size, lr=lr,
+    options = dict(shards=str(shards) if shards else None, out=str(out), steps=steps, batch_size=batch_size, lr=lr,
                    semi_lr=semi_lr, mode="semi" if semi else "labeled-only" if labeled_only else "supervised",
                    labeled_fraction=labeled_fraction, pretrain_steps=pretrain_steps, split=split,
                    seed=seed, checkpoint_every=checkpoint_every, log_every=log_every, workers=workers,

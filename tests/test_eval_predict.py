@@ -1,0 +1,111 @@
+"""sc3d-train eval and predict on the shared short training run: their files and contents,
+and clear errors for bad input (wrong image size/mode, a checkpoint from another config)."""
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import torch
+from PIL import Image
+
+from cli.train import main
+from tests.conftest import run_cli
+
+
+def test_eval_writes_metrics_table_and_picture(trained_run, sample_shards, tmp_path):
+    out = tmp_path / "eval"
+    r = run_cli(main, ["eval", "--checkpoint", trained_run / "checkpoints" / "last.pt",
+                       "--shards", sample_shards, "--split", "test", "--out", out])
+    assert "IoU@.4" in r.output and "mean" in r.output and "overall" in r.output
+    metrics = json.loads((out / "metrics.json").read_text())
+    test_cats = {o["category"] for o in json.loads((sample_shards / "index.json").read_text())["objects"]
+                 if o["split"] == "test"}
+    assert set(metrics["per_category"]) == test_cats
+    assert metrics["split"] == "test" and metrics["voxel_thresholds"] == [0.4, 0.5]
+    for block in [*metrics["per_category"].values(), metrics["mean"], metrics["overall"]]:
+        for key in ("voxel_iou_0.4", "voxel_iou_0.5", "mask_iou", "pose_azimuth_acc30", "pose_elevation_acc30"):
+            assert 0.0 <= block[key] <= 1.0, (key, block[key])
+        for key in ("pose_azimuth_mean", "pose_azimuth_median", "pose_elevation_mean"):
+            assert 0.0 <= block[key] <= 180.0
+    assert metrics["overall"]["images"] == 24 * len(
+        [o for o in json.loads((sample_shards / "index.json").read_text())["objects"] if o["split"] == "test"])
+    assert metrics["overall"]["mask_iou"] > 0.3  # the mask decoder has learnt the silhouettes
+    with Image.open(out / "predictions.png") as im:
+        assert im.size[0] > 400 and im.size[1] > 100
+
+
+def test_eval_metric_definitions():
+    from sc3d_train.evaluate import iou, summarize
+
+    a = torch.zeros(2, 4, 4, 4, dtype=torch.bool)
+    b = a.clone()
+    a[0, :2], b[0, 1:3] = True, True  # 32 & 32 voxels overlapping in 16: IoU 1/3
+    assert torch.allclose(iou(a, b), torch.tensor([1 / 3, 1.0], dtype=torch.float64))
+    rows = [{"category": c, "model_id": m, "iou_0.4": v, "iou_0.5": v, "mask_iou": v,
+             "azimuth_pred": ap, "elevation_pred": 30.0, "azimuth_true": at, "elevation_true": 30.0}
+            for c, m, v, ap, at in (("a", "1", 1.0, 359.0, 1.0), ("a", "1", 0.0, 90.0, 0.0),
+                                    ("b", "2", 0.5, 10.0, 10.0))]
+    s = summarize(rows)
+    assert s["per_category"]["a"]["voxel_iou_0.4"] == 0.5 and s["mean"]["voxel_iou_0.4"] == 0.5
+    assert abs(s["overall"]["voxel_iou_0.4"] - 0.5) < 1e-12
+    assert s["per_category"]["a"]["pose_azimuth_mean"] == (2.0 + 90.0) / 2  # 359 vs 1 is 2 degrees
+    assert s["per_category"]["a"]["pose_azimuth_acc30"] == 0.5
+
+
+def test_predict_writes_voxels_mesh_pose_and_picture(trained_run, sample_shards, tmp_path):
+    import trimesh
+
+    from sc3d_data.binvox import read_binvox
+
+    shard = sorted(sample_shards.glob("shard-*.h5"))[0]
+    with h5py.File(shard, "r") as f:
+        rgb, mask = f["images"][0, 5], f["masks"][0, 5]
+    Image.fromarray(rgb).save(tmp_path / "chair.png")
+    rgba = np.concatenate([rgb, (mask > 0).astype(np.uint8)[..., None] * 255], -1)
+    rgba[mask == 0, :3] = 0  # transparent pixels carry black: compositing must make them white
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "cut_out.png")
+
+    out = tmp_path / "pred"
+    r = run_cli(main, ["predict", "--checkpoint", trained_run / "checkpoints" / "last.pt",
+                       tmp_path / "chair.png", tmp_path / "cut_out.png", "--out", out])
+    assert "azimuth" in r.output
+    for name in ("chair", "cut_out"):
+        for ext in ("binvox", "npz", "obj", "json", "png"):
+            assert (out / f"{name}.{ext}").is_file(), (name, ext)
+        pose = json.loads((out / f"{name}.json").read_text())
+        assert 0.0 <= pose["azimuth_deg"] < 360.0 and -90.0 < pose["elevation_deg"] < 90.0
+        npz = np.load(out / f"{name}.npz")
+        assert npz["probabilities"].shape == (32, 32, 32) and npz["voxels"].dtype == bool
+        assert np.array_equal(read_binvox(out / f"{name}.binvox").voxels, npz["voxels"])
+        assert pose["occupied_voxels"] == int(npz["voxels"].sum()) > 0
+        mesh = trimesh.load(out / f"{name}.obj")
+        assert len(mesh.faces) > 0 and mesh.bounds.min() >= -0.5 and mesh.bounds.max() <= 0.5
+        assert mesh.volume > 0  # faces wind outwards
+    # the RGBA cut-out composited on white equals the rendered image: same prediction
+    a, b = np.load(out / "chair.npz"), np.load(out / "cut_out.npz")
+    assert np.allclose(a["probabilities"], b["probabilities"], atol=1e-5)
+
+
+def test_predict_and_eval_refuse_bad_input(trained_run, sample_shards, tmp_path):
+    ckpt = trained_run / "checkpoints" / "last.pt"
+    Image.new("RGB", (32, 32), "white").save(tmp_path / "small.png")
+    r = run_cli(main, ["predict", "--checkpoint", ckpt, tmp_path / "small.png", "--out", tmp_path / "p"],
+                expect_exit=1)
+    assert "small.png" in r.output and "32x32" in r.output and "64x64" in r.output
+    Image.new("CMYK", (64, 64)).save(tmp_path / "cmyk.jpg")
+    r = run_cli(main, ["predict", "--checkpoint", ckpt, tmp_path / "cmyk.jpg", "--out", tmp_path / "p"],
+                expect_exit=1)
+    assert "cmyk.jpg" in r.output and "CMYK" in r.output
+    assert not (tmp_path / "p").exists()  # nothing written before the inputs are checked
+
+    # a checkpoint whose weights do not fit the config stored in it
+    ck = torch.load(ckpt, weights_only=False)
+    ck["config"]["model"]["base_channels"] = 16
+    torch.save(ck, tmp_path / "other.pt")
+    r = run_cli(main, ["eval", "--checkpoint", tmp_path / "other.pt", "--shards", sample_shards,
+                       "--out", tmp_path / "e"], expect_exit=1)
+    assert "other.pt" in r.output and "do not match" in r.output
+    r = run_cli(main, ["eval", "--checkpoint", tmp_path / "missing.pt", "--shards", sample_shards,
+                       "--out", tmp_path / "e"], expect_exit=1)
+    assert "not found" in r.output
