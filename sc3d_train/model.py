@@ -105,8 +105,10 @@ def _act() -> nn.Module:
 
 
 class ResidualBlock(nn.Module):
-    """Pre-activation-free basic residual block: two 3x3 convs with BN, a strided 1x1 projection
-    on the shortcut; ``[B, cin, H, W] -> [B, cout, H/stride, W/stride]``."""
+    """Basic residual block: two 3x3 convs with BN; the shortcut is average pooling + 1x1 conv + BN
+    (ResNet-D style) rather than a strided 1x1 conv, whose CPU backward in torch 2.13 corrupts the
+    heap for inputs with channels-last strides and few channels (e.g. images permuted from HWC,
+    ``base_channels`` 4 or 8); ``[B, cin, H, W] -> [B, cout, H/stride, W/stride]``."""
 
     def __init__(self, cin: int, cout: int, stride: int = 2):
         super().__init__()
@@ -114,7 +116,8 @@ class ResidualBlock(nn.Module):
         self.bn1 = nn.BatchNorm2d(cout)
         self.conv2 = nn.Conv2d(cout, cout, 3, 1, 1, bias=False)
         self.bn2 = nn.BatchNorm2d(cout)
-        self.shortcut = nn.Sequential(nn.Conv2d(cin, cout, 1, stride, bias=False), nn.BatchNorm2d(cout))
+        pool = nn.AvgPool2d(stride) if stride > 1 else nn.Identity()
+        self.shortcut = nn.Sequential(pool, nn.Conv2d(cin, cout, 1, bias=False), nn.BatchNorm2d(cout))
         self.act = _act()
 
     def forward(self, x: Tensor) -> Tensor:

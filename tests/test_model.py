@@ -41,6 +41,18 @@ def test_output_shapes(config):
     assert len(model.voxel_decoder.branches) == (3 if config.voxel_decoder == "3tube" else 1)
 
 
+@pytest.mark.parametrize("channels", [4, 8])
+def test_backward_on_images_permuted_from_hwc(channels):
+    """Images straight from the shards ([B, S, S, 3] permuted, channels-last strides) with a small
+    model: forward and backward work (a strided 1x1 conv crashed torch's CPU backward here)."""
+    torch.manual_seed(0)
+    model = SelfConsistencyNet(ModelConfig.tiny(base_channels=channels))
+    images = torch.rand(6, 64, 64, 3).permute(0, 3, 1, 2)
+    out = model(images)
+    (out.voxel_logits.mean() + out.mask_logits.mean() + out.pose_raw.sum()).backward()
+    assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
+
+
 def test_vae_samples_in_training_and_uses_the_mean_in_eval():
     torch.manual_seed(0)
     model = SelfConsistencyNet(ModelConfig.tiny())
