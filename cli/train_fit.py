@@ -58,13 +58,19 @@ def fit(ctx, shards, out, steps, batch_size, lr, semi_lr, semi, labeled_only, la
                    seed=seed, checkpoint_every=checkpoint_every, log_every=log_every, workers=workers,
                    device=device, amp=amp, channels_last=channels_last, progress=not no_progress)
     model_options = {"voxel_decoder": voxel_decoder, "base_channels": base_channels, "tiny": tiny}
+    import os
+
+    main_rank = os.environ.get("RANK", "0") == "0"  # under torchrun only rank 0 reports
     try:
         cfg = resolve_config(options, model_options, given, resume)
-        click.echo(f"training {cfg.mode} for {cfg.steps} steps, batch {cfg.batch_size}, "
-                   f"model {cfg.model}, run dir {cfg.out}")
+        if main_rank:
+                click.echo(f"training {cfg.mode} for {cfg.steps} steps, batch {cfg.batch_size}, "
+                       f"model {cfg.model}, run dir {cfg.out}")
         summary = run_fit(cfg, resume=resume)
     except (DataError, CheckpointError, TrainingDiverged, FileNotFoundError, ValueError) as e:
         raise click.ClickException(str(e)) from e
+    if not main_rank:
+        return
     losses = ", ".join(f"{k} {v:.4f}" for k, v in summary["last_losses"].items())
     click.echo(f"done: step {summary['step']}, {summary['samples_per_s']:.1f} samples/s; {losses}")
     click.echo(f"checkpoint: {summary['checkpoint']}")

@@ -333,7 +333,9 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
     if dist_info.world_size > 1:
         from torch.nn.parallel import DistributedDataParallel as DDP
 
-        train_model = DDP(model, device_ids=[device.index] if device.type == "cuda" else None)
+        # the unsupervised phase gives the mask decoder no gradient (its mask is detached)
+        train_model = DDP(model, device_ids=[device.index] if device.type == "cuda" else None,
+                          find_unused_parameters=cfg.mode == "semi")
 
     if dist_info.is_main:
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -411,8 +413,14 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
                 now = time.perf_counter()
                 rate = n_log / max(now - t_log, 1e-9)
                 t_log, n_log = now, 0
-                last_losses = {k: float(v.detach()) for k, v in losses.items()
-                               if torch.is_tensor(v) and v.ndim == 0}
+                scalars = {k: v.detach().float() for k, v in losses.items() if torch.is_tensor(v) and v.ndim == 0}
+                values = torch.stack(list(scalars.values()))
+                if dist_info.world_size > 1:  # log the mean over ranks
+                    import torch.distributed as dist
+
+                    dist.all_reduce(values)
+                    values = values / dist_info.world_size
+                last_losses = dict(zip(scalars, values.tolist()))
                 log.log(step, {"phase": phase, **last_losses, "lr": cfg.lr_at(step),
                                "samples_per_s": round(rate, 2)})
                 if progress is not None:

@@ -1,0 +1,184 @@
+"""Speed of training: one optimiser step, the shard loader, the self-consistency module.
+
+    python benchmarks/train_step.py [--shards DIR] [--batch-size 48] [--device auto] [--tiny]
+
+Without ``--shards`` the bundled sample meshes are rendered + voxelized into a temporary
+directory first (a few seconds). Three tables, each with a straightforward baseline measured in
+the same run, so improvements show as ratios:
+
+1. training step (forward + losses + backward + Adam) at the given batch: baseline fp32,
+   contiguous (NCHW) memory, against the trainer's settings for the device (CUDA: bf16/fp16
+   autocast + channels_last; CPU: fp32, which is what ``fit`` uses there) and, on the CPU, the
+   channels_last and bf16 variants for reference;
+2. loader samples/s with 0, 2 and 4 worker processes, against the training step's samples/s
+   (the loader should outrun the step);
+3. the self-consistency module (C1's ``benchmark_self_consistency``): ms per batch and memory,
+   against the gather + loop baseline.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import tempfile
+import time
+from contextlib import nullcontext
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+import torch  # noqa: E402
+
+
+def render_samples(out: Path) -> Path:
+    from click.testing import CliRunner
+
+    from cli.data import main
+
+    res = CliRunner().invoke(main, ["render", "--meshes", str(REPO / "assets" / "sample_meshes"),
+                                    "--out", str(out), "--voxelize", "--workers", "2"])
+    if res.exit_code:
+        raise SystemExit(f"rendering the sample meshes failed:\n{res.output}")
+    return out
+
+
+def time_train_step(cfg, batch, device, amp_dtype, channels_last: bool, steps: int) -> float:
+    """Median seconds of one full optimiser step on a fixed batch (after one warm-up step)."""
+    from sc3d_train.checkpoint import build_model
+    from sc3d_train.losses import LossWeights, supervised_loss
+    from sc3d_train.trainer import training_batch
+
+    torch.manual_seed(0)
+    model = build_model(cfg).to(device)
+    if channels_last:
+        model = model.to(memory_format=torch.channels_last)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    scaler = torch.amp.GradScaler("cuda") if amp_dtype == torch.float16 else None
+    b = training_batch(batch, "supervised", device, channels_last)
+    weights = LossWeights(**cfg.loss_weights)
+    times = []
+    for i in range(steps + 1):
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        t0 = time.perf_counter()
+        opt.zero_grad(set_to_none=True)
+        ctx = torch.autocast(device.type, dtype=amp_dtype) if amp_dtype else nullcontext()
+        with ctx:
+            loss = supervised_loss(model(b["images"]), b, weights)["total"]
+        if scaler:
+            scaler.scale(loss).backward()
+            scaler.step(opt)
+            scaler.update()
+        else:
+            loss.backward()
+            opt.step()
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        if i:
+            times.append(time.perf_counter() - t0)
+    return sorted(times)[len(times) // 2]
+
+
+def time_loader(shards: Path, batch_size: int, workers: int, batches: int) -> float:
+    """Samples/s of the training loader (a fresh loader: workers start, caches are cold)."""
+    from sc3d_train.data import ShardDataset, make_loader
+
+    ds = ShardDataset(shards, "train")
+    it = iter(make_loader(ds, batch_size, seed=0, workers=workers))
+    next(it)  # worker start-up is not throughput
+    t0 = time.perf_counter()
+    for _ in range(batches):
+        next(it)
+    return batches * batch_size / (time.perf_counter() - t0)
+
+
+def table(title: str, header: tuple[str, ...], rows: list[tuple]) -> str:
+    widths = [max(len(str(x)) for x in col) for col in zip(header, *rows)]
+    fmt = "  ".join(f"{{:<{w}}}" if i == 0 else f"{{:>{w}}}" for i, w in enumerate(widths))
+    lines = [title, fmt.format(*header), fmt.format(*("-" * w for w in widths))]
+    lines += [fmt.format(*r) for r in rows]
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--shards", type=Path, default=None)
+    ap.add_argument("--batch-size", type=int, default=48)
+    ap.add_argument("--steps", type=int, default=3, help="timed steps per variant (median)")
+    ap.add_argument("--loader-batches", type=int, default=20)
+    ap.add_argument("--device", default="auto")
+    ap.add_argument("--tiny", action="store_true", help="the --tiny model instead of the paper's width")
+    ap.add_argument("--skip-loader", action="store_true")
+    args = ap.parse_args()
+
+    from sc3d_train.data import ShardDataset, make_loader
+    from sc3d_train.self_consistency import benchmark_self_consistency
+    from sc3d_train.trainer import DistInfo, resolve_config, resolve_device
+
+    device = resolve_device(args.device, DistInfo())
+    tmp = None
+    shards = args.shards
+    if shards is None:
+        tmp = tempfile.TemporaryDirectory()
+        shards = render_samples(Path(tmp.name) / "shards")
+    cfg = resolve_config({"shards": str(shards), "out": "unused", "batch_size": args.batch_size},
+                         {"tiny": args.tiny}, set(), resume=False)
+    gpu = torch.cuda.get_device_name(device) if device.type == "cuda" else None
+    print(f"device: {device} ({gpu or platform.processor() or 'cpu'}; {torch.get_num_threads()} torch threads); "
+          f"GPU available: {torch.cuda.is_available()}; torch {torch.__version__}")
+    print(f"model: {cfg.model}")
+    batch = next(iter(make_loader(ShardDataset(shards, "train"), args.batch_size, seed=0)))
+
+    # 1. training step
+    variants = [("baseline: fp32, NCHW", None, False)]
+    if device.type == "cuda":
+        amp = torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
+        variants.append((f"fit default: {str(amp)[6:]} autocast + channels_last", amp, True))
+        variants.append((f"{str(amp)[6:]} autocast only", amp, False))
+    else:
+        variants.append(("fit default on CPU: fp32, NCHW", None, False))
+        variants.append(("channels_last", None, True))
+        variants.append(("bf16 autocast + channels_last", torch.bfloat16, True))
+    step_rows, base = [], None
+    for name, amp_dtype, cl in variants:
+        try:
+            sec = time_train_step(cfg, batch, device, amp_dtype, cl, args.steps)
+        except Exception as e:  # noqa: BLE001 - a variant the device cannot run is reported, not fatal
+            step_rows.append((name, "failed", type(e).__name__, ""))
+            continue
+        base = base or sec
+        step_rows.append((name, f"{1000 * sec:.0f}", f"{args.batch_size / sec:.1f}", f"{base / sec:.2f}x"))
+    print()
+    print(table(f"1. training step, batch {args.batch_size}, {device.type}",
+                ("variant", "ms/step", "samples/s", "vs baseline"), step_rows))
+    step_rate = args.batch_size / (float(step_rows[1][1]) / 1000) if step_rows[1][1] != "failed" else None
+
+    # 2. loader
+    if not args.skip_loader:
+        rows, base = [], None
+        for w in (0, 2, 4):
+            rate = time_loader(shards, args.batch_size, w, args.loader_batches)
+            base = base or rate
+            vs_step = f"{rate / step_rate:.1f}x" if step_rate else "-"
+            rows.append((f"{w} workers", f"{rate:.0f}", f"{rate / base:.2f}x", vs_step))
+        print()
+        print(table(f"2. loader, batch {args.batch_size} (samples/s)",
+                    ("loader", "samples/s", "vs 0 workers", "vs fit step"), rows))
+
+    # 3. self-consistency module
+    sc = benchmark_self_consistency(batch_size=args.batch_size, device=device)
+    base = sc[0]["ms_per_batch"]
+    rows = [(r["name"], f"{r['ms_per_batch']:.0f}", f"{base / r['ms_per_batch']:.2f}x", f"{r['saved_mb']:.0f}",
+             "-" if r["peak_mb"] is None else f"{r['peak_mb']:.0f}") for r in sc]
+    print()
+    print(table(f"3. self-consistency loss forward+backward, batch {args.batch_size}, 48x48 rays x 64 samples",
+                ("variant", "ms/batch", "vs baseline", "saved MB", "CUDA peak MB"), rows))
+    if tmp is not None:
+        tmp.cleanup()
+
+
+if __name__ == "__main__":
+    main()
