@@ -45,7 +45,7 @@ def synthesize_r2n2(entries, renderings: Path, voxels: Path, seed: int = 0, obj_
     from sc3d_data.binvox import write_binvox
     from sc3d_data.mesh_io import load_mesh
     from sc3d_data.normalize import apply_transform, to_canonical_transform
-    from sc3d_data.render import MeshRenderer, RenderSettings, opengl_camera_pose
+    from sc3d_data.render import MeshRenderer, RenderSettings
     from sc3d_data.voxelize import voxelize_triangles
 
     rng = np.random.default_rng(seed)
@@ -61,8 +61,7 @@ def synthesize_r2n2(entries, renderings: Path, voxels: Path, seed: int = 0, obj_
             meta = random_r2n2_poses(rng)
             R, t = camera.extrinsics(sc3d_to_r2n2_azimuth(meta[:, 0]), meta[:, 1],
                                      meta[:, 3] * R2N2_MAX_CAMERA_DISTANCE, roll_deg=meta[:, 2])
-            renderer.poses = [opengl_camera_pose(r, tt) for r, tt in zip(R, t)]
-            out = renderer.render(scene, to_obj)
+            out = renderer.render(scene, to_obj, R, t)
             rdir = Path(renderings) / e.category / e.model_id / "rendering"
             rdir.mkdir(parents=True, exist_ok=True)
             names = [f"{v:02d}.png" for v in range(R2N2_NUM_VIEWS)]

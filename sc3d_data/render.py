@@ -1,22 +1,34 @@
 """One reusable offscreen renderer per process: RGB, silhouette masks and depth of an object
 seen from the cameras of ``sc3d_data.camera.ViewSettings``.
 
-The renderer and its pyrender scene (camera, headlight, ambient light) are created once;
-per object only the mesh node is swapped and per view only the camera (and the headlight that
-follows it) moves (NOTES-rendering.md: a renderer per mesh is 2-5x slower). Multisampling is
-OFF, so every coloured pixel is a pixel with depth > 0: the mask (depth > 0) and the RGB agree
-exactly (with pyrender's default 4x MSAA about 8% of silhouette pixels disagree). Back-face
-culling is off (most real meshes have inconsistent winding).
+A small dedicated OpenGL path (PyOpenGL, one shader program), not pyrender's renderer: per
+view pyrender spends ~8 ms of Python (scene traversal, uniform look-ups, one framebuffer
+readback per view); here ALL views of an object are drawn into ONE framebuffer, an atlas of
+``cols x rows`` tiles of ``S x S`` pixels, with one instanced draw call per mesh part
+(``gl_InstanceID`` = view) and read back with one ``glReadPixels`` (plus one for depth when
+asked for). Each instance's clip-space position is remapped onto its tile and clipped to it with
+``gl_ClipDistance``, so a tile holds exactly what a separate ``S x S`` render would.
+
+Look: per mesh part, base colour = material colour factor x texture (sRGB -> linear, mipmapped)
+x vertex/face colours, as pyrender reads them from trimesh; no material or texture -> grey 0.3.
+Matte shading with a headlight: ``colour = base x (ambient + intensity x |n.l| / pi)`` then
+gamma 1/2.2 (pyrender's metallic-roughness shader without the specular term and without
+metallic darkening), with flat per-pixel face normals (screen-space derivatives) and
+two-sided lighting (most real meshes have inconsistent winding; culling is off). Objects are
+opaque. No multisampling: the mask (alpha written by every fragment) and the RGB agree exactly,
+and background pixels hold exactly the background colour.
 
 Cameras: the shards store OpenCV ``K, R, t`` (world->camera, x right, y down, z forward);
-``opengl_camera_pose`` converts them into pyrender's camera-to-world pose with OpenGL axes
-(x right, y up, z backward). This conversion lives here and nowhere else.
-
-Call ``sc3d_data.gl_backend.activate(backend)`` (done by ``MeshRenderer``) before anything
-imports pyrender, and never fork a process after a renderer exists.
+``gl_view_matrix`` flips y and z to OpenGL camera axes and ``gl_projection`` builds the
+projection from ``K`` (pixel centres as in ``sc3d_data.camera.project_points``). The OpenGL
+context comes from pyrender's EGL/OSMesa platform classes; call
+``sc3d_data.gl_backend.activate(backend)`` (done by ``MeshRenderer``) before anything imports
+OpenGL, and never fork a process after a renderer exists.
 """
 from __future__ import annotations
 
+import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,118 +38,326 @@ from sc3d_data.gl_backend import activate
 
 #: OpenCV camera axes -> OpenGL camera axes (flip y and z)
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
+ZNEAR = 0.01
+DEFAULT_GREY = (0.3, 0.3, 0.3, 1.0)  # pyrender's colour for meshes without material
 
 
 def opengl_camera_pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """pyrender camera pose [4,4] (camera->world, OpenGL axes) from OpenCV world->camera
-    ``R [3,3]``, ``t [3]``."""
+    """Camera pose [4,4] (camera->world, OpenGL axes, as pyrender wants it) from OpenCV
+    world->camera ``R [3,3]``, ``t [3]``."""
     pose = np.eye(4)
     pose[:3, :3] = R.T
     pose[:3, 3] = -R.T @ t
     return pose @ _CV_TO_GL
 
 
-def _patch_msaa(samples: int) -> None:
-    """Make pyrender's offscreen framebuffer use ``samples`` MSAA samples (0 = off; pyrender
-    hard-codes 4). Affects every pyrender renderer in this process."""
-    import pyrender.renderer as prr
+def gl_view_matrices(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """World -> OpenGL camera matrices ``[V,4,4]`` from OpenCV ``R [V,3,3]``, ``t [V,3]``."""
+    V = np.zeros((len(R), 4, 4))
+    V[:, :3, :3], V[:, :3, 3], V[:, 3, 3] = R, t, 1.0
+    return _CV_TO_GL @ V
 
-    original = getattr(prr, "_sc3d_original_storage_ms", prr.glRenderbufferStorageMultisample)
-    prr._sc3d_original_storage_ms = original
 
-    def storage(target, _samples, fmt, width, height):
-        return original(target, samples, fmt, width, height)
+def gl_projection(K: np.ndarray, size: int, znear: float, zfar: float) -> np.ndarray:
+    """OpenGL projection [4,4] for pinhole intrinsics ``K`` and a ``size x size`` image (as
+    pyrender's ``IntrinsicsCamera``)."""
+    P = np.zeros((4, 4))
+    P[0, 0], P[0, 2] = 2.0 * K[0, 0] / size, 1.0 - 2.0 * K[0, 2] / size
+    P[1, 1], P[1, 2] = 2.0 * K[1, 1] / size, 2.0 * K[1, 2] / size - 1.0
+    P[2, 2], P[2, 3] = (zfar + znear) / (znear - zfar), 2.0 * zfar * znear / (znear - zfar)
+    P[3, 2] = -1.0
+    return P
 
-    prr.glRenderbufferStorageMultisample = storage
+
+_VERTEX = """
+#version 330 core
+layout(location = 0) in vec3 position;
+layout(location = 1) in vec4 color;
+layout(location = 2) in vec2 texcoord;
+uniform mat4 model;
+uniform mat4 view[NVIEWS];
+uniform mat4 proj;
+uniform vec2 grid;  // cols, rows
+out vec3 v_position;
+out vec4 v_color;
+out vec2 v_uv;
+void main() {
+    int i = gl_InstanceID;
+    vec4 p = view[i] * (model * vec4(position, 1.0));
+    vec4 c = proj * p;
+    gl_ClipDistance[0] = c.w + c.x;
+    gl_ClipDistance[1] = c.w - c.x;
+    gl_ClipDistance[2] = c.w + c.y;
+    gl_ClipDistance[3] = c.w - c.y;
+    float col = float(i % int(grid.x));
+    float row = grid.y - 1.0 - float(i / int(grid.x));  // view 0 in the top-left tile
+    c.x = (c.x + c.w * (1.0 + 2.0 * col)) / grid.x - c.w;
+    c.y = (c.y + c.w * (1.0 + 2.0 * row)) / grid.y - c.w;
+    gl_Position = c;
+    v_position = p.xyz;
+    v_color = color;
+    v_uv = texcoord;
+}
+"""
+
+_FRAGMENT = """
+#version 330 core
+in vec3 v_position;
+in vec4 v_color;
+in vec2 v_uv;
+uniform vec4 base_color;
+uniform bool has_texture;
+uniform sampler2D base_texture;
+uniform float ambient;
+uniform float diffuse;
+out vec4 frag_color;
+vec3 srgb_to_linear(vec3 c) {
+    return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), step(vec3(0.04045), c));
+}
+void main() {
+    vec3 base = base_color.rgb;
+    if (has_texture) base *= srgb_to_linear(texture(base_texture, v_uv).rgb);
+    vec3 n = normalize(cross(dFdx(v_position), dFdy(v_position)));
+    vec3 c = base * (ambient + diffuse * abs(n.z)) * v_color.rgb;
+    frag_color = vec4(pow(clamp(c, 0.0, 1.0), vec3(1.0 / 2.2)), 1.0);
+}
+"""
 
 
 @dataclass(frozen=True)
 class RenderSettings:
     """How objects look: ``background`` RGB 0-255, ``depth`` (also return depth maps),
     ``light_intensity`` of the headlight (a directional light at the camera), ``ambient``
-    light level (0-1), ``msaa`` samples (0 keeps masks and RGB in exact agreement)."""
+    light level (0-1). See the module doc for the shading model."""
 
     background: tuple[int, int, int] = (255, 255, 255)
     depth: bool = False
     light_intensity: float = 1.5
     ambient: float = 0.2
-    msaa: int = 0
+    shading: str = "matte-flat-headlight-v1"  # recorded in the shards' settings
+
+
+def _color_factor(c) -> np.ndarray:
+    """RGBA 0-1 from a trimesh colour (uint8 0-255 or float 0-1, RGB or RGBA; None = white)."""
+    if c is None:
+        return np.ones(4)
+    c = np.asarray(c).ravel()
+    c = c / 255.0 if c.dtype.kind in "ui" or c.max() > 1.0 else c.astype(np.float64)
+    return np.concatenate([c, np.ones(4)])[:4]
+
+
+def mesh_parts(scene, to_canonical: np.ndarray):
+    """``(model [4,4], positions [N,3] f32, faces [M,3] u32, colors [N,4] u8 or None,
+    uv [N,2] f32 or None, base_color [4], texture image or None)`` per geometry of a
+    ``trimesh.Scene``, with pyrender's reading of trimesh visuals."""
+    import trimesh
+
+    for node in scene.graph.nodes_geometry:
+        transform, name = scene.graph[node]
+        m = scene.geometry[name]
+        if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
+            continue
+        model = np.asarray(to_canonical, dtype=np.float64) @ transform
+        pos, faces = m.vertices, m.faces
+        colors = uv = image = None
+        base = np.array(DEFAULT_GREY)
+        vis = m.visual
+        if vis.defined and vis.kind == "vertex":
+            colors, base = vis.vertex_colors, np.ones(4)
+        elif vis.defined and vis.kind == "face":  # un-index: one colour per corner
+            pos, colors, base = pos[faces].reshape(-1, 3), np.repeat(vis.face_colors, 3, axis=0), np.ones(4)
+            faces = np.arange(len(pos)).reshape(-1, 3)
+        elif vis.kind == "texture":
+            mat = vis.material
+            if isinstance(mat, trimesh.visual.material.PBRMaterial):
+                base, image = _color_factor(mat.baseColorFactor), mat.baseColorTexture
+            elif isinstance(mat, trimesh.visual.material.SimpleMaterial):
+                base, image = _color_factor(mat.diffuse), mat.image
+            if vis.uv is not None and len(vis.uv) == len(pos):
+                uv = vis.uv
+            else:
+                image = None
+        yield (model, np.ascontiguousarray(pos, np.float32), np.ascontiguousarray(faces, np.uint32),
+               None if colors is None else np.ascontiguousarray(colors, np.uint8),
+               None if uv is None else np.ascontiguousarray(uv, np.float32), base, image)
 
 
 class MeshRenderer:
-    """Renders objects at the cameras of ``views`` with one persistent offscreen renderer.
+    """Renders objects at the cameras of ``views`` with one persistent offscreen context.
 
     ``render(scene, to_canonical)`` takes a ``trimesh.Scene`` in its source frame and the
     4x4 source->canonical matrix and returns ``images [V,S,S,3] uint8``, ``masks [V,S,S]
     uint8`` (1 = object) and, when ``settings.depth``, ``depth [V,S,S] float32`` (camera-frame
-    z in world units, 0 = background). Views are ordered as ``views.cameras()``."""
+    z in world units, 0 = background). Views are ordered as ``views.cameras()``; other
+    cameras (same ``K``, ``V`` of them) can be passed as OpenCV ``R [V,3,3]``, ``t [V,3]``."""
 
     def __init__(self, views: ViewSettings, settings: RenderSettings = RenderSettings(),
                  backend: str = "egl"):
         activate(backend)
-        import pyrender
+        from OpenGL import GL
 
-        _patch_msaa(settings.msaa)
-        self._pyrender = pyrender
-        self.views, self.settings, self.backend = views, settings, backend
+        self.gl, self.views, self.settings, self.backend = GL, views, settings, backend
         self.cameras = views.cameras()
-        S = views.image_size
-        K = self.cameras["K"][0]
-        bg = np.array(list(settings.background) + [255], dtype=np.float64) / 255.0
-        self.scene = pyrender.Scene(bg_color=bg, ambient_light=np.full(3, settings.ambient))
-        far = views.distance + 10.0
-        camera = pyrender.IntrinsicsCamera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2],
-                                           znear=0.01, zfar=far)
-        self.camera_node = self.scene.add(camera)
-        self.light_node = self.scene.add(pyrender.DirectionalLight(color=np.ones(3),
-                                                                   intensity=settings.light_intensity))
-        self.poses = [opengl_camera_pose(R, t) for R, t in zip(self.cameras["R"], self.cameras["t"])]
-        self.renderer = pyrender.OffscreenRenderer(S, S)
-        self.flags = pyrender.RenderFlags.SKIP_CULL_FACES
-        self._object_node = None
+        self.S = S = views.image_size
+        self.V = V = len(self.cameras["R"])
+        self.cols = math.ceil(math.sqrt(V))
+        self.rows = math.ceil(V / self.cols)
+        self.zfar = views.distance + 10.0
+        self.proj = gl_projection(self.cameras["K"][0], S, ZNEAR, self.zfar)
+        self.views_gl = gl_view_matrices(self.cameras["R"], self.cameras["t"])
+        self._platform = self._context(backend, S * self.cols, S * self.rows)
+        self._init_gl()
 
-    def _set_object(self, scene, to_canonical: np.ndarray) -> None:
-        import trimesh
+    @staticmethod
+    def _context(backend: str, width: int, height: int):
+        if backend == "egl":
+            from pyrender.platforms import egl
 
-        pyrender = self._pyrender
-        if self._object_node is not None:
-            self.scene.remove_node(self._object_node)
-        root = pyrender.Node(matrix=np.asarray(to_canonical, dtype=np.float64))
-        self.scene.add_node(root)
-        for node in scene.graph.nodes_geometry:
-            transform, name = scene.graph[node]
-            geom = scene.geometry[name]
-            if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
+            platform = egl.EGLPlatform(width, height, device=egl.get_device_by_index(
+                int(os.environ.get("EGL_DEVICE_ID", "0"))))
+        else:
+            from pyrender.platforms.osmesa import OSMesaPlatform
+
+            platform = OSMesaPlatform(width, height)
+        platform.init_context()
+        platform.make_current()
+        return platform
+
+    def _init_gl(self) -> None:
+        GL = self.gl
+        from OpenGL.GL import shaders
+
+        src = _VERTEX.replace("NVIEWS", str(self.V))
+        self.program = shaders.compileProgram(shaders.compileShader(src, GL.GL_VERTEX_SHADER),
+                                              shaders.compileShader(_FRAGMENT, GL.GL_FRAGMENT_SHADER),
+                                              validate=False)
+        GL.glUseProgram(self.program)
+        self.loc = {n: GL.glGetUniformLocation(self.program, n) for n in
+                    ("model", "view", "proj", "grid", "base_color", "has_texture", "base_texture",
+                     "ambient", "diffuse")}
+        GL.glUniformMatrix4fv(self.loc["proj"], 1, GL.GL_TRUE, self.proj.astype(np.float32))
+        GL.glUniform2f(self.loc["grid"], self.cols, self.rows)
+        GL.glUniform1i(self.loc["base_texture"], 0)
+        GL.glUniform1f(self.loc["ambient"], self.settings.ambient)
+        GL.glUniform1f(self.loc["diffuse"], self.settings.light_intensity / math.pi)
+        self._set_views(self.views_gl)
+        W, H = self.S * self.cols, self.S * self.rows
+        self.fbo = GL.glGenFramebuffers(1)
+        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.fbo)
+        self.rbos = GL.glGenRenderbuffers(2)
+        for rb, fmt, att in zip(self.rbos, (GL.GL_RGBA8, GL.GL_DEPTH_COMPONENT24),
+                                (GL.GL_COLOR_ATTACHMENT0, GL.GL_DEPTH_ATTACHMENT)):
+            GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, rb)
+            GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, fmt, W, H)
+            GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, att, GL.GL_RENDERBUFFER, rb)
+        if GL.glCheckFramebufferStatus(GL.GL_FRAMEBUFFER) != GL.GL_FRAMEBUFFER_COMPLETE:
+            raise RuntimeError("offscreen framebuffer is incomplete")
+        GL.glViewport(0, 0, W, H)
+        for i in range(4):
+            GL.glEnable(GL.GL_CLIP_DISTANCE0 + i)
+        GL.glEnable(GL.GL_DEPTH_TEST)
+        GL.glDisable(GL.GL_CULL_FACE)
+        GL.glDisable(GL.GL_BLEND)
+        GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
+        GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 1)
+        bg = np.asarray(self.settings.background, dtype=np.float64) / 255.0
+        GL.glClearColor(bg[0], bg[1], bg[2], 0.0)  # alpha 0 = background, 1 = object
+        self.vao = GL.glGenVertexArrays(1)
+        GL.glBindVertexArray(self.vao)
+
+    def _set_views(self, views_gl: np.ndarray) -> None:
+        self.gl.glUniformMatrix4fv(self.loc["view"], self.V, self.gl.GL_TRUE,
+                                   np.ascontiguousarray(views_gl, dtype=np.float32))
+
+    def _texture(self, image):
+        GL = self.gl
+        img = np.asarray(image.convert("RGB"), dtype=np.uint8)[::-1]  # row 0 = v 0 (bottom)
+        tex = GL.glGenTextures(1)
+        GL.glActiveTexture(GL.GL_TEXTURE0)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, tex)
+        GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_RGB8, img.shape[1], img.shape[0], 0, GL.GL_RGB,
+                        GL.GL_UNSIGNED_BYTE, np.ascontiguousarray(img))
+        GL.glGenerateMipmap(GL.GL_TEXTURE_2D)
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR_MIPMAP_LINEAR)
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR)
+        for p in (GL.GL_TEXTURE_WRAP_S, GL.GL_TEXTURE_WRAP_T):
+            GL.glTexParameteri(GL.GL_TEXTURE_2D, p, GL.GL_REPEAT)
+        return tex
+
+    def _draw_part(self, model, pos, faces, colors, uv, base, image) -> tuple[list, list]:
+        GL, loc = self.gl, self.loc
+        buffers, textures = list(GL.glGenBuffers(4)), []
+        for attr, data, size, dtype, norm in ((0, pos, 3, GL.GL_FLOAT, False),
+                                              (1, colors, 4, GL.GL_UNSIGNED_BYTE, True),
+                                              (2, uv, 2, GL.GL_FLOAT, False)):
+            if data is None:
+                GL.glDisableVertexAttribArray(attr)
                 continue
-            mesh = pyrender.Mesh.from_trimesh(geom)
-            self.scene.add(mesh, pose=transform, parent_node=root)
-        self._object_node = root
+            GL.glBindBuffer(GL.GL_ARRAY_BUFFER, buffers[attr])
+            GL.glBufferData(GL.GL_ARRAY_BUFFER, data.nbytes, data, GL.GL_STATIC_DRAW)
+            GL.glVertexAttribPointer(attr, size, dtype, norm, 0, None)
+            GL.glEnableVertexAttribArray(attr)
+        if colors is None:
+            GL.glVertexAttrib4f(1, 1.0, 1.0, 1.0, 1.0)
+        if uv is None:
+            GL.glVertexAttrib2f(2, 0.0, 0.0)
+        GL.glBindBuffer(GL.GL_ELEMENT_ARRAY_BUFFER, buffers[3])
+        GL.glBufferData(GL.GL_ELEMENT_ARRAY_BUFFER, faces.nbytes, faces, GL.GL_STATIC_DRAW)
+        has_tex = image is not None and uv is not None
+        if has_tex:
+            textures.append(self._texture(image))
+        GL.glUniform1i(loc["has_texture"], int(has_tex))
+        GL.glUniform4f(loc["base_color"], *[float(x) for x in base])
+        GL.glUniformMatrix4fv(loc["model"], 1, GL.GL_TRUE, model.astype(np.float32))
+        GL.glDrawElementsInstanced(GL.GL_TRIANGLES, faces.size, GL.GL_UNSIGNED_INT, None, self.V)
+        return buffers, textures
 
-    def render(self, scene, to_canonical: np.ndarray) -> dict[str, np.ndarray]:
+    def _tiles(self, atlas: np.ndarray) -> np.ndarray:
+        """``[rows*S, cols*S, ...]`` (OpenGL rows: bottom first) -> ``[V, S, S, ...]`` (top first)."""
+        S, c, r = self.S, self.cols, self.rows
+        a = atlas[::-1].reshape(r, S, c, S, *atlas.shape[2:]).swapaxes(1, 2)
+        return a.reshape(r * c, S, S, *atlas.shape[2:])[:self.V]
+
+    def render(self, scene, to_canonical: np.ndarray, R: np.ndarray | None = None,
+               t: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Render all views of one object (see class doc for shapes)."""
-        self._set_object(scene, to_canonical)
-        V, S = len(self.poses), self.views.image_size
-        images = np.empty((V, S, S, 3), dtype=np.uint8)
-        masks = np.empty((V, S, S), dtype=np.uint8)
-        depth = np.empty((V, S, S), dtype=np.float32) if self.settings.depth else None
-        bg = np.array(self.settings.background, dtype=np.uint8)
-        for v, pose in enumerate(self.poses):
-            self.scene.set_pose(self.camera_node, pose)
-            self.scene.set_pose(self.light_node, pose)
-            color, d = self.renderer.render(self.scene, flags=self.flags)
-            m = d > 0
-            images[v] = color
-            images[v][~m] = bg  # exact background where there is no object
-            masks[v] = m
-            if depth is not None:
-                depth[v] = d
-        out = {"images": images, "masks": masks}
-        if depth is not None:
-            out["depth"] = depth
+        GL = self.gl
+        self._platform.make_current()
+        if R is not None:
+            if len(R) != self.V:
+                raise ValueError(f"expected {self.V} cameras, got {len(R)}")
+            self._set_views(gl_view_matrices(np.asarray(R, np.float64), np.asarray(t, np.float64)))
+        GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)
+        buffers, textures = [], []
+        try:
+            for part in mesh_parts(scene, to_canonical):
+                b, tx = self._draw_part(*part)
+                buffers += b
+                textures += tx
+            W, H = self.S * self.cols, self.S * self.rows
+            rgba = np.frombuffer(GL.glReadPixels(0, 0, W, H, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE),
+                                 dtype=np.uint8).reshape(H, W, 4)
+            tiles = self._tiles(rgba)
+            out = {"images": np.ascontiguousarray(tiles[..., :3]),
+                   "masks": (tiles[..., 3] > 0).astype(np.uint8)}
+            if self.settings.depth:
+                d = np.frombuffer(GL.glReadPixels(0, 0, W, H, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT),
+                                  dtype=np.float32).reshape(H, W)
+                d = self._tiles(d)
+                n, f = ZNEAR, self.zfar
+                z = (2.0 * n * f / ((f + n) - (2.0 * d.astype(np.float64) - 1.0) * (f - n)))
+                out["depth"] = np.where(out["masks"] > 0, z, 0.0).astype(np.float32)
+        finally:
+            if buffers:
+                GL.glDeleteBuffers(len(buffers), buffers)
+            if textures:
+                GL.glDeleteTextures(textures)
+            if R is not None:
+                self._set_views(self.views_gl)
         return out
 
     def close(self) -> None:
-        """Free the GL context (``delete``); the renderer cannot be used afterwards."""
-        if self.renderer is not None:
-            self.renderer.delete()
-            self.renderer = None
+        """Free the GL context; the renderer cannot be used afterwards."""
+        if self._platform is not None:
+            self._platform.delete_context()
+            self._platform = None

@@ -92,7 +92,8 @@ class RenderConfig:
         from sc3d_data.render import RenderSettings
 
         rs = RenderSettings()
-        d["lighting"] = {"headlight_intensity": rs.light_intensity, "ambient": rs.ambient, "msaa_samples": rs.msaa}
+        d["lighting"] = {"headlight_intensity": rs.light_intensity, "ambient": rs.ambient, "shading": rs.shading,
+                         "msaa_samples": 0}
         return d
 
 
