@@ -335,11 +335,9 @@ def import_r2n2(config: ImportConfig, progress: Callable[[int], None] | None = N
     in the index's ``failures`` with the reason; the others are imported. Returns the summary
     ``{"done", "failed", "skipped", "problems", "seconds", "out"}``."""
     import time
-    from collections import Counter
 
-    from sc3d_data.render_pipeline import _counts
-    from sc3d_data.shards import INDEX_NAME, SCHEMA_VERSION, SHARD_PATTERN, package_version, \
-        write_json_atomic, write_shard
+    from sc3d_data.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index, write_index as write_index_file, \
+        write_shard
     from sc3d_data.splits import assign_splits
 
     t0 = time.monotonic()
@@ -366,15 +364,8 @@ def import_r2n2(config: ImportConfig, progress: Callable[[int], None] | None = N
     K = max(1, int(config.objects_per_shard))
 
     def write_index(complete: bool) -> None:
-        write_json_atomic(out / INDEX_NAME, {
-            "schema_version": SCHEMA_VERSION, "sc3d_version": package_version(),
-            "complete": complete, "settings": settings, "split": split_desc,
-            "counts": _counts(objects),
-            "clipped": {"views": sum(o["clipped_views"] for o in objects),
-                        "objects": sum(1 for o in objects if o["clipped_views"])},
-            "shards": shards, "empty_chunks": [], "objects": objects, "failures": failures,
-            "skipped": skipped, "warnings": [],
-        })
+        write_index_file(out, complete=complete, settings=settings, split=split_desc, shards=shards,
+                         objects=objects, failures=failures, skipped=skipped, warnings=[])
 
     write_index(False)
     chunk = 0
@@ -391,13 +382,7 @@ def import_r2n2(config: ImportConfig, progress: Callable[[int], None] | None = N
         if records:
             name = SHARD_PATTERN.format(chunk)
             write_shard(out / name, records, settings)
-            for row, r in enumerate(records):
-                objects.append({"category": r.category, "model_id": r.model_id, "split": r.split,
-                                "source": r.source, "shard": name, "row": row, "chunk": chunk,
-                                "clipped_views": int(r.arrays["clipped"].sum())})
-            shards.append({"file": name, "chunk": chunk, "objects": len(records),
-                           "categories": dict(Counter(r.category for r in records)),
-                           "splits": dict(Counter(r.split for r in records))})
+            add_shard_to_index(shards, objects, name, chunk, records)
             chunk += 1
             write_index(False)
     write_index(True)

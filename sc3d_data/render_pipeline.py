@@ -25,7 +25,7 @@ import json
 import multiprocessing as mp
 import os
 import time
-from collections import Counter, defaultdict
+from collections import defaultdict
 from dataclasses import asdict, dataclass, field
 from multiprocessing.connection import wait
 from pathlib import Path
@@ -34,8 +34,8 @@ import numpy as np
 
 from sc3d_data.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS, ViewSettings
 from sc3d_data.mesh_io import DEFAULT_MAX_FACES
-from sc3d_data.shards import (INDEX_NAME, SCHEMA_VERSION, SHARD_PATTERN, ObjectRecord, package_version,
-                              write_json_atomic, write_shard)
+from sc3d_data.shards import INDEX_NAME, SHARD_PATTERN, ObjectRecord, add_shard_to_index, write_shard
+from sc3d_data.shards import write_index as write_index_file
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SAMPLE_MESHES = REPO_ROOT / "assets" / "sample_meshes"
@@ -314,15 +314,6 @@ def _plan(config: RenderConfig):
     return tasks, problems, skipped, split_desc
 
 
-def _counts(objects: list[dict]) -> dict:
-    by_cat: dict = defaultdict(Counter)
-    for o in objects:
-        by_cat[o["category"]][o["split"]] += 1
-    by_split = Counter(o["split"] for o in objects)
-    return {"total": len(objects), "by_split": dict(sorted(by_split.items())),
-            "by_category": {c: dict(sorted(v.items())) for c, v in sorted(by_cat.items())}}
-
-
 def render_dataset(config: RenderConfig) -> dict:
     """Render ``config.meshes`` into shards under ``config.out`` (see module doc).
 
@@ -368,18 +359,9 @@ def render_dataset(config: RenderConfig) -> dict:
     settings["backend"] = pool.backend if pool else (old or {}).get("settings", {}).get("backend")
 
     def write_index(complete: bool) -> None:
-        clipped_views = sum(o["clipped_views"] for o in objects)
-        write_json_atomic(index_file, {
-            "schema_version": SCHEMA_VERSION, "sc3d_version": package_version(),
-            "complete": complete, "settings": settings, "split": split_desc,
-            "counts": _counts(objects),
-            "clipped": {"views": clipped_views, "objects": sum(1 for o in objects if o["clipped_views"])},
-            "shards": sorted(shards, key=lambda s: s["chunk"]),
-            "empty_chunks": sorted(empty_chunks),
-            "objects": objects,
-            "failures": problems + sorted(failures, key=lambda f: f["pos"]),
-            "skipped": skipped, "warnings": warnings,
-        })
+        write_index_file(out, complete=complete, settings=settings, split=split_desc, shards=shards,
+                         objects=objects, failures=problems + sorted(failures, key=lambda f: f["pos"]),
+                         skipped=skipped, warnings=warnings, empty_chunks=empty_chunks)
 
     write_index(False)
     # ---- render
@@ -414,13 +396,7 @@ def render_dataset(config: RenderConfig) -> dict:
             if records:
                 name = SHARD_PATTERN.format(c)
                 write_shard(out / name, records, settings)
-                for row, r in enumerate(records):
-                    objects.append({"category": r.category, "model_id": r.model_id, "split": r.split,
-                                    "source": r.source, "shard": name, "row": row, "chunk": c,
-                                    "clipped_views": int(r.arrays["clipped"].sum())})
-                shards.append({"file": name, "chunk": c, "objects": len(records),
-                               "categories": dict(Counter(r.category for r in records)),
-                               "splits": dict(Counter(r.split for r in records))})
+                add_shard_to_index(shards, objects, name, c, records)
             else:
                 empty_chunks.append(c)
             write_index(complete=not pending_chunks)

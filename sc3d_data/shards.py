@@ -142,6 +142,51 @@ def index_path(shard_dir: Path) -> Path:
     return Path(shard_dir) / INDEX_NAME
 
 
+def index_counts(objects: list[dict]) -> dict:
+    """``{"total", "by_split", "by_category": {category: {split: n}}}`` of index objects."""
+    from collections import Counter, defaultdict
+
+    by_cat: dict = defaultdict(Counter)
+    for o in objects:
+        by_cat[o["category"]][o["split"]] += 1
+    by_split = Counter(o["split"] for o in objects)
+    return {"total": len(objects), "by_split": dict(sorted(by_split.items())),
+            "by_category": {c: dict(sorted(v.items())) for c, v in sorted(by_cat.items())}}
+
+
+def add_shard_to_index(shards: list[dict], objects: list[dict], name: str, chunk: int,
+                       records: list[ObjectRecord]) -> None:
+    """Append the index entries of the shard ``name`` (chunk ``chunk``) just written from
+    ``records``: one to ``shards``, one per record (its row) to ``objects``."""
+    from collections import Counter
+
+    for row, r in enumerate(records):
+        objects.append({"category": r.category, "model_id": r.model_id, "split": r.split,
+                        "source": r.source, "shard": name, "row": row, "chunk": chunk,
+                        "clipped_views": int(np.asarray(r.arrays["clipped"]).sum())})
+    shards.append({"file": name, "chunk": chunk, "objects": len(records),
+                   "categories": dict(Counter(r.category for r in records)),
+                   "splits": dict(Counter(r.split for r in records))})
+
+
+def write_index(shard_dir: Path, *, complete: bool, settings: dict, split: dict, shards: list[dict],
+                objects: list[dict], failures: list[dict], skipped: list[dict], warnings: list[dict],
+                empty_chunks: list[int] = ()) -> None:
+    """Write ``index.json`` of ``shard_dir`` atomically: the given lists plus the derived
+    ``counts`` and ``clipped`` totals, shards ordered by chunk. ``complete`` = every planned
+    object is in a shard or in ``failures`` (else ``sc3d-data info`` says INCOMPLETE)."""
+    write_json_atomic(index_path(shard_dir), {
+        "schema_version": SCHEMA_VERSION, "sc3d_version": package_version(),
+        "complete": complete, "settings": settings, "split": split,
+        "counts": index_counts(objects),
+        "clipped": {"views": sum(o["clipped_views"] for o in objects),
+                    "objects": sum(1 for o in objects if o["clipped_views"])},
+        "shards": sorted(shards, key=lambda s: s["chunk"]),
+        "empty_chunks": sorted(empty_chunks),
+        "objects": objects, "failures": failures, "skipped": skipped, "warnings": warnings,
+    })
+
+
 def load_index(shard_dir: Path) -> dict:
     """Read ``index.json`` of a shard directory; a clear error if it is missing or broken."""
     p = index_path(shard_dir)
