@@ -185,6 +185,8 @@ def winding_kernel(tri, pts, G, beta):
     nrm = np.zeros((n_nodes, 3))       # sum of vector areas
     cnt = np.zeros(n_nodes, dtype=np.int64)
     rad = np.zeros(n_nodes)
+    quad = np.zeros((n_nodes, 3, 3))   # second moments: sum of vector area (x) (centroid - centre)
+    varea = np.empty((m, 3))
     leaf = np.empty(m, dtype=np.int64)
     tc = np.empty((m, 3))
     for t in range(m):
@@ -209,6 +211,9 @@ def winding_kernel(tri, pts, G, beta):
         vx, vy, vz = tri[t, 2, 0] - tri[t, 0, 0], tri[t, 2, 1] - tri[t, 0, 1], tri[t, 2, 2] - tri[t, 0, 2]
         nx, ny, nz = 0.5 * (uy * vz - uz * vy), 0.5 * (uz * vx - ux * vz), 0.5 * (ux * vy - uy * vx)
         a = math.sqrt(nx * nx + ny * ny + nz * nz)
+        varea[t, 0] = nx
+        varea[t, 1] = ny
+        varea[t, 2] = nz
         area[node] += a
         nrm[node, 0] += nx
         nrm[node, 1] += ny
@@ -277,6 +282,28 @@ def winding_kernel(tri, pts, G, beta):
                                 r = math.sqrt(dx * dx + dy * dy + dz * dz) + rad[ch]
                                 if r > rad[node]:
                                     rad[node] = r
+    for t in range(m):
+        node = leaf[t]
+        for d in range(3):
+            for e in range(3):
+                quad[node, d, e] += varea[t, d] * (tc[t, e] - cen[node, e])
+    for lv in range(TREE_DEPTH - 1, -1, -1):
+        s = 1 << lv
+        for i in range(s):
+            for j in range(s):
+                for k in range(s):
+                    node = off[lv] + (i * s + j) * s + k
+                    if cnt[node] == 0:
+                        continue
+                    for ci in range(2):
+                        for cj in range(2):
+                            for ck in range(2):
+                                ch = off[lv + 1] + ((2 * i + ci) * 2 * s + 2 * j + cj) * 2 * s + 2 * k + ck
+                                if cnt[ch] == 0:
+                                    continue
+                                for d in range(3):
+                                    for e in range(3):
+                                        quad[node, d, e] += quad[ch, d, e] + nrm[ch, d] * (cen[ch, e] - cen[node, e])
     out = np.zeros(pts.shape[0])
     stack_lv = np.empty(8 * n_lvl + 8, dtype=np.int64)
     stack_ix = np.empty((8 * n_lvl + 8, 3), dtype=np.int64)
@@ -300,7 +327,14 @@ def winding_kernel(tri, pts, G, beta):
             dx, dy, dz = cen[node, 0] - px, cen[node, 1] - py, cen[node, 2] - pz
             dist = math.sqrt(dx * dx + dy * dy + dz * dz)
             if dist > beta * rad[node]:
-                w += (nrm[node, 0] * dx + nrm[node, 1] * dy + nrm[node, 2] * dz) / (dist * dist * dist)
+                # second-order expansion of the dipole field of the cluster about its centre
+                d3 = dist * dist * dist
+                tr = quad[node, 0, 0] + quad[node, 1, 1] + quad[node, 2, 2]
+                rtr = (dx * (quad[node, 0, 0] * dx + quad[node, 0, 1] * dy + quad[node, 0, 2] * dz)
+                       + dy * (quad[node, 1, 0] * dx + quad[node, 1, 1] * dy + quad[node, 1, 2] * dz)
+                       + dz * (quad[node, 2, 0] * dx + quad[node, 2, 1] * dy + quad[node, 2, 2] * dz))
+                w += (nrm[node, 0] * dx + nrm[node, 1] * dy + nrm[node, 2] * dz + tr) / d3 \
+                    - 3.0 * rtr / (d3 * dist * dist)
             else:
                 for q in range(start[node], start[node + 1]):
                     t = order[q]
@@ -338,3 +372,50 @@ def winding_exact_kernel(tri, pts):
             w += 2.0 * math.atan2(det, div)
         out[p] = w / (4.0 * math.pi)
     return out
+
+
+@njit(cache=True, nogil=True)
+def fill_holes_kernel(occ):
+    """``occ`` plus every empty voxel that no 6-connected path of empty voxels links to the
+    grid's border (``scipy.ndimage.binary_fill_holes`` with its default structure)."""
+    X, Y, Z = occ.shape
+    outside = np.zeros(occ.shape, dtype=np.bool_)
+    stack = np.empty((X * Y * Z, 3), dtype=np.int32)
+    top = 0
+    for i in range(X):
+        for j in range(Y):
+            for k in range(Z):
+                if (i == 0 or j == 0 or k == 0 or i == X - 1 or j == Y - 1 or k == Z - 1) \
+                        and not occ[i, j, k]:
+                    outside[i, j, k] = True
+                    stack[top, 0] = i
+                    stack[top, 1] = j
+                    stack[top, 2] = k
+                    top += 1
+    while top > 0:
+        top -= 1
+        i, j, k = stack[top, 0], stack[top, 1], stack[top, 2]
+        for n in range(6):
+            a, b, c = i, j, k
+            if n == 0:
+                a -= 1
+            elif n == 1:
+                a += 1
+            elif n == 2:
+                b -= 1
+            elif n == 3:
+                b += 1
+            elif n == 4:
+                c -= 1
+            else:
+                c += 1
+            if a < 0 or b < 0 or c < 0 or a >= X or b >= Y or c >= Z:
+                continue
+            if occ[a, b, c] or outside[a, b, c]:
+                continue
+            outside[a, b, c] = True
+            stack[top, 0] = a
+            stack[top, 1] = b
+            stack[top, 2] = c
+            top += 1
+    return ~outside

@@ -20,7 +20,7 @@ A voxel is occupied when at least one of these holds:
    (a car body without a floor, a box with a deleted face) have winding numbers near 1 in
    most of their interior and near 0 outside, so 0.5 separates them.
 3. **enclosed**: the voxel is empty by 1 and 2 but cannot be reached from outside the grid
-   through a 6-connected path of empty voxels (``scipy.ndimage.binary_fill_holes``). This
+   through a 6-connected path of empty voxels (as ``scipy.ndimage.binary_fill_holes``). This
    closes cavities and holes smaller than a voxel that winding numbers alone leave.
 
 How it is computed (``voxelize_triangles``): rule 1 by a compiled (numba) separating-axis
@@ -28,7 +28,8 @@ test of each triangle against the voxels of its bounding box; the signed crossin
 the six axis-aligned rays from every voxel centre (``axis_ray_crossings``, one 2D
 rasterisation of the triangles per axis) decide rule 2 where all six agree (all non-zero:
 inside; all zero: outside); winding numbers are evaluated only at the remaining voxel centres
-that are neither surface nor enclosed. Geometry outside [-0.5, 0.5]^3 is ignored (clipped by
+that are not enclosed by the surface and six-ray-inside voxels (those are occupied by rule 3
+whatever their winding number). Geometry outside [-0.5, 0.5]^3 is ignored (clipped by
 the grid) except that all triangles count for winding numbers.
 """
 from __future__ import annotations
@@ -36,7 +37,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from scipy import ndimage
 
 from . import _voxel_kernels as _k
 
@@ -124,7 +124,7 @@ def voxelize_triangles(vertices: np.ndarray, faces: np.ndarray, resolution: int 
     ``vertices [n, 3]`` float, canonical frame (the object normalised into [-0.5, 0.5]^3),
     ``faces [m, 3]`` int. Works on open meshes, holes, self-intersections and overlapping
     parts. Returns bool ``[G, G, G]`` with ``G = resolution``, index order ``[x, y, z]``.
-    ``timings``, if given, accumulates milliseconds per stage (surface, enclosed, rays,
+    ``timings``, if given, accumulates milliseconds per stage (surface, rays, enclosed,
     winding, fill) and the number of winding-number queries (winding_points).
     """
     v, f = _check_triangles(vertices, faces)
@@ -142,14 +142,15 @@ def voxelize_triangles(vertices: np.ndarray, faces: np.ndarray, resolution: int 
     surface = np.zeros((G, G, G), dtype=bool)
     _k.surface_kernel(tri, G, surface)
     lap("surface")
-    enclosed = ndimage.binary_fill_holes(surface)
-    lap("enclosed")
     crossings = np.zeros((6, G, G, G), dtype=np.int32)
     _k.crossings_kernel(tri, G, crossings)
     nonzero = (crossings != 0).sum(0)
-    occupied = enclosed | (nonzero == 6)
-    ambiguous = ~occupied & (nonzero > 0)
     lap("rays")
+    # rule 3 applied early: voxels enclosed by surface and six-ray-inside voxels end up occupied
+    # whatever the winding numbers say (filling is monotone), so they need no query
+    occupied = _k.fill_holes_kernel(surface | (nonzero == 6))
+    ambiguous = ~occupied & (nonzero > 0)
+    lap("enclosed")
     pts = np.argwhere(ambiguous).astype(np.float64) + 0.5  # voxel centres, voxel units
     if len(pts):
         w = _k.winding_kernel(tri, pts, float(G), _k.BETA)
@@ -157,6 +158,6 @@ def voxelize_triangles(vertices: np.ndarray, faces: np.ndarray, resolution: int 
     lap("winding")
     if timings is not None:
         timings["winding_points"] = timings.get("winding_points", 0) + len(pts)
-    out = ndimage.binary_fill_holes(occupied)
+    out = _k.fill_holes_kernel(occupied)
     lap("fill")
     return out
