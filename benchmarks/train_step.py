@@ -6,7 +6,8 @@ Without ``--shards`` the bundled sample meshes are rendered + voxelized into a t
 directory first (a few seconds). Three tables, each with a straightforward baseline measured in
 the same run, so improvements show as ratios:
 
-1. training step (forward + losses + backward + Adam) at the given batch: baseline fp32,
+1. training step (forward + losses + backward + Adam) at the given batch, variants interleaved
+   step by step (the median of ``--steps`` per variant): baseline fp32,
    contiguous (NCHW) memory, against the trainer's settings for the device (CUDA: bf16/fp16
    autocast + channels_last; CPU: fp32, which is what ``fit`` uses there) and, on the CPU, the
    channels_last and bf16 variants for reference;
@@ -23,6 +24,7 @@ import platform
 import sys
 import tempfile
 import time
+import warnings
 from contextlib import nullcontext
 from pathlib import Path
 
@@ -31,6 +33,8 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 import torch  # noqa: E402
+
+warnings.filterwarnings("ignore", message="This DataLoader will create")
 
 
 def render_samples(out: Path) -> Path:
@@ -45,41 +49,66 @@ def render_samples(out: Path) -> Path:
     return out
 
 
-def time_train_step(cfg, batch, device, amp_dtype, channels_last: bool, steps: int) -> float:
-    """Median seconds of one full optimiser step on a fixed batch (after one warm-up step)."""
-    from sc3d_train.checkpoint import build_model
-    from sc3d_train.losses import LossWeights, supervised_loss
-    from sc3d_train.trainer import training_batch
+class StepRunner:
+    """One variant of the training step (model, Adam, optional GradScaler, batch on device)."""
 
-    torch.manual_seed(0)
-    model = build_model(cfg).to(device)
-    if channels_last:
-        model = model.to(memory_format=torch.channels_last)
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    scaler = torch.amp.GradScaler("cuda") if amp_dtype == torch.float16 else None
-    b = training_batch(batch, "supervised", device, channels_last)
-    weights = LossWeights(**cfg.loss_weights)
-    times = []
-    for i in range(steps + 1):
-        if device.type == "cuda":
+    def __init__(self, cfg, batch, device, amp_dtype, channels_last: bool):
+        from sc3d_train.checkpoint import build_model
+        from sc3d_train.losses import LossWeights
+        from sc3d_train.trainer import training_batch
+
+        torch.manual_seed(0)
+        self.device, self.amp_dtype = device, amp_dtype
+        self.model = build_model(cfg).to(device)
+        if channels_last:
+            self.model = self.model.to(memory_format=torch.channels_last)
+        self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr)
+        self.scaler = torch.amp.GradScaler("cuda") if amp_dtype == torch.float16 else None
+        self.batch = training_batch(batch, "supervised", device, channels_last)
+        self.weights = LossWeights(**cfg.loss_weights)
+
+    def step(self) -> float:
+        """Seconds of one optimiser step (forward, losses, backward, Adam)."""
+        from sc3d_train.losses import supervised_loss
+
+        if self.device.type == "cuda":
             torch.cuda.synchronize()
         t0 = time.perf_counter()
-        opt.zero_grad(set_to_none=True)
-        ctx = torch.autocast(device.type, dtype=amp_dtype) if amp_dtype else nullcontext()
+        self.opt.zero_grad(set_to_none=True)
+        ctx = torch.autocast(self.device.type, dtype=self.amp_dtype) if self.amp_dtype else nullcontext()
         with ctx:
-            loss = supervised_loss(model(b["images"]), b, weights)["total"]
-        if scaler:
-            scaler.scale(loss).backward()
-            scaler.step(opt)
-            scaler.update()
+            loss = supervised_loss(self.model(self.batch["images"]), self.batch, self.weights)["total"]
+        if self.scaler:
+            self.scaler.scale(loss).backward()
+            self.scaler.step(self.opt)
+            self.scaler.update()
         else:
             loss.backward()
-            opt.step()
-        if device.type == "cuda":
+            self.opt.step()
+        if self.device.type == "cuda":
             torch.cuda.synchronize()
-        if i:
-            times.append(time.perf_counter() - t0)
-    return sorted(times)[len(times) // 2]
+        return time.perf_counter() - t0
+
+
+def time_train_steps(cfg, batch, device, variants, steps: int) -> list[float | None]:
+    """Median seconds per step of each variant. Variants run interleaved (one step each per
+    round, after one warm-up round) so that load from other processes hits all of them alike.
+    A variant the device cannot run gives None."""
+    runners = []
+    for _, amp_dtype, cl in variants:
+        try:
+            r = StepRunner(cfg, batch, device, amp_dtype, cl)
+            r.step()
+            runners.append(r)
+        except Exception as e:  # noqa: BLE001 - reported in the table, not fatal
+            print(f"variant failed: {type(e).__name__}: {e}")
+            runners.append(None)
+    times = [[] for _ in runners]
+    for _ in range(steps):
+        for i, r in enumerate(runners):
+            if r is not None:
+                times[i].append(r.step())
+    return [sorted(t)[len(t) // 2] if t else None for t in times]
 
 
 def time_loader(shards: Path, batch_size: int, workers: int, batches: int) -> float:
@@ -107,7 +136,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--shards", type=Path, default=None)
     ap.add_argument("--batch-size", type=int, default=48)
-    ap.add_argument("--steps", type=int, default=3, help="timed steps per variant (median)")
+    ap.add_argument("--steps", type=int, default=5, help="timed steps per variant (median)")
     ap.add_argument("--loader-batches", type=int, default=20)
     ap.add_argument("--device", default="auto")
     ap.add_argument("--tiny", action="store_true", help="the --tiny model instead of the paper's width")
@@ -142,15 +171,15 @@ def main() -> None:
         variants.append(("fit default on CPU: fp32, NCHW", None, False))
         variants.append(("channels_last", None, True))
         variants.append(("bf16 autocast + channels_last", torch.bfloat16, True))
-    step_rows, base = [], None
-    for name, amp_dtype, cl in variants:
-        try:
-            sec = time_train_step(cfg, batch, device, amp_dtype, cl, args.steps)
-        except Exception as e:  # noqa: BLE001 - a variant the device cannot run is reported, not fatal
-            step_rows.append((name, "failed", type(e).__name__, ""))
-            continue
-        base = base or sec
-        step_rows.append((name, f"{1000 * sec:.0f}", f"{args.batch_size / sec:.1f}", f"{base / sec:.2f}x"))
+    step_rows = []
+    secs = time_train_steps(cfg, batch, device, variants, args.steps)
+    base = secs[0]
+    for (name, _, _), sec in zip(variants, secs):
+        if sec is None:
+            step_rows.append((name, "failed", "-", "-"))
+        else:
+            step_rows.append((name, f"{1000 * sec:.0f}", f"{args.batch_size / sec:.1f}",
+                              f"{base / sec:.2f}x" if base else "-"))
     print()
     print(table(f"1. training step, batch {args.batch_size}, {device.type}",
                 ("variant", "ms/step", "samples/s", "vs baseline"), step_rows))
