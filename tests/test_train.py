@@ -62,7 +62,9 @@ def test_resume_equals_uninterrupted(sample_shards, tmp_path):
     # an interrupted run may have logged steps after its last checkpoint: resume must drop them
     with open(parts / "metrics.csv", "a") as f:
         f.write("3,supervised,999,999,999,999,999,999,999,0.0002,1.0\n")
-    result = run_cli(main, ["fit", "--out", parts, "--steps", "6", "--resume", "--no-progress"])
+    # resumed with 2 loader worker processes: the samples must be the same as in-process
+    result = run_cli(main, ["fit", "--out", parts, "--steps", "6", "--resume", "--no-progress",
+                            "--workers", "2"])
     assert "step 6" in result.output
     a, b = read_csv(whole / "metrics.csv"), read_csv(parts / "metrics.csv")
     assert [r["step"] for r in b] == [str(i) for i in range(6)]
