@@ -109,3 +109,19 @@ def test_predict_and_eval_refuse_bad_input(trained_run, sample_shards, tmp_path)
     r = run_cli(main, ["eval", "--checkpoint", tmp_path / "missing.pt", "--shards", sample_shards,
                        "--out", tmp_path / "e"], expect_exit=1)
     assert "not found" in r.output
+
+
+def test_eval_refuses_shards_of_another_image_size(trained_run, tmp_path):
+    """A checkpoint trained on 64x64 images against shards rendered at 32x32."""
+    from cli.data import main as data_main
+    from tests.conftest import SAMPLE_MESHES
+
+    small = tmp_path / "small"
+    run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES / "table", "--out", small, "--image-size", 32,
+                        "--voxelize", "--split", "random:0,0,1", "--workers", 1])
+    r = run_cli(main, ["eval", "--checkpoint", trained_run / "checkpoints" / "last.pt", "--shards", small,
+                       "--split", "test", "--out", tmp_path / "e"], expect_exit=1)
+    assert "32x32" in r.output and "64x64" in r.output
+    r = run_cli(main, ["fit", "--out", trained_run, "--resume", "--shards", small, "--steps", "200"],
+                expect_exit=1)
+    assert "cannot change on --resume" in r.output and "--shards" in r.output
