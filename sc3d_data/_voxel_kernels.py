@@ -145,6 +145,9 @@ def crossings_kernel(tri, G, out):
 
 #: octree depth of the winding-number tree: leaves are 1/32 of the grid cube per axis
 TREE_DEPTH = 5
+#: index pairs (j, k) of the symmetric second moments
+_JJ = np.array([0, 1, 2, 0, 0, 1])
+_KK = np.array([0, 1, 2, 1, 2, 2])
 #: a cluster of triangles is replaced by its dipole when the query point is farther than
 #: BETA times the cluster's radius from its centre (libigl's fast winding number uses 2)
 BETA = 2.0
@@ -168,30 +171,29 @@ def _solid_angle(tri, t, px, py, pz):
 @njit(cache=True, nogil=True)
 def winding_kernel(tri, pts, G, beta):
     """Generalized winding numbers of the triangle soup ``tri [m, 3, 3]`` at ``pts [P, 3]``
-    (both in voxel units of a grid spanning [0, G]): exact solid angles of the triangles near a
-    point, first-order (dipole) approximations of octree clusters far from it (Barill et al.
-    2018, as libigl's fast winding number)."""
+    (both in the units of a grid spanning [0, G]^3): the fast winding number of Barill et al.
+    2018 (as libigl's): exact solid angles of the triangles near a point; clusters of a loose
+    octree farther than ``beta`` times their radius by the Taylor expansion of their field to
+    second order."""
     m = tri.shape[0]
-    n_lvl = TREE_DEPTH + 1
-    # node offsets per level: level l has (2^l)^3 nodes
-    off = np.zeros(n_lvl + 1, dtype=np.int64)
-    for lv in range(n_lvl):
+    # dense ids of the octree cells of all levels: level l has (2^l)^3 cells from off[l]
+    off = np.zeros(TREE_DEPTH + 2, dtype=np.int64)
+    for lv in range(TREE_DEPTH + 1):
         s = 1 << lv
         off[lv + 1] = off[lv] + s * s * s
-    n_nodes = off[n_lvl]
-    area = np.zeros(n_nodes)
-    cen = np.zeros((n_nodes, 3))       # area-weighted centre (sums first)
-    plain = np.zeros((n_nodes, 3))     # unweighted centroid sums (fallback for zero area)
-    nrm = np.zeros((n_nodes, 3))       # sum of vector areas
-    cnt = np.zeros(n_nodes, dtype=np.int64)
-    rad = np.zeros(n_nodes)
-    quad = np.zeros((n_nodes, 3, 3))   # second moments: sum of vector area (x) (centroid - centre)
-    varea = np.empty((m, 3))
-    leaf = np.empty(m, dtype=np.int64)
+    n_dense = off[TREE_DEPTH + 1]
     tc = np.empty((m, 3))
+    varea = np.empty((m, 3))
+    dense_of_tri = np.empty(m, dtype=np.int64)
+    compact = np.full(n_dense, -1, dtype=np.int64)
     for t in range(m):
         for d in range(3):
             tc[t, d] = (tri[t, 0, d] + tri[t, 1, d] + tri[t, 2, d]) / 3.0
+        ux, uy, uz = tri[t, 1, 0] - tri[t, 0, 0], tri[t, 1, 1] - tri[t, 0, 1], tri[t, 1, 2] - tri[t, 0, 2]
+        vx, vy, vz = tri[t, 2, 0] - tri[t, 0, 0], tri[t, 2, 1] - tri[t, 0, 1], tri[t, 2, 2] - tri[t, 0, 2]
+        varea[t, 0] = 0.5 * (uy * vz - uz * vy)
+        varea[t, 1] = 0.5 * (uz * vx - ux * vz)
+        varea[t, 2] = 0.5 * (ux * vy - uy * vx)
         rt = 0.0
         for q in range(3):
             dx, dy, dz = tri[t, q, 0] - tc[t, 0], tri[t, q, 1] - tc[t, 1], tri[t, q, 2] - tc[t, 2]
@@ -202,152 +204,187 @@ def winding_kernel(tri, pts, G, beta):
         while lv > 0 and rt > 0.5 * G / (1 << lv):
             lv -= 1
         s = 1 << lv
-        li = min(max(int(math.floor(tc[t, 0] / G * s)), 0), s - 1)
-        lj = min(max(int(math.floor(tc[t, 1] / G * s)), 0), s - 1)
-        lk = min(max(int(math.floor(tc[t, 2] / G * s)), 0), s - 1)
-        node = off[lv] + (li * s + lj) * s + lk
-        leaf[t] = node
-        ux, uy, uz = tri[t, 1, 0] - tri[t, 0, 0], tri[t, 1, 1] - tri[t, 0, 1], tri[t, 1, 2] - tri[t, 0, 2]
-        vx, vy, vz = tri[t, 2, 0] - tri[t, 0, 0], tri[t, 2, 1] - tri[t, 0, 1], tri[t, 2, 2] - tri[t, 0, 2]
-        nx, ny, nz = 0.5 * (uy * vz - uz * vy), 0.5 * (uz * vx - ux * vz), 0.5 * (ux * vy - uy * vx)
-        a = math.sqrt(nx * nx + ny * ny + nz * nz)
-        varea[t, 0] = nx
-        varea[t, 1] = ny
-        varea[t, 2] = nz
-        area[node] += a
-        nrm[node, 0] += nx
-        nrm[node, 1] += ny
-        nrm[node, 2] += nz
-        cnt[node] += 1
-        for d in range(3):
-            cen[node, d] += a * tc[t, d]
-            plain[node, d] += tc[t, d]
-    # triangles sorted by leaf (counting sort)
-    start = np.zeros(n_nodes + 1, dtype=np.int64)
+        i = min(max(int(math.floor(tc[t, 0] / G * s)), 0), s - 1)
+        j = min(max(int(math.floor(tc[t, 1] / G * s)), 0), s - 1)
+        k = min(max(int(math.floor(tc[t, 2] / G * s)), 0), s - 1)
+        dense_of_tri[t] = off[lv] + (i * s + j) * s + k
+        while True:  # mark the cell and its ancestors as used
+            dn = off[lv] + (i * s + j) * s + k
+            if compact[dn] == 0:
+                break
+            compact[dn] = 0
+            if lv == 0:
+                break
+            lv -= 1
+            s >>= 1
+            i >>= 1
+            j >>= 1
+            k >>= 1
+    # compact ids for the used cells, in level order (parents before children)
+    n = 0
+    for dn in range(n_dense):
+        if compact[dn] == 0:
+            compact[dn] = n
+            n += 1
+    level = np.empty(n, dtype=np.int64)
+    parent = np.full(n, -1, dtype=np.int64)
+    child = np.full((n, 8), -1, dtype=np.int64)
+    for lv in range(TREE_DEPTH + 1):
+        s = 1 << lv
+        for dn in range(off[lv], off[lv + 1]):
+            c = compact[dn]
+            if c < 0:
+                continue
+            level[c] = lv
+            if lv > 0:
+                loc = dn - off[lv]
+                i, j, k = loc // (s * s), (loc // s) % s, loc % s
+                h = s >> 1
+                pc = compact[off[lv - 1] + ((i >> 1) * h + (j >> 1)) * h + (k >> 1)]
+                parent[c] = pc
+                child[pc, (i & 1) * 4 + (j & 1) * 2 + (k & 1)] = c
+    node_of_tri = np.empty(m, dtype=np.int64)
+    start = np.zeros(n + 1, dtype=np.int64)
     for t in range(m):
-        start[leaf[t] + 1] += 1
-    for i in range(n_nodes):
-        start[i + 1] += start[i]
-    fill = start.copy()
+        node_of_tri[t] = compact[dense_of_tri[t]]
+        start[node_of_tri[t] + 1] += 1
+    for c in range(n):
+        start[c + 1] += start[c]
+    fill = start[:n].copy()
     order = np.empty(m, dtype=np.int64)
     for t in range(m):
-        order[fill[leaf[t]]] = t
-        fill[leaf[t]] += 1
-    # sums of the parents, from the leaves up
-    for lv in range(TREE_DEPTH - 1, -1, -1):
-        s = 1 << lv
-        for i in range(s):
-            for j in range(s):
-                for k in range(s):
-                    node = off[lv] + (i * s + j) * s + k
-                    for ci in range(2):
-                        for cj in range(2):
-                            for ck in range(2):
-                                ch = off[lv + 1] + ((2 * i + ci) * 2 * s + 2 * j + cj) * 2 * s + 2 * k + ck
-                                area[node] += area[ch]
-                                cnt[node] += cnt[ch]
-                                for d in range(3):
-                                    cen[node, d] += cen[ch, d]
-                                    plain[node, d] += plain[ch, d]
-                                    nrm[node, d] += nrm[ch, d]
-    for node in range(n_nodes):
-        if cnt[node] == 0:
-            continue
+        order[fill[node_of_tri[t]]] = t
+        fill[node_of_tri[t]] += 1
+    # cluster sums: area, area-weighted centre (plain centroid mean for zero area), vector area
+    area = np.zeros(n)
+    cnt = np.zeros(n)
+    cen = np.zeros((n, 3))
+    plain = np.zeros((n, 3))
+    nrm = np.zeros((n, 3))
+    for t in range(m):
+        c = node_of_tri[t]
+        a = math.sqrt(varea[t, 0] ** 2 + varea[t, 1] ** 2 + varea[t, 2] ** 2)
+        area[c] += a
+        cnt[c] += 1
         for d in range(3):
-            if area[node] > 0:
-                cen[node, d] /= area[node]
-            else:
-                cen[node, d] = plain[node, d] / cnt[node]
-    # radius of each leaf: farthest vertex of its triangles from its centre; parents bound children
+            cen[c, d] += a * tc[t, d]
+            plain[c, d] += tc[t, d]
+            nrm[c, d] += varea[t, d]
+    for c in range(n - 1, 0, -1):  # children have larger ids than their parents
+        pc = parent[c]
+        area[pc] += area[c]
+        cnt[pc] += cnt[c]
+        for d in range(3):
+            cen[pc, d] += cen[c, d]
+            plain[pc, d] += plain[c, d]
+            nrm[pc, d] += nrm[c, d]
+    for c in range(n):
+        for d in range(3):
+            cen[c, d] = cen[c, d] / area[c] if area[c] > 0 else plain[c, d] / cnt[c]
+    # radius (farthest vertex from the centre) and moments about the centre: own triangles first
+    rad = np.zeros(n)
+    quad = np.zeros((n, 3, 3))   # first moments: integral of n_i s_j dA, s = x - centre
+    cub = np.zeros((n, 3, 6))    # second moments: integral of n_i s_j s_k dA, (j, k) in _JJ, _KK
     for t in range(m):
-        node = leaf[t]
+        c = node_of_tri[t]
         for q in range(3):
-            dx, dy, dz = tri[t, q, 0] - cen[node, 0], tri[t, q, 1] - cen[node, 1], tri[t, q, 2] - cen[node, 2]
-            r = math.sqrt(dx * dx + dy * dy + dz * dz)
-            if r > rad[node]:
-                rad[node] = r
-    for lv in range(TREE_DEPTH - 1, -1, -1):
-        s = 1 << lv
-        for i in range(s):
-            for j in range(s):
-                for k in range(s):
-                    node = off[lv] + (i * s + j) * s + k
-                    for ci in range(2):
-                        for cj in range(2):
-                            for ck in range(2):
-                                ch = off[lv + 1] + ((2 * i + ci) * 2 * s + 2 * j + cj) * 2 * s + 2 * k + ck
-                                if cnt[ch] == 0:
-                                    continue
-                                dx, dy, dz = cen[ch, 0] - cen[node, 0], cen[ch, 1] - cen[node, 1], cen[ch, 2] - cen[node, 2]
-                                r = math.sqrt(dx * dx + dy * dy + dz * dz) + rad[ch]
-                                if r > rad[node]:
-                                    rad[node] = r
-    for t in range(m):
-        node = leaf[t]
+            dx, dy, dz = tri[t, q, 0] - cen[c, 0], tri[t, q, 1] - cen[c, 1], tri[t, q, 2] - cen[c, 2]
+            rad[c] = max(rad[c], math.sqrt(dx * dx + dy * dy + dz * dz))
         for d in range(3):
             for e in range(3):
-                quad[node, d, e] += varea[t, d] * (tc[t, e] - cen[node, e])
-    for lv in range(TREE_DEPTH - 1, -1, -1):
-        s = 1 << lv
-        for i in range(s):
-            for j in range(s):
-                for k in range(s):
-                    node = off[lv] + (i * s + j) * s + k
-                    if cnt[node] == 0:
-                        continue
-                    for ci in range(2):
-                        for cj in range(2):
-                            for ck in range(2):
-                                ch = off[lv + 1] + ((2 * i + ci) * 2 * s + 2 * j + cj) * 2 * s + 2 * k + ck
-                                if cnt[ch] == 0:
-                                    continue
-                                for d in range(3):
-                                    for e in range(3):
-                                        quad[node, d, e] += quad[ch, d, e] + nrm[ch, d] * (cen[ch, e] - cen[node, e])
+                quad[c, d, e] += varea[t, d] * (tc[t, e] - cen[c, e])
+        # integral over the triangle of s s^T = area / 12 (sum_v s_v s_v^T + 9 s_c s_c^T)
+        for q in range(6):
+            jj, kk = _JJ[q], _KK[q]
+            mom = 9.0 * (tc[t, jj] - cen[c, jj]) * (tc[t, kk] - cen[c, kk])
+            for v in range(3):
+                mom += (tri[t, v, jj] - cen[c, jj]) * (tri[t, v, kk] - cen[c, kk])
+            for d in range(3):
+                cub[c, d, q] += varea[t, d] * mom / 12.0
+    for c in range(n - 1, 0, -1):  # then the children's, shifted: s_parent = s_child + delta
+        pc = parent[c]
+        dl0, dl1, dl2 = cen[c, 0] - cen[pc, 0], cen[c, 1] - cen[pc, 1], cen[c, 2] - cen[pc, 2]
+        delta = (dl0, dl1, dl2)
+        rad[pc] = max(rad[pc], math.sqrt(dl0 * dl0 + dl1 * dl1 + dl2 * dl2) + rad[c])
+        for d in range(3):
+            for q in range(6):
+                jj, kk = _JJ[q], _KK[q]
+                cub[pc, d, q] += cub[c, d, q] + quad[c, d, jj] * delta[kk] \
+                    + quad[c, d, kk] * delta[jj] + nrm[c, d] * delta[jj] * delta[kk]
+            for e in range(3):
+                quad[pc, d, e] += quad[c, d, e] + nrm[c, d] * delta[e]
+    # one packed row per cluster for the queries: centre, radius, vector area N, tr T, u, v
+    # (u_k = sum_i C_iik, v_i = sum_j C_ijj), T (row-major), C (3 x 6, off-diagonal pairs doubled)
+    node = np.empty((n, 44))
+    for c in range(n):
+        for d in range(3):
+            node[c, d] = cen[c, d]
+            node[c, 4 + d] = nrm[c, d]
+            node[c, 8 + d] = 0.0
+            node[c, 11 + d] = 0.0
+        node[c, 3] = rad[c]
+        node[c, 7] = quad[c, 0, 0] + quad[c, 1, 1] + quad[c, 2, 2]
+        for q in range(6):
+            jj, kk = _JJ[q], _KK[q]
+            for d in range(3):
+                cq = cub[c, d, q]
+                node[c, 26 + 6 * d + q] = cq if jj == kk else 2.0 * cq
+                if jj == kk:
+                    node[c, 11 + d] += cq      # v_d
+                if d == jj:
+                    node[c, 8 + kk] += cq      # u_k: C_{d d k}
+                if d == kk and jj != kk:
+                    node[c, 8 + jj] += cq      # and its mirror C_{d k j}
+        for d in range(3):
+            for e in range(3):
+                node[c, 14 + 3 * d + e] = quad[c, d, e]
+    tri_s = np.empty((m, 3, 3))  # triangles in cluster order, for locality
+    for q in range(m):
+        tri_s[q] = tri[order[q]]
     out = np.zeros(pts.shape[0])
-    stack_lv = np.empty(8 * n_lvl + 8, dtype=np.int64)
-    stack_ix = np.empty((8 * n_lvl + 8, 3), dtype=np.int64)
+    stack = np.empty(8 * (TREE_DEPTH + 2), dtype=np.int64)
     for p in range(pts.shape[0]):
         px, py, pz = pts[p, 0], pts[p, 1], pts[p, 2]
         w = 0.0
-        top = 0
-        stack_lv[0] = 0
-        stack_ix[0, 0] = 0
-        stack_ix[0, 1] = 0
-        stack_ix[0, 2] = 0
+        stack[0] = 0
         top = 1
         while top > 0:
             top -= 1
-            lv = stack_lv[top]
-            i, j, k = stack_ix[top, 0], stack_ix[top, 1], stack_ix[top, 2]
-            s = 1 << lv
-            node = off[lv] + (i * s + j) * s + k
-            if cnt[node] == 0:
-                continue
-            dx, dy, dz = cen[node, 0] - px, cen[node, 1] - py, cen[node, 2] - pz
-            dist = math.sqrt(dx * dx + dy * dy + dz * dz)
-            if dist > beta * rad[node]:
-                # second-order expansion of the dipole field of the cluster about its centre
-                d3 = dist * dist * dist
-                tr = quad[node, 0, 0] + quad[node, 1, 1] + quad[node, 2, 2]
-                rtr = (dx * (quad[node, 0, 0] * dx + quad[node, 0, 1] * dy + quad[node, 0, 2] * dz)
-                       + dy * (quad[node, 1, 0] * dx + quad[node, 1, 1] * dy + quad[node, 1, 2] * dz)
-                       + dz * (quad[node, 2, 0] * dx + quad[node, 2, 1] * dy + quad[node, 2, 2] * dz))
-                w += (nrm[node, 0] * dx + nrm[node, 1] * dy + nrm[node, 2] * dz + tr) / d3 \
-                    - 3.0 * rtr / (d3 * dist * dist)
+            c = stack[top]
+            r0, r1, r2 = node[c, 0] - px, node[c, 1] - py, node[c, 2] - pz
+            d2 = r0 * r0 + r1 * r1 + r2 * r2
+            br = beta * node[c, 3]
+            if d2 > br * br:
+                # Taylor expansion of the cluster's field about its centre to second order
+                # (the terms libigl's fast winding number uses). With R = centre - point,
+                # D = |R|, g(r) = r / |r|^3, s = x - centre:
+                # w = N.g(R) + sum_ij T_ij d_j g_i(R) + 1/2 sum_ijk C_ijk d_j d_k g_i(R),
+                # T_ij = int n_i s_j dA, C_ijk = int n_i s_j s_k dA, which gives
+                # (N.R + tr T) / D^3 - 3 R.T.R / D^5 - 3/2 (2 R.u + R.v) / D^5 + 15/2 C(R,R,R) / D^7
+                row = node[c]
+                dist = math.sqrt(d2)
+                d3 = d2 * dist
+                d5 = d3 * d2
+                q0, q1, q2 = r0 * r0, r1 * r1, r2 * r2
+                q3, q4, q5 = r0 * r1, r0 * r2, r1 * r2
+                rc0 = row[26] * q0 + row[27] * q1 + row[28] * q2 + row[29] * q3 + row[30] * q4 + row[31] * q5
+                rc1 = row[32] * q0 + row[33] * q1 + row[34] * q2 + row[35] * q3 + row[36] * q4 + row[37] * q5
+                rc2 = row[38] * q0 + row[39] * q1 + row[40] * q2 + row[41] * q3 + row[42] * q4 + row[43] * q5
+                rrr = r0 * rc0 + r1 * rc1 + r2 * rc2
+                rtr = r0 * (row[14] * r0 + row[15] * r1 + row[16] * r2) \
+                    + r1 * (row[17] * r0 + row[18] * r1 + row[19] * r2) \
+                    + r2 * (row[20] * r0 + row[21] * r1 + row[22] * r2)
+                ru = r0 * row[8] + r1 * row[9] + r2 * row[10]
+                rv = r0 * row[11] + r1 * row[12] + r2 * row[13]
+                w += (row[4] * r0 + row[5] * r1 + row[6] * r2 + row[7]) / d3 \
+                    - (3.0 * rtr + 1.5 * (2.0 * ru + rv)) / d5 + 7.5 * rrr / (d5 * d2)
             else:
-                for q in range(start[node], start[node + 1]):
-                    t = order[q]
-                    w += _solid_angle(tri, t, px, py, pz)
-                if lv < TREE_DEPTH:
-                    for ci in range(2):
-                        for cj in range(2):
-                            for ck in range(2):
-                                stack_lv[top] = lv + 1
-                                stack_ix[top, 0] = 2 * i + ci
-                                stack_ix[top, 1] = 2 * j + cj
-                                stack_ix[top, 2] = 2 * k + ck
-                                top += 1
+                for q in range(start[c], start[c + 1]):
+                    w += _solid_angle(tri_s, q, px, py, pz)
+                for q in range(8):
+                    if child[c, q] >= 0:
+                        stack[top] = child[c, q]
+                        top += 1
         out[p] = w / (4.0 * math.pi)
     return out
 
