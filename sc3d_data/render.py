@@ -9,8 +9,8 @@ readback per view); here ALL views of an object are drawn into ONE framebuffer, 
 asked for). Each instance's clip-space position is remapped onto its tile and clipped to it with
 ``gl_ClipDistance``, so a tile holds exactly what a separate ``S x S`` render would.
 
-Look: per mesh part, base colour = material colour factor x texture (sRGB -> linear, mipmapped)
-x vertex/face colours, as pyrender reads them from trimesh; no material or texture -> grey 0.3.
+Look: per mesh part, base colour = material colour factor x texture (sRGB -> linear, mipmapped;
+textures over ``MAX_TEXTURE_SIZE`` are box-downscaled first) x vertex/face colours, as pyrender reads them from trimesh; no material or texture -> grey 0.3.
 Matte shading with a headlight: ``colour = base x (ambient + intensity x |n.l| / pi)`` then
 gamma 1/2.2 (pyrender's metallic-roughness shader without the specular term and without
 metallic darkening), with flat per-pixel face normals (screen-space derivatives) and
@@ -40,6 +40,8 @@ from sc3d_data.gl_backend import activate
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
 ZNEAR = 0.01
 DEFAULT_GREY = (0.3, 0.3, 0.3, 1.0)  # pyrender's colour for meshes without material
+#: larger textures are box-downscaled by an integer factor to at most max(this, 8 x image size)
+MAX_TEXTURE_SIZE = 1024
 
 
 def opengl_camera_pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -271,6 +273,9 @@ class MeshRenderer:
 
     def _texture(self, image):
         GL = self.gl
+        factor = math.ceil(max(image.size) / max(MAX_TEXTURE_SIZE, 8 * self.S))
+        if factor > 1:  # box filter, as the first mipmap levels would be: saves memory and upload time
+            image = image.reduce(factor)
         img = np.asarray(image.convert("RGB"), dtype=np.uint8)[::-1]  # row 0 = v 0 (bottom)
         tex = GL.glGenTextures(1)
         GL.glActiveTexture(GL.GL_TEXTURE0)
