@@ -1,19 +1,25 @@
 """Rendering speed and memory: sc3d's renderer vs pyrender as its README shows it.
 
     python benchmarks/render.py [--meshes ../shared/meshes] [--repeat 5] [--views 24]
+                                [--pipeline-repeat 6 --workers 2]
 
 Each side runs in its own fresh (spawned) process on the same meshes, loaded and normalised
 before timing (loading is not timed). Measured per side: views/s (wall) and CPU-ms per view,
 over all meshes and over the "typical" 2-30k-face ones, peak RSS, and RSS after each pass
 (sc3d only: ``--repeat`` passes over the meshes; flat RSS = no leak).
 
-- sc3d: one ``sc3d_data.render.MeshRenderer`` for all meshes (swap the mesh node, move the
-  camera), MSAA off.
+- sc3d: one ``sc3d_data.render.MeshRenderer`` for all meshes (all views of an object in one
+  atlas framebuffer, one instanced draw per mesh part, one readback).
 - baseline: per mesh a new ``pyrender.Scene`` and ``OffscreenRenderer`` (default settings,
   4x MSAA), ``render`` per view, ``delete()`` afterwards: the README's usage.
 
 Prints a table with the ratio sc3d / baseline (robust to machine noise: both measured in the
 same run). Views/s per machine = per-process figure x cores only if cores are free.
+
+``--pipeline-repeat N`` (N > 0) then runs the real pipeline (``render_dataset``, ``--workers``
+spawned workers, shards written to a temporary folder) over the meshes listed N times (a
+temporary folder of symlinks, ordered pass after pass) and samples the RSS of the worker
+processes every 0.2 s: peak, and the peak and median in each N-th of the run (flat = no leak).
 """
 from __future__ import annotations
 
@@ -22,6 +28,8 @@ import multiprocessing as mp
 import os
 import resource
 import sys
+import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -31,95 +39,65 @@ for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "LP_NUM_
     os.environ.setdefault(k, "1")
 
 
-def _rss_mb() -> float:
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
+def _rss_mb(pid="self") -> float:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
     return float("nan")
 
 
-def _load(paths):
-    from sc3d_data.mesh_io import load_mesh
-    from sc3d_data.normalize import to_canonical_transform
-
-    out = []
-    for p in paths:
-        try:
-            scene, v, f, _ = load_mesh(p, bad_texture="fallback")
-        except Exception as e:  # noqa: BLE001
-            print(f"skip {p}: {e}", file=sys.stderr)
-            continue
-        out.append((scene, to_canonical_transform(v, f), len(f)))
-    return out
+def _children() -> list[int]:
+    pid = os.getpid()
+    with open(f"/proc/{pid}/task/{pid}/children") as f:
+        return [int(x) for x in f.read().split()]
 
 
-def _typical(n_faces: int) -> bool:
-    return 2_000 <= n_faces <= 30_000
-
-
-def run_sc3d(paths, views, repeat, backend, queue):
-    from sc3d_data.camera import ViewSettings
-    from sc3d_data.render import MeshRenderer
-
-    meshes = _load(paths)
-    r = MeshRenderer(ViewSettings(num_views=views), backend=backend)
-    r.render(meshes[0][0], meshes[0][1])  # shader compilation
-    stats = {"all": [0.0, 0.0, 0], "typical": [0.0, 0.0, 0]}
-    rss = []
-    for _ in range(repeat):
-        for scene, T, nf in meshes:
-            w, c = time.perf_counter(), time.process_time()
-            r.render(scene, T)
-            w, c = time.perf_counter() - w, time.process_time() - c
-            for key in ("all", "typical") if _typical(nf) else ("all",):
-                stats[key][0] += w
-                stats[key][1] += c
-                stats[key][2] += views
-        rss.append(_rss_mb())
-    queue.put({"stats": stats, "rss": rss, "peak": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-               "meshes": len(meshes) * repeat})
-
-
-def run_baseline(paths, views, backend, queue):
-    from sc3d_data.gl_backend import activate
-
-    activate(backend)
+def run_pipeline_memory(paths, root: Path, repeat: int, workers: int, views: int) -> dict:
+    """Real ``render_dataset`` over ``paths`` x ``repeat`` (symlinks ``rK_CAT/NAME.ext``, so the
+    plan renders pass after pass); overall peak RSS of its worker processes and the peak and
+    median in each ``repeat``-th of the run (~ one pass). Processes under 50 MB (the resource tracker) are left
+    out."""
     import numpy as np
-    import pyrender
-    import trimesh
 
-    from sc3d_data.camera import ViewSettings
-    from sc3d_data.render import opengl_camera_pose
+    from sc3d_data.render_pipeline import RenderConfig, render_dataset
 
-    meshes = _load(paths)
-    cams = ViewSettings(num_views=views).cameras()
-    K = cams["K"][0]
-    poses = [opengl_camera_pose(R, t) for R, t in zip(cams["R"], cams["t"])]
-    stats = {"all": [0.0, 0.0, 0], "typical": [0.0, 0.0, 0]}
-    for scene_tm, T, nf in meshes:
-        w, c = time.perf_counter(), time.process_time()
-        scene = pyrender.Scene()
-        for node in scene_tm.graph.nodes_geometry:
-            transform, name = scene_tm.graph[node]
-            geom = scene_tm.geometry[name]
-            if isinstance(geom, trimesh.Trimesh) and len(geom.faces):
-                scene.add(pyrender.Mesh.from_trimesh(geom), pose=T @ transform)
-        cam = scene.add(pyrender.IntrinsicsCamera(K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
-        light = scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=2.0))
-        r = pyrender.OffscreenRenderer(64, 64)
-        for pose in poses:
-            scene.set_pose(cam, pose)
-            scene.set_pose(light, pose)
-            r.render(scene)
-        r.delete()
-        w, c = time.perf_counter() - w, time.process_time() - c
-        for key in ("all", "typical") if _typical(nf) else ("all",):
-            stats[key][0] += w
-            stats[key][1] += c
-            stats[key][2] += views
-    queue.put({"stats": stats, "peak": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-               "meshes": len(meshes)})
+    with tempfile.TemporaryDirectory(prefix="sc3d-bench-") as tmp:
+        meshes = Path(tmp) / "meshes"
+        for k in range(repeat):
+            for p in paths:
+                rel = p.relative_to(root)
+                cat = rel.parts[0] if len(rel.parts) > 1 else "thing"
+                dst = meshes / f"r{k}_{cat}" / f"{p.stem}{p.suffix}"  # plan order: pass after pass
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                dst.symlink_to(p.resolve())
+        samples: list[tuple[float, float]] = []  # (time, rss of one worker)
+        stop = threading.Event()
+
+        def sample():
+            while not stop.wait(0.2):
+                now = time.monotonic()
+                for pid in _children():
+                    r = _rss_mb(pid)
+                    if r > 50:
+                        samples.append((now, r))
+
+        th = threading.Thread(target=sample, daemon=True)
+        th.start()
+        cfg = RenderConfig(out=Path(tmp) / "out", meshes=meshes, num_views=views, workers=workers,
+                           bad_texture="fallback", progress=False)
+        summary = render_dataset(cfg)
+        stop.set()
+        th.join()
+    t = np.array([s[0] for s in samples])
+    r = np.array([s[1] for s in samples])
+    parts = np.array_split(np.argsort(t, kind="stable"), repeat)
+    return {"summary": summary, "peak": float(r.max()) if len(r) else float("nan"),
+            "per_part": [float(r[i].max()) if len(i) else float("nan") for i in parts],
+            "median_part": [float(np.median(r[i])) if len(i) else float("nan") for i in parts]}
 
 
 def _spawn(target, *args):
@@ -139,6 +117,10 @@ def main():
     ap.add_argument("--repeat", type=int, default=5, help="passes of the sc3d renderer (memory flatness)")
     ap.add_argument("--limit", type=int, default=0, help="use only the first N meshes")
     ap.add_argument("--backend", default="egl", choices=["egl", "osmesa"])
+    ap.add_argument("--pipeline-repeat", type=int, default=0,
+                    help="also run the real pipeline over the meshes listed N times (worker RSS)")
+    ap.add_argument("--workers", type=int, default=2, help="pipeline workers (--pipeline-repeat)")
+    ap.add_argument("--pipeline-only", action="store_true", help="skip the speed comparison")
     a = ap.parse_args()
     from sc3d_data.mesh_io import MESH_SUFFIXES
 
@@ -147,21 +129,31 @@ def main():
         paths = paths[:a.limit]
     print(f"{len(paths)} meshes from {a.meshes}, {a.views} views of 64x64, backend {a.backend}, "
           f"{os.cpu_count()} cores (shared machine: compare the ratios)")
-    ours = _spawn(run_sc3d, paths, a.views, a.repeat, a.backend)
-    base = _spawn(run_baseline, paths, a.views, a.backend)
-    print(f"\n| measure | sc3d (reused renderer, MSAA off) | baseline (pyrender README usage) | ratio |")
-    print("|---|---|---|---|")
-    for key in ("all", "typical"):
-        (w1, c1, n1), (w0, c0, n0) = ours["stats"][key], base["stats"][key]
-        if not n1 or not n0:
-            continue
-        v1, v0 = n1 / w1, n0 / w0
-        print(f"| views/s per process, {key} meshes | {v1:.0f} | {v0:.0f} | {v1 / v0:.2f}x |")
-        print(f"| CPU-ms per view, {key} meshes | {1000 * c1 / n1:.2f} | {1000 * c0 / n0:.2f} | {c0 / n0 / (c1 / n1):.2f}x less |")
-        print(f"| views/s per CPU-second, {key} | {n1 / c1:.0f} | {n0 / c0:.0f} | |")
-    print(f"| peak RSS per process (MB) | {ours['peak']:.0f} | {base['peak']:.0f} | |")
-    print(f"| meshes rendered | {ours['meshes']} | {base['meshes']} | |")
-    print(f"\nsc3d RSS after each pass of {len(paths)} meshes (MB): " + ", ".join(f"{x:.0f}" for x in ours["rss"]))
+    if not a.pipeline_only:
+        ours = _spawn(run_sc3d, paths, a.views, a.repeat, a.backend)
+        base = _spawn(run_baseline, paths, a.views, a.backend)
+        print(f"\n| measure | sc3d (atlas renderer) | baseline (pyrender README usage) | ratio |")
+        print("|---|---|---|---|")
+        for key in ("all", "typical"):
+            (w1, c1, n1), (w0, c0, n0) = ours["stats"][key], base["stats"][key]
+            if not n1 or not n0:
+                continue
+            v1, v0 = n1 / w1, n0 / w0
+            print(f"| views/s per process, {key} meshes | {v1:.0f} | {v0:.0f} | {v1 / v0:.2f}x |")
+            print(f"| CPU-ms per view, {key} meshes | {1000 * c1 / n1:.2f} | {1000 * c0 / n0:.2f} | {c0 / n0 / (c1 / n1):.2f}x less |")
+            print(f"| views/s per CPU-second, {key} | {n1 / c1:.0f} | {n0 / c0:.0f} | |")
+        print(f"| peak RSS per process (MB) | {ours['peak']:.0f} | {base['peak']:.0f} | |")
+        print(f"| meshes rendered | {ours['meshes']} | {base['meshes']} | |")
+        print(f"\nsc3d RSS after each pass of {len(paths)} meshes (MB): " + ", ".join(f"{x:.0f}" for x in ours["rss"]))
+    if a.pipeline_repeat > 0:
+        m = run_pipeline_memory(paths, a.meshes, a.pipeline_repeat, a.workers, a.views)
+        sm = m["summary"]
+        print(f"\npipeline: {sm['done']} objects ({sm['failed']} failed) x {a.views} views with {sm['workers']} "
+              f"workers in {sm['seconds']:.0f} s = {sm['views_per_s']:.0f} views/s per machine (incl. loading, "
+              f"voxel-free, HDF5 writing)")
+        print(f"worker RSS (MB): peak {m['peak']:.0f}; peak in each {a.pipeline_repeat}th of the run (~ one pass "
+              f"over the meshes each): " + ", ".join(f"{x:.0f}" for x in m["per_part"])
+              + "; median in each: " + ", ".join(f"{x:.0f}" for x in m["median_part"]))
 
 
 if __name__ == "__main__":
