@@ -59,8 +59,8 @@ def _children() -> list[int]:
 def run_pipeline_memory(paths, root: Path, repeat: int, workers: int, views: int) -> dict:
     """Real ``render_dataset`` over ``paths`` x ``repeat`` (symlinks ``rK_CAT/NAME.ext``, so the
     plan renders pass after pass); overall peak RSS of its worker processes and the peak and
-    median in each ``repeat``-th of the run (~ one pass). Processes under 50 MB (the resource tracker) are left
-    out."""
+    median in each ``repeat``-th of the run (~ one pass). Processes under 50 MB (the resource
+    tracker) are left out."""
     import numpy as np
 
     from sc3d_data.render_pipeline import RenderConfig, render_dataset
@@ -98,6 +98,89 @@ def run_pipeline_memory(paths, root: Path, repeat: int, workers: int, views: int
     return {"summary": summary, "peak": float(r.max()) if len(r) else float("nan"),
             "per_part": [float(r[i].max()) if len(i) else float("nan") for i in parts],
             "median_part": [float(np.median(r[i])) if len(i) else float("nan") for i in parts]}
+
+
+def _load(paths):
+    from sc3d_data.mesh_io import load_mesh
+    from sc3d_data.normalize import to_canonical_transform
+
+    out = []
+    for p in paths:
+        try:
+            scene, v, f, _ = load_mesh(p, bad_texture="fallback")
+        except Exception as e:  # noqa: BLE001
+            print(f"skip {p}: {e}", file=sys.stderr)
+            continue
+        out.append((scene, to_canonical_transform(v, f), len(f)))
+    return out
+
+
+def _typical(n_faces: int) -> bool:
+    return 2_000 <= n_faces <= 30_000
+
+
+def run_sc3d(paths, views, repeat, backend, queue):
+    from sc3d_data.camera import ViewSettings
+    from sc3d_data.render import MeshRenderer
+
+    meshes = _load(paths)
+    r = MeshRenderer(ViewSettings(num_views=views), backend=backend)
+    r.render(meshes[0][0], meshes[0][1])  # shader compilation
+    stats = {"all": [0.0, 0.0, 0], "typical": [0.0, 0.0, 0]}
+    rss = []
+    for _ in range(repeat):
+        for scene, T, nf in meshes:
+            w, c = time.perf_counter(), time.process_time()
+            r.render(scene, T)
+            w, c = time.perf_counter() - w, time.process_time() - c
+            for key in ("all", "typical") if _typical(nf) else ("all",):
+                stats[key][0] += w
+                stats[key][1] += c
+                stats[key][2] += views
+        rss.append(_rss_mb())
+    queue.put({"stats": stats, "rss": rss, "peak": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+               "meshes": len(meshes) * repeat})
+
+
+def run_baseline(paths, views, backend, queue):
+    from sc3d_data.gl_backend import activate
+
+    activate(backend)
+    import numpy as np
+    import pyrender
+    import trimesh
+
+    from sc3d_data.camera import ViewSettings
+    from sc3d_data.render import opengl_camera_pose
+
+    meshes = _load(paths)
+    cams = ViewSettings(num_views=views).cameras()
+    K = cams["K"][0]
+    poses = [opengl_camera_pose(R, t) for R, t in zip(cams["R"], cams["t"])]
+    stats = {"all": [0.0, 0.0, 0], "typical": [0.0, 0.0, 0]}
+    for scene_tm, T, nf in meshes:
+        w, c = time.perf_counter(), time.process_time()
+        scene = pyrender.Scene()
+        for node in scene_tm.graph.nodes_geometry:
+            transform, name = scene_tm.graph[node]
+            geom = scene_tm.geometry[name]
+            if isinstance(geom, trimesh.Trimesh) and len(geom.faces):
+                scene.add(pyrender.Mesh.from_trimesh(geom), pose=T @ transform)
+        cam = scene.add(pyrender.IntrinsicsCamera(K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+        light = scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=2.0))
+        r = pyrender.OffscreenRenderer(64, 64)
+        for pose in poses:
+            scene.set_pose(cam, pose)
+            scene.set_pose(light, pose)
+            r.render(scene)
+        r.delete()
+        w, c = time.perf_counter() - w, time.process_time() - c
+        for key in ("all", "typical") if _typical(nf) else ("all",):
+            stats[key][0] += w
+            stats[key][1] += c
+            stats[key][2] += views
+    queue.put({"stats": stats, "peak": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+               "meshes": len(meshes)})
 
 
 def _spawn(target, *args):
@@ -151,7 +234,7 @@ def main():
         print(f"\npipeline: {sm['done']} objects ({sm['failed']} failed) x {a.views} views with {sm['workers']} "
               f"workers in {sm['seconds']:.0f} s = {sm['views_per_s']:.0f} views/s per machine (incl. loading, "
               f"voxel-free, HDF5 writing)")
-        print(f"worker RSS (MB): peak {m['peak']:.0f}; peak in each {a.pipeline_repeat}th of the run (~ one pass "
+        print(f"worker RSS (MB): peak {m['peak']:.0f}; peak in each 1/{a.pipeline_repeat} of the run (~ one pass "
               f"over the meshes each): " + ", ".join(f"{x:.0f}" for x in m["per_part"])
               + "; median in each: " + ", ".join(f"{x:.0f}" for x in m["median_part"]))
 

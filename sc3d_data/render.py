@@ -10,17 +10,18 @@ asked for). Each instance's clip-space position is remapped onto its tile and cl
 ``gl_ClipDistance``, so a tile holds exactly what a separate ``S x S`` render would.
 
 Look: per mesh part, base colour = material colour factor x texture (sRGB -> linear, mipmapped;
-textures over ``MAX_TEXTURE_SIZE`` are box-downscaled first) x vertex/face colours, as pyrender reads them from trimesh; no material or texture -> grey 0.3.
-Matte shading with a headlight: ``colour = base x (ambient + intensity x |n.l| / pi)`` then
-gamma 1/2.2 (pyrender's metallic-roughness shader without the specular term and without
+textures over ``MAX_TEXTURE_SIZE`` are box-downscaled first) x vertex/face colours, as pyrender
+reads them from trimesh; no material or texture -> grey 0.3. Emission is ignored. Matte
+shading with a headlight: ``colour = base x (ambient + intensity x |n.l| / pi)`` then gamma 1/2.2 (pyrender's metallic-roughness shader without the specular term and without
 metallic darkening), with flat per-pixel face normals (screen-space derivatives) and
 two-sided lighting (most real meshes have inconsistent winding; culling is off). Objects are
 opaque. No multisampling: the mask (alpha written by every fragment) and the RGB agree exactly,
 and background pixels hold exactly the background colour.
 
 Cameras: the shards store OpenCV ``K, R, t`` (world->camera, x right, y down, z forward);
-``gl_view_matrix`` flips y and z to OpenGL camera axes and ``gl_projection`` builds the
-projection from ``K`` (pixel centres as in ``sc3d_data.camera.project_points``). The OpenGL
+``gl_view_matrices`` flips y and z to OpenGL camera axes and ``gl_projection`` builds the
+projection from ``K`` as pyrender's ``IntrinsicsCamera`` does (masks are pixel-identical to the
+former pyrender path; the tests project vertices with the stored K, R, t onto them). The OpenGL
 context comes from pyrender's EGL/OSMesa platform classes; call
 ``sc3d_data.gl_backend.activate(backend)`` (done by ``MeshRenderer``) before anything imports
 OpenGL, and never fork a process after a renderer exists.
