@@ -339,8 +339,32 @@ def winding_kernel(tri, pts, G, beta):
             for e in range(3):
                 node[c, 14 + 3 * d + e] = quad[c, d, e]
     tri_s = np.empty((m, 3, 3))  # triangles in cluster order, for locality
+    # per triangle (cluster order): centroid, radius, vector area N, M N, tr M, M (xx yy zz xy
+    # xz yz) with M = 1/12 sum_v s_v s_v^T about the centroid: its own second-order expansion
+    tdat = np.empty((m, 17))
     for q in range(m):
-        tri_s[q] = tri[order[q]]
+        t = order[q]
+        tri_s[q] = tri[t]
+        mm = np.zeros(6)
+        rt = 0.0
+        for v in range(3):
+            s0, s1, s2 = tri[t, v, 0] - tc[t, 0], tri[t, v, 1] - tc[t, 1], tri[t, v, 2] - tc[t, 2]
+            rt = max(rt, math.sqrt(s0 * s0 + s1 * s1 + s2 * s2))
+            mm[0] += s0 * s0 / 12.0
+            mm[1] += s1 * s1 / 12.0
+            mm[2] += s2 * s2 / 12.0
+            mm[3] += s0 * s1 / 12.0
+            mm[4] += s0 * s2 / 12.0
+            mm[5] += s1 * s2 / 12.0
+        n0, n1, n2 = varea[t, 0], varea[t, 1], varea[t, 2]
+        tdat[q, 0], tdat[q, 1], tdat[q, 2], tdat[q, 3] = tc[t, 0], tc[t, 1], tc[t, 2], rt
+        tdat[q, 4], tdat[q, 5], tdat[q, 6] = n0, n1, n2
+        tdat[q, 7] = mm[0] * n0 + mm[3] * n1 + mm[4] * n2
+        tdat[q, 8] = mm[3] * n0 + mm[1] * n1 + mm[5] * n2
+        tdat[q, 9] = mm[4] * n0 + mm[5] * n1 + mm[2] * n2
+        tdat[q, 10] = mm[0] + mm[1] + mm[2]
+        for e in range(6):
+            tdat[q, 11 + e] = mm[e]
     out = np.zeros(pts.shape[0])
     stack = np.empty(8 * (TREE_DEPTH + 2), dtype=np.int64)
     for p in range(pts.shape[0]):
@@ -380,7 +404,19 @@ def winding_kernel(tri, pts, G, beta):
                     - (3.0 * rtr + 1.5 * (2.0 * ru + rv)) / d5 + 7.5 * rrr / (d5 * d2)
             else:
                 for q in range(start[c], start[c + 1]):
-                    w += _solid_angle(tri_s, q, px, py, pz)
+                    td = tdat[q]
+                    r0, r1, r2 = td[0] - px, td[1] - py, td[2] - pz
+                    d2 = r0 * r0 + r1 * r1 + r2 * r2
+                    br = beta * td[3]
+                    if d2 > br * br:  # the triangle alone is far: its own expansion (T = 0)
+                        d5 = d2 * d2 * math.sqrt(d2)
+                        nr = td[4] * r0 + td[5] * r1 + td[6] * r2
+                        rmr = td[11] * r0 * r0 + td[12] * r1 * r1 + td[13] * r2 * r2 \
+                            + 2.0 * (td[14] * r0 * r1 + td[15] * r0 * r2 + td[16] * r1 * r2)
+                        ru = td[7] * r0 + td[8] * r1 + td[9] * r2
+                        w += nr * d2 / d5 - 1.5 * (2.0 * ru + nr * td[10]) / d5 + 7.5 * nr * rmr / (d5 * d2)
+                    else:
+                        w += _solid_angle(tri_s, q, px, py, pz)
                 for q in range(8):
                     if child[c, q] >= 0:
                         stack[top] = child[c, q]
