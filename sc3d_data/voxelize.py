@@ -14,8 +14,9 @@ A voxel is occupied when at least one of these holds:
    Every point of the mesh inside [-0.5, 0.5]^3 lies in an occupied voxel, so the projected
    voxel cubes cover the rendered silhouette from any camera (``sc3d-data check`` measures it).
 2. **inside**: the generalized winding number of the mesh (the fast winding number of
-   Barill et al. 2018 as in libigl: exact solid angles of nearby triangles, dipoles of far
-   octree clusters; works on triangle soups) at the voxel centre has absolute value >= 0.5. The
+   Barill et al. 2018, as libigl's: exact solid angles of nearby triangles, second-order
+   expansions of the field of octree clusters, and of single triangles, farther than 2x their
+   radius; works on triangle soups) at the voxel centre has absolute value >= 0.5. The
    absolute value makes meshes with inverted orientation come out solid too. Open meshes
    (a car body without a floor, a box with a deleted face) have winding numbers near 1 in
    most of their interior and near 0 outside, so 0.5 separates them.
@@ -30,7 +31,8 @@ rasterisation of the triangles per axis) decide rule 2 where all six agree (all 
 inside; all zero: outside); winding numbers are evaluated only at the remaining voxel centres
 that are not enclosed by the surface and six-ray-inside voxels (those are occupied by rule 3
 whatever their winding number). Geometry outside [-0.5, 0.5]^3 is ignored (clipped by
-the grid) except that all triangles count for winding numbers.
+the grid) except that all triangles count for winding numbers. The kernels live in
+``_voxel_kernels.py`` (numba, compiled on first use and cached in ``__pycache__``).
 """
 from __future__ import annotations
 
