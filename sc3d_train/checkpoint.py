@@ -92,15 +92,27 @@ def build_model(run_config: RunConfig):
     return SelfConsistencyNet(ModelConfig.from_dict(run_config.model))
 
 
+def state_dict_mismatch(expected: dict, found: dict) -> str:
+    """A short description of how ``found`` differs from ``expected`` (empty when they match)."""
+    missing = [k for k in expected if k not in found]
+    unexpected = [k for k in found if k not in expected]
+    shapes = [k for k in expected if k in found and tuple(expected[k].shape) != tuple(found[k].shape)]
+    parts = []
+    for label, keys in (("missing", missing), ("unexpected", unexpected), ("shape differs", shapes)):
+        if keys:
+            parts.append(f"{len(keys)} {label}, e.g. {keys[0]}")
+    return "; ".join(parts)
+
+
 def load_model(path: Path, device="cpu"):
     """``(model in eval mode on device, RunConfig, checkpoint dict)`` from a checkpoint file;
     a clear error when the weights do not fit the stored configuration."""
     ckpt = load_checkpoint(path)
     cfg = RunConfig.from_dict(ckpt["config"])
     model = build_model(cfg)
-    try:
-        model.load_state_dict(ckpt["model"])
-    except RuntimeError as e:
+    problems = state_dict_mismatch(model.state_dict(), ckpt["model"])
+    if problems:
         raise CheckpointError(f"{path}: weights do not match the model config stored in it "
-                              f"({str(e).splitlines()[0]})") from e
+                              f"({problems}; a different config or version of sc3d_train.model?)")
+    model.load_state_dict(ckpt["model"])
     return model.to(device).eval(), cfg, ckpt

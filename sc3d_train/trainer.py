@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from sc3d_train.checkpoint import (CheckpointError, build_model, last_path, load_checkpoint,
-                                   rng_state, save_checkpoint, set_rng_state)
+                                   rng_state, save_checkpoint, set_rng_state, state_dict_mismatch)
 from sc3d_train.config import RunConfig
 from sc3d_train.data import ShardDataset, make_loader
 
@@ -311,6 +311,9 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
         if diffs:
             raise CheckpointError(f"{ckpt_file}: the run config differs from the checkpoint's: "
                                   + "; ".join(diffs))
+        problems = state_dict_mismatch(model.state_dict(), ckpt["model"])
+        if problems:
+            raise CheckpointError(f"{ckpt_file}: weights do not match the run's model ({problems})")
         model.load_state_dict(ckpt["model"])
         optimizer.load_state_dict(ckpt["optimizer"])
         if scaler is not None and ckpt.get("scaler"):
