@@ -162,3 +162,24 @@ def test_settings_mismatch_refuses_to_mix(tmp_path):
     result = run_cli(main, ["render", "--meshes", SAMPLE_MESHES / "table", "--out", out, "--workers", "1",
                             "--views", "6", "--no-progress"], expect_exit=1)
     assert "num_views" in result.output and "--overwrite" in result.output
+
+
+def test_depth_is_camera_z_of_the_visible_surface(tmp_path):
+    """``--depth``: 0 outside the mask; inside, the camera-frame z of the cube's surface (between
+    the nearest and farthest corner, the minimum at the nearest corner, which a convex object
+    shows)."""
+    d = tmp_path / "meshes" / "thing"
+    d.mkdir(parents=True)
+    _write_obj(d / "cube.obj", *_cube())
+    out = tmp_path / "out"
+    run_cli(main, ["render", "--meshes", d, "--out", out, "--workers", "1", "--depth", *FAST])
+    with h5py.File(next(out.glob("shard-*.h5"))) as f:
+        depth, masks = f["depth"][0], f["masks"][0].astype(bool)
+        R, t, T = f["R"][0].astype(float), f["t"][0].astype(float), f["to_canonical"][0]
+    corners = np.c_[_cube()[0], np.ones(8)] @ T.T
+    for k in range(len(depth)):
+        z = (corners[:, :3] @ R[k].T + t[k])[:, 2]
+        assert masks[k].any() and (depth[k][~masks[k]] == 0).all()
+        inside = depth[k][masks[k]]
+        assert inside.min() >= z.min() - 1e-3 and inside.max() <= z.max() + 1e-3
+        assert abs(inside.min() - z.min()) < 0.05
