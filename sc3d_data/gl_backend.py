@@ -50,17 +50,20 @@ def activate(backend: str) -> None:
 
 
 def check_backend(backend: str) -> None:
-    """In THIS process: activate ``backend`` and draw one frame; raises ``BackendError`` with
-    the install hint on failure."""
+    """In THIS process: activate ``backend`` and render a box with sc3d's renderer (8x8, 2
+    views); raises ``BackendError`` with the install hint on failure or an empty image."""
     activate(backend)
     try:
-        import pyrender
+        import trimesh
 
-        r = pyrender.OffscreenRenderer(8, 8)
-        scene = pyrender.Scene()
-        scene.add(pyrender.PerspectiveCamera(yfov=1.0))
-        r.render(scene)
-        r.delete()
+        from sc3d_data.camera import ViewSettings
+        from sc3d_data.render import MeshRenderer
+
+        r = MeshRenderer(ViewSettings(num_views=2, image_size=8), backend=backend)
+        masks = r.render(trimesh.Scene(trimesh.creation.box(extents=(0.5, 0.5, 0.5))), np.eye(4))["masks"]
+        r.close()
+        if not masks.any():
+            raise RuntimeError("a test box rendered empty")
     except Exception as e:
         raise BackendError(f"OpenGL backend {backend!r} does not work ({type(e).__name__}: {e}); "
                            f"{install_hint()}") from e

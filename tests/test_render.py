@@ -87,3 +87,13 @@ def test_default_face_limit_rejects_two_million_faces():
     validate_triangles(v, np.zeros((DEFAULT_MAX_FACES, 3), np.int64) + [0, 1, 2], "ok.obj")
     with pytest.raises(MeshError, match="more than the limit"):
         validate_triangles(v, np.zeros((2_000_000, 3), np.int64) + [0, 1, 2], "huge.obj")
+
+
+def test_resolve_backend_probes_the_renderer_in_a_subprocess():
+    """``auto`` finds a backend by rendering a box with sc3d's renderer in a child process (this
+    process never gets a GL context); unknown names are refused."""
+    from sc3d_data.gl_backend import resolve_backend
+
+    assert resolve_backend("auto") in ("egl", "osmesa")
+    with pytest.raises(ValueError):
+        resolve_backend("vulkan")
