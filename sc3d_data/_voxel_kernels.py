@@ -6,6 +6,7 @@ import math
 import numpy as np
 from numba import njit
 
+#: half-width of a voxel cube in voxel units, grown slightly so touching counts under round-off
 HALF = 0.5 + 1e-6
 
 
@@ -148,8 +149,9 @@ TREE_DEPTH = 5
 #: index pairs (j, k) of the symmetric second moments
 _JJ = np.array([0, 1, 2, 0, 0, 1])
 _KK = np.array([0, 1, 2, 1, 2, 2])
-#: a cluster of triangles is replaced by its dipole when the query point is farther than
-#: BETA times the cluster's radius from its centre (libigl's fast winding number uses 2)
+#: a cluster of triangles (or one triangle) is replaced by the second-order expansion of its
+#: field when the query point is farther than BETA times its radius from its centre (libigl's
+#: fast winding number uses 2)
 BETA = 2.0
 
 
