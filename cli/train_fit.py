@@ -52,7 +52,8 @@ def fit(ctx, shards, out, steps, batch_size, lr, semi_lr, semi, labeled_only, la
     renamed = {"no_progress": "progress", "semi": "mode", "labeled_only": "mode"}
     given = {renamed.get(name, name) for name in ctx.params
              if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE}
-    options = dict(shards=str(shards) if shards else None, out=str(out), steps=steps, batch_size=batch_size, lr=lr,
+    options = dict(shards=str(shards.resolve()) if shards else None,  # absolute: resume from anywhere
+                   out=str(out), steps=steps, batch_size=batch_size, lr=lr,
                    semi_lr=semi_lr, mode="semi" if semi else "labeled-only" if labeled_only else "supervised",
                    labeled_fraction=labeled_fraction, pretrain_steps=pretrain_steps, split=split,
                    seed=seed, checkpoint_every=checkpoint_every, log_every=log_every, workers=workers,
