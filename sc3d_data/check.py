@@ -30,6 +30,7 @@ import numpy as np
 
 from sc3d_data.project_voxels import project_voxels
 from sc3d_data.shards import iter_objects
+from sc3d_data.shapenet import category_label
 
 DEFAULT_MIN_IOU = 0.3
 DEFAULT_MIN_COVERAGE = 0.98
@@ -87,7 +88,7 @@ class CheckReport:
         return bool(self.objects) and not self.failing
 
     def text(self, n_worst: int = 10) -> str:
-        lines = [f"{'category':<12} {'objects':>7} {'mean IoU':>9} {'min IoU':>8} {'mean cov':>9} {'min cov':>8}"]
+        lines = [f"{'category':<22} {'objects':>7} {'mean IoU':>9} {'min IoU':>8} {'mean cov':>9} {'min cov':>8}"]
         rows = list(self.per_category().items())
         if self.objects:
             rows.append(("all", {"objects": len(self.objects),
@@ -96,7 +97,7 @@ class CheckReport:
                                  "mean_coverage": float(np.mean([o.mean_coverage for o in self.objects])),
                                  "min_coverage": min(o.mean_coverage for o in self.objects)}))
         for c, s in rows:
-            lines.append(f"{c:<12} {s['objects']:>7} {s['mean_iou']:>9.3f} {s['min_iou']:>8.3f} "
+            lines.append(f"{category_label(c):<22} {s['objects']:>7} {s['mean_iou']:>9.3f} {s['min_iou']:>8.3f} "
                          f"{s['mean_coverage']:>9.3f} {s['min_coverage']:>8.3f}")
         lines.append("worst objects (mean coverage, mean IoU over views; worst view and its IoU):")
         for o in self.worst(n_worst):

@@ -4,7 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from sc3d_data.shards import load_index
-from sc3d_data.shapenet import category_name
+from sc3d_data.shapenet import category_label
 
 
 def index_report(shard_dir: Path, max_failures: int = 50) -> str:
@@ -19,9 +19,7 @@ def index_report(shard_dir: Path, max_failures: int = 50) -> str:
     header = f"  {'category':<24}" + "".join(f"{s:>8}" for s in splits) + f"{'total':>8}"
     lines.append(header)
     for cat, per in counts.get("by_category", {}).items():
-        name = category_name(cat)
-        label = f"{name} ({cat})" if name != cat else cat
-        lines.append(f"  {label:<24}" + "".join(f"{per.get(s, 0):>8}" for s in splits) + f"{sum(per.values()):>8}")
+        lines.append(f"  {category_label(cat):<24}" + "".join(f"{per.get(s, 0):>8}" for s in splits) + f"{sum(per.values()):>8}")
     lines.append(f"  {'all':<24}" + "".join(f"{counts['by_split'][s]:>8}" for s in splits) + f"{counts.get('total', 0):>8}")
     clipped = index.get("clipped", {})
     lines.append(f"\nclipped views (mask touches the border): {clipped.get('views', 0)} in {clipped.get('objects', 0)} objects")

@@ -50,6 +50,13 @@ def category_name(category: str) -> str:
     return R2N2_SYNSETS.get(category, category)
 
 
+def category_label(category: str) -> str:
+    """``"airplane (02691156)"`` for a known synset id, else the category as stored: the label
+    the reports (``info``, ``check``, ``eval``) print."""
+    name = category_name(category)
+    return f"{name} ({category})" if name != category else category
+
+
 def resolve_category(name: str) -> str:
     """One category name or synset id -> synset id where known (case-insensitive for names),
     else the name unchanged (stripped)."""

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from sc3d_data.shapenet import category_label
 from sc3d_train.checkpoint import load_model
 from sc3d_train.data import ShardDataset
 from sc3d_train.pose import pose_errors
@@ -111,17 +112,9 @@ TABLE_COLUMNS = (("images", "n", "{:d}"), ("voxel_iou_0.4", "IoU@.4", "{:.3f}"),
                  ("pose_elevation_acc30", "el<30", "{:.2f}"))
 
 
-def category_label(category: str) -> str:
-    """``"02691156 airplane"`` for a known ShapeNet synset id, else the category as stored."""
-    from sc3d_data.shapenet import category_name, is_synset_id
-
-    name = category_name(category)
-    return f"{category} {name}" if is_synset_id(category) and name != category else category
-
-
 def format_table(summary: dict) -> str:
     """A fixed-width text table: one row per category, then ``mean`` and ``overall``."""
-    lines = [f"{'category':<20}" + "".join(f"{h:>9}" for _, h, _ in TABLE_COLUMNS)]
+    lines = [f"{'category':<22}" + "".join(f"{h:>9}" for _, h, _ in TABLE_COLUMNS)]
     rows = list(summary["per_category"].items()) + [("mean", summary["mean"]), ("overall", summary["overall"])]
     for name, vals in rows:
         if name in summary["per_category"]:
@@ -130,7 +123,7 @@ def format_table(summary: dict) -> str:
         for key, _, fmt in TABLE_COLUMNS:
             v = vals.get(key)
             cells.append(f"{'':>9}" if v is None else f"{fmt.format(v):>9}")
-        lines.append(f"{name[:20]:<20}" + "".join(cells))
+        lines.append(f"{name[:22]:<22}" + "".join(cells))
     return "\n".join(lines)
 
 
