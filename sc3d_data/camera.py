@@ -52,6 +52,11 @@ def _xp(x: Any):
     return np
 
 
+def _mT(x):
+    """Swap the last two axes (matrix transpose over batch dims), numpy or torch."""
+    return x.swapaxes(-1, -2) if _xp(x) is np else x.transpose(-1, -2)
+
+
 def _asarray(x: Any, like: Any = None):
     xp = _xp(like) if like is not None else _xp(x)
     if xp is np:
@@ -148,8 +153,7 @@ def fov_from_focal(focal_px: float, image_size: int) -> float:
 # ----------------------------------------------------------------------------- projection
 def world_to_camera(points, R, t):
     """``points [..., P, 3]`` world -> camera frame ``[..., P, 3]`` with ``R [...,3,3]``, ``t [...,3]``."""
-    return points @ R.swapaxes(-1, -2) + t[..., None, :] if _xp(points) is np else \
-        points @ R.transpose(-1, -2) + t[..., None, :]
+    return points @ _mT(R) + t[..., None, :]
 
 
 def project_points(points, K, R, t):
@@ -158,7 +162,7 @@ def project_points(points, K, R, t):
     with ``depth [..., P]`` the camera-frame z (positive in front of the camera)."""
     cam = world_to_camera(points, R, t)
     z = cam[..., 2]
-    proj = cam @ (K.swapaxes(-1, -2) if _xp(cam) is np else K.transpose(-1, -2))
+    proj = cam @ _mT(K)
     uv = proj[..., :2] / proj[..., 2:3]
     return uv, z
 
@@ -181,11 +185,10 @@ def pixel_rays(K, R, t, image_size: int):
         v, u = xp.meshgrid(grid, grid, indexing="ij")
         pix = xp.stack([u.reshape(-1), v.reshape(-1), xp.ones_like(u.reshape(-1))], -1)
         Kinv = xp.linalg.inv(K.to(R.dtype))
-    d_cam = pix @ Kinv.swapaxes(-1, -2) if xp is np else pix @ Kinv.transpose(-1, -2)
-    Rt = R.swapaxes(-1, -2) if xp is np else R.transpose(-1, -2)
-    d_world = d_cam @ Rt.swapaxes(-1, -2) if xp is np else d_cam @ Rt.transpose(-1, -2)
+    d_cam = pix @ _mT(Kinv)
+    d_world = d_cam @ R  # (R^T d)^T for row vectors: camera -> world directions
     d_world = d_world / ((d_world ** 2).sum(-1, keepdims=True) ** 0.5)
-    origins = -(Rt @ t[..., None])[..., 0]
+    origins = -(_mT(R) @ t[..., None])[..., 0]
     return origins, d_world
 
 
