@@ -7,7 +7,9 @@ Every view of every object of the split is one test image (24 per object by defa
 * Mask IoU: predicted mask probability ``>= 0.5`` against the rendered mask at the size the
   model predicts (the image size), per image.
 * Pose error: absolute wrapped azimuth and elevation error in degrees (``sc3d_train.pose``):
-  mean, median and the fraction within 30 degrees.
+  mean, median and the fraction within 30 degrees; ``az~flip`` (``pose_azimuth_flip_acc30``), a
+  diagnostic, also counts azimuths within 30 degrees of the true azimuth + 180 (front/back
+  confusion).
 
 Per category: the mean over that category's images. ``mean``: the unweighted mean of the
 per-category values (the paper's "Mean" column). ``overall``: pooled over all images.
@@ -108,7 +110,8 @@ def summarize(rows: list[dict]) -> dict:
 TABLE_COLUMNS = (("images", "n", "{:d}"), ("voxel_iou_0.4", "IoU@.4", "{:.3f}"),
                  ("voxel_iou_0.5", "IoU@.5", "{:.3f}"), ("mask_iou", "maskIoU", "{:.3f}"),
                  ("pose_azimuth_mean", "az err", "{:.1f}"), ("pose_azimuth_median", "az med", "{:.1f}"),
-                 ("pose_azimuth_acc30", "az<30", "{:.2f}"), ("pose_elevation_mean", "el err", "{:.1f}"),
+                 ("pose_azimuth_acc30", "az<30", "{:.2f}"), ("pose_azimuth_flip_acc30", "az~flip", "{:.2f}"),
+                 ("pose_elevation_mean", "el err", "{:.1f}"),
                  ("pose_elevation_acc30", "el<30", "{:.2f}"))
 
 

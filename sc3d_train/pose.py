@@ -55,16 +55,23 @@ def pose_errors(pred_azimuth, pred_elevation, true_azimuth, true_elevation,
     """Pose-error summary (SPEC "Metrics") over 1-D arrays/tensors of degrees.
 
     Returns ``azimuth_mean``, ``azimuth_median``, ``azimuth_acc30`` (fraction within
-    ``threshold_deg``), the same for ``elevation_*``, and ``count``."""
+    ``threshold_deg``), the same for ``elevation_*``, ``azimuth_flip_acc30`` (a diagnostic: the
+    fraction within ``threshold_deg`` of the true azimuth *or* of the true azimuth + 180, i.e.
+    right up to the front/back ambiguity of many silhouettes at 30 deg elevation) and ``count``."""
     out: dict[str, float] = {}
     for name, p, t in (("azimuth", pred_azimuth, true_azimuth), ("elevation", pred_elevation, true_elevation)):
         err = torch.as_tensor(angular_error_deg(torch.as_tensor(p, dtype=torch.float64),
                                                 torch.as_tensor(t, dtype=torch.float64)))
         if err.numel() == 0:
             out.update({f"{name}_mean": math.nan, f"{name}_median": math.nan, f"{name}_acc30": math.nan})
+            if name == "azimuth":
+                out["azimuth_flip_acc30"] = math.nan
             continue
         out[f"{name}_mean"] = float(err.mean())
         out[f"{name}_median"] = float(err.quantile(0.5))
         out[f"{name}_acc30"] = float((err <= threshold_deg).double().mean())
+        if name == "azimuth":
+            flip_ok = (err <= threshold_deg) | (err >= 180.0 - threshold_deg)
+            out["azimuth_flip_acc30"] = float(flip_ok.double().mean())
     out["count"] = int(torch.as_tensor(pred_azimuth).numel())
     return out

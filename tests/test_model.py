@@ -109,6 +109,9 @@ def test_pose_wrap():
                     torch.tensor([1.0, 150.0]), torch.tensor([30.0, 40.0]))
     assert e["azimuth_mean"] == pytest.approx(31.0) and e["azimuth_acc30"] == pytest.approx(0.5)
     assert e["elevation_median"] == pytest.approx(5.0) and e["count"] == 2
+    # flip-aware diagnostic: within 30 deg of the true azimuth or of the true azimuth + 180
+    f = pose_errors(torch.tensor([10.0, 200.0, 100.0, 355.0]), torch.zeros(4), torch.zeros(4), torch.zeros(4))
+    assert f["azimuth_acc30"] == pytest.approx(0.5) and f["azimuth_flip_acc30"] == pytest.approx(0.75)
 
 
 def test_pose_head_gets_gradient_from_sc_loss_alone():
