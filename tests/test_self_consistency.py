@@ -209,3 +209,37 @@ def test_sc_loss_lowest_at_true_azimuth_on_rendered_chair(shard_views):
                                   obj["masks48"][view].float(), azimuths,
                                   float(obj["elevation"][view]), float(obj["distance"][view]))
             assert float(angular_error_deg(azimuths[int(np.argmin(losses))], float(obj["azimuth"][view]))) < 1
+
+
+def test_free_azimuth_descends_to_the_truth_on_rendered_objects(shard_views):
+    """Direct optimisation sanity check (no network): a free azimuth per view, in the pose head's
+    parameterisation (the angle of a 2-vector, ``pose_from_raw``), started 30-40 deg away from the
+    truth and optimised with Adam on L_sc of the ground-truth voxels and rendered mask (elevation
+    at its true value), ends within 10 deg of the true azimuth. Measured on all 8 training objects
+    (4 views each, random starts): every start within 60 deg converges, 1/6 from 60-90 deg and
+    1/14 from > 90 deg; but the landscape is bumpy: the dining chair's view 3 (true 45) has a
+    small local minimum at ~83 deg, so a start 35 deg off stalls there. With a free elevation the
+    basin is narrower still (README "Why pose is learnt slowly")."""
+    from sc3d_train.pose import pose_from_raw, raw_from_pose
+
+    objs = [o for o in shard_views if o["model_id"].startswith(("dining_chair", "jeep", "chair2"))]
+    assert len(objs) == 3
+    views, offsets = (3, 14), (30.0, -40.0)
+    items = [(o, v, off) for o in objs for v, off in zip(views, offsets)]
+    occ = torch.stack([torch.as_tensor(o["voxels"], dtype=torch.float32) for o, _, _ in items])
+    masks = torch.stack([o["masks48"][v].float() for o, v, _ in items])
+    K = torch.stack([o["K48"][v] for o, v, _ in items])
+    dist = torch.tensor([float(o["distance"][v]) for o, v, _ in items])
+    true_az = torch.tensor([float(o["azimuth"][v]) for o, v, _ in items])
+    true_el = torch.tensor([float(o["elevation"][v]) for o, v, _ in items])
+    start = true_az + torch.tensor([off for _, _, off in items])
+    raw = raw_from_pose(start, true_el).requires_grad_(True)
+    opt = torch.optim.Adam([raw], lr=0.05)
+    for _ in range(60):
+        az, _ = pose_from_raw(raw)
+        out = self_consistency_losses(occ, masks, az, true_el, dist, K)
+        opt.zero_grad()
+        (5 * out["ray"] + 0.125 * out["proj"]).backward()
+        opt.step()
+    err = angular_error_deg(pose_from_raw(raw.detach())[0], true_az)
+    assert float(err.max()) < 10.0, err
