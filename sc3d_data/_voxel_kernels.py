@@ -435,16 +435,7 @@ def winding_exact_kernel(tri, pts):
         px, py, pz = pts[p, 0], pts[p, 1], pts[p, 2]
         w = 0.0
         for t in range(tri.shape[0]):
-            ax, ay, az = tri[t, 0, 0] - px, tri[t, 0, 1] - py, tri[t, 0, 2] - pz
-            bx, by, bz = tri[t, 1, 0] - px, tri[t, 1, 1] - py, tri[t, 1, 2] - pz
-            cx, cy, cz = tri[t, 2, 0] - px, tri[t, 2, 1] - py, tri[t, 2, 2] - pz
-            la = math.sqrt(ax * ax + ay * ay + az * az)
-            lb = math.sqrt(bx * bx + by * by + bz * bz)
-            lc = math.sqrt(cx * cx + cy * cy + cz * cz)
-            det = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
-            div = la * lb * lc + (ax * bx + ay * by + az * bz) * lc \
-                + (bx * cx + by * cy + bz * cz) * la + (cx * ax + cy * ay + cz * az) * lb
-            w += 2.0 * math.atan2(det, div)
+            w += _solid_angle(tri, t, px, py, pz)
         out[p] = w / (4.0 * math.pi)
     return out
 
