@@ -12,6 +12,16 @@ import json
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
+
+def dataclass_from_dict(cls, d: dict):
+    """``cls(**d)`` for a config dataclass, refusing keys it does not have (a checkpoint or
+    config.json from another version) with the unknown and known names in the message."""
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(d) - known)
+    if unknown:
+        raise ValueError(f"unknown {cls.__name__} keys {unknown}; known: {sorted(known)}")
+    return cls(**d)
+
 #: fields that ``--resume`` may change (they do not alter the optimisation trajectory up to the
 #: checkpoint); every other field must match the checkpoint's config.
 RESUMABLE_FIELDS = ("steps", "checkpoint_every", "workers", "log_every", "device", "progress", "out")
@@ -75,11 +85,7 @@ class RunConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "RunConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = set(d) - known
-        if unknown:
-            raise ValueError(f"unknown run config fields: {sorted(unknown)}")
-        return cls(**d)
+        return dataclass_from_dict(cls, d)
 
     def save(self, path: Path) -> None:
         from sc3d_data.shards import write_json_atomic

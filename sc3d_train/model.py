@@ -26,12 +26,13 @@ Mask decoder D_m (U-Net, from z_mean and z_p)
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from .config import dataclass_from_dict
 from .pose import POSE_RAW_DIM, pose_from_raw
 
 NUM_ENCODER_BLOCKS = 5
@@ -73,11 +74,7 @@ class ModelConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "ModelConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(f"unknown ModelConfig keys {unknown}; known: {sorted(known)}")
-        return cls(**d)
+        return dataclass_from_dict(cls, d)
 
     @classmethod
     def tiny(cls, **overrides) -> "ModelConfig":
