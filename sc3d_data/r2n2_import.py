@@ -196,13 +196,6 @@ def load_rendering(path: Path, image_size: int, background=(255, 255, 255)
     return rgb8, (alpha >= MASK_THRESHOLD).astype(np.uint8)
 
 
-def border_clipped(masks: np.ndarray) -> np.ndarray:
-    """``[V]`` uint8: 1 where a mask ``[V,S,S]`` touches the image border."""
-    m = masks.astype(bool)
-    return (m[:, 0, :].any(-1) | m[:, -1, :].any(-1) | m[:, :, 0].any(-1)
-            | m[:, :, -1].any(-1)).astype(np.uint8)
-
-
 # ----------------------------------------------------------------------------- discovery
 @dataclass(frozen=True)
 class R2N2Model:
@@ -293,7 +286,7 @@ def load_r2n2_object(model: R2N2Model, config: ImportConfig, split: str):
     """Read one model into a :class:`sc3d_data.shards.ObjectRecord`; ``ValueError`` naming the
     file and the problem on bad input (metadata, PNGs, binvox)."""
     from sc3d_data.binvox import read_binvox
-    from sc3d_data.shards import ObjectRecord
+    from sc3d_data.shards import ObjectRecord, border_clipped
 
     views = read_rendering_metadata(model.rendering_dir / "rendering_metadata.txt")
     names = read_rendering_list(model.rendering_dir)

@@ -34,7 +34,8 @@ import numpy as np
 
 from sc3d_data.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS, ViewSettings
 from sc3d_data.mesh_io import DEFAULT_MAX_FACES
-from sc3d_data.shards import INDEX_NAME, SHARD_PATTERN, ObjectRecord, add_shard_to_index, write_shard
+from sc3d_data.shards import (INDEX_NAME, SHARD_PATTERN, ObjectRecord, add_shard_to_index, border_clipped,
+                              write_shard)
 from sc3d_data.shards import write_index as write_index_file
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -118,8 +119,7 @@ def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord
     arrays = renderer.render(scene, to_canonical)
     cams = renderer.cameras
     arrays.update({k: cams[k] for k in ("K", "R", "t", "azimuth", "elevation", "distance")})
-    m = arrays["masks"].astype(bool)
-    arrays["clipped"] = (m[:, 0, :].any(1) | m[:, -1, :].any(1) | m[:, :, 0].any(1) | m[:, :, -1].any(1)).astype(np.uint8)
+    arrays["clipped"] = border_clipped(arrays["masks"])
     arrays["to_canonical"] = to_canonical
     if config.voxelize:
         from sc3d_data.voxelize import voxelize_triangles

@@ -80,6 +80,14 @@ class ObjectRecord:
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
 
 
+def border_clipped(masks: np.ndarray) -> np.ndarray:
+    """The ``clipped`` dataset of one object: ``[V]`` uint8, 1 where the mask ``[V,S,S]`` of a
+    view touches the image border (the object may extend past the frame)."""
+    m = np.asarray(masks).astype(bool)
+    return (m[:, 0, :].any(-1) | m[:, -1, :].any(-1) | m[:, :, 0].any(-1)
+            | m[:, :, -1].any(-1)).astype(np.uint8)
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` via a temporary file + fsync + rename."""
     path = Path(path)
