@@ -7,6 +7,7 @@ COMMANDS = {
     "fit": "cli.train_fit:fit",
     "eval": "cli.train_eval:eval_cmd",
     "predict": "cli.train_predict:predict",
+    "claims": "cli.train_claims:claims",
 }
 
 

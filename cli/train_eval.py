@@ -11,10 +11,11 @@ import click
               help="A checkpoint of `sc3d-train fit` (e.g. RUN_DIR/checkpoints/last.pt).")
 @click.option("--shards", type=click.Path(file_okay=False, path_type=Path), required=True)
 @click.option("--split", default="test", show_default=True)
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
-              help="Directory for metrics.json and predictions.png.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Directory for metrics.json and predictions.png [RUN_DIR/eval_SPLIT beside the checkpoint].")
 @click.option("--batch-size", type=int, default=64, show_default=True)
-@click.option("--examples", type=int, default=6, show_default=True, help="Objects shown in predictions.png.")
+@click.option("--examples", type=int, default=2, show_default=True,
+              help="Objects per category shown in predictions.png (views 3 and 15 of each).")
 @click.option("--device", default="auto", show_default=True)
 def eval_cmd(checkpoint, shards, split, out, batch_size, examples, device):
     """Voxel IoU (0.4, 0.5), mask IoU and pose error per category on a split."""
@@ -28,4 +29,5 @@ def eval_cmd(checkpoint, shards, split, out, batch_size, examples, device):
         raise click.ClickException(str(e)) from e
     click.echo(f"{checkpoint} (step {result['step']}) on split {split!r} of {shards}:")
     click.echo(result["table"])
-    click.echo(f"wrote {Path(out) / 'metrics.json'} and {Path(out) / 'predictions.png'}")
+    out = Path(result["out"])
+    click.echo(f"wrote {out / 'metrics.json'} and {out / 'predictions.png'}")

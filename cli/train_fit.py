@@ -14,9 +14,13 @@ import click
 @click.option("--steps", type=int, default=2000, show_default=True, help="Optimiser steps (all phases).")
 @click.option("--batch-size", type=int, default=48, show_default=True, help="Global batch size.")
 @click.option("--lr", type=float, default=2e-4, show_default=True, help="Adam lr (supervised / pre-training).")
-@click.option("--semi-lr", type=float, default=2e-5, show_default=True, help="Adam lr of the unlabelled fine-tuning.")
+@click.option("--semi-lr", type=float, default=None, help="Adam lr of the mixed/unlabelled phase [--lr].")
+@click.option("--semi-labeled-share", type=float, default=0.5, show_default=True,
+              help="--semi: share of each batch of the second phase that are labelled images "
+              "(0 = the paper's fine-tuning on unlabelled images alone).")
 @click.option("--semi", is_flag=True, help="Semi-supervised: pre-train on the labelled subset, then "
-              "fine-tune on the unlabelled images with self-consistency + KL.")
+              "train on mixed batches: labelled images (supervised) and unlabelled images "
+              "(self-consistency + KL + pose search on the predictions).")
 @click.option("--labeled-only", is_flag=True, help="Train on the labelled subset alone (the paper's comparison).")
 @click.option("--labeled-fraction", type=float, default=0.15, show_default=True,
               help="Fraction of training objects with labels (--semi / --labeled-only); chosen by object, seeded.")
@@ -24,7 +28,8 @@ import click
 @click.option("--voxel-decoder", type=click.Choice(["3tube", "1tube"]), default="3tube", show_default=True)
 @click.option("--base-channels", type=int, default=None, help="Network width C [32; 8 with --tiny].")
 @click.option("--tiny", is_flag=True, help="Small network (C=8, z_s 32, z_p 8) for CPU demos and tests.")
-@click.option("--split", default="train", show_default=True, help="Split to train on.")
+@click.option("--split", default="train", show_default=True, help="Split to train on (train or val; "
+              "test is refused).")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--checkpoint-every", type=int, default=500, show_default=True)
 @click.option("--log-every", type=int, default=10, show_default=True)
@@ -37,7 +42,7 @@ import click
               "--steps/--checkpoint-every/--log-every/--workers/--device may change.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @click.pass_context
-def fit(ctx, shards, out, steps, batch_size, lr, semi_lr, semi, labeled_only, labeled_fraction,
+def fit(ctx, shards, out, steps, batch_size, lr, semi_lr, semi_labeled_share, semi, labeled_only, labeled_fraction,
         pretrain_steps, voxel_decoder, base_channels, tiny, split, seed, checkpoint_every, log_every,
         workers, device, amp, channels_last, resume, no_progress):
     """Train the self-consistency model on the shards' training split."""
@@ -54,7 +59,7 @@ def fit(ctx, shards, out, steps, batch_size, lr, semi_lr, semi, labeled_only, la
              if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE}
     options = dict(shards=str(shards.resolve()) if shards else None,  # absolute: resume from anywhere
                    out=str(out), steps=steps, batch_size=batch_size, lr=lr,
-                   semi_lr=semi_lr, mode="semi" if semi else "labeled-only" if labeled_only else "supervised",
+                   semi_lr=semi_lr, semi_labeled_share=semi_labeled_share, mode="semi" if semi else "labeled-only" if labeled_only else "supervised",
                    labeled_fraction=labeled_fraction, pretrain_steps=pretrain_steps, split=split,
                    seed=seed, checkpoint_every=checkpoint_every, log_every=log_every, workers=workers,
                    device=device, amp=amp, channels_last=channels_last, progress=not no_progress)

@@ -9,7 +9,8 @@ import click
 @click.command()
 @click.option("--checkpoint", type=click.Path(dir_okay=False, path_type=Path), required=True)
 @click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True)
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output directory [RUN_DIR/predictions beside the checkpoint].")
 @click.option("--threshold", type=float, default=0.5, show_default=True, help="Occupancy threshold.")
 @click.option("--device", default="auto", show_default=True)
 def predict(checkpoint, images, out, threshold, device):
@@ -17,6 +18,10 @@ def predict(checkpoint, images, out, threshold, device):
     from sc3d_train.checkpoint import CheckpointError
     from sc3d_train.predict import ImageError, predict as run_predict
 
+    if out is None:
+        from sc3d_train.evaluate import default_output_dir
+
+        out = default_output_dir(checkpoint, "predictions")
     try:
         results = run_predict(checkpoint, list(images), out, device, threshold)
     except (ImageError, CheckpointError, ValueError) as e:

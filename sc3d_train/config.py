@@ -30,13 +30,21 @@ RESUMABLE_FIELDS = ("steps", "checkpoint_every", "workers", "log_every", "device
 TINY_MODEL = {"base_channels": 8, "shape_dim": 32, "pose_dim": 8}
 
 
+#: training modes: the paper's three, and ``true-pose-masks``, the self-consistency ablation
+#: (voxels from masks at the true pose; the only mode that reads pose labels; used by ``claims``)
+MODES = ("supervised", "semi", "labeled-only", "true-pose-masks")
+
+
 @dataclass
 class RunConfig:
     """Resolved settings of one training run.
 
     ``steps`` counts optimiser steps over all phases. In semi-supervised mode the first
-    ``pretrain_steps`` steps train on the labelled subset (supervised loss, ``lr``) and the rest
-    fine-tune on the unlabelled training objects (self-consistency + KL, ``semi_lr``).
+    ``pretrain_steps`` steps train on the labelled subset (supervised loss, ``lr``); the rest
+    train on mixed batches at ``semi_lr`` (``None``: ``lr``): a share ``semi_labeled_share`` of
+    each batch are labelled images (supervised loss: keeps the canonical frame and what the
+    labelled phase learnt), the others unlabelled images (self-consistency + KL + pose search on
+    the predictions). ``semi_labeled_share = 0`` is the paper's pure unlabelled fine-tuning.
     ``batch_size`` is the global batch (split evenly over DDP ranks).
     """
 
@@ -45,8 +53,9 @@ class RunConfig:
     steps: int = 2000
     batch_size: int = 48
     lr: float = 2e-4
-    semi_lr: float = 2e-5
-    mode: str = "supervised"           # supervised | semi | labeled-only
+    semi_lr: float | None = None
+    semi_labeled_share: float = 0.5
+    mode: str = "supervised"           # see MODES
     labeled_fraction: float = 0.15
     pretrain_steps: int | None = None  # semi mode only; default steps // 2
     split: str = "train"
@@ -68,12 +77,14 @@ class RunConfig:
     camera_distance: float = 2.0       # world units
 
     def __post_init__(self):
-        if self.mode not in ("supervised", "semi", "labeled-only"):
-            raise ValueError(f"mode must be supervised, semi or labeled-only, got {self.mode!r}")
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         if self.steps < 1 or self.batch_size < 1:
             raise ValueError("steps and batch size must be positive")
         if not 0.0 < self.labeled_fraction <= 1.0:
             raise ValueError(f"labeled fraction must be in (0, 1], got {self.labeled_fraction}")
+        if not 0.0 <= self.semi_labeled_share < 1.0:
+            raise ValueError(f"semi labelled share must be in [0, 1), got {self.semi_labeled_share}")
         if self.mode == "semi":
             if self.pretrain_steps is None:
                 self.pretrain_steps = self.steps // 2
@@ -107,7 +118,16 @@ class RunConfig:
         return self.pretrain_steps if self.phase_at(step) == "unsupervised" else 0
 
     def lr_at(self, step: int) -> float:
-        return self.semi_lr if self.phase_at(step) == "unsupervised" else self.lr
+        if self.phase_at(step) == "unsupervised" and self.semi_lr is not None:
+            return self.semi_lr
+        return self.lr
+
+    def batch_split(self, local_batch: int) -> tuple[int, int]:
+        """``(labelled, unlabelled)`` samples per rank of an unsupervised-phase batch."""
+        labeled = int(round(local_batch * self.semi_labeled_share))
+        if self.semi_labeled_share > 0:
+            labeled = min(max(labeled, 1), local_batch - 1)
+        return labeled, local_batch - labeled
 
     def differences(self, other: "RunConfig", ignore=RESUMABLE_FIELDS) -> list[str]:
         """Names and values of the fields that differ, other than ``ignore``."""

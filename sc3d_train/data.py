@@ -101,13 +101,20 @@ def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
 
 
 def choose_labeled(refs: list[ObjectRef], fraction: float, seed: int) -> set[str]:
-    """The labelled subset, chosen by object: ``max(1, round(fraction * n))`` objects drawn with
-    ``numpy.random.default_rng(seed)`` from the objects sorted by (category, model_id); returns
+    """The labelled subset, chosen by object and stratified by category: in each category of
+    ``n_c`` objects (sorted by model_id), ``max(1, round(fraction * n_c))`` objects drawn with
+    ``numpy.random.default_rng([seed, c])`` (c = the category's rank in sorted order); returns
     their ``shard:row`` keys. Deterministic and independent of the shard order."""
-    order = sorted(refs, key=lambda r: (r.category, r.model_id, r.shard, r.row))
-    k = min(len(order), max(1, round(fraction * len(order))))
-    pick = np.random.default_rng(seed).permutation(len(order))[:k]
-    return {f"{order[i].shard}:{order[i].row}" for i in pick}
+    by_category: dict[str, list[ObjectRef]] = {}
+    for r in refs:
+        by_category.setdefault(r.category, []).append(r)
+    keys = set()
+    for c, category in enumerate(sorted(by_category)):
+        order = sorted(by_category[category], key=lambda r: (r.model_id, r.shard, r.row))
+        k = min(len(order), max(1, round(fraction * len(order))))
+        pick = np.random.default_rng([seed, c]).permutation(len(order))[:k]
+        keys |= {f"{order[i].shard}:{order[i].row}" for i in pick}
+    return keys
 
 
 def background_of(info: dict) -> list[int]:
@@ -187,6 +194,12 @@ class ShardDataset(Dataset):
         for f in self._files.values():
             f.close()
         self._files = {}
+
+    def object_arrays(self, obj_i: int) -> dict:
+        """All arrays of object ``obj_i`` (every view): ``images [V,S,S,3]``, ``masks [V,S,S]``,
+        ``masks_sc [V,M,M]``, ``K [V,3,3]``, ``distance [V]``, ``voxels [G,G,G]``, ... (numpy,
+        ``masks_sc`` torch)."""
+        return self._object(obj_i)
 
     def _object(self, obj_i: int) -> dict:
         """All arrays of object ``obj_i`` (every view), from this process's LRU cache. A chunk

@@ -6,10 +6,11 @@ Every view of every object of the split is one test image (24 per object by defa
   occupancy probability ``>= thr`` against the ground-truth grid, per image.
 * Mask IoU: predicted mask probability ``>= 0.5`` against the rendered mask at the size the
   model predicts (the image size), per image.
-* Pose error: absolute wrapped azimuth and elevation error in degrees (``sc3d_train.pose``):
-  mean, median and the fraction within 30 degrees; ``az~flip`` (``pose_azimuth_flip_acc30``), a
-  diagnostic, also counts azimuths within 30 degrees of the true azimuth + 180 (front/back
-  confusion).
+* Pose error: the rotation error, the geodesic angle between the predicted camera rotation and
+  the shard's true ``R`` (MVC's metric): median, mean, fraction within 15 and 30 degrees; the
+  absolute wrapped azimuth and elevation errors in degrees (``sc3d_train.pose``): mean, median
+  and the fraction within 30 degrees; ``az~flip`` (``pose_azimuth_flip_acc30``), a diagnostic,
+  also counts azimuths within 30 degrees of the true azimuth + 180 (front/back confusion).
 
 Per category: the mean over that category's images. ``mean``: the unweighted mean of the
 per-category values (the paper's "Mean" column). ``overall``: pooled over all images.
@@ -44,12 +45,17 @@ def iou(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 @torch.no_grad()
 def predict_dataset(model, dataset: ShardDataset, device, batch_size: int = 64,
-                    keep: int = 6, keep_view: int = 3):
+                    keep: int = 2, keep_views: tuple[int, ...] = (3, 15)):
     """Run ``model`` over every view of ``dataset``. Returns ``(rows, examples)``: one dict per
     image (category, model_id, view, iou_0.4, iou_0.5, mask_iou, azimuth/elevation predicted and
-    true) and, for the first ``keep`` objects, view ``keep_view``'s input, masks, voxels and
-    poses (numpy) for the figure."""
+    true, rotation_error) and, for the first ``keep`` objects of every category, views
+    ``keep_views`` (default 3 and 15: opposite sides) with input, masks, voxels and poses (numpy)
+    for the figure."""
+    from sc3d_data.camera import look_at_rotation
+    from sc3d_train.pose import rotation_error_deg
     from sc3d_train.self_consistency import area_downsample
+
+    kept_objects: dict[str, list[str]] = defaultdict(list)
 
     loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, shuffle=False)
     rows, examples = [], []
@@ -64,6 +70,7 @@ def predict_dataset(model, dataset: ShardDataset, device, batch_size: int = 64,
         ious = {thr: iou(probs >= thr, gt) for thr in VOXEL_THRESHOLDS}
         mask_iou = iou(mask_prob >= MASK_THRESHOLD, gt_mask > 0.5)
         az, el = out.azimuth.float().cpu(), out.elevation.float().cpu()
+        rot_err = rotation_error_deg(look_at_rotation(az.double(), el.double()), batch["R"].double())
         for i in range(len(probs)):
             obj, view = divmod(int(batch["index"][i]), dataset.num_views)
             rows.append({"category": batch["category"][i], "model_id": batch["model_id"][i],
@@ -71,8 +78,13 @@ def predict_dataset(model, dataset: ShardDataset, device, batch_size: int = 64,
                          "mask_iou": float(mask_iou[i]),
                          "azimuth_pred": float(az[i]), "elevation_pred": float(el[i]),
                          "azimuth_true": float(batch["azimuth"][i]),
-                         "elevation_true": float(batch["elevation"][i])})
-            if view == keep_view % dataset.num_views and len(examples) < keep:
+                         "elevation_true": float(batch["elevation"][i]),
+                         "rotation_error": float(rot_err[i])})
+            category, model_id = batch["category"][i], batch["model_id"][i]
+            chosen = kept_objects[category]
+            if model_id not in chosen and len(chosen) < keep:
+                chosen.append(model_id)
+            if model_id in chosen and view in {v % dataset.num_views for v in keep_views}:
                 examples.append({
                     "title": f"{batch['category'][i]}/{batch['model_id'][i]} view {view}",
                     "image": batch["images"][i].permute(1, 2, 0).numpy(),
@@ -81,7 +93,7 @@ def predict_dataset(model, dataset: ShardDataset, device, batch_size: int = 64,
                     "K": batch["K"][i].numpy(), "distance": float(batch["distance"][i]),
                     "azimuth_true": float(batch["azimuth"][i]), "elevation_true": float(batch["elevation"][i]),
                     "azimuth_pred": float(az[i]), "elevation_pred": float(el[i]),
-                    "iou": float(ious[0.5][i])})
+                    "rotation_error": float(rot_err[i]), "iou": float(ious[0.5][i])})
     return rows, examples
 
 
@@ -93,7 +105,8 @@ def summarize(rows: list[dict]) -> dict:
             out[f"voxel_iou_{thr}"] = float(np.mean([r[f"iou_{thr}"] for r in rs]))
         out["mask_iou"] = float(np.mean([r["mask_iou"] for r in rs]))
         pe = pose_errors(torch.tensor([r["azimuth_pred"] for r in rs]), torch.tensor([r["elevation_pred"] for r in rs]),
-                         torch.tensor([r["azimuth_true"] for r in rs]), torch.tensor([r["elevation_true"] for r in rs]))
+                         torch.tensor([r["azimuth_true"] for r in rs]), torch.tensor([r["elevation_true"] for r in rs]),
+                         rotation_error=[r["rotation_error"] for r in rs])
         pe.pop("count", None)
         out.update({f"pose_{k}": v for k, v in pe.items()})
         return out
@@ -109,6 +122,8 @@ def summarize(rows: list[dict]) -> dict:
 
 TABLE_COLUMNS = (("images", "n", "{:d}"), ("voxel_iou_0.4", "IoU@.4", "{:.3f}"),
                  ("voxel_iou_0.5", "IoU@.5", "{:.3f}"), ("mask_iou", "maskIoU", "{:.3f}"),
+                 ("pose_rotation_median", "rot med", "{:.1f}"), ("pose_rotation_mean", "rot err", "{:.1f}"),
+                 ("pose_rotation_acc15", "rot<15", "{:.2f}"), ("pose_rotation_acc30", "rot<30", "{:.2f}"),
                  ("pose_azimuth_mean", "az err", "{:.1f}"), ("pose_azimuth_median", "az med", "{:.1f}"),
                  ("pose_azimuth_acc30", "az<30", "{:.2f}"), ("pose_azimuth_flip_acc30", "az~flip", "{:.2f}"),
                  ("pose_elevation_mean", "el err", "{:.1f}"),
@@ -141,41 +156,60 @@ def voxel_silhouette(voxels: np.ndarray, azimuth: float, elevation: float, dista
     return project_voxels(voxels, K, R, t, image_size)
 
 
-def plot_examples(examples: list[dict], path: Path) -> None:
-    """Rows = objects; columns = input, true mask, predicted mask, true voxels at the true pose,
-    predicted voxels (>= 0.5) at the predicted pose."""
+def plot_examples(examples: list[dict], path: Path, per_row: int = 2) -> None:
+    """``per_row`` examples per figure row, each as 5 panels: input, true mask, predicted mask,
+    true voxels at the true pose, predicted voxels (>= 0.5) at the predicted pose; each example
+    is labelled with its object, view, IoU and true/predicted (azimuth, elevation) and rotation
+    error."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    n = max(len(examples), 1)
-    fig, axes = plt.subplots(n, 5, figsize=(10, 2.1 * n), squeeze=False)
-    titles = ("input", "mask (true)", "mask (pred)", "voxels (true pose)", "voxels (pred pose)")
-    for r, ex in enumerate(examples):
+    n_rows = max(1, math.ceil(len(examples) / per_row))
+    fig, axes = plt.subplots(n_rows, 5 * per_row, figsize=(1.3 * 5 * per_row, 1.55 * n_rows), squeeze=False)
+    for ax in axes.flat:
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.axis("off")
+    titles = ("input", "mask true", "mask pred", "vox @ true pose", "vox @ pred pose")
+    for k, ex in enumerate(examples):
+        r, c0 = divmod(k, per_row)
+        c0 *= 5
         S = ex["image"].shape[0]
         panels = (ex["image"], ex["mask_true"], ex["mask_pred"],
                   voxel_silhouette(ex["voxels_true"], ex["azimuth_true"], ex["elevation_true"], ex["distance"], ex["K"], S),
                   voxel_silhouette(ex["voxels_pred"] >= 0.5, ex["azimuth_pred"], ex["elevation_pred"], ex["distance"], ex["K"], S))
         for c, img in enumerate(panels):
-            ax = axes[r, c]
+            ax = axes[r, c0 + c]
+            ax.axis("on")
             ax.imshow(img, cmap=None if img.ndim == 3 else "gray", vmin=0, vmax=1)
-            ax.set_xticks([])
-            ax.set_yticks([])
             if r == 0:
-                ax.set_title(titles[c], fontsize=8)
-        axes[r, 0].set_ylabel(ex["title"][:24], fontsize=6)
-        axes[r, 4].set_xlabel(f"IoU {ex['iou']:.2f}  az {ex['azimuth_pred']:.0f} (true {ex['azimuth_true']:.0f})",
-                              fontsize=6)
+                ax.set_title(titles[c], fontsize=7)
+        axes[r, c0].set_ylabel(ex["title"][:26], fontsize=5)
+        axes[r, c0 + 4].set_xlabel(
+            f"IoU {ex['iou']:.2f} rot {ex['rotation_error']:.0f}\n"
+            f"pred ({ex['azimuth_pred']:.0f},{ex['elevation_pred']:.0f}) true ({ex['azimuth_true']:.0f},"
+            f"{ex['elevation_true']:.0f})", fontsize=5)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
 
 
-def evaluate(checkpoint: Path, shards: Path, split: str, out: Path, device: str = "auto",
-             batch_size: int = 64, examples: int = 6) -> dict:
+def default_output_dir(checkpoint: Path, name: str) -> Path:
+    """Beside the checkpoint's run: ``RUN_DIR/NAME`` for ``RUN_DIR/checkpoints/X.pt``, else
+    ``CHECKPOINT_DIR/NAME``."""
+    checkpoint = Path(checkpoint)
+    parent = checkpoint.parent
+    return (parent.parent if parent.name == "checkpoints" else parent) / name
+
+
+def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, device: str = "auto",
+             batch_size: int = 64, examples: int = 2) -> dict:
     """Evaluate ``checkpoint`` on ``split`` of ``shards``; writes ``out/metrics.json`` and
-    ``out/predictions.png``; returns the metrics dict (also holding ``table``, the text table)."""
+    ``out/predictions.png`` (``out`` None: ``RUN_DIR/eval_SPLIT``, :func:`default_output_dir`);
+    ``examples`` objects per category are drawn. Returns the metrics dict (also holding
+    ``table``, the text table, and ``out``)."""
     dev = torch.device("cuda" if device == "auto" and torch.cuda.is_available() else
                        "cpu" if device == "auto" else device)
     model, cfg, ckpt = load_model(checkpoint, dev)
@@ -186,7 +220,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path, device: str 
                          f"predicts {cfg.model['voxel_resolution']}^3")
     rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples)
     summary = summarize(rows)
-    out = Path(out)
+    out = Path(out) if out is not None else default_output_dir(checkpoint, f"eval_{split}")
     out.mkdir(parents=True, exist_ok=True)
     result = {"checkpoint": str(checkpoint), "step": int(ckpt.get("step", -1)), "shards": str(shards),
               "split": split, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
@@ -194,6 +228,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path, device: str 
     (out / "metrics.json").write_text(json.dumps(_finite(result), indent=1))
     plot_examples(kept, out / "predictions.png")
     result["table"] = format_table(summary)
+    result["out"] = str(out)
     return result
 
 

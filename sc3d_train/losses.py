@@ -11,12 +11,21 @@
 - ``L_sc = 5 L_ray + 0.125 L_proj`` (:mod:`sc3d_train.self_consistency`), always with the
   *predicted* pose; the ground-truth pose in the batch is never read here.
 
-Supervised: ``0.5 L_3D + 0.5 L_2D + 1 L_sc + 0.02 L_KL`` with L_sc on the ground-truth voxels and
-48x48 masks (``batch["voxels"]``, ``batch["masks_sc"]``): only the pose head and encoder get
-gradients from it. Semi-supervised fine-tuning (unlabelled images): ``1 L_sc + 0.02 L_KL`` with L_sc
+- ``L_pose``: cross-entropy of the pose head's azimuth and elevation logits against the candidate
+  pose whose L_sc is lowest in a search over the pose grid (:mod:`sc3d_train.pose_search`): the
+  paper's objective minimised over the candidates instead of descended from the current guess.
+  ``batch["pose_target"]`` holds that candidate (computed from the voxels and masks, never from a
+  pose label).
+
+Supervised: ``0.5 L_3D + 0.5 L_2D + 1 L_sc + 0.02 L_KL + 1 L_pose`` with L_sc on the ground-truth
+voxels and 48x48 masks (``batch["voxels"]``, ``batch["masks_sc"]``): only the pose head and
+encoder get gradients from it; the pose target is the search over the ground-truth voxels and
+masks. Semi-supervised fine-tuning (unlabelled images): ``1 L_sc + 0.02 L_KL`` with L_sc
 on the predicted occupancy ``sigmoid(voxel_logits)`` and the predicted mask ``sigmoid(mask_logits)``
 area-downsampled to 48x48 and *detached*: as in the paper, L_sc updates the encoder and the voxel
-decoder, not the mask decoder.
+decoder, not the mask decoder; plus ``wpose_unlabeled L_pose`` (azimuth term) with the target
+searched between the (detached) predicted occupancy and mask over the azimuths at the elevation
+the pose head predicts.
 """
 from __future__ import annotations
 
@@ -29,13 +38,18 @@ from torch import Tensor
 from .model import ModelOutput
 from .self_consistency import DEFAULT_NUM_SAMPLES, area_downsample, iou_loss, self_consistency_losses
 
-LOSS_KEYS = ("total", "l3d", "l2d", "lsc", "ray", "proj", "kl")
+LOSS_KEYS = ("total", "l3d", "l2d", "lsc", "ray", "proj", "kl", "pose")
 
 
 @dataclass
 class LossWeights:
     """Loss weights (paper): ``w3d`` alpha_3, ``w2d`` alpha_4, ``wsc`` alpha_5, ``wkl`` alpha_6,
-    ``ray`` alpha_1, ``proj`` alpha_2, ``pos_weight`` alpha_p; ``num_samples`` per ray."""
+    ``ray`` alpha_1, ``proj`` alpha_2, ``pos_weight`` alpha_p; ``num_samples`` per ray;
+    ``wpose`` / ``wpose_unlabeled`` the pose classification loss on labelled / unlabelled images
+    (not in the paper: how its L_sc is minimised over the pose grid); ``search_mask_size`` and
+    ``search_samples`` the resolution of that search for labelled images (once per object before
+    training), ``unlabeled_search_*`` for unlabelled images (every step, over the azimuths at the
+    predicted elevation: cheaper)."""
 
     w3d: float = 0.5
     w2d: float = 0.5
@@ -45,6 +59,12 @@ class LossWeights:
     proj: float = 0.125
     pos_weight: float = 3.0
     num_samples: int = DEFAULT_NUM_SAMPLES
+    wpose: float = 1.0
+    wpose_unlabeled: float = 1.0
+    search_mask_size: int = 24
+    search_samples: int = 32
+    unlabeled_search_mask_size: int = 16
+    unlabeled_search_samples: int = 16
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -78,29 +98,86 @@ def _sc(out: ModelOutput, occupancy: Tensor, masks_sc: Tensor, batch: dict, weig
     return {"lsc": weights.ray * sc["ray"] + weights.proj * sc["proj"], "ray": sc["ray"], "proj": sc["proj"]}
 
 
-def supervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None = None) -> dict[str, Tensor]:
+def _pose(out: ModelOutput, target: Tensor, grid) -> Tensor:
+    from .pose import pose_classification_loss
+
+    return pose_classification_loss(out.pose_logits, target, grid)
+
+
+def search_target(occupancy: Tensor, masks: Tensor, batch: dict, grid, weights: LossWeights,
+                  elevation_bin: Tensor | None = None) -> Tensor:
+    """The candidate pose (index ``[B]``, long) of ``grid`` with the lowest L_sc between
+    ``occupancy [B, G, G, G]`` and ``masks [B, S, S]`` (camera ``batch["K_sc"]`` at S): over all
+    candidates, or with ``elevation_bin [B]`` over the azimuths at that elevation (the unlabelled
+    search, at ``unlabeled_search_*`` resolution)."""
+    from .pose_search import search_losses
+
+    if elevation_bin is None:
+        losses = search_losses(occupancy, masks, batch["distance"], batch["K_sc"], grid, weights.ray,
+                               weights.proj, weights.search_mask_size, weights.search_samples)
+        return losses.argmin(1)
+    e = grid.elevation_bins
+    candidates = torch.arange(grid.azimuth_bins, device=occupancy.device)[None] * e + elevation_bin[:, None]
+    losses = search_losses(occupancy, masks, batch["distance"], batch["K_sc"], grid, weights.ray, weights.proj,
+                           weights.unlabeled_search_mask_size, weights.unlabeled_search_samples, candidates)
+    return torch.gather(candidates, 1, losses.argmin(1, keepdim=True))[:, 0]
+
+
+def supervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None = None,
+                    grid=None) -> dict[str, Tensor]:
     """Supervised objective; ``batch`` needs ``voxels [B,G,G,G]``, ``masks [B,S,S]`` (image size),
-    ``masks_sc [B,48,48]``, ``K_sc [B,3,3]``, ``distance [B]``. Returns scalars ``LOSS_KEYS``."""
+    ``masks_sc [B,48,48]``, ``K_sc [B,3,3]``, ``distance [B]`` and, with a pose ``grid``
+    (:class:`~sc3d_train.pose.PoseGrid`), ``pose_target [B]`` (searched when absent). Returns
+    scalars ``LOSS_KEYS``."""
     w = weights or LossWeights()
     l3d = voxel_loss(out.voxel_logits, batch["voxels"], w.pos_weight)
     l2d = mask_loss(out.mask_logits, batch["masks"])
     kl = kl_loss(out.z_mean, out.z_logvar)
     sc = _sc(out, batch["voxels"].float(), batch["masks_sc"], batch, w)
-    total = w.w3d * l3d + w.w2d * l2d + w.wsc * sc["lsc"] + w.wkl * kl
-    return {"total": total, "l3d": l3d, "l2d": l2d, "kl": kl, **sc}
+    pose = torch.zeros((), device=kl.device)
+    if grid is not None and w.wpose:
+        target = batch.get("pose_target")
+        if target is None:
+            target = search_target(batch["voxels"].float(), batch["masks_sc"], batch, grid, w)
+        pose = _pose(out, target, grid)
+    total = w.w3d * l3d + w.w2d * l2d + w.wsc * sc["lsc"] + w.wkl * kl + w.wpose * pose
+    return {"total": total, "l3d": l3d, "l2d": l2d, "kl": kl, "pose": pose, **sc}
 
 
-def unsupervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None = None) -> dict[str, Tensor]:
-    """Semi-supervised fine-tuning objective on unlabelled images: ``wsc L_sc + wkl L_KL`` with the
+def unsupervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None = None,
+                      grid=None) -> dict[str, Tensor]:
+    """Objective on unlabelled images: ``wsc L_sc + wkl L_KL + wpose_unlabeled L_pose`` with the
     predicted occupancy and the (detached) predicted mask at the size of ``batch["masks_sc"]`` or,
-    without it, of ``K_sc`` for 48-pixel masks. ``batch`` needs ``K_sc``, ``distance``. Returns
-    ``LOSS_KEYS``; ``l3d`` and ``l2d`` are 0 (not computed: no labels)."""
+    without it, of ``K_sc`` for 48-pixel masks; the pose target is searched between the detached
+    predicted occupancy and mask. ``batch`` needs ``K_sc``, ``distance``. Returns ``LOSS_KEYS``;
+    ``l3d`` and ``l2d`` are absent (no labels)."""
     w = weights or LossWeights()
     size = batch["masks_sc"].shape[-1] if "masks_sc" in batch else 48
     occupancy = torch.sigmoid(out.voxel_logits.float())
     masks_pred = area_downsample(torch.sigmoid(out.mask_logits.float()).detach(), size)
     sc = _sc(out, occupancy, masks_pred, batch, w)
     kl = kl_loss(out.z_mean, out.z_logvar)
-    zero = torch.zeros((), device=kl.device)
-    total = w.wsc * sc["lsc"] + w.wkl * kl
-    return {"total": total, "l3d": zero, "l2d": zero, "kl": kl, **sc}
+    pose = torch.zeros((), device=kl.device)
+    if grid is not None and w.wpose_unlabeled:
+        from .pose import pose_classification_loss
+
+        elevation_bin = out.pose_logits[:, grid.azimuth_bins:].detach().argmax(1)
+        target = search_target(occupancy.detach(), masks_pred, batch, grid, w, elevation_bin)
+        pose = pose_classification_loss(out.pose_logits, target, grid, elevation=False)
+    total = w.wsc * sc["lsc"] + w.wkl * kl + w.wpose_unlabeled * pose
+    return {"total": total, "kl": kl, "pose": pose, **sc}
+
+
+def true_pose_mask_loss(out: ModelOutput, batch: dict, weights: LossWeights | None = None,
+                        grid=None) -> dict[str, Tensor]:
+    """The paper's self-consistency ablation (DRC's setting): voxels learnt from masks alone, with
+    the TRUE camera pose (``batch["azimuth"]``, ``batch["elevation"]``; the only loss that reads
+    a pose label, used by ``sc3d-train claims`` only): ``wsc (ray L_ray + proj L_proj) + wkl L_KL``
+    on ``sigmoid(voxel_logits)`` against ``batch["masks_sc"]``. Set ``proj = 0`` for "Ray"."""
+    w = weights or LossWeights()
+    occupancy = torch.sigmoid(out.voxel_logits.float())
+    sc = self_consistency_losses(occupancy, batch["masks_sc"], batch["azimuth"].float(),
+                                 batch["elevation"].float(), batch["distance"], batch["K_sc"], w.num_samples)
+    lsc = w.ray * sc["ray"] + w.proj * sc["proj"]
+    kl = kl_loss(out.z_mean, out.z_logvar)
+    return {"total": w.wsc * lsc + w.wkl * kl, "lsc": lsc, "ray": sc["ray"], "proj": sc["proj"], "kl": kl}

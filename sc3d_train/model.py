@@ -10,8 +10,9 @@ Encoder E (residual)
     (``z_mean``, ``z_logvar`` ``[B, shape_dim]``; a conditional VAE: ``z_s = mean + exp(logvar/2) *
     eps`` in training, ``z_s = mean`` in eval) and to the pose code ``z_p [B, pose_dim]``.
 Pose head
-    ONE linear layer ``pose_head: z_p -> pose_raw [B, 3]`` (see :mod:`sc3d_train.pose` for the
-    wrap-free (cos az, sin az, elevation) parameterisation).
+    ONE linear layer ``pose_head: z_p -> pose_logits [B, A + E]``: a classifier over the
+    candidate azimuths and elevations of the pose grid (:class:`sc3d_train.pose.PoseGrid`; the
+    continuous pose is a soft-argmax of the logits, see :mod:`sc3d_train.pose`).
 Voxel decoder D_v ("voxel tubes", from z_s)
     ``3tube``: three 2D-deconvolution branches; each maps z_s to a ``G x G x G`` tensor whose
     *channel* axis is one of x (width), y (height) or z (depth) and whose two image axes are the
@@ -33,7 +34,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from .config import dataclass_from_dict
-from .pose import POSE_RAW_DIM, pose_from_raw
+from .pose import PoseGrid, pose_from_logits
 
 NUM_ENCODER_BLOCKS = 5
 LEAKY_SLOPE = 0.2
@@ -48,7 +49,8 @@ class ModelConfig:
     grid (divisible by 4); ``mask_size`` size of the masks of the self-consistency module (48 as in
     the paper); ``shape_dim`` size of z_s (200); ``pose_dim`` size of z_p (16);
     ``voxel_decoder`` "3tube" (paper) or "1tube" (ablation); ``base_channels`` width C (32; use 4-8
-    for fast CPU tests)."""
+    for fast CPU tests); ``azimuth_bins``, ``elevation_bins``, ``elevation_min``,
+    ``elevation_max`` (degrees): the candidate poses of the pose head (:class:`PoseGrid`)."""
 
     image_size: int = 64
     voxel_resolution: int = 32
@@ -57,6 +59,13 @@ class ModelConfig:
     pose_dim: int = 16
     voxel_decoder: str = "3tube"
     base_channels: int = 32
+    azimuth_bins: int = 24
+    elevation_bins: int = 5
+    elevation_min: float = 10.0
+    elevation_max: float = 50.0
+
+    def pose_grid(self) -> PoseGrid:
+        return PoseGrid(self.azimuth_bins, self.elevation_bins, self.elevation_min, self.elevation_max)
 
     def __post_init__(self) -> None:
         if self.image_size % 32 or self.image_size < 32:
@@ -68,6 +77,7 @@ class ModelConfig:
         for name in ("mask_size", "shape_dim", "pose_dim", "base_channels"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        self.pose_grid()  # validates the grid
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -86,13 +96,13 @@ class ModelConfig:
 class ModelOutput:
     """Network outputs. ``voxel_logits [B, G, G, G]`` ([x, y, z]); ``mask_logits [B, S, S]``
     (S = image_size); ``azimuth [B]`` degrees in [0, 360); ``elevation [B]`` degrees;
-    ``pose_raw [B, 3]`` raw pose-head output; ``z_mean``, ``z_logvar`` ``[B, shape_dim]``."""
+    ``pose_logits [B, A + E]`` pose-head output (azimuth then elevation logits); ``z_mean``, ``z_logvar`` ``[B, shape_dim]``."""
 
     voxel_logits: Tensor
     mask_logits: Tensor
     azimuth: Tensor
     elevation: Tensor
-    pose_raw: Tensor
+    pose_logits: Tensor
     z_mean: Tensor
     z_logvar: Tensor
 
@@ -233,7 +243,8 @@ class SelfConsistencyNet(nn.Module):
         self.fc_mean = nn.Linear(feat, config.shape_dim)
         self.fc_logvar = nn.Linear(feat, config.shape_dim)
         self.fc_pose_code = nn.Linear(feat, config.pose_dim)
-        self.pose_head = nn.Linear(config.pose_dim, POSE_RAW_DIM)
+        self.pose_grid = config.pose_grid()
+        self.pose_head = nn.Linear(config.pose_dim, self.pose_grid.num_logits)
         self.voxel_decoder = VoxelDecoder(config)
         self.mask_decoder = MaskDecoder(config, self.encoder.channels)
 
@@ -248,10 +259,10 @@ class SelfConsistencyNet(nn.Module):
         else:
             z_s = z_mean
         z_p = self.fc_pose_code(feat)
-        pose_raw = self.pose_head(z_p)
-        azimuth, elevation = pose_from_raw(pose_raw.float())
+        pose_logits = self.pose_head(z_p)
+        azimuth, elevation = pose_from_logits(pose_logits.float(), self.pose_grid)
         return ModelOutput(
             voxel_logits=self.voxel_decoder(z_s),
             mask_logits=self.mask_decoder(z_mean, z_p, skips),
-            azimuth=azimuth, elevation=elevation, pose_raw=pose_raw,
+            azimuth=azimuth, elevation=elevation, pose_logits=pose_logits,
             z_mean=z_mean, z_logvar=z_logvar)

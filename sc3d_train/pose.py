@@ -1,12 +1,20 @@
 """Camera-pose parameterisation of the pose head and wrapped angle errors.
 
-The pose head (one FC layer on the pose code z_p) outputs ``pose_raw [B, 3]``:
+The pose head classifies the camera over a fixed grid of candidate poses (:class:`PoseGrid`):
+``azimuth_bins`` A azimuths every ``360 / A`` degrees from 0, and ``elevation_bins`` E elevations
+evenly spaced over ``[elevation_min, elevation_max]``. It outputs ``pose_logits [B, A + E]``: the
+first A are azimuth logits, the last E elevation logits (two factorised distributions). Why a
+classifier and not one regressed angle: the self-consistency loss over azimuth has a narrow basin
+and near-symmetric secondary minima, so the pose is learnt from the best candidate of a search of
+that loss over the grid (:mod:`sc3d_train.pose_search`, docs/pose-learning.md), which a
+classifier can represent (including its ambiguity between candidates) and a single angle cannot.
 
-- ``pose_raw[:, 0:2]`` = an unnormalised ``(cos az, sin az)`` vector; the azimuth is its angle,
-  ``atan2(sin, cos)`` in degrees mapped to [0, 360). The 0/360 wrap is therefore no boundary at
-  all: 359 deg and 1 deg are neighbouring directions of the 2-vector.
-- ``pose_raw[:, 2]`` = ``e``; the elevation is ``90 * tanh(e)`` degrees, bounded to (-90, 90)
-  (elevation does not wrap; the bound keeps the camera off the poles where azimuth is undefined).
+The continuous pose (:func:`pose_from_logits`) is differentiable:
+
+- azimuth: the argmax bin ``k`` refined by a soft-argmax over bins ``k - 1, k, k + 1`` (circular,
+  so 345 deg and 0 deg are neighbours; no wrap boundary), in [0, 360);
+- elevation: the expectation of the elevation softmax, within ``[elevation_min, elevation_max]``
+  (bounded: the camera never reaches the poles).
 
 Angles are degrees and follow ``sc3d_data.camera`` (azimuth 0 = camera on +Z, counter-clockwise
 seen from +Y; elevation > 0 above the object).
@@ -14,30 +22,99 @@ seen from +Y; elevation > 0 above the object).
 from __future__ import annotations
 
 import math
+from dataclasses import asdict, dataclass
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
-POSE_RAW_DIM = 3
-ELEVATION_SCALE_DEG = 90.0
+
+@dataclass(frozen=True)
+class PoseGrid:
+    """The candidate poses of the pose head and of the pose search (degrees):
+    ``azimuth_bins`` A from 0 deg, ``elevation_bins`` E over ``[elevation_min, elevation_max]``.
+    Candidate ``p = a * E + e`` (azimuth-major)."""
+
+    azimuth_bins: int = 24
+    elevation_bins: int = 5
+    elevation_min: float = 10.0
+    elevation_max: float = 50.0
+
+    def __post_init__(self):
+        if self.azimuth_bins < 3 or self.elevation_bins < 1:
+            raise ValueError(f"pose grid needs >= 3 azimuth bins and >= 1 elevation bin, got {self}")
+        if not -90.0 < self.elevation_min <= self.elevation_max < 90.0:
+            raise ValueError(f"pose grid elevations must satisfy -90 < min <= max < 90, got {self}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @property
+    def size(self) -> int:
+        """P = A * E candidates."""
+        return self.azimuth_bins * self.elevation_bins
+
+    @property
+    def num_logits(self) -> int:
+        """A + E outputs of the pose head."""
+        return self.azimuth_bins + self.elevation_bins
+
+    @property
+    def azimuth_step(self) -> float:
+        return 360.0 / self.azimuth_bins
+
+    def azimuths(self) -> Tensor:
+        """``[A]`` degrees: ``0, 360/A, ...`` (float64)."""
+        return torch.arange(self.azimuth_bins, dtype=torch.float64) * self.azimuth_step
+
+    def elevations(self) -> Tensor:
+        """``[E]`` degrees, evenly spaced over ``[elevation_min, elevation_max]`` (float64)."""
+        if self.elevation_bins == 1:
+            return torch.tensor([(self.elevation_min + self.elevation_max) / 2], dtype=torch.float64)
+        return torch.linspace(self.elevation_min, self.elevation_max, self.elevation_bins, dtype=torch.float64)
+
+    def candidates(self) -> tuple[Tensor, Tensor]:
+        """``(azimuth [P], elevation [P])`` degrees of every candidate, azimuth-major."""
+        az, el = torch.meshgrid(self.azimuths(), self.elevations(), indexing="ij")
+        return az.reshape(-1), el.reshape(-1)
+
+    def split(self, index: Tensor) -> tuple[Tensor, Tensor]:
+        """Candidate index ``[...]`` -> ``(azimuth bin, elevation bin)``."""
+        return torch.div(index, self.elevation_bins, rounding_mode="floor"), index % self.elevation_bins
 
 
-def pose_from_raw(pose_raw: Tensor) -> tuple[Tensor, Tensor]:
-    """``pose_raw [B, 3]`` -> ``(azimuth [B] deg in [0, 360), elevation [B] deg in (-90, 90))``.
-    Differentiable (the azimuth through ``atan2``)."""
-    if pose_raw.shape[-1] != POSE_RAW_DIM:
-        raise ValueError(f"pose_raw must end with {POSE_RAW_DIM} values, got shape {tuple(pose_raw.shape)}")
-    az = torch.rad2deg(torch.atan2(pose_raw[..., 1], pose_raw[..., 0]))
-    az = torch.remainder(az, 360.0)
-    el = ELEVATION_SCALE_DEG * torch.tanh(pose_raw[..., 2])
-    return az, el
+def pose_from_logits(pose_logits: Tensor, grid: PoseGrid) -> tuple[Tensor, Tensor]:
+    """``pose_logits [B, A + E]`` -> ``(azimuth [B] deg in [0, 360), elevation [B] deg)`` (see the
+    module doc). Differentiable in the logits (the argmax bin itself is not)."""
+    a = grid.azimuth_bins
+    if pose_logits.shape[-1] != grid.num_logits:
+        raise ValueError(f"pose_logits must end with {grid.num_logits} values (grid {grid}), "
+                         f"got shape {tuple(pose_logits.shape)}")
+    az_logits, el_logits = pose_logits[..., :a].float(), pose_logits[..., a:].float()
+    k = az_logits.argmax(-1, keepdim=True)
+    window = torch.cat([(k - 1) % a, k, (k + 1) % a], -1)  # [B, 3]
+    w = torch.softmax(torch.gather(az_logits, -1, window), -1)
+    offset = (w[..., 2] - w[..., 0]) * grid.azimuth_step
+    azimuth = torch.remainder(k[..., 0].to(offset.dtype) * grid.azimuth_step + offset, 360.0)
+    elevation = (torch.softmax(el_logits, -1) * grid.elevations().to(el_logits)).sum(-1)
+    return azimuth, elevation
 
 
-def raw_from_pose(azimuth_deg: Tensor, elevation_deg: Tensor) -> Tensor:
-    """Inverse of :func:`pose_from_raw` (unit-length azimuth vector): ``[B, 3]``."""
-    az = torch.deg2rad(azimuth_deg)
-    e = torch.atanh(torch.clamp(elevation_deg / ELEVATION_SCALE_DEG, -1 + 1e-6, 1 - 1e-6))
-    return torch.stack([torch.cos(az), torch.sin(az), e], -1)
+def pose_classification_loss(pose_logits: Tensor, target: Tensor, grid: PoseGrid,
+                             elevation: bool = True) -> Tensor:
+    """Cross-entropy of the azimuth and elevation logits against candidate indices ``target [B]``
+    (long, ``a * E + e``), summed over the two factors (``elevation=False``: the azimuth term only)
+    and averaged over the batch. Samples with a negative target are ignored (no candidate)."""
+    ta, te = grid.split(target.long())
+    ignore = target < 0
+    ta, te = ta.masked_fill(ignore, -100), te.masked_fill(ignore, -100)
+    a = grid.azimuth_bins
+    if bool(ignore.all()):
+        return pose_logits.sum() * 0.0
+    loss = F.cross_entropy(pose_logits[..., :a].float(), ta, ignore_index=-100)
+    if elevation:
+        loss = loss + F.cross_entropy(pose_logits[..., a:].float(), te, ignore_index=-100)
+    return loss
 
 
 def wrap_degrees(angle_deg):
@@ -50,15 +127,35 @@ def angular_error_deg(pred_deg, true_deg):
     return abs(wrap_degrees(pred_deg - true_deg))
 
 
+def rotation_error_deg(R_pred, R_true):
+    """Geodesic angle (degrees, in [0, 180]) between camera rotations ``[..., 3, 3]``:
+    ``arccos((trace(R_pred^T R_true) - 1) / 2)``, the angle of the rotation that takes one camera
+    to the other (MVC's metric). Numpy or torch in, numpy float64 out."""
+    import numpy as np
+
+    a, b = np.asarray(R_pred, dtype=np.float64), np.asarray(R_true, dtype=np.float64)
+    cos = (np.einsum("...ij,...ij->...", a, b) - 1.0) / 2.0  # trace(a^T b) = sum a*b
+    return np.rad2deg(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
 def pose_errors(pred_azimuth, pred_elevation, true_azimuth, true_elevation,
-                threshold_deg: float = 30.0) -> dict[str, float]:
+                threshold_deg: float = 30.0, rotation_error=None) -> dict[str, float]:
     """Pose-error summary (SPEC "Metrics") over 1-D arrays/tensors of degrees.
 
     Returns ``azimuth_mean``, ``azimuth_median``, ``azimuth_acc30`` (fraction within
     ``threshold_deg``), the same for ``elevation_*``, ``azimuth_flip_acc30`` (a diagnostic: the
     fraction within ``threshold_deg`` of the true azimuth *or* of the true azimuth + 180, i.e.
-    right up to the front/back ambiguity of many silhouettes at 30 deg elevation) and ``count``."""
+    right up to the front/back ambiguity of many silhouettes at 30 deg elevation) and ``count``;
+    with ``rotation_error`` (degrees, :func:`rotation_error_deg`) also ``rotation_median``,
+    ``rotation_mean``, ``rotation_acc15`` and ``rotation_acc30``."""
     out: dict[str, float] = {}
+    if rotation_error is not None:
+        err = torch.as_tensor(rotation_error, dtype=torch.float64).reshape(-1)
+        empty = err.numel() == 0
+        out["rotation_median"] = math.nan if empty else float(err.quantile(0.5))
+        out["rotation_mean"] = math.nan if empty else float(err.mean())
+        out["rotation_acc15"] = math.nan if empty else float((err <= 15.0).double().mean())
+        out["rotation_acc30"] = math.nan if empty else float((err <= 30.0).double().mean())
     for name, p, t in (("azimuth", pred_azimuth, true_azimuth), ("elevation", pred_elevation, true_elevation)):
         err = torch.as_tensor(angular_error_deg(torch.as_tensor(p, dtype=torch.float64),
                                                 torch.as_tensor(t, dtype=torch.float64)))

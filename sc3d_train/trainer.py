@@ -6,9 +6,18 @@ Phases (see :class:`~sc3d_train.config.RunConfig`):
 * ``supervised`` (all training objects) and ``labeled-only`` (the seeded labelled subset only):
   ``supervised_loss`` (L_3D + L_2D + L_sc on ground-truth voxels/masks with the *predicted*
   pose + KL) at ``lr``.
-* ``semi``: ``pretrain_steps`` steps as ``labeled-only``, then fine-tuning on the unlabelled
-  training objects with ``unsupervised_loss`` (L_sc on predicted voxels and masks + KL) at
-  ``semi_lr``; the Adam moments carry over, only the learning rate changes.
+* ``semi``: ``pretrain_steps`` steps as ``labeled-only`` (a checkpoint is written at the phase
+  boundary), then mixed batches at ``semi_lr`` (default ``lr``): ``semi_labeled_share`` of each
+  batch labelled images with ``supervised_loss``, the rest unlabelled training objects with
+  ``unsupervised_loss`` (L_sc on predicted voxels and masks + KL + pose search on the
+  predictions), one forward pass for both; the Adam moments carry over. Logged: the labelled
+  terms under their names, the unlabelled ones prefixed ``u_``.
+
+Pose: the pose head is a classifier over a candidate grid (:mod:`sc3d_train.pose`); its target
+for a labelled image is the candidate with the lowest L_sc between the image's ground-truth voxels
+and mask, searched once per object before training (:func:`~sc3d_train.pose_search.dataset_pose_targets`),
+and for an unlabelled image the same search between the predicted voxels and mask.
+The labelled objects of ``semi`` / ``labeled-only`` are listed in ``RUN_DIR/labeled_objects.txt``.
 
 The ground-truth pose (``azimuth``, ``elevation``, ``R``, ``t``) is removed from every training
 batch before the model and the losses see it; in the unsupervised phase the voxels and masks
@@ -141,6 +150,9 @@ def resolve_config(options: dict, model_options: dict, given: set[str], resume: 
         if changed:
             raise CheckpointError(f"{out}: cannot change on --resume: " + ", ".join(changed))
         return cfg
+    if options.get("split") == "test":
+        raise DataError("refusing to train on the test split: its evaluation would then measure "
+                        "objects the model was trained on; train on 'train' (or 'val')")
     if (out / "checkpoints" / "last.pt").is_file():
         raise CheckpointError(f"{out}: already holds a run (checkpoints/last.pt); use --resume "
                               f"to continue it or choose another --out")
@@ -176,6 +188,9 @@ class MetricsLog:
             with open(self.path, newline="") as f:
                 self.rows = [r for r in csv.DictReader(f) if int(r["step"]) < start_step]
         self.fields = list(self.rows[0].keys()) if self.rows else None
+        if self.fields is not None:
+            for r in self.rows[1:]:
+                self.fields += [k for k in r if k not in self.fields]
         self._rewrite()
         from torch.utils.tensorboard import SummaryWriter
 
@@ -194,12 +209,16 @@ class MetricsLog:
         if not self.enabled:
             return
         row = {"step": step, **values}
-        if self.fields is None:
-            self.fields = list(row.keys())
+        new = [k for k in row if k not in (self.fields or [])]
+        if new:  # first row, or a phase that logs more terms: widen the header
+            self.fields = (self.fields or []) + new
+            self.rows.append(row)
             self._rewrite()
-        with open(self.path, "a", newline="") as f:
-            csv.DictWriter(f, fieldnames=self.fields, extrasaction="ignore").writerow(row)
-        self.rows.append(row)
+            row = None
+        if row is not None:
+            with open(self.path, "a", newline="") as f:
+                csv.DictWriter(f, fieldnames=self.fields, extrasaction="ignore").writerow(row)
+            self.rows.append(row)
         for k, v in values.items():
             if isinstance(v, (int, float)):
                 self.tb.add_scalar(k if "/" in k else f"train/{k}", v, step)
@@ -222,9 +241,9 @@ def plot_curves(csv_path: Path, png_path: Path) -> None:
         return
     steps = [int(r["step"]) for r in rows]
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4))
-    for key in ("total", "l3d", "l2d", "lsc", "ray", "proj", "kl"):
-        if key in rows[0]:
-            vals = [float(r[key]) if r[key] not in ("", None) else math.nan for r in rows]
+    for key in ("total", "l3d", "l2d", "lsc", "kl", "pose", "u_lsc", "u_pose"):
+        if any(r.get(key) not in ("", None) for r in rows):
+            vals = [float(r[key]) if r.get(key) not in ("", None) else math.nan for r in rows]
             if any(v > 0 for v in vals if not math.isnan(v)):
                 ax.plot(steps, vals, label=key)
     ax.set_yscale("log")
@@ -240,36 +259,64 @@ def plot_curves(csv_path: Path, png_path: Path) -> None:
 
 
 # ----------------------------------------------------------------------------- the loop
-def training_batch(batch: dict, phase: str, device: torch.device, channels_last: bool) -> dict:
+def training_batch(batch: dict, phase: str, device: torch.device, channels_last: bool,
+                   pose_targets: torch.Tensor | None = None) -> dict:
     """Move a loader batch to ``device``, dropping the ground-truth pose (and, unsupervised,
-    the labels)."""
+    the labels). ``pose_targets [num_objects * V]`` (searched from voxels and masks) adds
+    ``pose_target [B]`` for labelled batches."""
     drop = POSE_KEYS + (LABEL_KEYS if phase == "unsupervised" else ())
+    if phase == "true-pose-masks":  # the ablation: masks and the true pose, no 3D labels
+        drop = ("R", "t", "voxels")
     out = {}
     for k, v in batch.items():
         if k in drop:
             continue
         out[k] = v.to(device, non_blocking=True) if torch.is_tensor(v) else v
+    if pose_targets is not None and phase == "supervised" and "index" in batch:
+        out["pose_target"] = pose_targets[batch["index"]].to(device)
     if channels_last:
         out["images"] = out["images"].contiguous(memory_format=torch.channels_last)
     return out
 
 
-def _phase_dataset(cfg: RunConfig, phase: str, image_size: int | None) -> ShardDataset:
-    if phase == "unsupervised":
-        subset, needs_voxels = "unlabeled", False
-    else:
-        subset = "all" if cfg.mode == "supervised" else "labeled"
-        needs_voxels = True
-    fraction = 1.0 if cfg.mode == "supervised" else cfg.labeled_fraction
+def _phase_dataset(cfg: RunConfig, subset: str, image_size: int | None) -> ShardDataset:
+    """``subset``: ``"all"``, ``"labeled"`` (with voxels) or ``"unlabeled"`` (no voxels needed)."""
+    fraction = cfg.labeled_fraction if cfg.mode in ("semi", "labeled-only") else 1.0
     return ShardDataset(cfg.shards, cfg.split, subset=subset, labeled_fraction=fraction,
                         seed=cfg.seed, mask_size=cfg.model.get("mask_size", 48),
-                        require_voxels=needs_voxels, image_size=image_size)
+                        require_voxels=subset != "unlabeled", image_size=image_size)
 
 
 def _data_position(cfg: RunConfig, step: int, local_batch: int) -> dict:
+    """Samples of this phase's streams consumed by each rank before ``step``."""
     phase = cfg.phase_at(step)
     start = cfg.phase_start(step)
+    if phase == "unsupervised":
+        labeled, unlabeled = cfg.batch_split(local_batch)
+        return {"phase": phase, "phase_start": start, "samples_per_rank": (step - start) * unlabeled,
+                "labeled_samples_per_rank": (step - start) * labeled}
     return {"phase": phase, "phase_start": start, "samples_per_rank": (step - start) * local_batch}
+
+
+#: loader seed offsets of the streams (labelled pre-training / all, unlabelled, labelled in the mix)
+STREAM_SEEDS = {"supervised": 0, "unlabeled": 7919, "labeled_mix": 104729}
+
+
+def _slice_output(out, sl: slice):
+    from dataclasses import fields as dc_fields
+
+    return type(out)(**{f.name: getattr(out, f.name)[sl] for f in dc_fields(out)})
+
+
+def _concat_batches(a: dict, b: dict) -> dict:
+    """Images of a labelled and an unlabelled batch, for one forward pass."""
+    return torch.cat([a["images"], b["images"]], 0)
+
+
+def write_labeled_objects(path: Path, dataset: ShardDataset) -> None:
+    """``CATEGORY/MODEL_ID`` of every labelled object, one per line."""
+    lines = sorted(f"{r.category}/{r.model_id}" for r in dataset.objects)
+    Path(path).write_text("\n".join(lines) + "\n")
 
 
 def fit(cfg: RunConfig, resume: bool = False) -> dict:
@@ -278,7 +325,9 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
 
     Raises :class:`TrainingDiverged` on a non-finite loss, ``DataError`` / ``CheckpointError``
     on bad inputs, before any training step."""
-    from sc3d_train.losses import LossWeights, supervised_loss, unsupervised_loss
+    from sc3d_train.losses import LossWeights, supervised_loss, true_pose_mask_loss, unsupervised_loss
+    from sc3d_train.model import ModelConfig
+    from sc3d_train.pose_search import dataset_pose_targets
 
     dist_info = setup_distributed(cfg.device)
     device = resolve_device(cfg.device, dist_info)
@@ -286,10 +335,23 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
     if cfg.batch_size % dist_info.world_size:
         raise ValueError(f"batch size {cfg.batch_size} is not divisible by {dist_info.world_size} ranks")
     local_batch = cfg.batch_size // dist_info.world_size
+    weights = LossWeights(**cfg.loss_weights)
+    grid = ModelConfig.from_dict(cfg.model).pose_grid()
+    mixed = cfg.mode == "semi" and cfg.semi_labeled_share > 0
+    if mixed and min(cfg.batch_split(local_batch)) < 1:
+        raise ValueError(f"batch {local_batch} per rank is too small to mix labelled and unlabelled images")
 
     # ---- datasets first: every data error surfaces before any work
-    datasets = {p: _phase_dataset(cfg, p, cfg.image_size)
-                for p in sorted({cfg.phase_at(0), cfg.phase_at(cfg.steps - 1)})}
+    labeled_subset = "labeled" if cfg.mode in ("semi", "labeled-only") else "all"
+    datasets = {labeled_subset: _phase_dataset(cfg, labeled_subset, cfg.image_size)}
+    if cfg.mode == "semi" and cfg.pretrain_steps < cfg.steps:
+        datasets["unlabeled"] = _phase_dataset(cfg, "unlabeled", cfg.image_size)
+    labeled_ds = datasets[labeled_subset]
+    pose_targets = None
+    if weights.wpose and cfg.mode != "true-pose-masks" and (cfg.mode != "semi" or cfg.pretrain_steps > 0 or mixed):
+        pose_targets = dataset_pose_targets(labeled_ds, grid, weights.ray, weights.proj,
+                                            weights.search_mask_size, weights.search_samples,
+                                            device).reshape(-1)
 
     # ---- model, optimiser, AMP
     seed_everything(cfg.seed)
@@ -300,7 +362,6 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
         model = model.to(memory_format=torch.channels_last)
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr_at(0))
     scaler = torch.amp.GradScaler("cuda") if amp_dtype == torch.float16 else None
-    weights = LossWeights(**cfg.loss_weights)
 
     start_step = 0
     if resume:
@@ -343,6 +404,8 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
     if dist_info.is_main:
         run_dir.mkdir(parents=True, exist_ok=True)
         cfg.save(run_dir / "config.json")
+        if cfg.mode in ("semi", "labeled-only"):
+            write_labeled_objects(run_dir / "labeled_objects.txt", labeled_ds)
     log = MetricsLog(run_dir, start_step, enabled=dist_info.is_main)
     progress = None
     if dist_info.is_main and cfg.progress:
@@ -367,30 +430,53 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
         plot_curves(log.path, run_dir / "curves.png")
         return path
 
+    def loader(dataset, batch, stream, start):
+        return iter(make_loader(dataset, batch, cfg.seed + STREAM_SEEDS[stream], start=start,
+                                rank=dist_info.rank, world_size=dist_info.world_size,
+                                workers=cfg.workers, pin_memory=device.type == "cuda"))
+
     last_good = str(last_path(run_dir)) if resume else None
-    phase, loader_iter, last_losses = None, None, {}
+    phase, loaders, last_losses = None, {}, {}
     t_log, n_log, rate = time.perf_counter(), 0, 0.0
     try:
         for step in range(start_step, cfg.steps):
             if cfg.phase_at(step) != phase:
                 phase = cfg.phase_at(step)
-                ds = datasets.get(phase) or _phase_dataset(cfg, phase, cfg.image_size)
                 pos = _data_position(cfg, step, local_batch)
-                loader_iter = iter(make_loader(
-                    ds, local_batch, cfg.seed + (7919 if phase == "unsupervised" else 0),
-                    start=pos["samples_per_rank"], rank=dist_info.rank,
-                    world_size=dist_info.world_size, workers=cfg.workers,
-                    pin_memory=device.type == "cuda"))
+                if phase == "supervised":
+                    loaders = {"supervised": loader(labeled_ds, local_batch, "supervised", pos["samples_per_rank"])}
+                else:
+                    n_lab, n_unl = cfg.batch_split(local_batch)
+                    loaders = {"unsupervised": loader(datasets["unlabeled"], n_unl, "unlabeled", pos["samples_per_rank"])}
+                    if n_lab:
+                        loaders["supervised"] = loader(labeled_ds, n_lab, "labeled_mix",
+                                                       pos["labeled_samples_per_rank"])
                 for group in optimizer.param_groups:
                     group["lr"] = cfg.lr_at(step)
-                loss_fn = unsupervised_loss if phase == "unsupervised" else supervised_loss
-            batch = training_batch(next(loader_iter), phase, device, channels_last)
+            batches = {p: training_batch(next(it), cfg.mode if cfg.mode == "true-pose-masks" else p,
+                                         device, channels_last, pose_targets)
+                       for p, it in loaders.items()}
             train_model.train()
             optimizer.zero_grad(set_to_none=True)
             autocast = torch.autocast(device.type, dtype=amp_dtype) if amp_dtype else nullcontext()
             with autocast:
-                out = train_model(batch["images"])
-                losses = loss_fn(out, batch, weights)
+                if len(batches) == 2:
+                    sup, uns = batches["supervised"], batches["unsupervised"]
+                    out = train_model(_concat_batches(sup, uns))
+                    n = sup["images"].shape[0]
+                    ls = supervised_loss(_slice_output(out, slice(0, n)), sup, weights, grid)
+                    lu = unsupervised_loss(_slice_output(out, slice(n, None)), uns, weights, grid)
+                    losses = {**ls, **{f"u_{k}": v for k, v in lu.items()}}
+                    losses["total"] = ls["total"] + lu["total"]
+                elif "unsupervised" in batches:
+                    out = train_model(batches["unsupervised"]["images"])
+                    losses = {f"u_{k}": v for k, v in
+                              unsupervised_loss(out, batches["unsupervised"], weights, grid).items()}
+                    losses["total"] = losses.pop("u_total")
+                else:
+                    out = train_model(batches["supervised"]["images"])
+                    loss_fn = true_pose_mask_loss if cfg.mode == "true-pose-masks" else supervised_loss
+                    losses = loss_fn(out, batches["supervised"], weights, grid)
             loss = losses["total"]
             finite = torch.isfinite(loss.detach()).float()
             if dist_info.world_size > 1:
@@ -431,7 +517,8 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
                                          samples_s=f"{rate:.1f}")
             if progress is not None:
                 progress.update(1)
-            if done % cfg.checkpoint_every == 0 or done == cfg.steps:
+            boundary = cfg.mode == "semi" and done == cfg.pretrain_steps
+            if done % cfg.checkpoint_every == 0 or done == cfg.steps or boundary:
                 path = checkpoint(done)
                 last_good = str(path) if path else last_good
     except KeyboardInterrupt:

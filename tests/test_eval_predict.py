@@ -24,15 +24,28 @@ def test_eval_writes_metrics_table_and_picture(trained_run, sample_shards, tmp_p
     assert set(metrics["per_category"]) == test_cats
     assert metrics["split"] == "test" and metrics["voxel_thresholds"] == [0.4, 0.5]
     for block in [*metrics["per_category"].values(), metrics["mean"], metrics["overall"]]:
-        for key in ("voxel_iou_0.4", "voxel_iou_0.5", "mask_iou", "pose_azimuth_acc30", "pose_elevation_acc30"):
-            assert 0.0 <= block[key] <= 1.0, (key, block[key])
-        for key in ("pose_azimuth_mean", "pose_azimuth_median", "pose_elevation_mean"):
-            assert 0.0 <= block[key] <= 180.0
+        assert {"pose_rotation_median", "pose_rotation_mean", "pose_rotation_acc15", "pose_rotation_acc30",
+                "pose_azimuth_median", "pose_elevation_mean", "voxel_iou_0.4", "mask_iou"} <= set(block)
     assert metrics["overall"]["images"] == 24 * len(
         [o for o in json.loads((sample_shards / "index.json").read_text())["objects"] if o["split"] == "test"])
-    assert metrics["overall"]["mask_iou"] > 0.3  # the mask decoder has learnt the silhouettes
     with Image.open(out / "predictions.png") as im:
         assert im.size[0] > 400 and im.size[1] > 100
+
+
+def test_pose_is_learnt_without_pose_labels(trained_run, sample_shards):
+    """The shared short run (120 steps of 8, tiny model, 8 training objects, no pose label read)
+    predicts the camera of its training views far better than chance: measured median rotation
+    error 36 deg and 47% of the 192 views within 30 deg (chance: 90 deg and about 17%; before the
+    pose search the same run gave ~80 deg). `eval` without --out writes beside the run."""
+    r = run_cli(main, ["eval", "--checkpoint", trained_run / "checkpoints" / "last.pt",
+                       "--shards", sample_shards, "--split", "train"])
+    out = trained_run / "eval_train"
+    assert str(out) in r.output and "rot med" in r.output
+    overall = json.loads((out / "metrics.json").read_text())["overall"]
+    assert overall["images"] == 192
+    assert overall["pose_rotation_median"] <= 45.0, overall["pose_rotation_median"]
+    assert overall["pose_rotation_acc30"] >= 0.40, overall["pose_rotation_acc30"]
+    assert overall["mask_iou"] >= 0.35, overall["mask_iou"]  # measured 0.46: silhouettes are learnt
 
 
 def test_eval_metric_definitions():
@@ -43,7 +56,8 @@ def test_eval_metric_definitions():
     a[0, :2], b[0, 1:3] = True, True  # 32 & 32 voxels overlapping in 16: IoU 1/3
     assert torch.allclose(iou(a, b), torch.tensor([1 / 3, 1.0], dtype=torch.float64))
     rows = [{"category": c, "model_id": m, "iou_0.4": v, "iou_0.5": v, "mask_iou": v,
-             "azimuth_pred": ap, "elevation_pred": 30.0, "azimuth_true": at, "elevation_true": 30.0}
+             "azimuth_pred": ap, "elevation_pred": 30.0, "azimuth_true": at, "elevation_true": 30.0,
+             "rotation_error": abs(ap - at) % 180.0}
             for c, m, v, ap, at in (("a", "1", 1.0, 359.0, 1.0), ("a", "1", 0.0, 90.0, 0.0),
                                     ("b", "2", 0.5, 10.0, 10.0))]
     s = summarize(rows)

@@ -1,6 +1,8 @@
 """The network, the pose parameterisation and the losses (real modules, small configs)."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -8,7 +10,8 @@ import torch
 from sc3d_data.camera import intrinsics, scale_intrinsics
 from sc3d_train.losses import LOSS_KEYS, LossWeights, supervised_loss, unsupervised_loss, voxel_loss
 from sc3d_train.model import ModelConfig, SelfConsistencyNet, VoxelDecoder
-from sc3d_train.pose import angular_error_deg, pose_errors, pose_from_raw, raw_from_pose, wrap_degrees
+from sc3d_train.pose import (PoseGrid, angular_error_deg, pose_classification_loss, pose_errors, pose_from_logits,
+                             rotation_error_deg, wrap_degrees)
 from sc3d_train.self_consistency import area_downsample
 
 
@@ -35,9 +38,10 @@ def test_output_shapes(config):
     assert out.voxel_logits.shape == (2, g, g, g)
     assert out.mask_logits.shape == (2, s, s)
     assert out.azimuth.shape == out.elevation.shape == (2,)
-    assert out.pose_raw.shape == (2, 3)
+    assert out.pose_logits.shape == (2, 24 + 5)
     assert out.z_mean.shape == out.z_logvar.shape == (2, config.shape_dim)
-    assert ((out.azimuth >= 0) & (out.azimuth < 360)).all() and (out.elevation.abs() < 90).all()
+    assert ((out.azimuth >= 0) & (out.azimuth < 360)).all()
+    assert ((out.elevation >= 10) & (out.elevation <= 50)).all()  # the default grid's range
     assert len(model.voxel_decoder.branches) == (3 if config.voxel_decoder == "3tube" else 1)
 
 
@@ -49,7 +53,7 @@ def test_backward_on_images_permuted_from_hwc(channels):
     model = SelfConsistencyNet(ModelConfig.tiny(base_channels=channels))
     images = torch.rand(6, 64, 64, 3).permute(0, 3, 1, 2)
     out = model(images)
-    (out.voxel_logits.mean() + out.mask_logits.mean() + out.pose_raw.sum()).backward()
+    (out.voxel_logits.mean() + out.mask_logits.mean() + out.pose_logits.sum()).backward()
     assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
 
 
@@ -98,13 +102,6 @@ def test_pose_wrap():
     assert float(angular_error_deg(1.0, 359.0)) == pytest.approx(2.0)
     assert float(angular_error_deg(180.0, 0.0)) == pytest.approx(180.0)
     assert float(wrap_degrees(370.0)) == pytest.approx(10.0)
-    az, el = torch.tensor([359.5, 0.5, 180.0]), torch.tensor([30.0, -10.0, 60.0])
-    az2, el2 = pose_from_raw(raw_from_pose(az, el))
-    assert float(angular_error_deg(az2, az).max()) < 1e-3
-    torch.testing.assert_close(el2, el, atol=1e-3, rtol=0)
-    # the raw azimuth vectors of 359.5 and 0.5 deg are neighbours (no 0/360 boundary)
-    raw = raw_from_pose(az, el)
-    assert float((raw[0, :2] - raw[1, :2]).norm()) < 0.02
     e = pose_errors(torch.tensor([359.0, 90.0]), torch.tensor([30.0, 30.0]),
                     torch.tensor([1.0, 150.0]), torch.tensor([30.0, 40.0]))
     assert e["azimuth_mean"] == pytest.approx(31.0) and e["azimuth_acc30"] == pytest.approx(0.5)
@@ -130,16 +127,63 @@ def test_pose_head_gets_gradient_from_sc_loss_alone():
     assert all(p.grad is None or p.grad.abs().sum() == 0 for p in model.mask_decoder.parameters())
 
 
-def test_supervised_loss_weights_and_never_reads_gt_pose():
+def test_pose_from_logits_hand_derived():
+    """Soft-argmax over the argmax bin and its two neighbours (15 deg bins): weights 1/3, 2/3, 0
+    around bin 0 give 0 - 15/3 = -5 -> 355 deg (across the 0/360 wrap); uniform elevation logits
+    give the mean of 10..50 = 30; elevation logits (ln 1, ln 3, -inf...) give (10 + 3 * 20) / 4."""
+    grid = PoseGrid()  # 24 azimuths, 5 elevations 10..50
+    logits = torch.full((2, 29), -1e9)
+    logits[0, 0], logits[0, 23] = math.log(2.0), 0.0        # bin 1 stays at -1e9
+    logits[0, 24:] = 0.0
+    logits[1, 7], logits[1, 6], logits[1, 8] = 5.0, -1e9, -1e9   # one bin: exactly 105 deg
+    logits[1, 24], logits[1, 25] = 0.0, math.log(3.0)
+    az, el = pose_from_logits(logits, grid)
+    torch.testing.assert_close(az, torch.tensor([355.0, 105.0]), atol=1e-4, rtol=0)
+    torch.testing.assert_close(el, torch.tensor([30.0, 17.5]), atol=1e-4, rtol=0)
+    # candidate index a * E + e: 7 * 5 + 3 = 38 -> azimuth bin 7, elevation bin 3
+    assert [int(x) for x in grid.split(torch.tensor(38))] == [7, 3]
+    ca, ce = grid.candidates()
+    assert float(ca[38]) == 105.0 and float(ce[38]) == 40.0
+    # cross-entropy of a uniform head = ln 24 + ln 5; an ignored target (-1) contributes nothing
+    loss = pose_classification_loss(torch.zeros(2, 29), torch.tensor([38, -1]), grid)
+    assert float(loss) == pytest.approx(math.log(24) + math.log(5))
+
+
+def test_rotation_error_hand_derived():
+    from sc3d_data.camera import look_at_rotation
+
+    R0 = look_at_rotation(np.array([0.0, 0.0, 0.0]), np.array([0.0, 0.0, 30.0]))
+    R1 = look_at_rotation(np.array([90.0, 180.0, 30.0]), np.array([0.0, 0.0, 30.0]))
+    # at equal elevations the two cameras differ by a turn about the world y axis by the azimuth
+    # difference, so the geodesic angle is that difference (also at elevation 30)
+    np.testing.assert_allclose(rotation_error_deg(R0, R1), [90.0, 180.0, 30.0], atol=1e-6)
+    # azimuth 0 -> elevation 30 at azimuth 0: a rotation by 30 deg about the camera x axis
+    np.testing.assert_allclose(rotation_error_deg(R0[0], look_at_rotation(0.0, 30.0)), 30.0, atol=1e-6)
+    e = pose_errors(torch.zeros(4), torch.zeros(4), torch.zeros(4), torch.zeros(4),
+                    rotation_error=[5.0, 20.0, 40.0, 100.0])
+    assert e["rotation_median"] == pytest.approx(30.0) and e["rotation_mean"] == pytest.approx(41.25)
+    assert e["rotation_acc15"] == 0.25 and e["rotation_acc30"] == 0.5
+
+
+def test_voxel_loss_hand_derived_and_supervised_loss_never_reads_gt_pose():
+    """L_3D at logits 0 (p = 1/2 everywhere) for a grid with n1 of N voxels occupied:
+    BCE(pos_weight 3) = ln 2 * (3 n1 + (N - n1)) / N; soft IoU = (n1 / 2) / (N / 2 + n1 / 2),
+    so L_IoU = exp(1 - n1 / (N + n1)) - 1. With only w3d = 1 the total is that value."""
+    batch = make_batch(1)
+    vox = batch["voxels"]
+    n1, n = float(vox.sum()), float(vox.numel())
+    expected = math.log(2) * (3 * n1 + (n - n1)) / n + math.exp(1 - n1 / (n + n1)) - 1
+    assert float(voxel_loss(torch.zeros_like(vox), vox)) == pytest.approx(expected, rel=1e-5)
     torch.manual_seed(0)
     model = SelfConsistencyNet(ModelConfig.tiny())
-    batch = make_batch()
     out = model(batch["images"])
+    out.voxel_logits = torch.zeros_like(out.voxel_logits)
+    only_3d = LossWeights(w3d=1.0, w2d=0.0, wsc=0.0, wkl=0.0, wpose=0.0)
+    assert float(supervised_loss(out, batch, only_3d)["total"].detach()) == pytest.approx(expected, rel=1e-5)
     w = LossWeights()
-    a = supervised_loss(out, batch, w)
-    expected = w.w3d * a["l3d"] + w.w2d * a["l2d"] + w.wsc * (w.ray * a["ray"] + w.proj * a["proj"]) + w.wkl * a["kl"]
-    torch.testing.assert_close(a["total"], expected)
-    b = supervised_loss(out, {**batch, "azimuth": batch["azimuth"] + 123.0, "elevation": -batch["elevation"]}, w)
+    grid = model.pose_grid
+    a = supervised_loss(out, batch, w, grid)
+    b = supervised_loss(out, {**batch, "azimuth": batch["azimuth"] + 123.0, "elevation": -batch["elevation"]}, w, grid)
     torch.testing.assert_close(a["total"], b["total"])
 
 
@@ -168,8 +212,10 @@ def test_unsupervised_loss_updates_encoder_and_voxel_decoder_not_mask_decoder():
     batch = make_batch()
     unlabeled = {k: batch[k] for k in ("images", "K_sc", "distance")}
     out = model(unlabeled["images"])
-    losses = unsupervised_loss(out, unlabeled)
-    assert set(losses) == set(LOSS_KEYS) and float(losses["l3d"]) == 0.0
+    losses = unsupervised_loss(out, unlabeled, grid=model.pose_grid)
+    # no 3D/2D label terms are reported for unlabelled images (nothing is optimised there)
+    assert set(losses) == set(LOSS_KEYS) - {"l3d", "l2d"}
+    assert float(losses["pose"]) > 0  # the pose search between predicted voxels and mask
     losses["total"].backward()
     grad = lambda mod: sum(float(p.grad.abs().sum()) for p in mod.parameters() if p.grad is not None)  # noqa: E731
     assert grad(model.voxel_decoder) > 0 and grad(model.encoder) > 0 and grad(model.pose_head) > 0

@@ -91,16 +91,30 @@ def test_semi_supervised_runs_both_phases(sample_shards, tmp_path):
                    *TINY, "--semi", "--labeled-fraction", "0.15", "--pretrain-steps", "2"])
     rows = read_csv(out / "metrics.csv")
     assert [r["phase"] for r in rows] == ["supervised"] * 2 + ["unsupervised"] * 2
-    assert [float(r["lr"]) for r in rows] == [2e-4, 2e-4, 2e-5, 2e-5]
-    assert all(float(r["l3d"]) == 0 for r in rows[2:]) and all(float(r["l3d"]) > 0 for r in rows[:2])
-    assert all(float(r["lsc"]) > 0 for r in rows)
+    assert [float(r["lr"]) for r in rows] == [2e-4] * 4  # --semi-lr defaults to --lr
+    # pre-training logs no unlabelled terms; the mixed phase logs what it optimises: the labelled
+    # half's L_3D / L_2D / pose and the unlabelled half's L_sc and pose search (u_*)
+    assert all(r["u_lsc"] == "" for r in rows[:2])
+    for r in rows[2:]:
+        assert float(r["l3d"]) > 0.1 and float(r["u_lsc"]) > 0 and float(r["u_pose"]) > 0
+    # a checkpoint at the phase boundary, the labelled objects listed
+    assert (out / "checkpoints" / "step_000002.pt").is_file()
+    listed = (out / "labeled_objects.txt").read_text().split()
 
-    # the labelled subset is chosen by object, seeded; labelled and unlabelled are disjoint
+    # the labelled subset: chosen by object, stratified by category (every category of the
+    # training split has max(1, round(0.15 n_c)) labelled objects), seeded, disjoint from the rest
     lab = ShardDataset(sample_shards, "train", subset="labeled", labeled_fraction=0.15, seed=0)
     unl = ShardDataset(sample_shards, "train", subset="unlabeled", labeled_fraction=0.15, seed=0,
                        require_voxels=False)
     allt = ShardDataset(sample_shards, "train")
-    assert lab.num_objects == max(1, round(0.15 * allt.num_objects))
+    per_cat = {}
+    for o in allt.objects:
+        per_cat[o.category] = per_cat.get(o.category, 0) + 1
+    lab_cat = {}
+    for o in lab.objects:
+        lab_cat[o.category] = lab_cat.get(o.category, 0) + 1
+    assert lab_cat == {c: max(1, round(0.15 * n)) for c, n in per_cat.items()}
+    assert sorted(listed) == sorted(f"{o.category}/{o.model_id}" for o in lab.objects)
     assert lab.num_objects + unl.num_objects == allt.num_objects
     assert not {o.model_id for o in lab.objects} & {o.model_id for o in unl.objects}
     again = ShardDataset(sample_shards, "train", subset="labeled", labeled_fraction=0.15, seed=0)
@@ -110,6 +124,13 @@ def test_semi_supervised_runs_both_phases(sample_shards, tmp_path):
     run_cli(main, ["fit", "--shards", sample_shards, "--out", only, "--steps", "1", "--batch-size", "2",
                    *TINY, "--labeled-only"])
     assert read_csv(only / "metrics.csv")[0]["phase"] == "supervised"
+
+
+def test_fit_refuses_the_test_split(sample_shards, tmp_path):
+    r = run_cli(main, ["fit", "--shards", sample_shards, "--out", tmp_path / "t", "--steps", "1",
+                       "--batch-size", "2", *TINY, "--split", "test"], expect_exit=1)
+    assert "refusing to train on the test split" in r.output
+    assert not (tmp_path / "t" / "checkpoints").exists()
 
 
 def test_loader_masks_follow_the_camera(sample_shards):
