@@ -55,6 +55,8 @@ class RunConfig:
     lr: float = 2e-4
     semi_lr: float | None = None
     semi_labeled_share: float = 0.5
+    lr_schedule: str = "constant"      # constant | cosine (per phase, down to lr_min_ratio * lr)
+    lr_min_ratio: float = 0.1
     mode: str = "supervised"           # see MODES
     labeled_fraction: float = 0.15
     pretrain_steps: int | None = None  # semi mode only; default steps // 2
@@ -118,9 +120,20 @@ class RunConfig:
         return self.pretrain_steps if self.phase_at(step) == "unsupervised" else 0
 
     def lr_at(self, step: int) -> float:
+        """The learning rate at ``step``: ``lr`` (``semi_lr`` in the unsupervised phase when set),
+        constant or, with ``lr_schedule="cosine"``, annealed over the phase from that value to
+        ``lr_min_ratio`` times it."""
+        base = self.lr
         if self.phase_at(step) == "unsupervised" and self.semi_lr is not None:
-            return self.semi_lr
-        return self.lr
+            base = self.semi_lr
+        if self.lr_schedule != "cosine":
+            return base
+        import math
+
+        start = self.phase_start(step)
+        end = self.pretrain_steps if self.mode == "semi" and step < self.pretrain_steps else self.steps
+        t = (step - start) / max(end - start, 1)
+        return base * (self.lr_min_ratio + (1 - self.lr_min_ratio) * 0.5 * (1 + math.cos(math.pi * t)))
 
     def batch_split(self, local_batch: int) -> tuple[int, int]:
         """``(labelled, unlabelled)`` samples per rank of an unsupervised-phase batch."""

@@ -453,6 +453,9 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
                                                        pos["labeled_samples_per_rank"])
                 for group in optimizer.param_groups:
                     group["lr"] = cfg.lr_at(step)
+            if cfg.lr_schedule != "constant":
+                for group in optimizer.param_groups:
+                    group["lr"] = cfg.lr_at(step)
             batches = {p: training_batch(next(it), cfg.mode if cfg.mode == "true-pose-masks" else p,
                                          device, channels_last, pose_targets)
                        for p, it in loaders.items()}

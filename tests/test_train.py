@@ -221,3 +221,18 @@ def test_ddp_two_cpu_ranks_resume_exactly(sample_shards, tmp_path):
     ckpt = torch.load(whole / "checkpoints" / "last.pt", weights_only=False)
     assert len(ckpt["rng"]) == 2 and ckpt["data_position"]["samples_per_rank"] == 4 * 2
     assert (whole / "checkpoints" / "step_000002.pt").is_file()
+
+
+def test_semi_resume_across_the_phase_boundary_equals_uninterrupted(sample_shards, tmp_path):
+    """Both streams of the mixed phase (labelled and unlabelled) resume where they stopped."""
+    args = ["--shards", sample_shards, "--batch-size", "4", *TINY, "--semi", "--labeled-fraction", "0.5",
+            "--pretrain-steps", "2", "--checkpoint-every", "3", "--seed", "3"]
+    whole, parts = tmp_path / "whole", tmp_path / "parts"
+    run_cli(main, ["fit", "--out", whole, "--steps", "5", *args])
+    run_cli(main, ["fit", "--out", parts, "--steps", "3", *args])
+    run_cli(main, ["fit", "--out", parts, "--steps", "5", "--resume", "--no-progress"])
+    a, b = read_csv(whole / "metrics.csv"), read_csv(parts / "metrics.csv")
+    assert [r["phase"] for r in a] == ["supervised"] * 2 + ["unsupervised"] * 3
+    for ra, rb in zip(a, b):
+        for key in ("total", "l3d", "u_lsc", "u_pose"):
+            assert ra[key] == rb[key], (ra["step"], key, ra[key], rb[key])
