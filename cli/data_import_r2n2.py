@@ -51,9 +51,9 @@ def import_r2n2(renderings, voxels, out, image_size, background, categories, spl
     bar = None
     try:
         if progress:
-            from tqdm import tqdm
+            from sc3d_data.progress import progress_bar
 
-            bar = tqdm(unit="obj", desc="import-r2n2", dynamic_ncols=True)
+            bar = progress_bar(unit="obj", desc="import-r2n2")
         summary = run(config, progress=bar.update if bar is not None else None)
     except (FileNotFoundError, FileExistsError, ValueError) as e:
         raise click.ClickException(str(e))

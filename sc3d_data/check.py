@@ -189,9 +189,9 @@ def check_shards(shard_dir: Path, min_iou: float = DEFAULT_MIN_IOU,
     report = CheckReport(min_iou=min_iou, min_coverage=min_coverage, min_near=min_near)
     it = iter_objects(shard_dir, fields=("voxels", "masks", "K", "R", "t"))
     if progress:
-        from tqdm import tqdm
+        from sc3d_data.progress import progress_bar
 
-        it = tqdm(it, unit="obj", desc="check", dynamic_ncols=True)
+        it = progress_bar(it, unit="obj", desc="check")
     for obj in it:
         if "voxels" not in obj:
             raise ValueError(f"{shard_dir}/{obj['shard']}: no voxels (run `sc3d-data voxelize {shard_dir}` first)")

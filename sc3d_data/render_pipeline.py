@@ -386,9 +386,9 @@ def render_dataset(config: RenderConfig) -> dict:
     n_done = n_failed = 0
     bar = None
     if config.progress:
-        from tqdm import tqdm
+        from sc3d_data.progress import progress_bar
 
-        bar = tqdm(total=len(todo), unit="obj", desc="render", dynamic_ncols=True)
+        bar = progress_bar(total=len(todo), unit="obj", desc="render")
 
     def flush_ready_chunks() -> None:
         nonlocal n_done, n_failed

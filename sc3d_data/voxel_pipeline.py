@@ -120,9 +120,9 @@ def voxelize_shards(shard_dir: Path, resolution: int = 32, workers: int = 1, ove
     old_voxel_failures = [f for f in index.get("failures", []) if f.get("stage") == "voxelize"]
     bar = None
     if progress:
-        from tqdm import tqdm
+        from sc3d_data.progress import progress_bar
 
-        bar = tqdm(total=len(paths), unit="shard", desc="voxelize", dynamic_ncols=True)
+        bar = progress_bar(total=len(paths), unit="shard", desc="voxelize")
     new_failures = []
     for path in paths:
         if not path.is_file():
@@ -219,9 +219,9 @@ def _map_meshes(jobs, workers: int, progress: bool):
     if workers <= 1 or len(jobs) <= 1:
         it = map(_mesh_job, jobs)
         if progress:
-            from tqdm import tqdm
+            from sc3d_data.progress import progress_bar
 
-            it = tqdm(it, total=len(jobs), unit="mesh", desc="voxelize", dynamic_ncols=True)
+            it = progress_bar(it, total=len(jobs), unit="mesh", desc="voxelize")
         return list(it)
     with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
                              initializer=_limit_threads) as ex:
