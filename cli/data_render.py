@@ -39,7 +39,9 @@ def _rgb(text: str) -> tuple[int, int, int]:
 @click.option("--depth/--no-depth", default=False, show_default=True, help="Also store depth maps.")
 @click.option("--normalize", type=click.Choice(["fit", "diagonal"]), default="fit", show_default=True)
 @click.option("--up", default="+Y", show_default=True, help="Source axis that is up (e.g. +Z).")
-@click.option("--front", default="+Z", show_default=True, help="Source axis the object's front faces (e.g. -X).")
+@click.option("--front", default="auto", show_default=True,
+              help="Source axis the object's front faces (e.g. -X); turned to +Z. auto: +X for ShapeNetCore "
+                   "v1 model.obj, -Z for v2 model_normalized.obj, +Z for other meshes.")
 @click.option("--backend", type=click.Choice(["auto", "egl", "osmesa"]), default="auto", show_default=True)
 @click.option("--voxelize/--no-voxelize", default=False, show_default=True, help="Also store solid voxel grids.")
 @click.option("--voxel-resolution", type=click.IntRange(2), default=32, show_default=True)
