@@ -23,10 +23,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from sc3d_data import camera
 from sc3d_data.binvox import read_binvox, write_binvox
 from sc3d_data.normalize import apply_transform
-from sc3d_data.r2n2_import import (R2N2View, grid_placement, obj_to_canonical, parse_metadata_line,
+from sc3d_data.r2n2_import import (grid_placement, obj_to_canonical, parse_metadata_line,
                                    r2n2_cameras, rotate_grid)
 from sc3d_data.r2n2_synth import blender_camera
 from sc3d_data.shards import iter_objects, load_index
