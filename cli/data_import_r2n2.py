@@ -3,6 +3,9 @@ from __future__ import annotations
 
 import click
 
+from sc3d_data.r2n2_import import R2N2_FRONT, VOXEL_FRAMES
+from sc3d_data.splits import SPLIT_FILE_HELP, SPLIT_HELP
+
 
 @click.command("import-r2n2")
 @click.option("--renderings", required=True, type=click.Path(exists=True, file_okay=False),
@@ -15,20 +18,21 @@ import click
 @click.option("--background", default="255,255,255", show_default=True,
               help="RGB the transparent background is composited on.")
 @click.option("--categories", default=None, help="Names or synset ids, e.g. airplane,car,chair (default: all).")
-@click.option("--split", default="r2n2", show_default=True,
-              help="r2n2 (per category, sorted, first 80%% train, rest test) or random:TRAIN,VAL,TEST.")
+@click.option("--split", default="r2n2", show_default=True, help=SPLIT_HELP)
 @click.option("--split-file", multiple=True, type=click.Path(exists=True),
-              help="PTN SYNSET_{train,val,test}ids.txt files / a directory of them / a plain list "
-                   "(overrides --split). Repeatable.")
+              help=SPLIT_FILE_HELP + " Repeatable.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Seed of random:... splits.")
-@click.option("--voxel-frame", type=click.Choice(["header", "centered"]), default="header", show_default=True,
-              help="header: the binvox translate/scale place the grid in the OBJ frame; centered: "
-                   "the grid is [-0.5,0.5]^3 of the OBJ frame.")
+@click.option("--voxel-frame", type=click.Choice(VOXEL_FRAMES), default="cube", show_default=True,
+              help="Where the binvox grid lies in the OBJ frame. cube: the cube scale*[-0.5,0.5]^3 centred "
+                   "at the origin (ShapeNetVox32, written with binvox -cb); header: translate + "
+                   "scale*[0,1]^3 as the header says (binvox without -cb); unit: [-0.5,0.5]^3.")
+@click.option("--front", default=R2N2_FRONT, show_default=True,
+              help="OBJ axis the objects' front faces (ShapeNetCore v1: +X); turned to sc3d's +Z.")
 @click.option("--objects-per-shard", default=256, show_default=True, type=click.IntRange(1))
 @click.option("--overwrite", is_flag=True, help="Replace shards already in --out.")
 @click.option("--progress/--no-progress", default=True, show_default=True)
 def import_r2n2(renderings, voxels, out, image_size, background, categories, split, split_file, seed,
-                voxel_frame, objects_per_shard, overwrite, progress):
+                voxel_frame, front, objects_per_shard, overwrite, progress):
     """Build sc3d shards from 3D-R2N2's released renderings and voxels, without re-rendering.
 
     Cameras are rebuilt from rendering_metadata.txt as explicit K, R, t (see README,
@@ -42,14 +46,14 @@ def import_r2n2(renderings, voxels, out, image_size, background, categories, spl
         raise click.BadParameter(f"expected R,G,B in 0..255, got {background!r}", param_hint="--background")
     config = ImportConfig(renderings=renderings, voxels=voxels, out=out, image_size=image_size,
                           background=bg, categories=categories, split=split,
-                          split_file=list(split_file) or None, seed=seed, voxel_frame=voxel_frame,
+                          split_file=list(split_file) or None, seed=seed, voxel_frame=voxel_frame, front=front,
                           objects_per_shard=objects_per_shard, overwrite=overwrite)
     bar = None
     try:
         if progress:
-            from tqdm import tqdm
+            from sc3d_data.progress import progress_bar
 
-            bar = tqdm(unit="obj", desc="import-r2n2", dynamic_ncols=True)
+            bar = progress_bar(unit="obj", desc="import-r2n2")
         summary = run(config, progress=bar.update if bar is not None else None)
     except (FileNotFoundError, FileExistsError, ValueError) as e:
         raise click.ClickException(str(e))

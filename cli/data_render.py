@@ -9,6 +9,7 @@ import click
 from sc3d_data.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS
 from sc3d_data.mesh_io import DEFAULT_MAX_FACES
 from sc3d_data.render_pipeline import SAMPLE_MESHES, RenderConfig, render_dataset
+from sc3d_data.splits import SPLIT_FILE_HELP, SPLIT_HELP
 
 
 def _floats(text: str) -> tuple[float, ...]:
@@ -38,14 +39,16 @@ def _rgb(text: str) -> tuple[int, int, int]:
 @click.option("--depth/--no-depth", default=False, show_default=True, help="Also store depth maps.")
 @click.option("--normalize", type=click.Choice(["fit", "diagonal"]), default="fit", show_default=True)
 @click.option("--up", default="+Y", show_default=True, help="Source axis that is up (e.g. +Z).")
-@click.option("--front", default="+Z", show_default=True, help="Source axis the object's front faces (e.g. -X).")
+@click.option("--front", default="auto", show_default=True,
+              help="Source axis the object's front faces (e.g. -X); turned to +Z. auto: +X for ShapeNetCore "
+                   "v1 model.obj, -Z for v2 model_normalized.obj, +Z for other meshes.")
 @click.option("--backend", type=click.Choice(["auto", "egl", "osmesa"]), default="auto", show_default=True)
 @click.option("--voxelize/--no-voxelize", default=False, show_default=True, help="Also store solid voxel grids.")
 @click.option("--voxel-resolution", type=click.IntRange(2), default=32, show_default=True)
 @click.option("--categories", default=None, help="Only these categories (names or synset ids, comma-separated).")
 @click.option("--category", default=None, help="Give every mesh this category instead of the folder's.")
-@click.option("--split", default="random:0.7,0.1,0.2", show_default=True, help="Split rule (see sc3d_data.splits).")
-@click.option("--split-file", default=None, help="Split file(s); take precedence over --split.")
+@click.option("--split", default="random:0.7,0.1,0.2", show_default=True, help=SPLIT_HELP)
+@click.option("--split-file", default=None, help=SPLIT_FILE_HELP)
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--objects-per-shard", type=click.IntRange(1), default=256, show_default=True)
 @click.option("--max-faces", type=click.IntRange(1), default=DEFAULT_MAX_FACES, show_default=True, help="Reject meshes with more triangles.")

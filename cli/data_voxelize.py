@@ -16,7 +16,8 @@ import click
 @click.option("--normalize", type=click.Choice(["fit", "diagonal"]), default="fit", show_default=True,
               help="--meshes only: normalisation into the grid cube (as `render`).")
 @click.option("--up", default="+Y", show_default=True, help="--meshes only: source up axis.")
-@click.option("--front", default="+Z", show_default=True, help="--meshes only: source front axis.")
+@click.option("--front", default="auto", show_default=True,
+              help="--meshes only: source front axis (auto: as `render`, ShapeNetCore v1 +X, v2 -Z, else +Z).")
 @click.option("--workers", default=1, show_default=True, type=click.IntRange(1), help="Processes.")
 @click.option("--overwrite", is_flag=True, help="Redo shards/files that already have voxels.")
 @click.option("--progress/--no-progress", default=True, show_default=True)

@@ -22,8 +22,9 @@ Axis mapping between binvox files and sc3d grids
 i = x, j = y, k = z after de-interleaving the "xzy" storage): the array that a binvox file
 stores as ``data.reshape(D, D, D)[x, z, y]`` becomes ``voxels[x, y, z]``. No axis is
 flipped or swapped beyond that: ShapeNetVox32 files are in the frame of the ShapeNetCore v1
-models, which SPEC.md takes as sc3d's canonical frame (+Y up), so ShapeNetVox32
-``voxels[x, y, z]`` and sc3d ``voxels[x, y, z]`` index the same axes. sc3d grids cover
+models (+Y up, front +X); ``sc3d_data.r2n2_import`` turns them to sc3d's front +Z and places the
+grid (ShapeNetVox32 was written with ``binvox -cb``, whose header ``translate`` is the mesh's
+bounding-box minimum, not the grid corner: docs/data-conventions.md). sc3d grids cover
 [-0.5, 0.5]^3, which is ``translate = (-0.5, -0.5, -0.5)``, ``scale = 1``; ``write_binvox``
 writes that header by default.
 """

@@ -9,31 +9,30 @@ Input layout (Choy et al. 2016)::
     ShapeNetVox32/SYNSET/MODEL_ID/model.binvox                      32^3
 
 ``rendering_metadata.txt`` has one line per view: ``azimuth elevation in_plane distance_ratio
-fov`` (degrees, degrees, degrees, fraction, degrees). The camera of a view is rebuilt as
+fov`` (degrees, degrees, degrees, fraction, degrees). Every convention below is stated with its
+source in ``docs/data-conventions.md``; in short:
 
-* distance = ``distance_ratio * 1.75`` (3D-R2N2's ``MAX_CAMERA_DISTANCE``), camera looking at
-  the origin of the ShapeNet OBJ frame;
-* intrinsics of Blender's default camera: 35 mm lens on a 32 mm sensor, i.e.
-  ``f = 35/32 * W`` pixels (fov 49.13 deg, the same as sc3d's default); the ``fov`` column
-  (25) is *not* what the renderer used and is ignored;
-* pose: 3D-R2N2's Blender script imports the OBJ (Y up) into Blender's Z-up world
-  ``(x, y, z) -> (x, -z, y)`` and puts the camera at
-  ``d (cos el cos az, -cos el sin az, sin el)`` in Blender's world (the matrix of
-  meshrcnn's ``compute_extrinsic_matrix``, also used by pytorch3d's R2N2 loader). Back in the
-  OBJ frame that is ``d (cos el cos az, sin el, cos el sin az)``; sc3d's camera centre is
-  ``d (cos el sin a, sin el, cos el cos a)``, so **sc3d azimuth = 90 - R2N2 azimuth**
-  (mod 360), elevation unchanged, and both are look-at cameras with +Y up in the image;
-* ``in_plane`` becomes sc3d's ``roll_deg`` (it is 0 in the released files, so its sign is
-  unverified).
+* camera (3D-R2N2 ``lib/blender_renderer.py``): distance = ``distance_ratio * 1.75``, looking
+  at the origin of the ShapeNet OBJ frame; Blender's default camera, 35 mm lens on a 32 mm
+  sensor, i.e. ``f = 35/32 * W`` pixels (the ``fov`` column, 25, is not what Blender used and
+  is ignored); in the OBJ frame the camera centre is ``d (cos el cos az, sin el, cos el sin az)``
+  (OBJ imported into Blender as ``(x, y, z) -> (x, -z, y)``), +Y up in the image, and the image
+  is rolled by ``-in_plane`` (Blender rotates the camera rig by ``-yaw``);
+* voxels (ShapeNetVox32, ``binvox -d 32 -cb``): ``-cb`` centres the model in the grid but the
+  header keeps ``translate`` = the mesh's bounding-box minimum, so the true grid is the cube
+  ``scale * [-0.5, 0.5]^3`` centred at the OBJ origin (``voxel_frame="cube"``, the default).
+  ``"header"`` takes the header literally (``translate + scale * [0, 1]^3``: binvox files
+  written without ``-cb``, e.g. sc3d's own), ``"unit"`` ignores it (``[-0.5, 0.5]^3``);
+* front: ShapeNetCore v1 models (the frame of the released renders and voxels) face +X with +Y
+  up (R2N2 azimuth 0 shows the front); sc3d's canonical front is +Z, so the canonical frame is
+  ``p_can = A (p_obj - c) / size`` with ``A`` the rotation taking ``front`` (default ``"+X"``)
+  to +Z and +Y to +Y, ``c``/``size`` the grid's centre and side. With the defaults
+  ``A: (x, y, z) -> (-z, y, x)`` and **sc3d azimuth = -R2N2 azimuth** (mod 360).
 
-Frames: the ShapeNet OBJ frame is taken as sc3d's canonical orientation (SPEC). The voxel grid
-of a binvox file covers ``translate + scale * [0, 1]^3`` of the OBJ frame (binvox's header);
-sc3d's voxels cover ``[-0.5, 0.5]^3``, so the canonical frame is
-``p_can = (p_obj - translate) / scale - 0.5`` and cameras are moved into it (``R`` unchanged,
-``t' = (R c + t) / scale`` with ``c = translate + scale / 2``; ``distance`` in canonical
-units). ``voxel_frame="centered"`` ignores the header and takes the grid as ``[-0.5, 0.5]^3``
-of the OBJ frame (``to_canonical`` = identity). ``sc3d-data check`` on the result is the test
-that this was read right.
+Cameras are built in the OBJ frame and moved into the canonical one (``R' = R A^T``,
+``t' = (R c + t) / size``); voxels are re-indexed by the same rotation. ``azimuth``,
+``elevation`` and ``distance`` are read back from the canonical camera centre.
+``sc3d-data check`` on the result is the test that all of this was read right.
 
 Images: premultiplied RGB and alpha are area-averaged (PIL box filter) to the target size,
 mask = alpha >= 0.5, RGB = composited over the background colour.
@@ -48,6 +47,7 @@ from typing import Callable
 import numpy as np
 
 from sc3d_data import camera
+from sc3d_data.normalize import canonical_rotation
 from sc3d_data.shapenet import is_synset_id, resolve_categories
 
 R2N2_NUM_VIEWS = 24
@@ -58,7 +58,9 @@ BLENDER_LENS_MM = 35.0
 BLENDER_SENSOR_MM = 32.0
 #: horizontal field of view of Blender's default camera (degrees): 2 atan(16 / 35) = 49.13
 R2N2_FOV_DEG = float(np.rad2deg(2.0 * math.atan(BLENDER_SENSOR_MM / 2.0 / BLENDER_LENS_MM)))
-VOXEL_FRAMES = ("header", "centered")
+VOXEL_FRAMES = ("cube", "header", "unit")
+#: front axis of ShapeNetCore v1 OBJ files, the frame of ShapeNetRendering and ShapeNetVox32
+R2N2_FRONT = "+X"
 MASK_THRESHOLD = 0.5
 
 
@@ -120,52 +122,78 @@ def read_rendering_list(rendering_dir: Path, num_views: int = R2N2_NUM_VIEWS) ->
 
 
 # ----------------------------------------------------------------------------- cameras
-def r2n2_to_sc3d_azimuth(azimuth_deg):
-    """3D-R2N2 azimuth -> sc3d azimuth (degrees, in [0, 360)): ``(90 - az) mod 360``."""
-    return np.mod(90.0 - np.asarray(azimuth_deg, dtype=np.float64), 360.0)
-
-
-def sc3d_to_r2n2_azimuth(azimuth_deg):
-    """Inverse of :func:`r2n2_to_sc3d_azimuth` (the map is its own inverse)."""
-    return r2n2_to_sc3d_azimuth(azimuth_deg)
-
-
 def r2n2_intrinsics(image_size: int) -> np.ndarray:
     """``K`` [3,3] of Blender's default 35 mm / 32 mm camera at ``image_size`` pixels
-    (``f = 35/32 * image_size``)."""
+    (``f = 35/32 * image_size``, principal point at the image centre)."""
     return camera.intrinsics(image_size, R2N2_FOV_DEG)
 
 
-def r2n2_cameras(views: list[R2N2View], image_size: int,
-                 obj_to_canonical: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """Cameras of ``views`` as sc3d stores them: ``K [V,3,3]``, ``R [V,3,3]``, ``t [V,3]``
-    (OpenCV, world = canonical frame), ``azimuth``/``elevation`` (sc3d convention, degrees),
-    ``distance`` (canonical units) ``[V]``.
-
-    ``obj_to_canonical``: 4x4 similarity (uniform scale ``s``, translation) from the ShapeNet
-    OBJ frame to the canonical frame; identity when ``None``."""
-    az = r2n2_to_sc3d_azimuth([v.azimuth for v in views])
+def r2n2_obj_extrinsics(views: list[R2N2View]) -> tuple[np.ndarray, np.ndarray]:
+    """``(R [V,3,3], t [V,3])`` world->camera (OpenCV) of ``views`` in the ShapeNet OBJ frame
+    (units of the OBJ file). Camera centre ``d (cos el cos az, sin el, cos el sin az)`` is
+    sc3d's look-at camera at azimuth ``90 - az``; the image is rolled by ``-in_plane``."""
+    az = np.array([v.azimuth for v in views], dtype=np.float64)
     el = np.array([v.elevation for v in views], dtype=np.float64)
     dist = np.array([v.distance_ratio for v in views]) * R2N2_MAX_CAMERA_DISTANCE
-    roll = np.array([v.in_plane for v in views], dtype=np.float64)
-    R, t = camera.extrinsics(az, el, dist, roll_deg=roll)
-    if obj_to_canonical is not None:
-        M = np.asarray(obj_to_canonical, dtype=np.float64)
+    roll = -np.array([v.in_plane for v in views], dtype=np.float64)
+    return camera.extrinsics(90.0 - az, el, dist, roll_deg=roll)
+
+
+def grid_placement(translate, scale: float, voxel_frame: str = "cube") -> tuple[np.ndarray, float]:
+    """``(centre [3], size)``: a binvox grid covers ``centre + size * [-0.5, 0.5]^3`` of the OBJ
+    frame, per ``voxel_frame`` (module doc): ``cube`` -> ``(0, scale)``, ``header`` ->
+    ``(translate + scale / 2, scale)``, ``unit`` -> ``(0, 1)``."""
+    if voxel_frame == "cube":
+        return np.zeros(3), float(scale)
+    if voxel_frame == "header":
+        return np.asarray(translate, dtype=np.float64) + float(scale) / 2.0, float(scale)
+    if voxel_frame == "unit":
+        return np.zeros(3), 1.0
+    raise ValueError(f"voxel_frame must be one of {VOXEL_FRAMES}, not {voxel_frame!r}")
+
+
+def obj_to_canonical(centre, size: float, front: str = R2N2_FRONT) -> np.ndarray:
+    """4x4 OBJ -> canonical matrix ``p_can = A (p_obj - centre) / size`` with ``A`` taking the
+    source ``front`` axis to +Z and +Y to +Y (``sc3d_data.normalize.canonical_rotation``)."""
+    A = canonical_rotation("+Y", front)
+    M = np.eye(4)
+    M[:3, :3] = A / float(size)
+    M[:3, 3] = -(A @ np.asarray(centre, dtype=np.float64)) / float(size)
+    return M
+
+
+def rotate_grid(grid: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """Re-index a cubic grid ``[G,G,G]`` (axes x, y, z of its frame) into the frame rotated by
+    the signed permutation ``A`` [3,3] (``p_new = A p``), about the grid's centre."""
+    A = np.rint(np.asarray(A)).astype(int)
+    src = [int(np.flatnonzero(A[c])[0]) for c in range(3)]     # new axis c <- old axis src[c]
+    out = np.transpose(grid, src)
+    flip = tuple(c for c in range(3) if A[c, src[c]] < 0)
+    return np.ascontiguousarray(np.flip(out, flip) if flip else out)
+
+
+def r2n2_cameras(views: list[R2N2View], image_size: int,
+                 to_canonical: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Cameras of ``views`` as sc3d stores them: ``K [V,3,3]``, ``R [V,3,3]``, ``t [V,3]``
+    (OpenCV, world = canonical frame), ``azimuth``/``elevation`` (sc3d convention, degrees) and
+    ``distance`` (canonical units) ``[V]`` read back from the camera centre.
+
+    ``to_canonical``: 4x4 similarity ``p_can = s A p_obj + b`` (uniform scale ``s``, rotation
+    ``A``) from the ShapeNet OBJ frame to the canonical frame; identity when ``None``."""
+    R, t = r2n2_obj_extrinsics(views)
+    if to_canonical is not None:
+        M = np.asarray(to_canonical, dtype=np.float64)
         s = np.cbrt(np.linalg.det(M[:3, :3]))
-        # p_obj = (p_can - b) / s  ->  X_cam = R p_obj + t = (R p_can + s t - R b) / s
-        t = t * s - (R @ M[:3, 3])
-        dist = dist * s
+        A = M[:3, :3] / s
+        # p_obj = A^T (p_can - b) / s  ->  X_cam ~ R A^T p_can + (s t - R A^T b)
+        R = R @ A.T
+        t = t * s - R @ M[:3, 3]
+    C = -np.einsum("vji,vj->vi", R, t)                                   # centres, canonical
+    dist = np.linalg.norm(C, axis=-1)
+    az = np.mod(np.rad2deg(np.arctan2(C[:, 0], C[:, 2])), 360.0)
+    el = np.rad2deg(np.arcsin(np.clip(C[:, 1] / dist, -1.0, 1.0)))
     K = np.broadcast_to(r2n2_intrinsics(image_size), (len(views), 3, 3)).copy()
     return {"K": K, "R": R, "t": t, "azimuth": az, "elevation": el, "distance": dist}
-
-
-def voxel_grid_to_canonical(translate, scale: float) -> np.ndarray:
-    """4x4 OBJ -> canonical matrix for a binvox grid covering ``translate + scale * [0,1]^3``:
-    ``p_can = (p_obj - translate) / scale - 0.5``."""
-    M = np.eye(4)
-    M[:3, :3] /= float(scale)
-    M[:3, 3] = -np.asarray(translate, dtype=np.float64) / float(scale) - 0.5
-    return M
 
 
 # ----------------------------------------------------------------------------- images
@@ -262,7 +290,8 @@ class ImportConfig:
     split: str = "r2n2"
     split_file: str | None = None
     seed: int = 0
-    voxel_frame: str = "header"
+    voxel_frame: str = "cube"
+    front: str = R2N2_FRONT
     objects_per_shard: int = 256
     overwrite: bool = False
 
@@ -273,18 +302,20 @@ class ImportConfig:
             "voxels": str(Path(self.voxels).resolve()), "image_size": int(self.image_size),
             "background": [int(c) for c in self.background], "categories": self.categories,
             "split": self.split, "split_file": self.split_file, "seed": int(self.seed),
-            "voxel_frame": self.voxel_frame, "objects_per_shard": int(self.objects_per_shard),
+            "voxel_frame": self.voxel_frame, "front": self.front, "objects_per_shard": int(self.objects_per_shard),
             "num_views": R2N2_NUM_VIEWS, "voxel_resolution": R2N2_VOXEL_RESOLUTION,
             "r2n2_camera": {"distance": "distance_ratio * 1.75", "lens_mm": BLENDER_LENS_MM,
                             "sensor_mm": BLENDER_SENSOR_MM, "fov_deg": R2N2_FOV_DEG,
-                            "azimuth": "sc3d = (90 - r2n2) mod 360", "roll": "in_plane column"},
+                            "azimuth": "read from the canonical camera centre (front -> +Z)",
+                            "roll": "-in_plane"},
             "mask": f"box-filtered alpha >= {MASK_THRESHOLD}",
         }
 
 
 def load_r2n2_object(model: R2N2Model, config: ImportConfig, split: str):
-    """Read one model into a :class:`sc3d_data.shards.ObjectRecord`; ``ValueError`` naming the
-    file and the problem on bad input (metadata, PNGs, binvox)."""
+    """Read one model into a :class:`sc3d_data.shards.ObjectRecord` (cameras, voxels and
+    ``to_canonical`` in the canonical frame, module doc); ``ValueError`` naming the file and
+    the problem on bad input (metadata, PNGs, binvox)."""
     from sc3d_data.binvox import read_binvox
     from sc3d_data.shards import ObjectRecord, border_clipped
 
@@ -295,12 +326,9 @@ def load_r2n2_object(model: R2N2Model, config: ImportConfig, split: str):
     if grid.shape != (R2N2_VOXEL_RESOLUTION,) * 3:
         raise ValueError(f"{model.binvox}: voxel grid {'x'.join(map(str, grid.shape))}, "
                          f"expected {R2N2_VOXEL_RESOLUTION}^3")
-    if config.voxel_frame == "header":
-        to_canonical = voxel_grid_to_canonical(vox.translate, vox.scale)
-    elif config.voxel_frame == "centered":
-        to_canonical = np.eye(4)
-    else:
-        raise ValueError(f"voxel_frame must be one of {VOXEL_FRAMES}, not {config.voxel_frame!r}")
+    centre, size = grid_placement(vox.translate, vox.scale, config.voxel_frame)
+    to_canonical = obj_to_canonical(centre, size, config.front)
+    grid = rotate_grid(grid, canonical_rotation("+Y", config.front))
     S = config.image_size
     images = np.empty((len(views), S, S, 3), dtype=np.uint8)
     masks = np.empty((len(views), S, S), dtype=np.uint8)

@@ -61,7 +61,7 @@ class RenderConfig:
     depth: bool = False
     normalize: str = "fit"
     up: str = "+Y"
-    front: str = "+Z"
+    front: str = "auto"
     backend: str = "auto"
     voxelize: bool = False
     voxel_resolution: int = 32
@@ -113,9 +113,11 @@ def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord
     Returns the shard record and warnings; raises on bad input."""
     from sc3d_data.mesh_io import load_mesh
     from sc3d_data.normalize import apply_transform, to_canonical_transform
+    from sc3d_data.shapenet import resolve_front
 
     scene, vertices, faces, warnings = load_mesh(Path(task.path), config.max_faces, config.bad_texture)
-    to_canonical = to_canonical_transform(vertices, faces, config.normalize, config.up, config.front)
+    to_canonical = to_canonical_transform(vertices, faces, config.normalize, config.up,
+                                          resolve_front(config.front, task.path))
     arrays = renderer.render(scene, to_canonical)
     cams = renderer.cameras
     arrays.update({k: cams[k] for k in ("K", "R", "t", "azimuth", "elevation", "distance")})
@@ -386,9 +388,9 @@ def render_dataset(config: RenderConfig) -> dict:
     n_done = n_failed = 0
     bar = None
     if config.progress:
-        from tqdm import tqdm
+        from sc3d_data.progress import progress_bar
 
-        bar = tqdm(total=len(todo), unit="obj", desc="render", dynamic_ncols=True)
+        bar = progress_bar(total=len(todo), unit="obj", desc="render")
 
     def flush_ready_chunks() -> None:
         nonlocal n_done, n_failed

@@ -76,3 +76,36 @@ def resolve_categories(spec: str | Iterable[str]) -> set[str]:
             if part.strip():
                 out.add(resolve_category(part))
     return out
+
+
+# ----------------------------------------------------------------------------- front axes
+#: front axis of ShapeNetCore OBJ files (+Y up in both; docs/data-conventions.md): v1
+#: ``SYNSET/MODEL_ID/model.obj`` faces +X (3D-R2N2's renders and ShapeNetVox32 voxels), v2
+#: ``SYNSET/MODEL_ID/models/model_normalized.obj`` faces -Z (public v2 samples: airplane nose,
+#: rifle muzzle, helmet visor, desk drawers all at -Z)
+SHAPENET_V1_FRONT = "+X"
+SHAPENET_V2_FRONT = "-Z"
+#: sc3d's canonical front, and the default for every other mesh
+CANONICAL_FRONT = "+Z"
+AUTO_FRONT = "auto"
+
+
+def shapenet_version(path) -> int | None:
+    """1 for ``SYNSET/MODEL_ID/model.obj``, 2 for ``SYNSET/MODEL_ID/models/model_normalized.obj``,
+    else ``None`` (by the path alone)."""
+    from pathlib import Path
+
+    p = Path(path)
+    if p.name == "model.obj" and is_synset_id(p.parent.parent.name):
+        return 1
+    if p.name == "model_normalized.obj" and p.parent.name == "models" and is_synset_id(p.parents[2].name):
+        return 2
+    return None
+
+
+def resolve_front(front: str, path) -> str:
+    """The source front axis to use for the mesh at ``path``: ``front`` as given, or for
+    ``"auto"`` the ShapeNetCore version's front (v1 +X, v2 -Z) and +Z for any other mesh."""
+    if front.strip().lower() != AUTO_FRONT:
+        return front
+    return {1: SHAPENET_V1_FRONT, 2: SHAPENET_V2_FRONT}.get(shapenet_version(path), CANONICAL_FRONT)

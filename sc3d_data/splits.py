@@ -32,6 +32,15 @@ from typing import Iterable, Sequence
 from sc3d_data.shapenet import resolve_category
 
 DEFAULT_SPLIT = "random:0.7,0.1,0.2"
+#: the ``--split`` / ``--split-file`` rules as the CLIs' ``--help`` shows them (module doc)
+SPLIT_HELP = ("random:TRAIN,VAL,TEST (fractions summing to 1, e.g. random:0.7,0.1,0.2; "
+              "random:1,0,0 puts everything in train; random:TRAIN,TEST has no val): each object "
+              "is placed by a hash of (--seed, category, model id), so adding objects never moves "
+              "others and the fractions hold in expectation. r2n2: per category, model ids sorted, "
+              "first 80% train, rest test (3D-R2N2). --split-file overrides --split.")
+SPLIT_FILE_HELP = ("PTN SYNSET_{train,val,test}ids.txt files, a directory of them, or a plain list "
+                   "(lines 'SPLIT ID' or 'ID' = train; ID = synset/model_id or model_id). "
+                   "Objects no file lists are skipped and reported.")
 R2N2_TRAIN_FRACTION = 0.8
 _NAMED_FILE = re.compile(r"(?:^|_)(train|val|test)(?:ids)?\.txt$", re.IGNORECASE)
 

@@ -120,9 +120,9 @@ def voxelize_shards(shard_dir: Path, resolution: int = 32, workers: int = 1, ove
     old_voxel_failures = [f for f in index.get("failures", []) if f.get("stage") == "voxelize"]
     bar = None
     if progress:
-        from tqdm import tqdm
+        from sc3d_data.progress import progress_bar
 
-        bar = tqdm(total=len(paths), unit="shard", desc="voxelize", dynamic_ncols=True)
+        bar = progress_bar(total=len(paths), unit="shard", desc="voxelize")
     new_failures = []
     for path in paths:
         if not path.is_file():
@@ -167,7 +167,7 @@ def voxelize_shards(shard_dir: Path, resolution: int = 32, workers: int = 1, ove
 
 
 def voxelize_meshes(meshes: Path, out: Path, resolution: int = 32, normalize: str = "fit",
-                    up: str = "+Y", front: str = "+Z", workers: int = 1, overwrite: bool = False,
+                    up: str = "+Y", front: str = "auto", workers: int = 1, overwrite: bool = False,
                     progress: bool = False) -> VoxelizeSummary:
     """One ``.binvox`` per mesh under ``meshes``, same relative paths under ``out``."""
     from sc3d_data.binvox import write_binvox
@@ -207,9 +207,10 @@ def _mesh_job(args):
     try:
         from sc3d_data.mesh_io import load_mesh_triangles
         from sc3d_data.normalize import to_canonical_transform
+        from sc3d_data.shapenet import resolve_front
 
         vertices, faces = load_mesh_triangles(Path(path))
-        T = to_canonical_transform(vertices, faces, mode=normalize, up=up, front=front)
+        T = to_canonical_transform(vertices, faces, mode=normalize, up=up, front=resolve_front(front, path))
         return "ok", voxelize_canonical(vertices, faces, T, resolution)
     except Exception as e:
         return "failed", f"{type(e).__name__}: {e}"
@@ -219,9 +220,9 @@ def _map_meshes(jobs, workers: int, progress: bool):
     if workers <= 1 or len(jobs) <= 1:
         it = map(_mesh_job, jobs)
         if progress:
-            from tqdm import tqdm
+            from sc3d_data.progress import progress_bar
 
-            it = tqdm(it, total=len(jobs), unit="mesh", desc="voxelize", dynamic_ncols=True)
+            it = progress_bar(it, total=len(jobs), unit="mesh", desc="voxelize")
         return list(it)
     with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
                              initializer=_limit_threads) as ex:

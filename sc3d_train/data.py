@@ -147,7 +147,7 @@ class ShardDataset(Dataset):
         self.shard_dir, self.split, self.subset = str(shard_dir), split, subset
         if require_voxels and info["files_without_voxels"]:
             raise DataError(f"{info['files_without_voxels'][0]}: shard has no 'voxels' dataset; "
-                            f"run `sc3d-data voxelize --shards {shard_dir}` first")
+                            f"run `sc3d-data voxelize {shard_dir}` first")
         if image_size is not None and image_size != info["image_size"]:
             raise DataError(f"{shard_dir}: images are {info['image_size']}x{info['image_size']} but "
                             f"the model expects {image_size}x{image_size}")

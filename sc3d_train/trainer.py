@@ -409,9 +409,9 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
     log = MetricsLog(run_dir, start_step, enabled=dist_info.is_main)
     progress = None
     if dist_info.is_main and cfg.progress:
-        from tqdm import tqdm
+        from sc3d_data.progress import progress_bar
 
-        progress = tqdm(total=cfg.steps, initial=start_step, unit="step", dynamic_ncols=True)
+        progress = progress_bar(total=cfg.steps, initial=start_step, unit="step", desc="train")
 
     def checkpoint(step_done: int) -> Path | None:
         states = [rng_state()]

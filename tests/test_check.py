@@ -80,3 +80,57 @@ def test_voxelize_meshes_writes_binvox_tree(sample_shards, tmp_path):
     rendered = {o["model_id"]: o["voxels"] for o in iter_objects(sample_shards, ("voxels",))}
     for p in files:  # default normalisation = render's default: the same grids
         np.testing.assert_array_equal(read_binvox(out / p).voxels, rendered[p.stem].astype(bool))
+
+
+def thin_lamp(path: Path) -> Path:
+    """A lamp of wires: a base plate, a pole and a cage shade of 16 bars, all bars 0.008
+    thick (a quarter of a voxel at 32^3 after normalisation, under a pixel at 64x64)."""
+    import trimesh
+
+    def bar(a, b, r=0.004):
+        a, b = np.asarray(a, float), np.asarray(b, float)
+        return trimesh.creation.cylinder(radius=r, segment=np.stack([a, b]), sections=8)
+
+    parts = [trimesh.creation.cylinder(radius=0.12, height=0.02, sections=32), bar((0, 0, 0), (0, 0.75, 0))]
+    for k in range(16):
+        a = 2 * np.pi * k / 16
+        top = (0.08 * np.cos(a), 0.8, 0.08 * np.sin(a))
+        bottom = (0.3 * np.cos(a), 0.45, 0.3 * np.sin(a))
+        parts.append(bar(top, bottom))
+    for y, rad in ((0.8, 0.08), (0.45, 0.3)):                     # the shade's two rings
+        for k in range(16):
+            a0, a1 = 2 * np.pi * k / 16, 2 * np.pi * (k + 1) / 16
+            parts.append(bar((rad * np.cos(a0), y, rad * np.sin(a0)), (rad * np.cos(a1), y, rad * np.sin(a1))))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    trimesh.util.concatenate(parts).export(path)
+    return path
+
+
+def test_check_passes_thin_lamp_and_fails_its_wrong_camera(tmp_path):
+    """A correct held-out set with a wire lamp passes (IoU is far below the old 0.3 bar, which
+    failed such sets); the same set with a camera 15% too far, or voxels turned 90 degrees,
+    fails."""
+    thin_lamp(tmp_path / "meshes" / "lamp" / "wire_lamp.glb")
+    shutil.copy(SAMPLE_MESHES / "chair" / "chair2_blendswap.glb", tmp_path / "meshes" / "lamp" / "chair.glb")
+    out = tmp_path / "held_out"
+    run_cli(main, ["render", "--meshes", tmp_path / "meshes", "--out", out, "--voxelize", "--views", "8",
+                   "--workers", "1", "--split", "random:0,0,1", "--no-progress"])
+    js = tmp_path / "c.json"
+    res = run_cli(main, ["check", out, "--json", js, "--no-progress"], expect_exit=0)
+    assert "PASS" in res.output
+    lamp = next(o for o in json.loads(js.read_text())["objects"] if o["model_id"] == "wire_lamp")
+    assert lamp["mean_iou"] < 0.3 and lamp["mean_coverage"] >= 0.98 and lamp["mean_near"] >= 0.98
+    run_cli(main, ["check", out, "--min-iou", "0.3", "--no-progress"], expect_exit=1)   # the old rule
+    for change in ("distance", "rotate"):
+        bad = tmp_path / change
+        shutil.copytree(out, bad)
+        for path in shard_files(bad):
+            with h5py.File(path, "r") as f:
+                t, vox = f["t"][()], f["voxels"][()]
+            if change == "distance":
+                replace_dataset_atomically(path, "t", t * 1.15)
+            else:
+                replace_dataset_atomically(path, "voxels", np.rot90(vox, 1, axes=(3, 1)).copy())
+        res = run_cli(main, ["check", bad, "--json", js, "--no-progress"], expect_exit=1)
+        lamp = next(o for o in json.loads(js.read_text())["objects"] if o["model_id"] == "wire_lamp")
+        assert min(lamp["mean_coverage"], lamp["mean_near"]) < 0.98, change

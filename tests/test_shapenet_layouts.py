@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -17,6 +18,12 @@ SAMPLES = REPO / "assets" / "sample_meshes"
 AIRPLANE, CAR, CHAIR = "02691156", "02958343", "03001627"
 PICK = {AIRPLANE: ["airplane/f16_lowpoly_fgai.glb", "airplane/c182_fgai.glb"],
         CAR: ["car/jeep_psionic.glb"], CHAIR: ["chair/chair2_blendswap.glb"]}
+
+
+# the sample meshes face +Z; ShapeNetCore v1 files face +X, v2 files -Z (+Y up in all; see
+# docs/data-conventions.md for the evidence): rotations about +Y taking +Z to that front
+TO_SHAPENET = {1: np.array([[0, 0, 1, 0], [0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1]], float),
+               2: np.diag([-1.0, 1.0, -1.0, 1.0])}
 
 
 def model_id(rel: str) -> str:
@@ -32,7 +39,9 @@ def build_tree(root: Path, version: int) -> Path:
             folder = root / syn / model_id(rel)
             target = folder / "model.obj" if version == 1 else folder / "models" / "model_normalized.obj"
             target.parent.mkdir(parents=True, exist_ok=True)
-            trimesh.load(SAMPLES / rel).export(target)            # writes material.mtl + textures
+            scene = trimesh.load(SAMPLES / rel)
+            scene.apply_transform(TO_SHAPENET[version])           # sample front +Z -> ShapeNet's front
+            scene.export(target)                                  # writes material.mtl + textures
             if version == 2:
                 (target.parent / "model_normalized.json").write_text("{}")
     (root / CAR / ("0" * 32)).mkdir()                             # a model folder without its mesh
@@ -100,3 +109,28 @@ def test_render_shapenet_v2_with_ptn_split_files(trees, tmp_path):
     assert not any("without its mesh" in f["reason"] for f in index["failures"])   # a car folder
     problems = index["failures"] + index["skipped"]
     assert any("f" * 32 in p["reason"] and "matches no mesh" in p["reason"] for p in problems)
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_render_turns_shapenet_front_to_plus_z(trees, tmp_path, version):
+    """With the default --front auto, a ShapeNet v1 (front +X) or v2 (front -Z) file ends up
+    with its front at +Z: its voxels match the voxels of the original sample mesh (front +Z).
+    Negative control: the file taken as canonical (front +Z) leaves the chair turned."""
+    from sc3d_data.mesh_io import load_mesh_triangles
+    from sc3d_data.normalize import apply_transform, to_canonical_transform
+    from sc3d_data.voxelize import voxelize_triangles
+
+    def voxels(path, front):
+        v, f = load_mesh_triangles(path)
+        return voxelize_triangles(apply_transform(v, to_canonical_transform(v, f, front=front)), f, 32)
+
+    def iou(a, b):
+        return (a & b).sum() / (a | b).sum()
+
+    rel = PICK[CHAIR][0]
+    ref = voxels(SAMPLES / rel, "+Z")
+    out = tmp_path / "out"
+    render(["--meshes", trees[version], "--out", out, "--categories", "chair", "--views", "1", "--voxelize"])
+    obj = next(iter_objects(out, fields=("voxels", "source")))
+    assert iou(obj["voxels"].astype(bool), ref) > 0.9
+    assert iou(voxels(obj["source"], "+Z"), ref) < 0.7
