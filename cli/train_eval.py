@@ -16,18 +16,21 @@ import click
 @click.option("--batch-size", type=int, default=64, show_default=True)
 @click.option("--examples", type=int, default=2, show_default=True,
               help="Objects per category shown in predictions.png (views 3 and 15 of each).")
+@click.option("--pose", "pose_from", type=click.Choice(["search", "head"]), default="search", show_default=True,
+              help="search: the pose head's elevation and the azimuth whose projection of the predicted "
+              "voxels best matches the predicted mask (test-time self-consistency); head: the pose head alone.")
 @click.option("--device", default="auto", show_default=True)
-def eval_cmd(checkpoint, shards, split, out, batch_size, examples, device):
+def eval_cmd(checkpoint, shards, split, out, batch_size, examples, pose_from, device):
     """Voxel IoU (0.4, 0.5), mask IoU and pose error per category on a split."""
     from sc3d_train.checkpoint import CheckpointError
     from sc3d_train.data import DataError
     from sc3d_train.evaluate import evaluate
 
     try:
-        result = evaluate(checkpoint, shards, split, out, device, batch_size, examples)
+        result = evaluate(checkpoint, shards, split, out, device, batch_size, examples, pose_from)
     except (DataError, CheckpointError, FileNotFoundError, ValueError) as e:
         raise click.ClickException(str(e)) from e
-    click.echo(f"{checkpoint} (step {result['step']}) on split {split!r} of {shards}:")
+    click.echo(f"{checkpoint} (step {result['step']}) on split {split!r} of {shards} (pose: {pose_from}):")
     click.echo(result["table"])
     out = Path(result["out"])
     click.echo(f"wrote {out / 'metrics.json'} and {out / 'predictions.png'}")

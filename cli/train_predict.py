@@ -12,8 +12,10 @@ import click
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory [RUN_DIR/predictions beside the checkpoint].")
 @click.option("--threshold", type=float, default=0.5, show_default=True, help="Occupancy threshold.")
+@click.option("--pose", "pose_from", type=click.Choice(["search", "head"]), default="search", show_default=True,
+              help="search: test-time self-consistency (as in `eval`); head: the pose head alone.")
 @click.option("--device", default="auto", show_default=True)
-def predict(checkpoint, images, out, threshold, device):
+def predict(checkpoint, images, out, threshold, pose_from, device):
     """Voxels (.binvox, .npz), mesh (.obj), pose (.json) and a picture (.png) per IMAGE."""
     from sc3d_train.checkpoint import CheckpointError
     from sc3d_train.predict import ImageError, predict as run_predict
@@ -23,7 +25,7 @@ def predict(checkpoint, images, out, threshold, device):
 
         out = default_output_dir(checkpoint, "predictions")
     try:
-        results = run_predict(checkpoint, list(images), out, device, threshold)
+        results = run_predict(checkpoint, list(images), out, device, threshold, pose_from)
     except (ImageError, CheckpointError, ValueError) as e:
         raise click.ClickException(str(e)) from e
     for r in results:

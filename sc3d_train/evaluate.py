@@ -11,6 +11,9 @@ Every view of every object of the split is one test image (24 per object by defa
   absolute wrapped azimuth and elevation errors in degrees (``sc3d_train.pose``): mean, median
   and the fraction within 30 degrees; ``az~flip`` (``pose_azimuth_flip_acc30``), a diagnostic,
   also counts azimuths within 30 degrees of the true azimuth + 180 (front/back confusion).
+  The evaluated pose is, by default, the test-time self-consistent one (``pose_from="search"``:
+  the azimuth whose projection of the predicted voxels best matches the predicted mask, at the
+  elevation of the pose head; no label) or the pose head's alone (``"head"``).
 
 Per category: the mean over that category's images. ``mean``: the unweighted mean of the
 per-category values (the paper's "Mean" column). ``overall``: pooled over all images.
@@ -32,6 +35,11 @@ from sc3d_train.data import ShardDataset
 from sc3d_train.pose import pose_errors
 
 VOXEL_THRESHOLDS = (0.4, 0.5)
+#: where the evaluated pose comes from: ``search`` (default) the azimuth whose projection of the
+#: predicted voxels best matches the predicted mask, at the head's elevation (test-time
+#: self-consistency, :func:`sc3d_train.pose_search.self_consistent_pose`); ``head`` the pose
+#: head's soft-argmax alone
+POSE_SOURCES = ("search", "head")
 MASK_THRESHOLD = 0.5
 
 
@@ -45,7 +53,8 @@ def iou(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 @torch.no_grad()
 def predict_dataset(model, dataset: ShardDataset, device, batch_size: int = 64,
-                    keep: int = 2, keep_views: tuple[int, ...] = (3, 15)):
+                    keep: int = 2, keep_views: tuple[int, ...] = (3, 15), pose_from: str = "head",
+                    loss_weights=None):
     """Run ``model`` over every view of ``dataset``. Returns ``(rows, examples)``: one dict per
     image (category, model_id, view, iou_0.4, iou_0.5, mask_iou, azimuth/elevation predicted and
     true, rotation_error) and, for the first ``keep`` objects of every category, views
@@ -61,6 +70,12 @@ def predict_dataset(model, dataset: ShardDataset, device, batch_size: int = 64,
     rows, examples = [], []
     for batch in loader:
         out = model(batch["images"].to(device))
+        if pose_from == "search":  # test-time self-consistency (no label): see predicted_pose
+            from sc3d_train.pose_search import self_consistent_pose
+
+            out.azimuth, out.elevation = self_consistent_pose(out, batch["K"].to(device).float(),
+                                                              batch["distance"].to(device).float(),
+                                                              model.pose_grid, loss_weights)
         probs = torch.sigmoid(out.voxel_logits.float()).cpu()
         gt = batch["voxels"] > 0.5
         mask_prob = torch.sigmoid(out.mask_logits.float()).cpu()
@@ -205,7 +220,7 @@ def default_output_dir(checkpoint: Path, name: str) -> Path:
 
 
 def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, device: str = "auto",
-             batch_size: int = 64, examples: int = 2) -> dict:
+             batch_size: int = 64, examples: int = 2, pose_from: str = "search") -> dict:
     """Evaluate ``checkpoint`` on ``split`` of ``shards``; writes ``out/metrics.json`` and
     ``out/predictions.png`` (``out`` None: ``RUN_DIR/eval_SPLIT``, :func:`default_output_dir`);
     ``examples`` objects per category are drawn. Returns the metrics dict (also holding
@@ -218,12 +233,17 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     if dataset.info["voxel_resolution"] != cfg.model["voxel_resolution"]:
         raise ValueError(f"{shards}: voxels are {dataset.info['voxel_resolution']}^3 but the checkpoint "
                          f"predicts {cfg.model['voxel_resolution']}^3")
-    rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples)
+    if pose_from not in POSE_SOURCES:
+        raise ValueError(f"pose_from must be one of {POSE_SOURCES}, got {pose_from!r}")
+    from sc3d_train.losses import LossWeights
+
+    rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
+                                 loss_weights=LossWeights(**cfg.loss_weights))
     summary = summarize(rows)
     out = Path(out) if out is not None else default_output_dir(checkpoint, f"eval_{split}")
     out.mkdir(parents=True, exist_ok=True)
     result = {"checkpoint": str(checkpoint), "step": int(ckpt.get("step", -1)), "shards": str(shards),
-              "split": split, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
+              "split": split, "pose_from": pose_from, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
               **summary}
     (out / "metrics.json").write_text(json.dumps(_finite(result), indent=1))
     plot_examples(kept, out / "predictions.png")

@@ -61,6 +61,7 @@ class LossWeights:
     num_samples: int = DEFAULT_NUM_SAMPLES
     wpose: float = 1.0
     wpose_unlabeled: float = 1.0
+    wsc_unlabeled: float = 1.0
     search_mask_size: int = 24
     search_samples: int = 32
     unlabeled_search_mask_size: int = 16
@@ -110,17 +111,14 @@ def search_target(occupancy: Tensor, masks: Tensor, batch: dict, grid, weights: 
     ``occupancy [B, G, G, G]`` and ``masks [B, S, S]`` (camera ``batch["K_sc"]`` at S): over all
     candidates, or with ``elevation_bin [B]`` over the azimuths at that elevation (the unlabelled
     search, at ``unlabeled_search_*`` resolution)."""
-    from .pose_search import search_losses
+    from .pose_search import search_azimuth, search_losses
 
     if elevation_bin is None:
         losses = search_losses(occupancy, masks, batch["distance"], batch["K_sc"], grid, weights.ray,
                                weights.proj, weights.search_mask_size, weights.search_samples)
         return losses.argmin(1)
-    e = grid.elevation_bins
-    candidates = torch.arange(grid.azimuth_bins, device=occupancy.device)[None] * e + elevation_bin[:, None]
-    losses = search_losses(occupancy, masks, batch["distance"], batch["K_sc"], grid, weights.ray, weights.proj,
-                           weights.unlabeled_search_mask_size, weights.unlabeled_search_samples, candidates)
-    return torch.gather(candidates, 1, losses.argmin(1, keepdim=True))[:, 0]
+    return search_azimuth(occupancy, masks, batch["distance"], batch["K_sc"], grid, elevation_bin, weights.ray,
+                          weights.proj, weights.unlabeled_search_mask_size, weights.unlabeled_search_samples)
 
 
 def supervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None = None,
@@ -164,7 +162,7 @@ def unsupervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None
         elevation_bin = out.pose_logits[:, grid.azimuth_bins:].detach().argmax(1)
         target = search_target(occupancy.detach(), masks_pred, batch, grid, w, elevation_bin)
         pose = pose_classification_loss(out.pose_logits, target, grid, elevation=False)
-    total = w.wsc * sc["lsc"] + w.wkl * kl + w.wpose_unlabeled * pose
+    total = w.wsc_unlabeled * sc["lsc"] + w.wkl * kl + w.wpose_unlabeled * pose
     return {"total": total, "kl": kl, "pose": pose, **sc}
 
 

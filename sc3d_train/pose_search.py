@@ -126,3 +126,40 @@ def dataset_pose_targets(dataset, grid: PoseGrid, ray_weight: float = 5.0, proj_
             torch.as_tensor(a["K"][0]), grid, ray_weight, proj_weight, search_mask_size, num_samples)
         targets[i] = losses.argmin(1).cpu()
     return targets
+
+
+def azimuth_candidates(elevation_bin: Tensor, grid: PoseGrid) -> Tensor:
+    """Candidate indices ``[B, A]``: every azimuth of ``grid`` at each sample's elevation bin."""
+    a = torch.arange(grid.azimuth_bins, device=elevation_bin.device)
+    return a[None] * grid.elevation_bins + elevation_bin.long()[:, None]
+
+
+@torch.no_grad()
+def search_azimuth(occupancy: Tensor, masks: Tensor, distance: Tensor, K: Tensor, grid: PoseGrid,
+                   elevation_bin: Tensor, ray_weight: float = 5.0, proj_weight: float = 0.125,
+                   search_mask_size: int = 16, num_samples: int = 16) -> Tensor:
+    """The candidate index ``[B]`` with the lowest L_sc among the azimuths of ``grid`` at each
+    sample's ``elevation_bin [B]``: the search between *predicted* voxels and masks (unlabelled
+    images in training; test-time self-consistency in ``eval`` / ``predict``)."""
+    candidates = azimuth_candidates(elevation_bin, grid)
+    losses = search_losses(occupancy, masks, distance, K, grid, ray_weight, proj_weight, search_mask_size,
+                           num_samples, candidates)
+    return torch.gather(candidates, 1, losses.argmin(1, keepdim=True))[:, 0]
+
+
+@torch.no_grad()
+def self_consistent_pose(out, K: Tensor, distance: Tensor, grid: PoseGrid, weights=None) -> tuple[Tensor, Tensor]:
+    """Test-time self-consistency: ``(azimuth [B], elevation [B])`` degrees where the azimuth is
+    the grid azimuth whose projection of the predicted voxels best matches the predicted mask
+    (L_sc) at the elevation bin the pose head predicts, and the elevation is the head's.
+    ``out``: a :class:`~sc3d_train.model.ModelOutput`; ``K [B, 3, 3]`` pixels at the mask size
+    of ``out.mask_logits``; ``distance [B]``. No label is read."""
+    from .losses import LossWeights
+
+    w = weights or LossWeights()
+    elevation_bin = out.pose_logits[:, grid.azimuth_bins:].argmax(1)
+    best = search_azimuth(torch.sigmoid(out.voxel_logits.float()), torch.sigmoid(out.mask_logits.float()),
+                          distance, K, grid, elevation_bin, w.ray, w.proj, w.unlabeled_search_mask_size,
+                          w.unlabeled_search_samples)
+    cand_az, _ = grid.candidates()
+    return cand_az.to(best.device, torch.float32)[best], out.elevation.float()

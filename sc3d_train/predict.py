@@ -103,7 +103,7 @@ def plot_prediction(path: Path, image: np.ndarray, mask: np.ndarray, silhouette:
 
 @torch.no_grad()
 def predict(checkpoint: Path, images: list[Path], out: Path, device: str = "auto",
-            threshold: float = 0.5) -> list[dict]:
+            threshold: float = 0.5, pose_from: str = "search") -> list[dict]:
     """Predict every image (all are checked before the model runs); returns one dict per image
     (the content of its JSON file)."""
     from sc3d_data.binvox import write_binvox
@@ -127,6 +127,14 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = "auto
         used.add(name)
         x = torch.from_numpy(arr.transpose(2, 0, 1).copy())[None].to(dev)
         res = model(x)
+        if pose_from == "search":  # test-time self-consistency, as in `eval`
+            from sc3d_train.losses import LossWeights
+            from sc3d_train.pose_search import self_consistent_pose
+
+            res.azimuth, res.elevation = self_consistent_pose(
+                res, torch.as_tensor(K, dtype=torch.float32, device=dev)[None],
+                torch.tensor([float(cfg.camera_distance)], device=dev), model.pose_grid,
+                LossWeights(**cfg.loss_weights))
         probs = torch.sigmoid(res.voxel_logits.float())[0].cpu().numpy()
         mask = torch.sigmoid(res.mask_logits.float())[0].cpu().numpy()
         az, el = float(res.azimuth[0]), float(res.elevation[0])
@@ -138,7 +146,7 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = "auto
         write_obj(files["obj"], *voxel_mesh(probs, threshold))
         sil = voxel_silhouette(voxels, az, el, cfg.camera_distance, K, size)
         plot_prediction(files["png"], arr, mask, sil, az, el)
-        info = {"image": str(path), "checkpoint": str(checkpoint), "azimuth_deg": az, "elevation_deg": el,
+        info = {"image": str(path), "checkpoint": str(checkpoint), "azimuth_deg": az, "elevation_deg": el, "pose_from": pose_from,
                 "camera_distance": cfg.camera_distance, "threshold": threshold,
                 "occupied_voxels": int(voxels.sum()), "files": {k: str(v) for k, v in files.items()}}
         files["json"].write_text(json.dumps(info, indent=1))
