@@ -13,7 +13,10 @@ import click
               help="Run directory: config.json, checkpoints/, metrics.csv, tb/, curves.png.")
 @click.option("--steps", type=int, default=2000, show_default=True, help="Optimiser steps (all phases).")
 @click.option("--batch-size", type=int, default=48, show_default=True, help="Global batch size.")
-@click.option("--lr", type=float, default=2e-4, show_default=True, help="Adam lr (supervised / pre-training).")
+@click.option("--lr", type=float, default=1e-3, show_default=True,
+              help="Adam lr at the start of each phase (the paper: 2e-4 constant).")
+@click.option("--lr-schedule", type=click.Choice(["cosine", "constant"]), default="cosine", show_default=True,
+              help="cosine: annealed over each phase down to 0.1 x lr; constant: the paper's.")
 @click.option("--semi-lr", type=float, default=None, help="Adam lr of the mixed/unlabelled phase [--lr].")
 @click.option("--semi-labeled-share", type=float, default=0.5, show_default=True,
               help="--semi: share of each batch of the second phase that are labelled images "
@@ -42,7 +45,7 @@ import click
               "--steps/--checkpoint-every/--log-every/--workers/--device may change.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @click.pass_context
-def fit(ctx, shards, out, steps, batch_size, lr, semi_lr, semi_labeled_share, semi, labeled_only, labeled_fraction,
+def fit(ctx, shards, out, steps, batch_size, lr, lr_schedule, semi_lr, semi_labeled_share, semi, labeled_only, labeled_fraction,
         pretrain_steps, voxel_decoder, base_channels, tiny, split, seed, checkpoint_every, log_every,
         workers, device, amp, channels_last, resume, no_progress):
     """Train the self-consistency model on the shards' training split."""
@@ -58,7 +61,7 @@ def fit(ctx, shards, out, steps, batch_size, lr, semi_lr, semi_labeled_share, se
     given = {renamed.get(name, name) for name in ctx.params
              if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE}
     options = dict(shards=str(shards.resolve()) if shards else None,  # absolute: resume from anywhere
-                   out=str(out), steps=steps, batch_size=batch_size, lr=lr,
+                   out=str(out), steps=steps, batch_size=batch_size, lr=lr, lr_schedule=lr_schedule,
                    semi_lr=semi_lr, semi_labeled_share=semi_labeled_share, mode="semi" if semi else "labeled-only" if labeled_only else "supervised",
                    labeled_fraction=labeled_fraction, pretrain_steps=pretrain_steps, split=split,
                    seed=seed, checkpoint_every=checkpoint_every, log_every=log_every, workers=workers,

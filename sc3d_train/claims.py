@@ -41,6 +41,7 @@ class ClaimsPreset:
     batch_size: int
     lr: float
     tiny: bool
+    lr_schedule: str = "cosine"
     labeled_fraction: float = 0.15
     seed: int = 0
     runs: tuple = RUNS
@@ -48,8 +49,8 @@ class ClaimsPreset:
 
 
 PRESETS = {
-    "cpu": ClaimsPreset(steps=700, batch_size=32, lr=2e-4, tiny=True),
-    "paper": ClaimsPreset(steps=20000, batch_size=48, lr=2e-4, tiny=False),
+    "cpu": ClaimsPreset(steps=700, batch_size=32, lr=1e-3, tiny=True),          # fit's defaults
+    "paper": ClaimsPreset(steps=20000, batch_size=48, lr=2e-4, tiny=False, lr_schedule="constant"),
 }
 
 
@@ -59,7 +60,7 @@ def run_config(name: str, preset: ClaimsPreset, shards: Path, out: Path, device:
     from sc3d_train.trainer import resolve_config
 
     options = dict(shards=str(Path(shards).resolve()), out=str(out), steps=preset.steps,
-                   batch_size=preset.batch_size, lr=preset.lr, seed=preset.seed,
+                   batch_size=preset.batch_size, lr=preset.lr, lr_schedule=preset.lr_schedule, seed=preset.seed,
                    labeled_fraction=preset.labeled_fraction, device=device, workers=workers,
                    progress=False, checkpoint_every=preset.steps)
     options["mode"] = {"labeled-only": "labeled-only", "semi": "semi", "ray": "true-pose-masks",

@@ -52,10 +52,10 @@ class RunConfig:
     out: str
     steps: int = 2000
     batch_size: int = 48
-    lr: float = 2e-4
+    lr: float = 1e-3
     semi_lr: float | None = None
     semi_labeled_share: float = 0.5
-    lr_schedule: str = "constant"      # constant | cosine (per phase, down to lr_min_ratio * lr)
+    lr_schedule: str = "cosine"        # cosine (per phase, down to lr_min_ratio * lr) | constant
     lr_min_ratio: float = 0.1
     mode: str = "supervised"           # see MODES
     labeled_fraction: float = 0.15
@@ -85,6 +85,8 @@ class RunConfig:
             raise ValueError("steps and batch size must be positive")
         if not 0.0 < self.labeled_fraction <= 1.0:
             raise ValueError(f"labeled fraction must be in (0, 1], got {self.labeled_fraction}")
+        if self.lr_schedule not in ("cosine", "constant"):
+            raise ValueError(f"lr schedule must be cosine or constant, got {self.lr_schedule!r}")
         if not 0.0 <= self.semi_labeled_share < 1.0:
             raise ValueError(f"semi labelled share must be in [0, 1), got {self.semi_labeled_share}")
         if self.mode == "semi":

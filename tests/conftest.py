@@ -46,6 +46,6 @@ def trained_run(sample_shards, tmp_path_factory) -> Path:
 
     out = tmp_path_factory.mktemp("trained_run") / "run"
     run_cli(main, ["fit", "--shards", sample_shards, "--out", out, "--steps", TRAINED_RUN_STEPS,
-                   "--batch-size", 8, "--tiny", "--base-channels", 4, "--lr", 1e-3, "--log-every", 1,
+                   "--batch-size", 8, "--tiny", "--base-channels", 4, "--lr", 1e-3, "--lr-schedule", "constant", "--log-every", 1,
                    "--checkpoint-every", TRAINED_RUN_STEPS // 2, "--no-progress", "--seed", 0])
     return out

@@ -33,12 +33,13 @@ def test_eval_writes_metrics_table_and_picture(trained_run, sample_shards, tmp_p
 
 
 def test_pose_is_learnt_without_pose_labels(trained_run, sample_shards):
-    """The shared short run (120 steps of 8, tiny model, 8 training objects, no pose label read)
-    predicts the camera of its training views far better than chance: measured median rotation
-    error 36 deg and 47% of the 192 views within 30 deg (chance: 90 deg and about 17%; before the
-    pose search the same run gave ~80 deg). `eval` without --out writes beside the run."""
+    """The shared short run (120 steps of 8, tiny model, 8 training objects, no pose label read):
+    its pose head predicts the camera of its training views far better than chance: measured
+    median rotation error 36 deg and 47% of the 192 views within 30 deg (chance: 90 deg and about
+    17%; before the pose search the same run gave ~80 deg). `eval` without --out writes beside
+    the run."""
     r = run_cli(main, ["eval", "--checkpoint", trained_run / "checkpoints" / "last.pt",
-                       "--shards", sample_shards, "--split", "train"])
+                       "--shards", sample_shards, "--split", "train", "--pose", "head"])
     out = trained_run / "eval_train"
     assert str(out) in r.output and "rot med" in r.output
     overall = json.loads((out / "metrics.json").read_text())["overall"]

@@ -3,6 +3,7 @@ resume continues exactly, semi-supervised mode runs both phases, bad input fails
 from __future__ import annotations
 
 import csv
+import math
 import shutil
 from pathlib import Path
 
@@ -54,22 +55,40 @@ def test_fit_writes_the_run_and_learns(trained_run, sample_shards):
     assert trained_iou > 0.25
 
 
+def interrupt_at(run: Path, copy: Path, step: int) -> None:
+    """``copy`` = ``run`` as if it had been killed right after the checkpoint of ``step``: later
+    checkpoints gone, ``last.pt`` that checkpoint, and a metrics row written after it (which resume
+    must drop)."""
+    shutil.copytree(run, copy)
+    ckpts = copy / "checkpoints"
+    for f in ckpts.glob("step_*.pt"):
+        if int(f.stem.split("_")[1]) > step:
+            f.unlink()
+    shutil.copy(ckpts / f"step_{step:06d}.pt", ckpts / "last.pt")
+    rows = read_csv(run / "metrics.csv")
+    with open(copy / "metrics.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0].keys()))
+        w.writeheader()
+        w.writerows(r for r in rows if int(r["step"]) < step)
+        w.writerow({**rows[step], "total": "999"})
+
+
 def test_resume_equals_uninterrupted(sample_shards, tmp_path):
     args = ["--shards", sample_shards, "--batch-size", "4", *TINY, "--checkpoint-every", "3", "--seed", "5"]
     whole, parts = tmp_path / "whole", tmp_path / "parts"
     run_cli(main, ["fit", "--out", whole, "--steps", "6", *args])
-    run_cli(main, ["fit", "--out", parts, "--steps", "3", *args])
-    # an interrupted run may have logged steps after its last checkpoint: resume must drop them
-    with open(parts / "metrics.csv", "a") as f:
-        f.write("3,supervised,999,999,999,999,999,999,999,0.0002,1.0\n")
-    # resumed with 2 loader worker processes: the samples must be the same as in-process
+    interrupt_at(whole, parts, 3)
+    # resumed with 2 loader worker processes: the samples must be the same as in-process; the lr
+    # follows the same cosine schedule (hand-derived: 1e-3 * (0.1 + 0.9 * (1 + cos(pi k / 6)) / 2))
     result = run_cli(main, ["fit", "--out", parts, "--steps", "6", "--resume", "--no-progress",
                             "--workers", "2"])
     assert "step 6" in result.output
     a, b = read_csv(whole / "metrics.csv"), read_csv(parts / "metrics.csv")
     assert [r["step"] for r in b] == [str(i) for i in range(6)]
+    expected_lr = [1e-3 * (0.1 + 0.9 * (1 + math.cos(math.pi * k / 6)) / 2) for k in range(6)]
+    assert [float(r["lr"]) for r in b] == pytest.approx(expected_lr, rel=1e-9)
     for ra, rb in zip(a, b):
-        for key in ("total", "l3d", "l2d", "lsc", "kl"):
+        for key in ("total", "l3d", "l2d", "lsc", "kl", "pose"):
             assert ra[key] == rb[key], (ra["step"], key, ra[key], rb[key])  # bit-identical
     wa = torch.load(whole / "checkpoints" / "last.pt", weights_only=False)["model"]
     wb = torch.load(parts / "checkpoints" / "last.pt", weights_only=False)["model"]
@@ -91,7 +110,9 @@ def test_semi_supervised_runs_both_phases(sample_shards, tmp_path):
                    *TINY, "--semi", "--labeled-fraction", "0.15", "--pretrain-steps", "2"])
     rows = read_csv(out / "metrics.csv")
     assert [r["phase"] for r in rows] == ["supervised"] * 2 + ["unsupervised"] * 2
-    assert [float(r["lr"]) for r in rows] == [2e-4] * 4  # --semi-lr defaults to --lr
+    # --semi-lr defaults to --lr; the cosine schedule restarts with each phase (2 steps each:
+    # 1e-3, then 1e-3 * (0.1 + 0.9 * (1 + cos(pi / 2)) / 2) = 5.5e-4)
+    assert [float(r["lr"]) for r in rows] == pytest.approx([1e-3, 5.5e-4, 1e-3, 5.5e-4])
     # pre-training logs no unlabelled terms; the mixed phase logs what it optimises: the labelled
     # half's L_3D / L_2D / pose and the unlabelled half's L_sc and pose search (u_*)
     assert all(r["u_lsc"] == "" for r in rows[:2])
@@ -229,10 +250,11 @@ def test_semi_resume_across_the_phase_boundary_equals_uninterrupted(sample_shard
             "--pretrain-steps", "2", "--checkpoint-every", "3", "--seed", "3"]
     whole, parts = tmp_path / "whole", tmp_path / "parts"
     run_cli(main, ["fit", "--out", whole, "--steps", "5", *args])
-    run_cli(main, ["fit", "--out", parts, "--steps", "3", *args])
+    interrupt_at(whole, parts, 3)
     run_cli(main, ["fit", "--out", parts, "--steps", "5", "--resume", "--no-progress"])
     a, b = read_csv(whole / "metrics.csv"), read_csv(parts / "metrics.csv")
     assert [r["phase"] for r in a] == ["supervised"] * 2 + ["unsupervised"] * 3
+    assert len(a) == len(b) == 5
     for ra, rb in zip(a, b):
         for key in ("total", "l3d", "u_lsc", "u_pose"):
             assert ra[key] == rb[key], (ra["step"], key, ra[key], rb[key])
