@@ -62,6 +62,7 @@ class LossWeights:
     wpose: float = 1.0
     wpose_unlabeled: float = 1.0
     wsc_unlabeled: float = 1.0
+    wkl_unlabeled: float = 0.02
     search_mask_size: int = 24
     search_samples: int = 32
     unlabeled_search_mask_size: int = 16
@@ -162,7 +163,7 @@ def unsupervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None
         elevation_bin = out.pose_logits[:, grid.azimuth_bins:].detach().argmax(1)
         target = search_target(occupancy.detach(), masks_pred, batch, grid, w, elevation_bin)
         pose = pose_classification_loss(out.pose_logits, target, grid, elevation=False)
-    total = w.wsc_unlabeled * sc["lsc"] + w.wkl * kl + w.wpose_unlabeled * pose
+    total = w.wsc_unlabeled * sc["lsc"] + w.wkl_unlabeled * kl + w.wpose_unlabeled * pose
     return {"total": total, "kl": kl, "pose": pose, **sc}
 
 

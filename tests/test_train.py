@@ -258,3 +258,23 @@ def test_semi_resume_across_the_phase_boundary_equals_uninterrupted(sample_shard
     for ra, rb in zip(a, b):
         for key in ("total", "l3d", "u_lsc", "u_pose"):
             assert ra[key] == rb[key], (ra["step"], key, ra[key], rb[key])
+
+
+def test_unlabelled_pass_leaves_batchnorm_running_statistics_alone():
+    """The unlabelled pass of the semi phase normalises with its own batch statistics (train
+    mode) but does not move the running statistics that eval uses."""
+    from sc3d_train.model import ModelConfig, SelfConsistencyNet
+    from sc3d_train.trainer import frozen_batchnorm_statistics
+
+    torch.manual_seed(0)
+    model = SelfConsistencyNet(ModelConfig.tiny()).train()
+    bn = model.encoder.stem[1]
+    before = (bn.running_mean.clone(), bn.running_var.clone(), int(bn.num_batches_tracked))
+    x = torch.rand(4, 3, 64, 64) * 5 + 3  # far from the running statistics (0 mean, 1 var)
+    with frozen_batchnorm_statistics(model):
+        out = model(x)
+    assert torch.equal(bn.running_mean, before[0]) and torch.equal(bn.running_var, before[1])
+    assert int(bn.num_batches_tracked) == before[2] and bn.momentum == 0.1
+    model(x)  # outside the context the running statistics move
+    assert not torch.equal(bn.running_mean, before[0])
+    assert out.voxel_logits.shape == (4, 32, 32, 32)
