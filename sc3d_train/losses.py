@@ -29,7 +29,7 @@ the pose head predicts.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import torch
 import torch.nn.functional as F
@@ -63,6 +63,7 @@ class LossWeights:
     wpose_unlabeled: float = 1.0
     wsc_unlabeled: float = 1.0
     wkl_unlabeled: float = 0.02
+    unlabeled_sc_at_search: bool = True
     search_mask_size: int = 24
     search_samples: int = 32
     unlabeled_search_mask_size: int = 16
@@ -145,24 +146,33 @@ def supervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None =
 
 def unsupervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None = None,
                       grid=None) -> dict[str, Tensor]:
-    """Objective on unlabelled images: ``wsc L_sc + wkl L_KL + wpose_unlabeled L_pose`` with the
-    predicted occupancy and the (detached) predicted mask at the size of ``batch["masks_sc"]`` or,
-    without it, of ``K_sc`` for 48-pixel masks; the pose target is searched between the detached
-    predicted occupancy and mask. ``batch`` needs ``K_sc``, ``distance``. Returns ``LOSS_KEYS``;
-    ``l3d`` and ``l2d`` are absent (no labels)."""
+    """Objective on unlabelled images: ``wsc_unlabeled L_sc + wkl_unlabeled L_KL +
+    wpose_unlabeled L_pose`` with the predicted occupancy and the (detached) predicted mask at the
+    size of ``batch["masks_sc"]`` or, without it, of ``K_sc`` for 48-pixel masks. With a pose
+    ``grid``, the azimuth is searched first (the lowest L_sc between the detached predicted
+    occupancy and mask, at the elevation bin the head predicts); L_pose pulls the head's azimuth
+    towards it and, when ``unlabeled_sc_at_search`` is set, L_sc is taken at that searched pose
+    (detached) rather than at the head's pose, so the voxels are fitted to the mask from the
+    viewpoint that explains it best. ``batch`` needs ``K_sc``, ``distance``. Returns
+    ``LOSS_KEYS`` without ``l3d`` and ``l2d`` (no labels)."""
     w = weights or LossWeights()
     size = batch["masks_sc"].shape[-1] if "masks_sc" in batch else 48
     occupancy = torch.sigmoid(out.voxel_logits.float())
     masks_pred = area_downsample(torch.sigmoid(out.mask_logits.float()).detach(), size)
-    sc = _sc(out, occupancy, masks_pred, batch, w)
     kl = kl_loss(out.z_mean, out.z_logvar)
     pose = torch.zeros((), device=kl.device)
-    if grid is not None and w.wpose_unlabeled:
+    at = out
+    if grid is not None and (w.wpose_unlabeled or w.unlabeled_sc_at_search):
         from .pose import pose_classification_loss
 
         elevation_bin = out.pose_logits[:, grid.azimuth_bins:].detach().argmax(1)
         target = search_target(occupancy.detach(), masks_pred, batch, grid, w, elevation_bin)
         pose = pose_classification_loss(out.pose_logits, target, grid, elevation=False)
+        if w.unlabeled_sc_at_search:
+            cand_az, _ = grid.candidates()
+            at = replace(out, azimuth=cand_az.to(target.device, torch.float32)[target],
+                         elevation=out.elevation.detach())
+    sc = _sc(at, occupancy, masks_pred, batch, w)
     total = w.wsc_unlabeled * sc["lsc"] + w.wkl_unlabeled * kl + w.wpose_unlabeled * pose
     return {"total": total, "kl": kl, "pose": pose, **sc}
 
