@@ -34,8 +34,10 @@ def check(shards_arg, shards_opt, min_coverage, min_iou, worst, png, json_out, p
         raise click.UsageError("give the shard directory (SHARDS or --shards)")
     try:
         report = check_shards(Path(shards), min_iou=min_iou, min_coverage=min_coverage, progress=progress)
-    except (FileNotFoundError, ValueError) as e:
-        raise click.ClickException(str(e))
+    except (FileNotFoundError, ValueError, OSError) as e:
+        from sc3d_data.shards import one_line
+
+        raise click.ClickException(one_line(e))
     if not report.objects:
         raise click.ClickException(f"{shards}: no objects to check")
     click.echo(report.text(worst))

@@ -67,10 +67,9 @@ def render(elevations, background, **options):
     try:
         s = render_dataset(config)
     except (ValueError, RuntimeError, OSError) as e:  # bad option/folder, lock, disk full: one line
-        from sc3d_data.shards import io_reason
+        from sc3d_data.shards import one_line
 
-        raise click.ClickException(str(e) if not isinstance(e, OSError) or not e.filename
-                                   else f"{e.filename}: {io_reason(e)}")
+        raise click.ClickException(one_line(e))
     for note in s["notes"]:
         click.echo(f"warning: {note}", err=True)
     retried = f", retried {s['retried']}" if s["retried"] else ""

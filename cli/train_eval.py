@@ -24,8 +24,10 @@ def eval_cmd(checkpoint, shards, split, out, batch_size, examples, device):
 
     try:
         result = evaluate(checkpoint, shards, split, out, device, batch_size, examples)
-    except (DataError, CheckpointError, FileNotFoundError, ValueError) as e:
-        raise click.ClickException(str(e)) from e
+    except (DataError, CheckpointError, ValueError, OSError) as e:
+        from sc3d_data.shards import one_line
+
+        raise click.ClickException(one_line(e)) from e
     click.echo(f"{checkpoint} (step {result['step']}) on split {split!r} of {shards}:")
     click.echo(result["table"])
     click.echo(f"wrote {Path(out) / 'metrics.json'} and {Path(out) / 'predictions.png'}")

@@ -81,6 +81,14 @@ def io_reason(e: BaseException) -> str:
     return " ".join(str(e).split()) or type(e).__name__
 
 
+def one_line(e: BaseException) -> str:
+    """The message a command prints for ``e``: an ``OSError`` with a file name becomes
+    ``FILE: reason``; anything else its own (file-naming) message."""
+    if isinstance(e, OSError) and e.filename and str(e.filename) not in str(e.strerror or ""):
+        return f"{e.filename}: {io_reason(e)}"
+    return io_reason(e) if isinstance(e, OSError) else str(e)
+
+
 def package_version() -> str:
     try:
         from importlib.metadata import version
@@ -180,7 +188,9 @@ def write_shard(path: Path, records: list[ObjectRecord], settings: dict) -> str:
 def replace_dataset_atomically(path: Path, name: str, data: np.ndarray) -> str:
     """Add (or replace) the per-object dataset ``name`` in an existing shard without ever leaving
     a half-written file named ``*.h5``: the shard is copied to ``NAME.tmp``, modified, and
-    renamed over the original. Returns the new file's SHA-256."""
+    renamed over the original. Returns the new file's SHA-256, which is also recorded at once
+    in the folder's ``index.json`` when that lists the shard (the index never describes the
+    old bytes of a rewritten shard)."""
     import shutil
 
     path = Path(path)
@@ -203,6 +213,13 @@ def replace_dataset_atomically(path: Path, name: str, data: np.ndarray) -> str:
     except ValueError:
         _unlink_quietly(tmp)
         raise
+    if index_path(path.parent).is_file():
+        index = load_index(path.parent)
+        listed = [e for e in index["shards"] if isinstance(e, dict) and e.get("file") == path.name]
+        for entry in listed:
+            entry["bytes"], entry["sha256"] = path.stat().st_size, digest
+        if listed:
+            write_json_atomic(index_path(path.parent), index)
     return digest
 
 
