@@ -31,8 +31,8 @@ def exclusive_lock(folder: Path, command: str = "sc3d-data") -> Iterator[Path]:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
-            raise LockError(f"{folder}: another process (PID {holder}) is writing to this folder; "
+            pid, _, what = os.pread(fd, 200, 0).decode(errors="replace").strip().partition(" ")
+            raise LockError(f"{folder}: another process (PID {pid or '?'}: {what or 'unknown'}) is writing to this folder; "
                             f"wait for it to finish or use another --out") from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()} {command}\n".encode(), 0)

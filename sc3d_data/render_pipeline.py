@@ -512,7 +512,9 @@ def _render_locked(config: RenderConfig, out: Path) -> dict:
     shards, objects, failures = state["shards"], state["objects"], state["failures"]
     warnings, empty_chunks, attempts = state["warnings"], state["empty_chunks"], state["attempts"]
     todo = [t for t in tasks if t.pos // K not in done_chunks or t.pos in retry]
-    resumed = sum(1 for t in tasks if t.pos // K in done_chunks and t.pos not in retry)
+    kept_failed = {(f.get("category"), f.get("model_id")) for f in failures}
+    resumed = sum(1 for t in tasks if t.pos // K in done_chunks and t.pos not in retry
+                  and (t.category, t.model_id) not in kept_failed)
     n_workers = max(1, min(config.workers or os.cpu_count() or 1, max(1, len(todo))))
     pool = start_pool(n_workers, config) if todo else None
     settings["backend"] = pool.backend if pool else (old or {}).get("settings", {}).get("backend")
@@ -528,11 +530,11 @@ def _render_locked(config: RenderConfig, out: Path) -> dict:
         chunk_tasks[t.pos // K].append(t)
     pending_chunks = sorted(chunk_tasks)
     results: dict[int, tuple] = {}
-    n_done = n_failed = 0
+    n_done = 0
     bar = None
 
     def flush_ready_chunks() -> None:
-        nonlocal n_done, n_failed
+        nonlocal n_done
         while pending_chunks and all(t.pos in results for t in chunk_tasks[pending_chunks[0]]):
             c = pending_chunks.pop(0)
             records, n_new = [], 0
@@ -547,7 +549,6 @@ def _render_locked(config: RenderConfig, out: Path) -> dict:
                     failures.append({"source": t.path, "category": t.category, "model_id": t.model_id,
                                      "reason": payload, "chunk": c, "pos": t.pos,
                                      "attempts": attempts.get(t.pos, 0) + 1})
-            n_failed += len(chunk_tasks[c]) - n_new
             n_done += n_new
             kept = [sh for sh in shards if sh["chunk"] == c]
             if kept and not n_new:  # re-tried objects failed again: the shard stays as it is
@@ -595,7 +596,7 @@ def _render_locked(config: RenderConfig, out: Path) -> dict:
         _clean_tmp(out)
     seconds = time.monotonic() - t0
     views = n_done * len(config.elevations) * config.num_views
-    return {"done": n_done, "resumed": resumed, "skipped": len(skipped), "failed": n_failed + len(problems),
+    return {"done": n_done, "resumed": resumed, "skipped": len(skipped), "failed": len(failures) + len(problems),
             "retried": len(retry), "repaired": len(state["broken"]), "notes": state["broken"],
             "seconds": seconds, "views": views, "views_per_s": views / seconds if seconds > 0 else 0.0,
             "out": str(out), "backend": settings["backend"], "workers": n_workers if todo else 0}

@@ -74,10 +74,25 @@ class ShardError(ValueError):
     """A shard file or index entry that cannot be used; the message names the file."""
 
 
-def io_reason(e: BaseException) -> str:
-    """One-line reason of an I/O or HDF5 error (``No space left on device``, ``truncated file``...)."""
-    if isinstance(e, OSError) and e.strerror:
-        return e.strerror
+def io_reason(e: BaseException, folder: Path | None = None) -> str:
+    """One-line reason of an I/O or HDF5 error (``No space left on device``, ``truncated file``...):
+    the first ``OSError`` with an errno in its chain, else its text. HDF5 often hides a full
+    disk behind a later error ("Slist already enabled?"): with ``folder`` given, a folder whose
+    file system has (almost) no free space is reported as such."""
+    seen = e
+    while seen is not None:
+        if isinstance(seen, OSError) and seen.errno and seen.strerror:
+            return seen.strerror
+        seen = seen.__cause__ or seen.__context__
+    if folder is not None:
+        import shutil
+
+        try:
+            free = shutil.disk_usage(folder).free
+        except OSError:
+            free = None
+        if free is not None and free < 1 << 20:
+            return f"No space left on device ({free // 1024} KiB free)"
     return " ".join(str(e).split()) or type(e).__name__
 
 
@@ -181,7 +196,7 @@ def write_shard(path: Path, records: list[ObjectRecord], settings: dict) -> str:
         os.replace(tmp, path)
     except (OSError, RuntimeError) as e:  # h5py reports ENOSPC as OSError or RuntimeError
         _unlink_quietly(tmp)
-        raise ShardError(f"{path}: cannot write shard ({io_reason(e)})") from e
+        raise ShardError(f"{path}: cannot write shard ({io_reason(e, path.parent)})") from e
     return digest
 
 
@@ -209,7 +224,7 @@ def replace_dataset_atomically(path: Path, name: str, data: np.ndarray) -> str:
         os.replace(tmp, path)
     except (OSError, RuntimeError) as e:
         _unlink_quietly(tmp)
-        raise ShardError(f"{path}: cannot rewrite shard ({io_reason(e)})") from e
+        raise ShardError(f"{path}: cannot rewrite shard ({io_reason(e, path.parent)})") from e
     except ValueError:
         _unlink_quietly(tmp)
         raise
