@@ -205,7 +205,9 @@ def scenario_corpus(args, work, meshes, expected, rows, reasons):
     bad = {n: w for n, w in expected.items() if w != "good" or n.startswith("zz_")}
     unaccounted = [n for n, w in bad.items() if (w in ("fail", "skip") and n not in accounted)
                    or (w == "warn" and n not in warned)]
-    unnamed = [f for f in index["failures"] if Path(f["source"]).name not in f.get("reason", "")]
+    # the line `sc3d-data info` prints for each: "SOURCE: REASON"; both parts must be there
+    unnamed = [f for f in index["failures"] + index["skipped"]
+               if Path(f["source"]).name not in f"{f['source']}: {f.get('reason', '')}" or not f.get("reason")]
     for f in index["failures"] + index["skipped"]:
         reasons[_reason_kind(f["reason"])].append(f"{Path(f['source']).name}: {f['reason'].split(': ', 1)[-1]}")
     for w in index["warnings"]:
