@@ -34,6 +34,7 @@ from collections import Counter
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
 DATA = [sys.executable, "-c", "from cli.data import main; main()"]
 TRAIN = [sys.executable, "-c", "from cli.train import main; main()"]
 ENV = dict(os.environ, PYTHONPATH=f"{REPO}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
@@ -156,7 +157,7 @@ def run(cmd: list[str], timeout: float = 3600, prefix: list[str] | None = None) 
 def render_cmd(args, meshes: Path, out: Path, extra=()) -> list[str]:
     return DATA + ["render", "--meshes", str(meshes), "--out", str(out), "--views", str(args.views),
                    "--objects-per-shard", str(args.objects_per_shard), "--workers", str(args.workers),
-                   "--no-progress", "--timeout", "60", *extra]
+                   "--no-progress", "--timeout", "60", "--voxelize", *extra]
 
 
 def start(cmd: list[str]) -> subprocess.Popen:
@@ -286,12 +287,14 @@ def scenario_corruption(args, work, meshes, expected, rows, ref):
     rc_info, text_info = run(DATA + ["info", str(out)])
     rc_ver, text_ver = run(DATA + ["info", str(out), "--verify"])
     named = sum(s.name in text_ver for s in shards[:2])
+    rc_check, text_check = run(DATA + ["check", str(out), "--no-progress"])
     rc_fit, text_fit = run(TRAIN + ["fit", "--shards", str(out), "--out", str(work / "fit_corrupt"), "--steps", "1",
                                     "--tiny", "--batch-size", "2", "--no-progress"])
     rc, text = run(render_cmd(args, meshes, out))
     rc_after, _ = run(DATA + ["info", str(out), "--verify"])
     rows.append(("truncate + flip bytes in shards", 0, injected, lost(expected, out),
-                 f"info rc {rc_info}, info --verify rc {rc_ver} naming {named}/{injected} shards; fit rc {rc_fit} "
+                 f"info rc {rc_info}, info --verify rc {rc_ver} naming {named}/{injected} shards; "
+                 f"check rc {rc_check} ({_first_error(text_check)[:100]}); fit rc {rc_fit} "
                  f"({_first_error(text_fit)}); rerun: {_summary(text)}; verify after rerun rc {rc_after}"))
 
 
@@ -314,9 +317,7 @@ def scenario_concurrent(args, work, meshes, expected, rows, ref):
 
 
 def scenario_disk_full(args, work, meshes, expected, rows, ref):
-    probe = subprocess.run(["unshare", "-rm", "sh", "-c", "mount -t tmpfs -o size=1m tmpfs /mnt"], capture_output=True) \
-        if shutil.which("unshare") else None
-    if probe is None or probe.returncode != 0:
+    if not _tmpfs_ok():
         rows.append(("disk full (tmpfs)", 0, 0, "-", "skipped: no user+mount namespace here"))
         return
     size_kb = max(64, sum(p.stat().st_size for p in ref.glob("shard-*.h5")) // 1024 // 3)
@@ -337,6 +338,50 @@ def scenario_disk_full(args, work, meshes, expected, rows, ref):
                  f"{_first_error(first)}; temp files left {re.search(r'TMP=([0-9]+)', text).group(1) if 'TMP=' in text else '?'}; "
                  f"after freeing space {re.search(r'RC2=(-?[0-9]+)', text).group(0) if 'RC2=' in text else '?'}: "
                  f"{_summary(text.split('RC1=')[-1])}"))
+
+
+def _tmpfs_ok() -> bool:
+    if not shutil.which("unshare"):
+        return False
+    return subprocess.run(["unshare", "-rm", "sh", "-c", "mount -t tmpfs -o size=1m tmpfs /mnt"],
+                          capture_output=True).returncode == 0
+
+
+def scenario_fit_disk_full(work, rows, ref):
+    """``fit`` whose checkpoint does not fit: one line, no temp file, ``--resume`` continues from
+    the newest complete checkpoint and ends with the same weights as an uninterrupted run."""
+    if not _tmpfs_ok():
+        rows.append(("fit checkpoint, disk full", 0, 0, "-", "skipped: no user+mount namespace here"))
+        return
+    fit = ["fit", "--shards", str(ref), "--steps", "6", "--checkpoint-every", "2", "--tiny", "--batch-size", "4",
+           "--no-progress", "--seed", "0", "--log-every", "1", "--split", "train"]
+    rc_a, text_a = run(TRAIN + fit + ["--out", str(work / "fitA")])
+    if rc_a != 0:
+        rows.append(("fit checkpoint, disk full", 0, 0, "-", f"reference fit failed: {_first_error(text_a)}"))
+        return
+    size = (work / "fitA" / "checkpoints" / "step_000002.pt").stat().st_size
+    kb = int((3.5 * size + 600_000) // 1024)  # step 2 + last.pt + step 4 fit, last.pt's copy does not
+    q = lambda args: " ".join(f"'{a}'" for a in args)  # noqa: E731
+    script = (f"set -u; T=$(mktemp -d); mount -t tmpfs -o size={kb}k tmpfs $T; cd {REPO}\n"
+              f"{q(TRAIN + fit)} --out $T/run; echo \"RC1=$?\"\n"
+              f"echo \"FILES=$(ls $T/run/checkpoints | tr '\\n' ' ')\"\n"
+              f"mount -o remount,size={kb * 4}k $T\n"
+              f"{q(TRAIN)} fit --out $T/run --resume --no-progress; echo \"RC2=$?\"\n"
+              f"cp $T/run/checkpoints/last.pt {work}/fitB_last.pt\n")
+    rc, text = run(["unshare", "-rm", "bash", "-c", script])
+    diff = "?"
+    if (work / "fitB_last.pt").is_file():
+        from sc3d_train.checkpoint import load_checkpoint
+
+        a = load_checkpoint(work / "fitA" / "checkpoints" / "last.pt")["model"]
+        b = load_checkpoint(work / "fitB_last.pt")["model"]
+        diff = max(float((a[k].float() - b[k].float()).abs().max()) for k in a)
+    first = text.split("RC1=")[0]
+    m = lambda pat: (re.search(pat, text).group(1) if re.search(pat, text) else "?")  # noqa: E731
+    rc1, files, rc2 = m(r"RC1=(-?[0-9]+)"), m(r"FILES=([^\n]*)"), m(r"RC2=(-?[0-9]+)")
+    rows.append(("fit checkpoint, disk full", 0, 1, 0,
+                 f"{kb} kB tmpfs: rc {rc1}, {_first_error(first)[:140]}; files left: {files}; "
+                 f"--resume after freeing space rc {rc2}; max abs weight diff vs uninterrupted run {diff}"))
 
 
 def scenario_checkpoint(work, rows):
@@ -404,6 +449,7 @@ def main() -> None:
         scenario_corruption(args, work, meshes, expected, rows, ref)
         scenario_concurrent(args, work, meshes, expected, rows, ref)
         scenario_disk_full(args, work, meshes, expected, rows, ref)
+        scenario_fit_disk_full(work, rows, ref)
         scenario_checkpoint(work, rows)
         scenario_index(work, rows)
         kinds = Counter(expected.values())

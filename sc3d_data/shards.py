@@ -367,15 +367,17 @@ def load_index(shard_dir: Path) -> dict:
         raise ShardError(f"{p}: index is not valid JSON ({e})") from e
     except OSError as e:
         raise ShardError(f"{p}: cannot read index ({io_reason(e)})") from e
-    if not isinstance(index, dict) or not isinstance(index.get("shards", []), list):
-        raise ShardError(f"{p}: not an sc3d index (no shard list)")
+    shards = index.get("shards", []) if isinstance(index, dict) else None
+    if not isinstance(shards, list) or not all(isinstance(e, dict) and isinstance(e.get("file"), str)
+                                               and isinstance(e.get("chunk", 0), int) for e in shards):
+        raise ShardError(f"{p}: not an sc3d index (malformed shard list)")
     return index
 
 
 def shard_files(shard_dir: Path) -> list[Path]:
     """Complete shard files listed in the index, in order."""
     index = load_index(shard_dir)
-    return [shard_path(shard_dir, s.get("file") if isinstance(s, dict) else s) for s in index.get("shards", [])]
+    return [shard_path(shard_dir, s["file"]) for s in index.get("shards", [])]
 
 
 # ----------------------------------------------------------------------------- reading
