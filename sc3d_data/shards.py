@@ -74,11 +74,11 @@ class ShardError(ValueError):
     """A shard file or index entry that cannot be used; the message names the file."""
 
 
-def io_reason(e: BaseException, folder: Path | None = None) -> str:
+def io_reason(e: BaseException, folder: Path | None = None, need: int = 0) -> str:
     """One-line reason of an I/O or HDF5 error (``No space left on device``, ``truncated file``...):
     the first ``OSError`` with an errno in its chain, else its text. HDF5 often hides a full
     disk behind a later error ("Slist already enabled?"): with ``folder`` given, a folder whose
-    file system has (almost) no free space is reported as such."""
+    file system has less than ``need`` bytes (at least 1 MiB) free is reported as full."""
     seen = e
     while seen is not None:
         if isinstance(seen, OSError) and seen.errno and seen.strerror:
@@ -91,7 +91,7 @@ def io_reason(e: BaseException, folder: Path | None = None) -> str:
             free = shutil.disk_usage(folder).free
         except OSError:
             free = None
-        if free is not None and free < 1 << 20:
+        if free is not None and free < max(need, 1 << 20):
             return f"No space left on device ({free // 1024} KiB free)"
     return " ".join(str(e).split()) or type(e).__name__
 
@@ -196,7 +196,8 @@ def write_shard(path: Path, records: list[ObjectRecord], settings: dict) -> str:
         os.replace(tmp, path)
     except (OSError, RuntimeError) as e:  # h5py reports ENOSPC as OSError or RuntimeError
         _unlink_quietly(tmp)
-        raise ShardError(f"{path}: cannot write shard ({io_reason(e, path.parent)})") from e
+        need = sum(np.asarray(a).nbytes for r in records for a in r.arrays.values())
+        raise ShardError(f"{path}: cannot write shard ({io_reason(e, path.parent, need)})") from e
     return digest
 
 
@@ -224,7 +225,8 @@ def replace_dataset_atomically(path: Path, name: str, data: np.ndarray) -> str:
         os.replace(tmp, path)
     except (OSError, RuntimeError) as e:
         _unlink_quietly(tmp)
-        raise ShardError(f"{path}: cannot rewrite shard ({io_reason(e, path.parent)})") from e
+        need = path.stat().st_size + np.asarray(data).nbytes if path.is_file() else 0
+        raise ShardError(f"{path}: cannot rewrite shard ({io_reason(e, path.parent, need)})") from e
     except ValueError:
         _unlink_quietly(tmp)
         raise
