@@ -40,8 +40,10 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
     try:
         report = check_shards(Path(shards), min_iou=min_iou, min_coverage=min_coverage, progress=progress,
                               min_near=min_near)
-    except (FileNotFoundError, ValueError) as e:
-        raise click.ClickException(str(e))
+    except (FileNotFoundError, ValueError, OSError) as e:
+        from sc3d_data.shards import one_line
+
+        raise click.ClickException(one_line(e))
     if not report.objects:
         raise click.ClickException(f"{shards}: no objects to check")
     click.echo(report.text(worst))

@@ -8,12 +8,26 @@ import click
 
 @click.command()
 @click.argument("shard_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--max-failures", type=int, default=50, show_default=True, help="Failures to list.")
-def info(shard_dir: Path, max_failures: int):
-    """Print object counts per category and split, settings and failures of SHARD_DIR."""
-    from sc3d_data.index_report import index_report
+@click.option("--max-failures", type=click.IntRange(0), default=50, show_default=True, help="Failures to list.")
+@click.option("--verify", is_flag=True, help="Also check every shard's SHA-256 against the index "
+              "(without it only presence and size are checked).")
+def info(shard_dir: Path, max_failures: int, verify: bool):
+    """Print object counts per category and split, settings and failures of SHARD_DIR.
+    Exits 1 when a shard is missing, truncated or (--verify) corrupted."""
+    from sc3d_data.index_report import index_report, integrity_report
 
     try:
         click.echo(index_report(shard_dir, max_failures))
+        broken = integrity_report(shard_dir, full=verify)
     except (FileNotFoundError, ValueError) as e:
         raise click.ClickException(str(e))
+    from sc3d_data.shards import load_index
+
+    n = len(load_index(shard_dir).get("shards", []))
+    if broken:
+        click.echo(f"\nBROKEN shards: {len(broken)} of {n} (rerun the render command to re-render them)")
+        for line in broken:
+            click.echo(f"  {line}")
+        raise SystemExit(1)
+    click.echo(f"\nshards {'verified (SHA-256)' if verify else 'present with the recorded sizes'}: {n}")
+

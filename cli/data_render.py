@@ -44,7 +44,7 @@ def _rgb(text: str) -> tuple[int, int, int]:
                    "v1 model.obj, -Z for v2 model_normalized.obj, +Z for other meshes.")
 @click.option("--backend", type=click.Choice(["auto", "egl", "osmesa"]), default="auto", show_default=True)
 @click.option("--voxelize/--no-voxelize", default=False, show_default=True, help="Also store solid voxel grids.")
-@click.option("--voxel-resolution", type=click.IntRange(2), default=32, show_default=True)
+@click.option("--voxel-resolution", type=click.IntRange(2, 512), default=32, show_default=True)
 @click.option("--categories", default=None, help="Only these categories (names or synset ids, comma-separated).")
 @click.option("--category", default=None, help="Give every mesh this category instead of the folder's.")
 @click.option("--split", default="random:0.7,0.1,0.2", show_default=True, help=SPLIT_HELP)
@@ -54,7 +54,13 @@ def _rgb(text: str) -> tuple[int, int, int]:
 @click.option("--max-faces", type=click.IntRange(1), default=DEFAULT_MAX_FACES, show_default=True, help="Reject meshes with more triangles.")
 @click.option("--bad-texture", type=click.Choice(["fail", "fallback"]), default="fail", show_default=True,
               help="Unreadable texture: skip the object (fail) or render with material colours (fallback).")
-@click.option("--timeout", "timeout_s", type=float, default=120.0, show_default=True, help="Per-object time limit, seconds.")
+@click.option("--outside-textures", type=click.Choice(["warn", "refuse"]), default="warn", show_default=True,
+              help="Material/texture files outside --meshes (absolute paths, ../): render and record a "
+                   "warning, or refuse the object.")
+@click.option("--retry-failed/--no-retry-failed", default=True, show_default=True,
+              help="On a rerun, render the recorded failures again (a killed worker, ...); the index "
+                   "counts attempts.")
+@click.option("--timeout", "timeout_s", type=click.FloatRange(0, min_open=True), default=120.0, show_default=True, help="Per-object time limit, seconds.")
 @click.option("--workers", type=click.IntRange(0), default=0, show_default="number of CPU cores")
 @click.option("--overwrite", is_flag=True, help="Delete existing shards in --out instead of resuming.")
 @click.option("--progress/--no-progress", default=True, show_default=True)
@@ -63,10 +69,17 @@ def render(elevations, background, **options):
     config = RenderConfig(elevations=_floats(elevations), background=_rgb(background), **options)
     try:
         s = render_dataset(config)
-    except (ValueError, RuntimeError, FileNotFoundError) as e:
-        raise click.ClickException(str(e))
-    click.echo(f"done {s['done']}, resumed {s['resumed']}, skipped {s['skipped']}, failed {s['failed']} "
+    except (ValueError, RuntimeError, OSError) as e:  # bad option/folder, lock, disk full: one line
+        from sc3d_data.shards import one_line
+
+        raise click.ClickException(one_line(e))
+    for note in s["notes"]:
+        click.echo(f"warning: {note}", err=True)
+    retried = f", retried {s['retried']}" if s["retried"] else ""
+    click.echo(f"done {s['done']}, resumed {s['resumed']}{retried}, skipped {s['skipped']}, failed {s['failed']} "
                f"in {s['seconds']:.1f} s ({s['views_per_s']:.0f} views/s, {s['workers']} workers, "
                f"backend {s['backend']}); index: {Path(s['out']) / 'index.json'}")
     if s["failed"]:
         click.echo(f"failures are listed with reasons by `sc3d-data info {s['out']}`")
+    if s["failed"] and not s["done"] and not s["resumed"]:
+        raise click.ClickException(f"no object was rendered: all {s['failed']} failed")

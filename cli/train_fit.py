@@ -76,8 +76,10 @@ def fit(ctx, shards, out, steps, batch_size, lr, lr_schedule, semi_lr, semi_labe
                 click.echo(f"training {cfg.mode} for {cfg.steps} steps, batch {cfg.batch_size}, "
                        f"model {cfg.model}, run dir {cfg.out}")
         summary = run_fit(cfg, resume=resume)
-    except (DataError, CheckpointError, TrainingDiverged, FileNotFoundError, ValueError) as e:
-        raise click.ClickException(str(e)) from e
+    except (DataError, CheckpointError, TrainingDiverged, ValueError, OSError) as e:  # OSError: disk full...
+        from sc3d_data.shards import one_line
+
+        raise click.ClickException(one_line(e)) from e
     if not main_rank:
         return
     losses = ", ".join(f"{k} {v:.4f}" for k, v in summary["last_losses"].items())

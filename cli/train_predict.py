@@ -26,8 +26,10 @@ def predict(checkpoint, images, out, threshold, pose_from, device):
         out = default_output_dir(checkpoint, "predictions")
     try:
         results = run_predict(checkpoint, list(images), out, device, threshold, pose_from)
-    except (ImageError, CheckpointError, ValueError) as e:
-        raise click.ClickException(str(e)) from e
+    except (ImageError, CheckpointError, ValueError, OSError) as e:
+        from sc3d_data.shards import one_line
+
+        raise click.ClickException(one_line(e)) from e
     for r in results:
         click.echo(f"{r['image']}: azimuth {r['azimuth_deg']:.1f} deg, elevation {r['elevation_deg']:.1f} deg, "
                    f"{r['occupied_voxels']} voxels -> {Path(r['files']['json']).with_suffix('.*')}")

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from sc3d_data.project_voxels import project_voxels
-from sc3d_data.shards import iter_objects
+from sc3d_data.shards import ShardError, iter_objects, verify_shards
 from sc3d_data.shapenet import category_label
 
 DEFAULT_MIN_IOU = 0.0
@@ -185,7 +185,13 @@ def view_scores(voxels: np.ndarray, masks: np.ndarray, K: np.ndarray, R: np.ndar
 def check_shards(shard_dir: Path, min_iou: float = DEFAULT_MIN_IOU,
                  min_coverage: float = DEFAULT_MIN_COVERAGE, progress: bool = False,
                  min_near: float = DEFAULT_MIN_NEAR) -> CheckReport:
-    """Score every object of the shards in ``shard_dir`` (module doc)."""
+    """Score every object of the shards in ``shard_dir`` (module doc). The shards are verified
+    against the index checksums first (a corrupted image fails the check even though only
+    masks and voxels are scored): ``ShardError`` naming the first broken shard."""
+    broken = verify_shards(shard_dir)
+    if broken:
+        more = f" (and {len(broken) - 1} more; `sc3d-data info --verify {shard_dir}` lists them)" if len(broken) > 1 else ""
+        raise ShardError(broken[0] + more)
     report = CheckReport(min_iou=min_iou, min_coverage=min_coverage, min_near=min_near)
     it = iter_objects(shard_dir, fields=("voxels", "masks", "K", "R", "t"))
     if progress:

@@ -16,6 +16,9 @@ Layouts recognised (``root`` is what the user passes to ``--meshes``):
 
 Symlinks are followed; a symlink that leads back into one of its own ancestors is a loop and is
 reported, not followed. Hidden files and folders (name starting with ``.``) are skipped.
+Things named like a mesh that are not regular files (a folder ``x.obj/``, a FIFO, a device) are
+reported as problems with ``"skipped": True`` (a render lists them under ``skipped``); a folder's
+contents are still searched.
 """
 from __future__ import annotations
 
@@ -44,8 +47,11 @@ class MeshEntry:
     category: str
 
 
-def _problem(source, reason: str) -> dict:
-    return {"source": str(source), "reason": reason}
+def _problem(source, reason: str, skipped: bool = False) -> dict:
+    p = {"source": str(source), "reason": reason}
+    if skipped:
+        p["skipped"] = True
+    return p
 
 
 def _walk(root: Path, problems: list[dict]) -> list[tuple[Path, list[str]]]:
@@ -74,13 +80,20 @@ def _walk(root: Path, problems: list[dict]) -> list[tuple[Path, list[str]]]:
         for child in children:
             if child.name.startswith("."):
                 continue
+            mesh_name = Path(child.name).suffix.lower() in MESH_EXTENSIONS
             try:
                 if child.is_dir(follow_symlinks=True):
                     dirs.append(child.name)
+                    if mesh_name:
+                        problems.append(_problem(folder / child.name, "a folder named like a mesh file, "
+                                                 "not a mesh (its contents are searched)", skipped=True))
                 elif child.is_file(follow_symlinks=True):
                     files.append(child.name)
                 elif child.is_symlink():
                     problems.append(_problem(folder / child.name, "broken symlink"))
+                elif mesh_name:
+                    problems.append(_problem(folder / child.name, "not a regular file (FIFO, socket "
+                                             "or device); not read", skipped=True))
             except OSError as e:
                 problems.append(_problem(folder / child.name, f"cannot be read ({e.strerror or e})"))
         out.append((folder, files))

@@ -3,8 +3,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sc3d_data.shards import load_index
+from sc3d_data.shards import load_index, verify_shards
 from sc3d_data.shapenet import category_label
+
+
+def integrity_report(shard_dir: Path, full: bool = False) -> list[str]:
+    """One line per broken shard (missing, wrong size; with ``full`` also SHA-256 / HDF5
+    checksums), empty when all are intact."""
+    return verify_shards(shard_dir, full=full)
 
 
 def index_report(shard_dir: Path, max_failures: int = 50) -> str:
@@ -31,7 +37,8 @@ def index_report(shard_dir: Path, max_failures: int = 50) -> str:
     failures = index.get("failures", [])
     lines.append(f"\nfailures: {len(failures)}")
     for f in failures[:max_failures]:
-        lines.append(f"  {f.get('source')}: {f.get('reason')}")
+        tries = f" (attempts: {f['attempts']})" if f.get("attempts", 1) > 1 else ""
+        lines.append(f"  {f.get('source')}: {f.get('reason')}{tries}")
     if len(failures) > max_failures:
         lines.append(f"  ... {len(failures) - max_failures} more (see index.json)")
     skipped = index.get("skipped", [])

@@ -62,11 +62,16 @@ def to_canonical_transform(vertices: np.ndarray, faces: np.ndarray | None = None
     vr = v @ rot.T
     lo, hi = vr.min(axis=0), vr.max(axis=0)
     centre, extent = (lo + hi) / 2.0, hi - lo
-    size = extent.max() if mode == "fit" else np.linalg.norm(extent)
+    with np.errstate(over="ignore", invalid="ignore"):
+        size = extent.max() if mode == "fit" else np.linalg.norm(extent)
     if not size > 0:
         raise ValueError("mesh has a zero-size bounding box")
+    if not np.isfinite(size):
+        raise ValueError(f"mesh bounding box is not finite (extent {extent.tolist()})")
     s = 1.0 / size
     T = np.eye(4)
     T[:3, :3] = s * rot
     T[:3, 3] = -s * centre
+    if not (np.isfinite(T).all() and s > 0):
+        raise ValueError(f"normalisation is not finite (bounding box {lo.tolist()} to {hi.tolist()})")
     return T

@@ -14,10 +14,20 @@ Design
   huge mesh) is killed and replaced and the object is recorded as a failure; a worker that
   crashes is handled the same way.
 - Resume: the index is rewritten atomically after every shard. Rerunning with the same
-  settings skips chunks that are complete (their shard is listed and exists), including their
-  recorded failures; stale ``*.tmp`` files are deleted. Since shards are written in plan order,
-  complete chunks are a prefix of the plan and the resumed output equals an uninterrupted run.
-  Ctrl-C or a kill loses at most the chunks in progress (they only live in memory).
+  settings skips chunks that are complete (their shard is listed, exists and matches the size
+  and SHA-256 in the index: a truncated or corrupted shard is rendered again); stale ``*.tmp``
+  files are deleted. Since shards are written in plan order, complete chunks are a prefix of
+  the plan and the resumed output equals an uninterrupted run. Ctrl-C or a kill loses at most
+  the chunks in progress (they only live in memory).
+- Retry: by default a rerun renders the recorded failures of complete chunks again (a worker
+  killed by the OOM killer or a preempted node is not the object's fault) and rewrites their
+  shard with the objects that now succeed, in plan order; each failure records its
+  ``attempts``. ``retry_failed=False`` (``--no-retry-failed``) keeps them as they are.
+- One writer: the run holds ``sc3d_data.outlock.exclusive_lock(out)``; a second render into
+  the same ``--out`` is refused with one line and does not disturb the first.
+- Validation: ``RenderConfig.validate`` bounds the options by what the renderer and the
+  machine's memory can do (message names the option); an object whose silhouettes are empty
+  in every view (geometry collapsed by an outlier vertex, ...) is a failure, not a success.
 """
 from __future__ import annotations
 
@@ -33,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from sc3d_data.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS, ViewSettings
-from sc3d_data.mesh_io import DEFAULT_MAX_FACES
+from sc3d_data.mesh_io import DEFAULT_MAX_FACES, MESH_SUFFIXES
 from sc3d_data.shards import (INDEX_NAME, SHARD_PATTERN, ObjectRecord, add_shard_to_index, border_clipped,
                               write_shard)
 from sc3d_data.shards import write_index as write_index_file
@@ -42,6 +52,9 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 SAMPLE_MESHES = REPO_ROOT / "assets" / "sample_meshes"
 #: settings that do not change the output; they may differ between a run and its resume
 RUNTIME_ONLY = ("workers", "progress", "timeout_s", "retry_failed")
+#: largest framebuffer side the renderer asks for (GL_MAX_RENDERBUFFER_SIZE of Mesa and NVIDIA)
+MAX_ATLAS_SIDE = 16384
+MAX_VOXEL_RESOLUTION = 512
 THREAD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
               "LP_NUM_THREADS": "1"}
 
@@ -73,10 +86,46 @@ class RenderConfig:
     objects_per_shard: int = 256
     max_faces: int = DEFAULT_MAX_FACES
     bad_texture: str = "fail"
+    outside_textures: str = "warn"
     timeout_s: float = 120.0
     workers: int = 0  # 0 = number of CPU cores
     overwrite: bool = False
     progress: bool = True
+    retry_failed: bool = True
+
+    def validate(self, n_workers: int = 1) -> None:
+        """Raise ``ValueError`` naming the option when a value is out of what the renderer or
+        this machine's memory can do (so a typo fails at once, not as N worker failures)."""
+        import math
+
+        views = self.num_views * len(self.elevations)
+        cols = math.ceil(math.sqrt(views))
+        side = self.image_size * max(cols, math.ceil(views / cols))
+        if side > MAX_ATLAS_SIDE:
+            most = MAX_ATLAS_SIDE // max(cols, math.ceil(views / cols))
+            raise ValueError(f"--image-size {self.image_size}: {views} views need a {side}x{side} framebuffer, "
+                             f"over the renderer's limit of {MAX_ATLAS_SIDE}; at most --image-size {most} "
+                             f"with {views} views")
+        if not 2 <= self.voxel_resolution <= MAX_VOXEL_RESOLUTION:
+            raise ValueError(f"--voxel-resolution {self.voxel_resolution}: must be 2 to {MAX_VOXEL_RESOLUTION}")
+        if not self.timeout_s > 0:
+            raise ValueError(f"--timeout {self.timeout_s}: must be > 0 seconds")
+        if self.objects_per_shard < 1 or self.max_faces < 1:
+            raise ValueError("--objects-per-shard and --max-faces must be >= 1")
+        per_object = views * self.image_size ** 2 * (4 + (4 if self.depth else 0))
+        if self.voxelize:
+            per_object += self.voxel_resolution ** 3
+        # the main process holds up to 2 chunks + one object per worker (see render_dataset)
+        held = per_object * (2 * self.objects_per_shard + n_workers)
+        # each worker: one object's arrays + framebuffer + voxelizer work space (~16 B/voxel)
+        held += n_workers * (2 * per_object + (16 * self.voxel_resolution ** 3 if self.voxelize else 0))
+        import psutil
+
+        avail = psutil.virtual_memory().available
+        if held > avail:
+            raise ValueError(f"--image-size {self.image_size} / --voxel-resolution {self.voxel_resolution} / "
+                             f"--objects-per-shard {self.objects_per_shard} / --workers {n_workers}: "
+                             f"would need about {held / 2**30:.1f} GiB of memory, {avail / 2**30:.1f} GiB available")
 
     def view_settings(self) -> ViewSettings:
         return ViewSettings(num_views=self.num_views, elevations_deg=tuple(self.elevations),
@@ -115,10 +164,21 @@ def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord
     from sc3d_data.normalize import apply_transform, to_canonical_transform
     from sc3d_data.shapenet import resolve_front
 
-    scene, vertices, faces, warnings = load_mesh(Path(task.path), config.max_faces, config.bad_texture)
-    to_canonical = to_canonical_transform(vertices, faces, config.normalize, config.up,
-                                          resolve_front(config.front, task.path))
+    from sc3d_data.mesh_io import MeshError
+
+    root = Path(config.meshes)
+    scene, vertices, faces, warnings = load_mesh(Path(task.path), config.max_faces, config.bad_texture,
+                                                 root=root if root.is_dir() else root.parent,
+                                                 outside_textures=config.outside_textures)
+    try:
+        to_canonical = to_canonical_transform(vertices, faces, config.normalize, config.up,
+                                              resolve_front(config.front, task.path))
+    except ValueError as e:
+        raise MeshError(f"{task.path}: {e}") from e
     arrays = renderer.render(scene, to_canonical)
+    if not np.asarray(arrays["masks"]).any():
+        raise MeshError(f"{task.path}: the silhouette is empty in every view after normalisation (geometry "
+                        "collapsed to under a pixel, e.g. by an outlier vertex far from the rest)")
     cams = renderer.cameras
     arrays.update({k: cams[k] for k in ("K", "R", "t", "azimuth", "elevation", "distance")})
     arrays["clipped"] = border_clipped(arrays["masks"])
@@ -156,25 +216,37 @@ def _worker_main(conn, config: RenderConfig, backend: str) -> None:
     except Exception as e:
         conn.send(("dead", None, f"{type(e).__name__}: {e}"))
         return
-    conn.send(("ready", None, None))
-    while True:
-        try:
+    try:
+        conn.send(("ready", None, None))
+        while True:
             task = conn.recv()
-        except (EOFError, KeyboardInterrupt):
-            break
-        if task is None:
-            break
-        try:
-            record, warnings = render_one(renderer, task, config)
-            conn.send(("ok", task.pos, (record, warnings)))
-            del record
+            if task is None:
+                break
+            try:
+                record, warnings = render_one(renderer, task, config)
+                reply = ("ok", task.pos, (record, warnings))
+                del record
+            except KeyboardInterrupt:
+                break
+            except Exception as e:
+                msg = str(e) if type(e).__name__ == "MeshError" else f"{task.path}: {type(e).__name__}: {e}"
+                reply = ("fail", task.pos, msg)
+            conn.send(reply)
+            del reply
             _release_memory()
-        except KeyboardInterrupt:
-            break
-        except Exception as e:
-            msg = str(e) if type(e).__name__ == "MeshError" else f"{type(e).__name__}: {e}"
-            conn.send(("fail", task.pos, msg))
+    except (EOFError, OSError, KeyboardInterrupt):
+        pass  # the main process is gone or stopping: nothing to report to
     renderer.close()
+
+
+def _signal_name(signum: int) -> str:
+    import signal
+
+    try:
+        name = signal.Signals(signum).name
+    except ValueError:
+        return "unknown signal"
+    return name + (": out of memory or killed from outside" if name == "SIGKILL" else "")
 
 
 class _Worker:
@@ -240,7 +312,11 @@ class WorkerPool:
             for w in self.workers:
                 if w.ready and w.task is None and todo and may_dispatch(todo[-1].pos):
                     w.task, w.started = todo.pop(), time.monotonic()
-                    w.conn.send(w.task)
+                    try:
+                        w.conn.send(w.task)
+                    except OSError:
+                        pass  # the worker died: its pipe reads EOF below and the task is failed
+
             busy = [w for w in self.workers if w.task is not None]
             now = time.monotonic()
             wait_s = min([w.started + timeout - now for w in busy], default=1.0)
@@ -270,7 +346,9 @@ class WorkerPool:
                             raise RuntimeError(f"a render worker died while starting (exit code {code})")
                         self._replace(w)
                         if task is not None:
-                            yield task.pos, "fail", f"{task.path}: render worker crashed (exit code {code})"
+                            how = (f"killed by signal {-code} ({_signal_name(-code)})" if code and code < 0
+                                   else f"exited with code {code}")
+                            yield task.pos, "fail", f"{task.path}: render worker {how} while rendering it"
                 elif w.task is not None and time.monotonic() - w.started > timeout:
                     task = w.task
                     self._replace(w)
@@ -308,7 +386,10 @@ def start_pool(n: int, config: RenderConfig) -> WorkerPool:
 # ----------------------------------------------------------------------------- main side
 def _clean_tmp(out: Path) -> None:
     for p in out.glob("*.tmp"):
-        p.unlink()
+        try:
+            p.unlink()
+        except OSError:
+            pass
 
 
 def _plan(config: RenderConfig):
@@ -319,7 +400,9 @@ def _plan(config: RenderConfig):
                                         category_override=config.category)
     splits, split_desc, split_problems = assign_splits(entries, spec=config.split, seed=config.seed,
                                                        split_file=config.split_file)
-    tasks, skipped = [], list(split_problems)
+    skipped = list(split_problems) + [p for p in problems if p.get("skipped")]
+    problems = [p for p in problems if not p.get("skipped")]
+    tasks = []
     for e in entries:
         key = (e.category, e.model_id)
         if key in splits:
@@ -329,14 +412,77 @@ def _plan(config: RenderConfig):
     return tasks, problems, skipped, split_desc
 
 
+def _check_out(out: Path) -> None:
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out}: exists and is not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ValueError(f"--out {out}: cannot create the folder ({e.strerror or e})") from e
+
+
+def _same_settings(old: dict, new: dict) -> list[str]:
+    """Settings that differ between an existing index and this run (keys an older index lacks
+    count as their default value)."""
+    defaults = {k: getattr(RenderConfig, k) for k in RenderConfig.__dataclass_fields__
+                if hasattr(RenderConfig, k)}
+    skip = ("backend", "requested_backend")
+    keys = (set(old) | set(new)) - set(skip)
+    return sorted(k for k in keys if old.get(k, defaults.get(k)) != new.get(k, defaults.get(k)))
+
+
+def _resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[Task]) -> dict:
+    """What an existing index lets this run keep: chunks whose shard is intact (or that were
+    empty), their index entries, and the failures to render again (``retry_failed``)."""
+    from sc3d_data.shards import verify_shard
+
+    by_key = {(t.category, t.model_id): t for t in tasks}
+    done_chunks, broken = set(old.get("empty_chunks", [])), []
+    for s in old.get("shards", []):
+        problem = verify_shard(out, s)
+        if problem is None:
+            done_chunks.add(s["chunk"])
+        else:
+            broken.append(problem + "; rendering its objects again")
+    shards = [s for s in old.get("shards", []) if s["chunk"] in done_chunks]
+    objects = [o for o in old.get("objects", []) if o.get("chunk") in done_chunks]
+    failures = [f for f in old.get("failures", []) if f.get("chunk") in done_chunks]
+    warnings = [w for w in old.get("warnings", []) if w.get("chunk") in done_chunks]
+    retry, attempts = set(), {}
+    if retry_failed:
+        for f in failures:
+            t = by_key.get((f.get("category"), f.get("model_id")))
+            if t is not None and t.pos // K == f.get("chunk"):
+                retry.add(t.pos)
+                attempts[t.pos] = int(f.get("attempts", 1))
+        failures = [f for f in failures if f.get("pos") not in retry]
+        warnings = [w for w in warnings if w.get("source") not in {tasks[p].path for p in retry}]
+    return {"done_chunks": done_chunks, "shards": shards, "objects": objects, "failures": failures,
+            "warnings": warnings, "retry": retry, "attempts": attempts, "broken": broken,
+            "empty_chunks": [c for c in old.get("empty_chunks", []) if c in done_chunks]}
+
+
 def render_dataset(config: RenderConfig) -> dict:
     """Render ``config.meshes`` into shards under ``config.out`` (see module doc).
 
-    Returns the summary ``{"done", "skipped", "failed", "resumed", "seconds", "views",
-    "views_per_s", "out"}``; ``index.json`` holds the details."""
-    t0 = time.monotonic()
+    Returns the summary ``{"done", "skipped", "failed", "resumed", "retried", "repaired",
+    "seconds", "views", "views_per_s", "out", "notes"}``; ``index.json`` holds the details.
+    Raises ``ValueError`` (bad option or folder), ``LockError`` (another writer),
+    ``ShardError`` / ``OSError`` (a shard or the index cannot be written: disk full...) with
+    one-line messages naming the option or file."""
+    from sc3d_data.outlock import exclusive_lock
+
+    config.validate(config.workers or os.cpu_count() or 1)
     out = Path(config.out)
-    out.mkdir(parents=True, exist_ok=True)
+    _check_out(out)
+    with exclusive_lock(out, "sc3d-data render"):
+        return _render_locked(config, out)
+
+
+def _render_locked(config: RenderConfig, out: Path) -> dict:
+    from sc3d_data.shards import ShardError, read_records, shard_path
+
+    t0 = time.monotonic()
     index_file = out / INDEX_NAME
     if config.overwrite:
         for p in list(out.glob("shard-*.h5")) + [index_file]:
@@ -345,30 +491,32 @@ def render_dataset(config: RenderConfig) -> dict:
     _clean_tmp(out)
     settings = config.settings(None)
     tasks, problems, skipped, split_desc = _plan(config)
+    if not tasks and not problems and not skipped:
+        raise ValueError(f"--meshes {config.meshes}: no mesh files found (looked for "
+                         f"{', '.join(MESH_SUFFIXES)})")
     K = config.objects_per_shard
-    n_chunks = (len(tasks) + K - 1) // K
 
     # ---- resume
-    old = json.loads(index_file.read_text()) if index_file.is_file() else None
-    shards, objects, failures, warnings = [], [], [], []
+    old = None
+    if index_file.is_file():
+        from sc3d_data.shards import load_index
+
+        old = load_index(out)
+    state = {"done_chunks": set(), "shards": [], "objects": [], "failures": [], "warnings": [],
+             "retry": set(), "attempts": {}, "broken": [], "empty_chunks": []}
     if old is not None:
-        a = {k: v for k, v in old.get("settings", {}).items() if k not in ("backend", "requested_backend")}
-        b = {k: v for k, v in settings.items() if k not in ("backend", "requested_backend")}
-        if a != b:
-            diff = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
+        diff = _same_settings(old.get("settings", {}), settings)
+        if diff:
             raise ValueError(f"{out}: existing shards were made with other settings ({', '.join(diff)} differ); "
                              "use another --out or --overwrite")
-        done_chunks = {s["chunk"] for s in old.get("shards", []) if (out / s["file"]).is_file()}
-        done_chunks |= set(old.get("empty_chunks", []))
-        shards = [s for s in old.get("shards", []) if s["chunk"] in done_chunks]
-        objects = [o for o in old.get("objects", []) if o.get("chunk") in done_chunks]
-        failures = [f for f in old.get("failures", []) if f.get("chunk") in done_chunks]
-        warnings = [w for w in old.get("warnings", []) if w.get("chunk") in done_chunks]
-        empty_chunks = [c for c in old.get("empty_chunks", []) if c in done_chunks]
-    else:
-        done_chunks, empty_chunks = set(), []
-    resumed = sum(1 for t in tasks if t.pos // K in done_chunks)
-    todo = [t for t in tasks if t.pos // K not in done_chunks]
+        state = _resume_state(out, old, config.retry_failed, K, tasks)
+    done_chunks, retry = state["done_chunks"], state["retry"]
+    shards, objects, failures = state["shards"], state["objects"], state["failures"]
+    warnings, empty_chunks, attempts = state["warnings"], state["empty_chunks"], state["attempts"]
+    todo = [t for t in tasks if t.pos // K not in done_chunks or t.pos in retry]
+    kept_failed = {(f.get("category"), f.get("model_id")) for f in failures}
+    resumed = sum(1 for t in tasks if t.pos // K in done_chunks and t.pos not in retry
+                  and (t.category, t.model_id) not in kept_failed)
     n_workers = max(1, min(config.workers or os.cpu_count() or 1, max(1, len(todo))))
     pool = start_pool(n_workers, config) if todo else None
     settings["backend"] = pool.backend if pool else (old or {}).get("settings", {}).get("backend")
@@ -378,61 +526,79 @@ def render_dataset(config: RenderConfig) -> dict:
                          objects=objects, failures=problems + sorted(failures, key=lambda f: f["pos"]),
                          skipped=skipped, warnings=warnings, empty_chunks=empty_chunks)
 
-    write_index(False)
     # ---- render
     chunk_tasks = defaultdict(list)
     for t in todo:
         chunk_tasks[t.pos // K].append(t)
     pending_chunks = sorted(chunk_tasks)
     results: dict[int, tuple] = {}
-    n_done = n_failed = 0
+    n_done = 0
     bar = None
-    if config.progress:
-        from sc3d_data.progress import progress_bar
-
-        bar = progress_bar(total=len(todo), unit="obj", desc="render")
 
     def flush_ready_chunks() -> None:
-        nonlocal n_done, n_failed
+        nonlocal n_done
         while pending_chunks and all(t.pos in results for t in chunk_tasks[pending_chunks[0]]):
             c = pending_chunks.pop(0)
-            records = []
+            records, n_new = [], 0
             for t in chunk_tasks[c]:
                 status, payload = results.pop(t.pos)
                 if status == "ok":
                     record, warns = payload
-                    records.append(record)
+                    records.append((t.pos, record))
+                    n_new += 1
                     warnings.extend({"source": t.path, "warning": w, "chunk": c} for w in warns)
                 else:
                     failures.append({"source": t.path, "category": t.category, "model_id": t.model_id,
-                                     "reason": payload, "chunk": c, "pos": t.pos})
-            n_failed += len(chunk_tasks[c]) - len(records)
-            n_done += len(records)
+                                     "reason": payload, "chunk": c, "pos": t.pos,
+                                     "attempts": attempts.get(t.pos, 0) + 1})
+            n_done += n_new
+            kept = [sh for sh in shards if sh["chunk"] == c]
+            if kept and not n_new:  # re-tried objects failed again: the shard stays as it is
+                write_index(complete=not pending_chunks)
+                continue
+            if kept:  # a re-tried chunk: its shard's objects plus the new ones, in plan order
+                pos_of = {(t.category, t.model_id): t.pos for t in tasks}
+                records += [(pos_of[(r.category, r.model_id)], r)
+                            for r in read_records(shard_path(out, kept[0]["file"]))]
+                shards.remove(kept[0])
+                objects[:] = [o for o in objects if o.get("chunk") != c]
+            if c in empty_chunks:
+                empty_chunks.remove(c)
+            records = [r for _, r in sorted(records, key=lambda pr: pr[0])]
             if records:
                 name = SHARD_PATTERN.format(c)
-                write_shard(out / name, records, settings)
-                add_shard_to_index(shards, objects, name, c, records)
+                digest = write_shard(out / name, records, settings)
+                add_shard_to_index(shards, objects, name, c, records, sha256=digest)
             else:
                 empty_chunks.append(c)
             write_index(complete=not pending_chunks)
 
-    if pool is not None:
-        first_open = lambda: pending_chunks[0] * K if pending_chunks else 0  # noqa: E731
-        try:
+    try:
+        write_index(not todo)
+        if pool is not None:
+            if config.progress:
+                from sc3d_data.progress import progress_bar
+
+                bar = progress_bar(total=len(todo), unit="obj", desc="render")
+            first_open = lambda: pending_chunks[0] * K if pending_chunks else 0  # noqa: E731
             for pos, status, payload in pool.run(todo, may_dispatch=lambda p: p < first_open() + 2 * K + n_workers):
                 results[pos] = (status, payload)
                 if bar is not None:
                     bar.update(1)
                 flush_ready_chunks()
-        finally:
+    except OSError as e:  # the index could not be written (disk full, ...): one line naming it
+        from sc3d_data.shards import io_reason
+
+        raise ShardError(f"{e.filename or out / INDEX_NAME}: {io_reason(e)}") from e
+    finally:
+        if pool is not None:
             pool.close()
-            if bar is not None:
-                bar.close()
-            _clean_tmp(out)
-    else:
-        write_index(complete=True)
+        if bar is not None:
+            bar.close()
+        _clean_tmp(out)
     seconds = time.monotonic() - t0
     views = n_done * len(config.elevations) * config.num_views
-    return {"done": n_done, "resumed": resumed, "skipped": len(skipped), "failed": n_failed + len(problems),
+    return {"done": n_done, "resumed": resumed, "skipped": len(skipped), "failed": len(failures) + len(problems),
+            "retried": len(retry), "repaired": len(state["broken"]), "notes": state["broken"],
             "seconds": seconds, "views": views, "views_per_s": views / seconds if seconds > 0 else 0.0,
             "out": str(out), "backend": settings["backend"], "workers": n_workers if todo else 0}

@@ -32,11 +32,20 @@ source         [N]                   str      path of the source mesh
 File attributes: ``schema_version``, ``sc3d_version``, ``settings`` (JSON of every setting).
 Files are written under ``NAME.tmp`` and renamed when complete, so a file named ``*.h5`` is
 always complete; the index is rewritten atomically after each shard.
+
+Integrity: every numeric dataset carries HDF5's Fletcher-32 checksum per chunk (a flipped byte
+makes the read of that object fail instead of returning wrong numbers), and the index records
+each shard's ``bytes`` and ``sha256`` (``verify_shard``: ``sc3d-data info --verify``, ``check``
+and a render resume use it; a truncated shard is caught by the size alone). Shard names in the
+index must be plain file names inside the dataset folder (``shard_path``); anything else is
+refused, so an edited index cannot make a command read or rewrite a file elsewhere.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator
@@ -56,7 +65,43 @@ ARRAY_DTYPES: dict[str, Any] = {
     "distance": np.float32, "clipped": np.uint8, "to_canonical": np.float64, "voxels": np.uint8,
 }
 STRING_FIELDS = ("model_id", "category", "split", "source")
-COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
+COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True, "fletcher32": True}
+#: what a shard file name in the index may look like (no folders, no '..')
+SHARD_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*\.h5$")
+
+
+class ShardError(ValueError):
+    """A shard file or index entry that cannot be used; the message names the file."""
+
+
+def io_reason(e: BaseException, folder: Path | None = None, need: int = 0) -> str:
+    """One-line reason of an I/O or HDF5 error (``No space left on device``, ``truncated file``...):
+    the first ``OSError`` with an errno in its chain, else its text. HDF5 often hides a full
+    disk behind a later error ("Slist already enabled?"): with ``folder`` given, a folder whose
+    file system has less than ``need`` bytes (at least 1 MiB) free is reported as full."""
+    seen = e
+    while seen is not None:
+        if isinstance(seen, OSError) and seen.errno and seen.strerror:
+            return seen.strerror
+        seen = seen.__cause__ or seen.__context__
+    if folder is not None:
+        import shutil
+
+        try:
+            free = shutil.disk_usage(folder).free
+        except OSError:
+            free = None
+        if free is not None and free < max(need, 1 << 20):
+            return f"No space left on device ({free // 1024} KiB free)"
+    return " ".join(str(e).split()) or type(e).__name__
+
+
+def one_line(e: BaseException) -> str:
+    """The message a command prints for ``e``: an ``OSError`` with a file name becomes
+    ``FILE: reason``; anything else its own (file-naming) message."""
+    if isinstance(e, OSError) and e.filename and str(e.filename) not in str(e.strerror or ""):
+        return f"{e.filename}: {io_reason(e)}"
+    return io_reason(e) if isinstance(e, OSError) else str(e)
 
 
 def package_version() -> str:
@@ -88,61 +133,111 @@ def border_clipped(masks: np.ndarray) -> np.ndarray:
             | m[:, :, -1].any(-1)).astype(np.uint8)
 
 
+def _unlink_quietly(path: Path) -> None:
+    try:
+        Path(path).unlink()
+    except OSError:
+        pass
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file + fsync + rename."""
+    """Write ``data`` to ``path`` via a temporary file + fsync + rename; on failure (disk
+    full...) the temporary file is removed, ``path`` keeps its old content and ``OSError``
+    names ``path``."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as e:
+        _unlink_quietly(tmp)
+        raise OSError(e.errno, f"cannot write {path}: {io_reason(e)}", str(path)) from e
+
+
+def file_sha256(path: Path) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def write_json_atomic(path: Path, obj: Any) -> None:
     atomic_write_bytes(path, json.dumps(obj, indent=1, sort_keys=False).encode())
 
 
-def write_shard(path: Path, records: list[ObjectRecord], settings: dict) -> None:
+def write_shard(path: Path, records: list[ObjectRecord], settings: dict) -> str:
     """Write ``records`` into the shard file ``path`` (temporary name first, renamed when the
-    file is closed and complete). All records must carry the same set of arrays."""
+    file is closed and complete) and return its SHA-256. All records must carry the same set
+    of arrays. On failure (disk full...) the temporary file is removed and ``ShardError``
+    names ``path`` and the reason."""
     path = Path(path)
     if not records:
         raise ValueError(f"{path}: refusing to write an empty shard")
     tmp = path.with_name(path.name + ".tmp")
     names = sorted(records[0].arrays)
-    with h5py.File(tmp, "w") as f:
-        f.attrs["schema_version"] = SCHEMA_VERSION
-        f.attrs["sc3d_version"] = package_version()
-        f.attrs["settings"] = json.dumps(settings, sort_keys=True)
-        for name in names:
-            stacked = np.stack([np.asarray(r.arrays[name], dtype=ARRAY_DTYPES.get(name))
-                                for r in records])
-            f.create_dataset(name, data=stacked, chunks=(1,) + stacked.shape[1:], **COMPRESSION)
-        for name in STRING_FIELDS:
-            f.create_dataset(name, data=[getattr(r, name) for r in records], dtype=STRING_DTYPE)
-        f.flush()
-    os.replace(tmp, path)
+    try:
+        with h5py.File(tmp, "w") as f:
+            f.attrs["schema_version"] = SCHEMA_VERSION
+            f.attrs["sc3d_version"] = package_version()
+            f.attrs["settings"] = json.dumps(settings, sort_keys=True)
+            for name in names:
+                stacked = np.stack([np.asarray(r.arrays[name], dtype=ARRAY_DTYPES.get(name))
+                                    for r in records])
+                f.create_dataset(name, data=stacked, chunks=(1,) + stacked.shape[1:], **COMPRESSION)
+            for name in STRING_FIELDS:
+                f.create_dataset(name, data=[getattr(r, name) for r in records], dtype=STRING_DTYPE)
+            f.flush()
+        digest = file_sha256(tmp)
+        os.replace(tmp, path)
+    except (OSError, RuntimeError) as e:  # h5py reports ENOSPC as OSError or RuntimeError
+        _unlink_quietly(tmp)
+        need = sum(np.asarray(a).nbytes for r in records for a in r.arrays.values())
+        raise ShardError(f"{path}: cannot write shard ({io_reason(e, path.parent, need)})") from e
+    return digest
 
 
-def replace_dataset_atomically(path: Path, name: str, data: np.ndarray) -> None:
+def replace_dataset_atomically(path: Path, name: str, data: np.ndarray) -> str:
     """Add (or replace) the per-object dataset ``name`` in an existing shard without ever leaving
     a half-written file named ``*.h5``: the shard is copied to ``NAME.tmp``, modified, and
-    renamed over the original."""
+    renamed over the original. Returns the new file's SHA-256, which is also recorded at once
+    in the folder's ``index.json`` when that lists the shard (the index never describes the
+    old bytes of a rewritten shard)."""
     import shutil
 
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
-    shutil.copyfile(path, tmp)
-    with h5py.File(tmp, "a") as f:
-        n = f["model_id"].shape[0]
-        if data.shape[0] != n:
-            raise ValueError(f"{path}: {name} has {data.shape[0]} objects, shard has {n}")
-        if name in f:
-            del f[name]
-        data = np.asarray(data, dtype=ARRAY_DTYPES.get(name))
-        f.create_dataset(name, data=data, chunks=(1,) + data.shape[1:], **COMPRESSION)
-    os.replace(tmp, path)
+    try:
+        shutil.copyfile(path, tmp)
+        with h5py.File(tmp, "a") as f:
+            n = f["model_id"].shape[0]
+            if data.shape[0] != n:
+                raise ValueError(f"{path}: {name} has {data.shape[0]} objects, shard has {n}")
+            if name in f:
+                del f[name]
+            data = np.asarray(data, dtype=ARRAY_DTYPES.get(name))
+            f.create_dataset(name, data=data, chunks=(1,) + data.shape[1:], **COMPRESSION)
+        digest = file_sha256(tmp)
+        os.replace(tmp, path)
+    except (OSError, RuntimeError) as e:
+        _unlink_quietly(tmp)
+        need = path.stat().st_size + np.asarray(data).nbytes if path.is_file() else 0
+        raise ShardError(f"{path}: cannot rewrite shard ({io_reason(e, path.parent, need)})") from e
+    except ValueError:
+        _unlink_quietly(tmp)
+        raise
+    if index_path(path.parent).is_file():
+        index = load_index(path.parent)
+        listed = [e for e in index["shards"] if isinstance(e, dict) and e.get("file") == path.name]
+        for entry in listed:
+            entry["bytes"], entry["sha256"] = path.stat().st_size, digest
+        if listed:
+            write_json_atomic(index_path(path.parent), index)
+    return digest
 
 
 # ----------------------------------------------------------------------------- index
@@ -163,18 +258,22 @@ def index_counts(objects: list[dict]) -> dict:
 
 
 def add_shard_to_index(shards: list[dict], objects: list[dict], name: str, chunk: int,
-                       records: list[ObjectRecord]) -> None:
+                       records: list[ObjectRecord], sha256: str | None = None) -> None:
     """Append the index entries of the shard ``name`` (chunk ``chunk``) just written from
-    ``records``: one to ``shards``, one per record (its row) to ``objects``."""
+    ``records``: one to ``shards``, one per record (its row) to ``objects``. ``sha256`` (as
+    returned by ``write_shard``) is recorded; without it ``write_index`` computes it."""
     from collections import Counter
 
     for row, r in enumerate(records):
         objects.append({"category": r.category, "model_id": r.model_id, "split": r.split,
                         "source": r.source, "shard": name, "row": row, "chunk": chunk,
                         "clipped_views": int(np.asarray(r.arrays["clipped"]).sum())})
-    shards.append({"file": name, "chunk": chunk, "objects": len(records),
-                   "categories": dict(Counter(r.category for r in records)),
-                   "splits": dict(Counter(r.split for r in records))})
+    entry = {"file": name, "chunk": chunk, "objects": len(records),
+             "categories": dict(Counter(r.category for r in records)),
+             "splits": dict(Counter(r.split for r in records))}
+    if sha256:
+        entry["sha256"] = sha256
+    shards.append(entry)
 
 
 def write_index(shard_dir: Path, *, complete: bool, settings: dict, split: dict, shards: list[dict],
@@ -182,7 +281,10 @@ def write_index(shard_dir: Path, *, complete: bool, settings: dict, split: dict,
                 empty_chunks: list[int] = ()) -> None:
     """Write ``index.json`` of ``shard_dir`` atomically: the given lists plus the derived
     ``counts`` and ``clipped`` totals, shards ordered by chunk. ``complete`` = every planned
-    object is in a shard or in ``failures`` (else ``sc3d-data info`` says INCOMPLETE)."""
+    object is in a shard or in ``failures`` (else ``sc3d-data info`` says INCOMPLETE). Shard
+    entries without ``bytes``/``sha256`` get them from their file (once: the dicts are updated)."""
+    for entry in shards:
+        record_checksum(shard_dir, entry)
     write_json_atomic(index_path(shard_dir), {
         "schema_version": SCHEMA_VERSION, "sc3d_version": package_version(),
         "complete": complete, "settings": settings, "split": split,
@@ -195,21 +297,89 @@ def write_index(shard_dir: Path, *, complete: bool, settings: dict, split: dict,
     })
 
 
+def record_checksum(shard_dir: Path, entry: dict) -> None:
+    """Give the index shard ``entry`` its ``bytes`` and ``sha256`` from its file where missing."""
+    if "bytes" in entry and "sha256" in entry:
+        return
+    path = shard_path(shard_dir, entry["file"])
+    entry["bytes"] = path.stat().st_size
+    if "sha256" not in entry:
+        entry["sha256"] = file_sha256(path)
+
+
+def shard_path(shard_dir: Path, name: str) -> Path:
+    """``shard_dir / name`` for a shard file name from the index; ``ShardError`` when the name
+    is not a plain ``*.h5`` file name or leads outside ``shard_dir`` (symlink included)."""
+    shard_dir = Path(shard_dir)
+    if not isinstance(name, str) or not SHARD_NAME.match(name):
+        raise ShardError(f"{index_path(shard_dir)}: shard file {name!r} is not a plain file name "
+                         "inside the dataset folder; refused")
+    path = shard_dir / name
+    if path.exists():
+        try:
+            path.resolve().relative_to(shard_dir.resolve())
+        except ValueError:
+            raise ShardError(f"{path}: leads outside the dataset folder {shard_dir} "
+                             f"(to {path.resolve()}); refused") from None
+    return path
+
+
+def verify_shard(shard_dir: Path, entry: dict, full: bool = True) -> str | None:
+    """Problem of the shard of index ``entry`` (missing, size or SHA-256 differs from the index,
+    not readable), or None when it is intact. ``full=False`` checks existence and size only
+    (cheap). Entries without a recorded checksum (older datasets) are checked by reading every
+    dataset (HDF5 Fletcher-32 / gzip errors)."""
+    try:
+        path = shard_path(shard_dir, entry.get("file"))
+    except ShardError as e:
+        return str(e)
+    if not path.is_file():
+        return f"{path}: listed in the index but missing"
+    size = path.stat().st_size
+    if "bytes" in entry and size != entry["bytes"]:
+        return f"{path}: {size} bytes, the index says {entry['bytes']} (truncated or modified)"
+    if not full:
+        return None
+    if "sha256" in entry:
+        if file_sha256(path) != entry["sha256"]:
+            return f"{path}: SHA-256 differs from the index (corrupted or modified)"
+        return None
+    try:
+        with h5py.File(path, "r") as f:
+            for name in f:
+                f[name][()]
+    except Exception as e:  # noqa: BLE001 - any HDF5 failure means the file is broken
+        return f"{path}: not readable ({io_reason(e)})"
+    return None
+
+
+def verify_shards(shard_dir: Path, full: bool = True) -> list[str]:
+    """Problems (one line each, naming the file) of every shard listed in the index."""
+    return [p for e in load_index(shard_dir).get("shards", []) if (p := verify_shard(shard_dir, e, full))]
+
+
 def load_index(shard_dir: Path) -> dict:
     """Read ``index.json`` of a shard directory; a clear error if it is missing or broken."""
     p = index_path(shard_dir)
     if not p.is_file():
         raise FileNotFoundError(f"{shard_dir}: no {INDEX_NAME} (not an sc3d shard directory?)")
     try:
-        return json.loads(p.read_text())
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{p}: index is not valid JSON ({e})") from e
+        index = json.loads(p.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ShardError(f"{p}: index is not valid JSON ({e})") from e
+    except OSError as e:
+        raise ShardError(f"{p}: cannot read index ({io_reason(e)})") from e
+    shards = index.get("shards", []) if isinstance(index, dict) else None
+    if not isinstance(shards, list) or not all(isinstance(e, dict) and isinstance(e.get("file"), str)
+                                               and isinstance(e.get("chunk", 0), int) for e in shards):
+        raise ShardError(f"{p}: not an sc3d index (malformed shard list)")
+    return index
 
 
 def shard_files(shard_dir: Path) -> list[Path]:
     """Complete shard files listed in the index, in order."""
     index = load_index(shard_dir)
-    return [Path(shard_dir) / s["file"] for s in index.get("shards", [])]
+    return [shard_path(shard_dir, s["file"]) for s in index.get("shards", [])]
 
 
 # ----------------------------------------------------------------------------- reading
@@ -219,13 +389,55 @@ def read_strings(ds) -> list[str]:
 
 def iter_objects(shard_dir: Path, fields: tuple[str, ...] | None = None) -> Iterator[dict]:
     """Yield one dict per object over all shards: string fields plus the requested array
-    fields (all present ones when ``fields`` is None), plus ``shard`` and ``row``."""
+    fields (all present ones when ``fields`` is None), plus ``shard`` and ``row``. A shard
+    that cannot be read raises ``ShardError`` naming it."""
     for path in shard_files(shard_dir):
-        with h5py.File(path, "r") as f:
-            strings = {k: read_strings(f[k]) for k in STRING_FIELDS if k in f}
-            names = [k for k in (fields or f.keys()) if k in f and k not in STRING_FIELDS]
-            for row in range(f["model_id"].shape[0]):
+        with open_shard(path) as f:
+            try:
+                strings = {k: read_strings(f[k]) for k in STRING_FIELDS if k in f}
+                names = [k for k in (fields or f.keys()) if k in f and k not in STRING_FIELDS]
+                rows = range(f["model_id"].shape[0])
+            except (OSError, KeyError, RuntimeError) as e:
+                raise ShardError(f"{path}: broken shard ({io_reason(e)}); see `sc3d-data info --verify`") from e
+            for row in rows:
                 obj = {k: v[row] for k, v in strings.items()}
-                obj.update({k: f[k][row] for k in names})
+                try:
+                    obj.update({k: f[k][row] for k in names})
+                except (OSError, RuntimeError) as e:
+                    raise ShardError(f"{path}: row {row} cannot be read ({io_reason(e)}); "
+                                     "see `sc3d-data info --verify`") from e
                 obj["shard"], obj["row"] = path.name, row
                 yield obj
+
+
+class open_shard:
+    """``with open_shard(path) as f``: an ``h5py.File`` read-only; ``ShardError`` naming the
+    file when it is missing, truncated or not HDF5."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        try:
+            self.file = h5py.File(self.path, "r")
+        except (OSError, RuntimeError) as e:
+            raise ShardError(f"{self.path}: cannot open shard ({io_reason(e)}); "
+                             "see `sc3d-data info --verify`") from e
+
+    def __enter__(self) -> h5py.File:
+        return self.file
+
+    def __exit__(self, *exc) -> None:
+        self.file.close()
+
+
+def read_records(path: Path) -> list[ObjectRecord]:
+    """All objects of one shard back as ``ObjectRecord`` s (to rewrite a shard with more objects)."""
+    with open_shard(path) as f:
+        try:
+            strings = {k: read_strings(f[k]) for k in STRING_FIELDS}
+            arrays = {k: f[k][()] for k in f if k not in STRING_FIELDS}
+        except (OSError, KeyError, RuntimeError) as e:
+            raise ShardError(f"{path}: broken shard ({io_reason(e)})") from e
+    return [ObjectRecord(model_id=strings["model_id"][i], category=strings["category"][i],
+                         split=strings["split"][i], source=strings["source"][i],
+                         arrays={k: v[i] for k, v in arrays.items()})
+            for i in range(len(strings["model_id"]))]

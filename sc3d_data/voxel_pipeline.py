@@ -8,7 +8,9 @@ Shards (``voxelize_shards``)
     ``sc3d_data.voxelize.voxelize_triangles``. The ``voxels`` dataset ``[N, G, G, G]`` is added
     to each shard atomically (``shards.replace_dataset_atomically``), one shard at a time.
     Resume: a shard that already holds ``voxels`` at the requested resolution is skipped
-    (``overwrite=True`` redoes it). An object that fails (mesh missing or unreadable) gets an
+    (``overwrite=True`` redoes it). The index's ``bytes``/``sha256`` of a shard are updated
+    right after it is rewritten (``replace_dataset_atomically``), and the run holds the folder's write lock
+    (``sc3d_data.outlock``). An object that fails (mesh missing or unreadable) gets an
     all-empty grid so the shard stays rectangular, and is recorded in the index under
     ``failures`` with ``"stage": "voxelize"``, its shard, row and reason. The index also gets
     ``"voxels": {"resolution": G, "occupancy": ...}``.
@@ -28,7 +30,6 @@ from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
 
-import h5py
 import numpy as np
 
 from sc3d_data.shards import (load_index, read_strings, replace_dataset_atomically, shard_files,
@@ -109,6 +110,15 @@ class VoxelizeSummary:
 def voxelize_shards(shard_dir: Path, resolution: int = 32, workers: int = 1, overwrite: bool = False,
                     progress: bool = False) -> VoxelizeSummary:
     """Add ``voxels [N, G, G, G]`` to every shard of ``shard_dir`` (module doc)."""
+    from sc3d_data.outlock import exclusive_lock
+
+    with exclusive_lock(Path(shard_dir), "sc3d-data voxelize"):
+        return _voxelize_shards_locked(shard_dir, resolution, workers, overwrite, progress)
+
+
+def _voxelize_shards_locked(shard_dir, resolution, workers, overwrite, progress) -> VoxelizeSummary:
+    from sc3d_data.shards import ShardError, io_reason, open_shard
+
     t0 = time.monotonic()
     shard_dir = Path(shard_dir)
     index = load_index(shard_dir)
@@ -127,14 +137,17 @@ def voxelize_shards(shard_dir: Path, resolution: int = 32, workers: int = 1, ove
     for path in paths:
         if not path.is_file():
             raise FileNotFoundError(f"{path}: listed in {index_path(shard_dir)} but missing")
-        with h5py.File(path, "r") as f:
+        with open_shard(path) as f:
             if "to_canonical" not in f or "source" not in f:
                 raise ValueError(f"{path}: no to_canonical/source datasets; cannot find the meshes")
-            has = "voxels" in f and f["voxels"].shape[1:] == (resolution,) * 3
-            sources = read_strings(f["source"])
-            ids = read_strings(f["model_id"])
-            cats = read_strings(f["category"])
-            to_canonical = f["to_canonical"][()]
+            try:
+                has = "voxels" in f and f["voxels"].shape[1:] == (resolution,) * 3
+                sources = read_strings(f["source"])
+                ids = read_strings(f["model_id"])
+                cats = read_strings(f["category"])
+                to_canonical = f["to_canonical"][()]
+            except (OSError, KeyError, RuntimeError) as e:
+                raise ShardError(f"{path}: broken shard ({io_reason(e)}); see `sc3d-data info --verify`") from e
         if has and not overwrite:
             summary.shards_skipped += 1
             new_failures += [x for x in old_voxel_failures if x.get("shard") == path.name]
@@ -150,7 +163,7 @@ def voxelize_shards(shard_dir: Path, resolution: int = 32, workers: int = 1, ove
                                          "model_id": ids[row], "shard": path.name, "row": row,
                                          "reason": payload})
                     summary.failed += 1
-            replace_dataset_atomically(path, "voxels", grids)
+            replace_dataset_atomically(path, "voxels", grids)  # also updates the index checksum
             summary.shards_done += 1
             summary.objects += len(sources)
         if bar is not None:

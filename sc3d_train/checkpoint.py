@@ -7,12 +7,21 @@ CUDA, numpy and python states), ``step`` (optimiser steps done), ``config`` (the
 :class:`~sc3d_train.config.RunConfig` dict, with the model config inside), ``data_position``
 (phase, phase start and samples consumed by each rank in that phase) and ``format_version``.
 Files are written under a temporary name and renamed, so ``step_XXXXXX.pt`` and ``last.pt``
-are always complete.
+are always complete; a write that fails (disk full) removes its temporary file and raises
+``CheckpointError`` naming the file, and ``resume_checkpoint`` picks the newest complete
+checkpoint (``last.pt`` or a newer ``step_XXXXXX.pt``).
+
+Loading never runs code from the file: ``torch.load(weights_only=True)`` with an allow-list of
+exactly the non-tensor types a checkpoint holds (``CHECKPOINT_GLOBALS``: the numpy array and
+dtype types of numpy's RNG state). A file needing anything else is refused with a clear
+message; nothing in it is executed.
 """
 from __future__ import annotations
 
 import os
+import pickle
 import random
+import re
 import shutil
 from pathlib import Path
 
@@ -22,6 +31,21 @@ import torch
 from sc3d_train.config import RunConfig
 
 FORMAT_VERSION = 1
+
+
+def _numpy_globals() -> list:
+    """The numpy callables/types ``np.random.get_state()`` pickles to (an ndarray of uint32)."""
+    try:
+        from numpy._core.multiarray import _reconstruct
+    except ImportError:  # numpy < 2
+        from numpy.core.multiarray import _reconstruct
+    types = [_reconstruct, np.ndarray, np.dtype]
+    types += [type(np.dtype(t)) for t in (np.uint32, np.int64, np.float64, np.float32, np.uint8, np.bool_)]
+    return types
+
+
+#: the only non-tensor globals ``load_checkpoint`` lets the unpickler build
+CHECKPOINT_GLOBALS = _numpy_globals()
 
 
 class CheckpointError(ValueError):
@@ -59,15 +83,28 @@ def save_checkpoint(run_dir: Path, payload: dict) -> Path:
     """Write ``payload`` as ``checkpoints/step_XXXXXX.pt`` and copy it to ``last.pt``
     (both atomically). Returns the step file."""
     path = step_path(run_dir, payload["step"])
-    path.parent.mkdir(parents=True, exist_ok=True)
     payload = {"format_version": FORMAT_VERSION, **payload}
     tmp = path.with_name(path.name + ".tmp")
-    torch.save(payload, tmp)
-    os.replace(tmp, path)
     last = last_path(run_dir)
     tmp_last = last.with_name(last.name + ".tmp")
-    shutil.copyfile(path, tmp_last)
-    os.replace(tmp_last, last)
+    target = path
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        torch.save(payload, tmp)
+        os.replace(tmp, path)
+        target = last
+        shutil.copyfile(path, tmp_last)
+        os.replace(tmp_last, last)
+    except (OSError, RuntimeError) as e:  # torch.save reports a full disk as RuntimeError
+        for t in (tmp, tmp_last):
+            try:
+                t.unlink()
+            except OSError:
+                pass
+        reason = e.strerror if isinstance(e, OSError) and e.strerror else " ".join(str(e).split())
+        kept = f"; {path} is complete" if target == last else ""
+        raise CheckpointError(f"{target}: cannot write checkpoint ({reason}){kept}; "
+                              f"free space and rerun with --resume") from e
     return path
 
 
@@ -77,12 +114,44 @@ def load_checkpoint(path: Path, map_location="cpu") -> dict:
     if not path.is_file():
         raise CheckpointError(f"{path}: checkpoint not found")
     try:
-        ckpt = torch.load(path, map_location=map_location, weights_only=False)
-    except Exception as e:  # noqa: BLE001 - any unpickling failure means "not ours"
-        raise CheckpointError(f"{path}: not a readable checkpoint ({type(e).__name__}: {e})") from e
+        with torch.serialization.safe_globals(CHECKPOINT_GLOBALS):
+            ckpt = torch.load(path, map_location=map_location, weights_only=True)
+    except pickle.UnpicklingError as e:  # weights_only refused a global: nothing was run
+        first = " ".join(str(e).split("\n")[-1].split())[:200]
+        raise CheckpointError(f"{path}: refused: the file holds Python objects outside the checkpoint "
+                              f"allow-list (not written by this sc3d-train, or crafted); not loaded ({first})") from e
+    except Exception as e:  # noqa: BLE001 - any other failure means "not ours" or truncated
+        raise CheckpointError(f"{path}: not a readable checkpoint ({type(e).__name__}: "
+                              f"{' '.join(str(e).split())[:200]})") from e
     if not isinstance(ckpt, dict) or "model" not in ckpt or "config" not in ckpt:
         raise CheckpointError(f"{path}: not an sc3d-train checkpoint (no model/config)")
     return ckpt
+
+
+def resume_checkpoint(run_dir: Path) -> tuple[Path, dict]:
+    """``(path, checkpoint)`` of the newest complete checkpoint of a run: ``last.pt`` unless a
+    ``step_XXXXXX.pt`` with a higher step exists (``last.pt`` not updated because the disk
+    filled up, say); unreadable files are passed over. ``CheckpointError`` when none is left."""
+    folder = checkpoint_dir(run_dir)
+    steps = sorted(((int(m.group(1)), p) for p in folder.glob("step_*.pt")
+                    if (m := re.fullmatch(r"step_(\d+)\.pt", p.name))), reverse=True)
+    errors, last = [], None
+    if last_path(run_dir).is_file():
+        try:
+            last = load_checkpoint(last_path(run_dir))
+        except CheckpointError as e:
+            errors.append(str(e))
+    for step, p in steps:
+        if last is not None and int(last.get("step", -1)) >= step:
+            break
+        try:
+            return p, load_checkpoint(p)
+        except CheckpointError as e:
+            errors.append(str(e))
+    if last is not None:
+        return last_path(run_dir), last
+    raise CheckpointError(f"{last_path(run_dir)}: checkpoint not found"
+                          + (f" (and no complete step_*.pt: {errors[0]})" if errors else ""))
 
 
 def build_model(run_config: RunConfig):

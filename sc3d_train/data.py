@@ -34,7 +34,7 @@ import torch
 from torch.utils.data import Dataset, Sampler
 
 from sc3d_data.camera import scale_intrinsics
-from sc3d_data.shards import load_index, read_strings, shard_files
+from sc3d_data.shards import io_reason, load_index, read_strings, shard_files
 from sc3d_train.self_consistency import area_downsample
 
 
@@ -79,17 +79,21 @@ def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
     for path in files:
         if not path.is_file():
             raise DataError(f"{path}: listed in {shard_dir}/index.json but missing")
-        with h5py.File(path, "r") as f:
-            ids, cats, splits = (read_strings(f[k]) for k in ("model_id", "category", "split"))
-            n, v, s = f["images"].shape[:3]
-            image_sizes.add(int(s))
-            views.add(int(v))
-            if not refs:
-                camera = {"K": f["K"][0, 0].tolist(), "distance": float(f["distance"][0, 0])}
-            if "voxels" in f:
-                vres.add(int(f["voxels"].shape[1]))
-            else:
-                no_vox.append(str(path))
+        try:
+            with h5py.File(path, "r") as f:
+                ids, cats, splits = (read_strings(f[k]) for k in ("model_id", "category", "split"))
+                n, v, s = f["images"].shape[:3]
+                image_sizes.add(int(s))
+                views.add(int(v))
+                if not refs:
+                    camera = {"K": f["K"][0, 0].tolist(), "distance": float(f["distance"][0, 0])}
+                if "voxels" in f:
+                    vres.add(int(f["voxels"].shape[1]))
+                else:
+                    no_vox.append(str(path))
+        except (OSError, KeyError, RuntimeError) as e:  # truncated / corrupted shard
+            raise DataError(f"{path}: broken shard ({io_reason(e)}); see `sc3d-data info --verify "
+                            f"{shard_dir}`") from e
         refs += [ObjectRef(str(path), r, ids[r], cats[r], splits[r]) for r in range(n)]
     if len(image_sizes) != 1 or len(views) != 1:
         raise DataError(f"{shard_dir}: shards disagree on image size {image_sizes} or views {views}")
@@ -209,10 +213,14 @@ class ShardDataset(Dataset):
             self._cache.move_to_end(obj_i)
             return arrays
         ref = self.objects[obj_i]
-        f = self._file(ref.shard)
         names = ("images", "masks", "K", "R", "t", "distance", "azimuth", "elevation") + \
             (("voxels",) if self.require_voxels else ())
-        arrays = {k: f[k][ref.row] for k in names}
+        try:
+            f = self._file(ref.shard)
+            arrays = {k: f[k][ref.row] for k in names}
+        except (OSError, KeyError, RuntimeError) as e:  # checksum / gzip error: name the file
+            raise DataError(f"{ref.shard}: object {ref.model_id} (row {ref.row}) cannot be read "
+                            f"({io_reason(e)}); see `sc3d-data info --verify`") from e
         arrays["masks_sc"] = sc_masks(arrays["masks"], self.mask_size)
         if self.cache_objects > 0:
             self._cache[obj_i] = arrays

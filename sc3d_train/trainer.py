@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from sc3d_train.checkpoint import (CheckpointError, build_model, last_path, load_checkpoint,
+from sc3d_train.checkpoint import (CheckpointError, build_model, last_path, resume_checkpoint,
                                    rng_state, save_checkpoint, set_rng_state, state_dict_mismatch)
 from sc3d_train.config import RunConfig
 from sc3d_train.data import ShardDataset, make_loader
@@ -370,8 +370,7 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
 
     start_step = 0
     if resume:
-        ckpt_file = last_path(run_dir)
-        ckpt = load_checkpoint(ckpt_file)
+        ckpt_file, ckpt = resume_checkpoint(run_dir)  # newest complete checkpoint
         saved = RunConfig.from_dict(ckpt["config"])
         diffs = saved.differences(cfg)
         if diffs:
