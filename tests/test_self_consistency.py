@@ -247,3 +247,23 @@ def test_pose_search_recovers_the_true_pose_of_rendered_objects(shard_views):
     assert total == 72
     assert exact_az >= 67, exact_az
     assert exact_el >= 40, exact_el
+
+
+def test_test_time_search_recovers_the_azimuth_and_weighs_the_head_prior():
+    """search_azimuth between a (here: true) occupancy and its exact silhouette at 45 deg finds
+    candidate 3 (45 deg) at elevation bin 2 (30 deg) with no prior; a prior that puts all the
+    head's probability on 90 deg with a huge weight overrides the search (the weight is what
+    decides between them)."""
+    from sc3d_train.pose import PoseGrid
+    from sc3d_train.pose_search import search_azimuth
+
+    grid = PoseGrid()
+    occ = asymmetric_object()[None]
+    mask = exact_silhouette(occ[0], 45.0)[None]
+    K, d, e = batch_k(1), torch.full((1,), 2.0), torch.tensor([2])
+    best = search_azimuth(occ, mask, d, K, grid, e, search_mask_size=24, num_samples=32)
+    assert int(best) == 3 * 5 + 2
+    log_p = torch.full((1, 24), -50.0)
+    log_p[0, 6] = 0.0  # the head is sure of 90 deg
+    assert int(search_azimuth(occ, mask, d, K, grid, e, prior_log_prob=log_p, prior_weight=0.0)) == 17
+    assert int(search_azimuth(occ, mask, d, K, grid, e, prior_log_prob=log_p, prior_weight=1.0)) == 6 * 5 + 2
