@@ -168,6 +168,7 @@ def main() -> None:
     ap.add_argument("--device", default="auto")
     ap.add_argument("--tiny", action="store_true", help="the --tiny model instead of the paper's width")
     ap.add_argument("--skip-loader", action="store_true")
+    ap.add_argument("--loader-only", action="store_true", help="only table 2 (no training step: its last column is then -)")
     args = ap.parse_args()
 
     from sc3d_train.data import ShardDataset, make_loader
@@ -189,44 +190,48 @@ def main() -> None:
     batch = next(iter(make_loader(ShardDataset(shards, "train"), args.batch_size, seed=0)))
 
     # 1. training step
-    variants = [("baseline: fp32, NCHW", None, False)]
-    if device.type == "cuda":
-        amp = torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
-        variants.append((f"fit default: {str(amp)[6:]} autocast + channels_last", amp, True))
-        variants.append((f"{str(amp)[6:]} autocast only", amp, False))
-    else:
-        variants.append(("fit default on CPU: fp32, NCHW", None, False))
-        variants.append(("channels_last", None, True))
-        variants.append(("bf16 autocast + channels_last", torch.bfloat16, True))
-    step_rows = []
-    secs = time_train_steps(cfg, batch, device, variants, args.steps)
-    base = secs[0]
-    for (name, _, _), sec in zip(variants, secs):
-        if sec is None:
-            step_rows.append((name, "failed", "-", "-"))
+    step_rate = None
+    if not args.loader_only:
+        variants = [("baseline: fp32, NCHW", None, False)]
+        if device.type == "cuda":
+            amp = torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
+            variants.append((f"fit default: {str(amp)[6:]} autocast + channels_last", amp, True))
+            variants.append((f"{str(amp)[6:]} autocast only", amp, False))
         else:
-            step_rows.append((name, f"{1000 * sec:.0f}", f"{args.batch_size / sec:.1f}",
-                              f"{base / sec:.2f}x" if base else "-"))
-    print()
-    print(table(f"1. training step, batch {args.batch_size}, {device.type}",
-                ("variant", "ms/step", "samples/s", "vs baseline"), step_rows))
-    step_rate = args.batch_size / (float(step_rows[1][1]) / 1000) if step_rows[1][1] != "failed" else None
+            variants.append(("fit default on CPU: fp32, NCHW", None, False))
+            variants.append(("channels_last", None, True))
+            variants.append(("bf16 autocast + channels_last", torch.bfloat16, True))
+        step_rows = []
+        secs = time_train_steps(cfg, batch, device, variants, args.steps)
+        base = secs[0]
+        for (name, _, _), sec in zip(variants, secs):
+            if sec is None:
+                step_rows.append((name, "failed", "-", "-"))
+            else:
+                step_rows.append((name, f"{1000 * sec:.0f}", f"{args.batch_size / sec:.1f}",
+                                  f"{base / sec:.2f}x" if base else "-"))
+        print()
+        print(table(f"1. training step, batch {args.batch_size}, {device.type}",
+                    ("variant", "ms/step", "samples/s", "vs baseline"), step_rows))
+        step_rate = args.batch_size / (float(step_rows[1][1]) / 1000) if step_rows[1][1] != "failed" else None
 
     # 2. loader
     if not args.skip_loader:
-        for cache, regime in ((128, "decoded objects cached"), (0, "every sample decoded from the file")):
-            rates = time_loaders(shards, args.batch_size, (0, 2, 4), args.loader_batches,
-                                 args.loader_rounds, cache)
+        for cache, regime, batches in ((128, "decoded objects cached", args.loader_batches),
+                                       (0, "every sample decoded from the file", max(2, args.loader_batches // 10))):
+            rates = time_loaders(shards, args.batch_size, (0, 2, 4), batches, args.loader_rounds, cache)
             base = rates[("per-item", 0)]
             rows = [(f"{name}, {w} workers", f"{r:.0f}", f"{r / base:.2f}x",
                      f"{r / rates[(name, 0)]:.2f}x", f"{r / step_rate:.1f}x" if step_rate else "-")
                     for (name, w), r in rates.items()]
             print()
             print(table(f"2. loader, batch {args.batch_size}, {regime} (samples/s, median of "
-                        f"{args.loader_rounds} interleaved rounds of {args.loader_batches} batches)",
+                        f"{args.loader_rounds} interleaved rounds of {batches} batches)",
                         ("loader", "samples/s", "vs per-item 0 workers", "vs same, 0 workers",
                          "vs fit step"), rows))
 
+    if args.loader_only:
+        return
     # 3. self-consistency module
     sc = benchmark_self_consistency(batch_size=args.batch_size, device=device)
     base = sc[0]["ms_per_batch"]
