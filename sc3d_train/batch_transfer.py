@@ -54,8 +54,10 @@ def unpack(p: PackedBatch) -> dict[str, np.ndarray]:
     for name, dtype, shape, offset, n, packed in p.layout:
         raw = buf[offset:offset + n]
         count = int(np.prod(shape))
-        if packed:
-            out[name] = np.unpackbits(raw, count=count).astype(dtype).reshape(shape)
+        if packed:  # 0/1 bytes; bool and uint8 take them as they are
+            bits = np.unpackbits(raw, count=count)
+            dt = np.dtype(dtype)
+            out[name] = (bits.view(dt) if dt.itemsize == 1 else bits.astype(dt)).reshape(shape)
         else:
             out[name] = raw.view(np.dtype(dtype)).reshape(shape)
     return out

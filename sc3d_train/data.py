@@ -276,9 +276,8 @@ def expand_batch(arrays: dict[str, np.ndarray], strings: dict, pin: bool = False
     images = arrays["images"]
     b, s = images.shape[:2]
     batch = {"images": new((b, 3, s, s))}
-    x = batch["images"].numpy()
-    x[...] = images.transpose(0, 3, 1, 2)
-    x /= np.float32(255.0)
+    np.divide(images.transpose(0, 3, 1, 2), np.float32(255.0), out=batch["images"].numpy(),
+              dtype=np.float32)
     for name in ("masks", "masks_sc") + (("voxels",) if "voxels" in arrays else ()):
         batch[name] = new(arrays[name].shape)
         batch[name].numpy()[...] = arrays[name]
