@@ -1,7 +1,7 @@
 """Rendering speed and memory: sc3d's renderer vs pyrender as its README shows it.
 
     python benchmarks/render.py [--meshes ../shared/meshes] [--repeat 5] [--views 24]
-                                [--pipeline-repeat 6 --workers 2]
+                                [--pipeline-repeat 6 --workers 2] [--stages --pipeline-only]
 
 Each side runs in its own fresh (spawned) process on the same meshes, loaded and normalised
 before timing (loading is not timed). Measured per side: views/s (wall) and CPU-ms per view,
@@ -15,6 +15,11 @@ over all meshes and over the "typical" 2-30k-face ones, peak RSS, and RSS after 
 
 Prints a table with the ratio sc3d / baseline (robust to machine noise: both measured in the
 same run). Views/s per machine = per-process figure x cores only if cores are free.
+
+``--stages`` first runs the pipeline as users run it (``render --voxelize --workers N``, shards
+to a temporary folder) with timing hooks (``benchmarks/stage_profile.py``) and prints where the
+time goes per object: load, normalise, part preparation, upload + draw call, draw + readback,
+voxelize, send to the main process; in the main process receive, compress + write, index.
 
 ``--pipeline-repeat N`` (N > 0) then runs the real pipeline (``render_dataset``, ``--workers``
 spawned workers, shards written to a temporary folder) over the meshes listed N times (a
@@ -35,8 +40,11 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
 for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "LP_NUM_THREADS"):
     os.environ.setdefault(k, "1")
+
+import stage_profile  # noqa: E402  (in spawned pipeline workers: installs the stage timers)
 
 
 def _rss_mb(pid="self") -> float:
@@ -204,6 +212,8 @@ def main():
                     help="also run the real pipeline over the meshes listed N times (worker RSS)")
     ap.add_argument("--workers", type=int, default=2, help="pipeline workers (--pipeline-repeat)")
     ap.add_argument("--pipeline-only", action="store_true", help="skip the speed comparison")
+    ap.add_argument("--stages", action="store_true",
+                    help="stage profile of the pipeline as users run it (render --voxelize --workers N)")
     a = ap.parse_args()
     from sc3d_data.mesh_io import MESH_SUFFIXES
 
@@ -212,6 +222,9 @@ def main():
         paths = paths[:a.limit]
     print(f"{len(paths)} meshes from {a.meshes}, {a.views} views of 64x64, backend {a.backend}, "
           f"{os.cpu_count()} cores (shared machine: compare the ratios)")
+    if a.stages:
+        print()
+        print(stage_profile.stage_table(stage_profile.profile_pipeline(a.meshes, a.workers, a.views), a.workers))
     if not a.pipeline_only:
         ours = _spawn(run_sc3d, paths, a.views, a.repeat, a.backend)
         base = _spawn(run_baseline, paths, a.views, a.backend)

@@ -11,8 +11,10 @@ the same run, so improvements show as ratios:
    contiguous (NCHW) memory, against the trainer's settings for the device (CUDA: bf16/fp16
    autocast + channels_last; CPU: fp32, which is what ``fit`` uses there) and, on the CPU, the
    channels_last and bf16 variants for reference;
-2. loader samples/s with 0, 2 and 4 worker processes, against the training step's samples/s
-   (the loader should outrun the step);
+2. loader samples/s with 0, 2 and 4 worker processes: the per-item DataLoader (the previous
+   ``make_loader``) against ``make_loader`` (whole batches per worker, packed transfer), with
+   the decoded-object cache and without (every sample decoded: large datasets), against the
+   training step's samples/s (the loader should outrun the step);
 3. the self-consistency module (C1's ``benchmark_self_consistency``): ms per batch and memory,
    against the gather + loop baseline.
 """
@@ -111,17 +113,41 @@ def time_train_steps(cfg, batch, device, variants, steps: int) -> list[float | N
     return [sorted(t)[len(t) // 2] if t else None for t in times]
 
 
-def time_loader(shards: Path, batch_size: int, workers: int, batches: int) -> float:
-    """Samples/s of the training loader (a fresh loader: workers start, caches are cold)."""
+def per_item_loader(ds, batch_size: int, workers: int):
+    """The previous make_loader, kept as the baseline: per-sample ``__getitem__`` in the
+    workers, ``default_collate`` into ~14 float tensors sent through shared memory."""
+    from sc3d_train.data import ViewSampler, _limit_worker_threads
+
+    return torch.utils.data.DataLoader(
+        ds, batch_size=batch_size, sampler=ViewSampler(ds.num_objects, ds.num_views, 0),
+        num_workers=workers, drop_last=True, worker_init_fn=_limit_worker_threads if workers else None,
+        prefetch_factor=4 if workers else None)
+
+
+def time_loaders(shards: Path, batch_size: int, workers: tuple[int, ...], batches: int, rounds: int,
+                 cache_objects: int) -> dict:
+    """Samples/s of the per-item baseline and of ``make_loader`` at each worker count: the median
+    over ``rounds`` rounds, each round running every variant once, interleaved (a fresh loader
+    each time; the first ``2 + 4 * workers`` batches, worker start-up and the prefetch queue,
+    are not timed). ``cache_objects=0`` makes every sample decode its object from the file."""
     from sc3d_train.data import ShardDataset, make_loader
 
-    ds = ShardDataset(shards, "train")
-    it = iter(make_loader(ds, batch_size, seed=0, workers=workers))
-    next(it)  # worker start-up is not throughput
-    t0 = time.perf_counter()
-    for _ in range(batches):
-        next(it)
-    return batches * batch_size / (time.perf_counter() - t0)
+    ds = ShardDataset(shards, "train", cache_objects=cache_objects)
+    makers = {("per-item", w): (lambda w=w: per_item_loader(ds, batch_size, w)) for w in workers}
+    makers.update({("make_loader", w): (lambda w=w: make_loader(ds, batch_size, seed=0, workers=w))
+                   for w in workers})
+    rates: dict = {k: [] for k in makers}
+    for _ in range(rounds):
+        for key, make in makers.items():
+            it = iter(make())
+            for _ in range(2 + 4 * key[1]):
+                next(it)
+            t0 = time.perf_counter()
+            for _ in range(batches):
+                next(it)
+            rates[key].append(batches * batch_size / (time.perf_counter() - t0))
+            del it
+    return {k: sorted(v)[len(v) // 2] for k, v in rates.items()}
 
 
 def table(title: str, header: tuple[str, ...], rows: list[tuple]) -> str:
@@ -137,10 +163,12 @@ def main() -> None:
     ap.add_argument("--shards", type=Path, default=None)
     ap.add_argument("--batch-size", type=int, default=48)
     ap.add_argument("--steps", type=int, default=5, help="timed steps per variant (median)")
-    ap.add_argument("--loader-batches", type=int, default=20)
+    ap.add_argument("--loader-batches", type=int, default=30)
+    ap.add_argument("--loader-rounds", type=int, default=3)
     ap.add_argument("--device", default="auto")
     ap.add_argument("--tiny", action="store_true", help="the --tiny model instead of the paper's width")
     ap.add_argument("--skip-loader", action="store_true")
+    ap.add_argument("--loader-only", action="store_true", help="only table 2 (no training step: its last column is then -)")
     args = ap.parse_args()
 
     from sc3d_train.data import ShardDataset, make_loader
@@ -162,41 +190,48 @@ def main() -> None:
     batch = next(iter(make_loader(ShardDataset(shards, "train"), args.batch_size, seed=0)))
 
     # 1. training step
-    variants = [("baseline: fp32, NCHW", None, False)]
-    if device.type == "cuda":
-        amp = torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
-        variants.append((f"fit default: {str(amp)[6:]} autocast + channels_last", amp, True))
-        variants.append((f"{str(amp)[6:]} autocast only", amp, False))
-    else:
-        variants.append(("fit default on CPU: fp32, NCHW", None, False))
-        variants.append(("channels_last", None, True))
-        variants.append(("bf16 autocast + channels_last", torch.bfloat16, True))
-    step_rows = []
-    secs = time_train_steps(cfg, batch, device, variants, args.steps)
-    base = secs[0]
-    for (name, _, _), sec in zip(variants, secs):
-        if sec is None:
-            step_rows.append((name, "failed", "-", "-"))
+    step_rate = None
+    if not args.loader_only:
+        variants = [("baseline: fp32, NCHW", None, False)]
+        if device.type == "cuda":
+            amp = torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
+            variants.append((f"fit default: {str(amp)[6:]} autocast + channels_last", amp, True))
+            variants.append((f"{str(amp)[6:]} autocast only", amp, False))
         else:
-            step_rows.append((name, f"{1000 * sec:.0f}", f"{args.batch_size / sec:.1f}",
-                              f"{base / sec:.2f}x" if base else "-"))
-    print()
-    print(table(f"1. training step, batch {args.batch_size}, {device.type}",
-                ("variant", "ms/step", "samples/s", "vs baseline"), step_rows))
-    step_rate = args.batch_size / (float(step_rows[1][1]) / 1000) if step_rows[1][1] != "failed" else None
+            variants.append(("fit default on CPU: fp32, NCHW", None, False))
+            variants.append(("channels_last", None, True))
+            variants.append(("bf16 autocast + channels_last", torch.bfloat16, True))
+        step_rows = []
+        secs = time_train_steps(cfg, batch, device, variants, args.steps)
+        base = secs[0]
+        for (name, _, _), sec in zip(variants, secs):
+            if sec is None:
+                step_rows.append((name, "failed", "-", "-"))
+            else:
+                step_rows.append((name, f"{1000 * sec:.0f}", f"{args.batch_size / sec:.1f}",
+                                  f"{base / sec:.2f}x" if base else "-"))
+        print()
+        print(table(f"1. training step, batch {args.batch_size}, {device.type}",
+                    ("variant", "ms/step", "samples/s", "vs baseline"), step_rows))
+        step_rate = args.batch_size / (float(step_rows[1][1]) / 1000) if step_rows[1][1] != "failed" else None
 
     # 2. loader
     if not args.skip_loader:
-        rows, base = [], None
-        for w in (0, 2, 4):
-            rate = time_loader(shards, args.batch_size, w, args.loader_batches)
-            base = base or rate
-            vs_step = f"{rate / step_rate:.1f}x" if step_rate else "-"
-            rows.append((f"{w} workers", f"{rate:.0f}", f"{rate / base:.2f}x", vs_step))
-        print()
-        print(table(f"2. loader, batch {args.batch_size} (samples/s)",
-                    ("loader", "samples/s", "vs 0 workers", "vs fit step"), rows))
+        for cache, regime, batches in ((128, "decoded objects cached", args.loader_batches),
+                                       (0, "every sample decoded from the file", max(2, args.loader_batches // 10))):
+            rates = time_loaders(shards, args.batch_size, (0, 2, 4), batches, args.loader_rounds, cache)
+            base = rates[("per-item", 0)]
+            rows = [(f"{name}, {w} workers", f"{r:.0f}", f"{r / base:.2f}x",
+                     f"{r / rates[(name, 0)]:.2f}x", f"{r / step_rate:.1f}x" if step_rate else "-")
+                    for (name, w), r in rates.items()]
+            print()
+            print(table(f"2. loader, batch {args.batch_size}, {regime} (samples/s, median of "
+                        f"{args.loader_rounds} interleaved rounds of {batches} batches)",
+                        ("loader", "samples/s", "vs per-item 0 workers", "vs same, 0 workers",
+                         "vs fit step"), rows))
 
+    if args.loader_only:
+        return
     # 3. self-consistency module
     sc = benchmark_self_consistency(batch_size=args.batch_size, device=device)
     base = sc[0]["ms_per_batch"]

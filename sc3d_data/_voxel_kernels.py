@@ -170,7 +170,7 @@ def _solid_angle(tri, t, px, py, pz):
     return 2.0 * math.atan2(det, div)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=True)
 def winding_kernel(tri, pts, G, beta):
     """Generalized winding numbers of the triangle soup ``tri [m, 3, 3]`` at ``pts [P, 3]``
     (both in the units of a grid spanning [0, G]^3): the fast winding number of Barill et al.
@@ -346,27 +346,28 @@ def winding_kernel(tri, pts, G, beta):
     tdat = np.empty((m, 17))
     for q in range(m):
         t = order[q]
-        tri_s[q] = tri[t]
-        mm = np.zeros(6)
+        m0 = m1 = m2 = m3 = m4 = m5 = 0.0  # scalars: no array allocated per triangle
         rt = 0.0
         for v in range(3):
+            for d in range(3):
+                tri_s[q, v, d] = tri[t, v, d]
             s0, s1, s2 = tri[t, v, 0] - tc[t, 0], tri[t, v, 1] - tc[t, 1], tri[t, v, 2] - tc[t, 2]
             rt = max(rt, math.sqrt(s0 * s0 + s1 * s1 + s2 * s2))
-            mm[0] += s0 * s0 / 12.0
-            mm[1] += s1 * s1 / 12.0
-            mm[2] += s2 * s2 / 12.0
-            mm[3] += s0 * s1 / 12.0
-            mm[4] += s0 * s2 / 12.0
-            mm[5] += s1 * s2 / 12.0
+            m0 += s0 * s0 / 12.0
+            m1 += s1 * s1 / 12.0
+            m2 += s2 * s2 / 12.0
+            m3 += s0 * s1 / 12.0
+            m4 += s0 * s2 / 12.0
+            m5 += s1 * s2 / 12.0
         n0, n1, n2 = varea[t, 0], varea[t, 1], varea[t, 2]
         tdat[q, 0], tdat[q, 1], tdat[q, 2], tdat[q, 3] = tc[t, 0], tc[t, 1], tc[t, 2], rt
         tdat[q, 4], tdat[q, 5], tdat[q, 6] = n0, n1, n2
-        tdat[q, 7] = mm[0] * n0 + mm[3] * n1 + mm[4] * n2
-        tdat[q, 8] = mm[3] * n0 + mm[1] * n1 + mm[5] * n2
-        tdat[q, 9] = mm[4] * n0 + mm[5] * n1 + mm[2] * n2
-        tdat[q, 10] = mm[0] + mm[1] + mm[2]
-        for e in range(6):
-            tdat[q, 11 + e] = mm[e]
+        tdat[q, 7] = m0 * n0 + m3 * n1 + m4 * n2
+        tdat[q, 8] = m3 * n0 + m1 * n1 + m5 * n2
+        tdat[q, 9] = m4 * n0 + m5 * n1 + m2 * n2
+        tdat[q, 10] = m0 + m1 + m2
+        tdat[q, 11], tdat[q, 12], tdat[q, 13] = m0, m1, m2
+        tdat[q, 14], tdat[q, 15], tdat[q, 16] = m3, m4, m5
     out = np.zeros(pts.shape[0])
     stack = np.empty(8 * (TREE_DEPTH + 2), dtype=np.int64)
     for p in range(pts.shape[0]):
@@ -443,45 +444,37 @@ def winding_exact_kernel(tri, pts):
 @njit(cache=True, nogil=True)
 def fill_holes_kernel(occ):
     """``occ`` plus every empty voxel that no 6-connected path of empty voxels links to the
-    grid's border (``scipy.ndimage.binary_fill_holes`` with its default structure)."""
+    grid's border (``scipy.ndimage.binary_fill_holes`` with its default structure). Flood fill
+    from the border's empty voxels over a copy of the grid padded by one "outside" voxel per
+    side, so that neighbours are plain offsets of a flat index with no bounds checks."""
     X, Y, Z = occ.shape
-    outside = np.zeros(occ.shape, dtype=np.bool_)
-    stack = np.empty((X * Y * Z, 3), dtype=np.int32)
+    Yp, Zp = Y + 2, Z + 2
+    sy, sx = Zp, Yp * Zp
+    state = np.full((X + 2) * sx, 2, dtype=np.uint8)  # 0 empty, 1 occupied, 2 outside
+    stack = np.empty(X * Y * Z, dtype=np.int64)
     top = 0
     for i in range(X):
         for j in range(Y):
             for k in range(Z):
-                if (i == 0 or j == 0 or k == 0 or i == X - 1 or j == Y - 1 or k == Z - 1) \
-                        and not occ[i, j, k]:
-                    outside[i, j, k] = True
-                    stack[top, 0] = i
-                    stack[top, 1] = j
-                    stack[top, 2] = k
+                f = (i + 1) * sx + (j + 1) * sy + k + 1
+                if occ[i, j, k]:
+                    state[f] = 1
+                elif i == 0 or j == 0 or k == 0 or i == X - 1 or j == Y - 1 or k == Z - 1:
+                    stack[top] = f  # border voxel: outside (state stays 2)
                     top += 1
+                else:
+                    state[f] = 0
     while top > 0:
         top -= 1
-        i, j, k = stack[top, 0], stack[top, 1], stack[top, 2]
-        for n in range(6):
-            a, b, c = i, j, k
-            if n == 0:
-                a -= 1
-            elif n == 1:
-                a += 1
-            elif n == 2:
-                b -= 1
-            elif n == 3:
-                b += 1
-            elif n == 4:
-                c -= 1
-            else:
-                c += 1
-            if a < 0 or b < 0 or c < 0 or a >= X or b >= Y or c >= Z:
-                continue
-            if occ[a, b, c] or outside[a, b, c]:
-                continue
-            outside[a, b, c] = True
-            stack[top, 0] = a
-            stack[top, 1] = b
-            stack[top, 2] = c
-            top += 1
-    return ~outside
+        f = stack[top]
+        for n in (f - 1, f + 1, f - sy, f + sy, f - sx, f + sx):
+            if state[n] == 0:
+                state[n] = 2
+                stack[top] = n
+                top += 1
+    out = np.empty(occ.shape, dtype=np.bool_)
+    for i in range(X):
+        for j in range(Y):
+            for k in range(Z):
+                out[i, j, k] = state[(i + 1) * sx + (j + 1) * sy + k + 1] != 2
+    return out

@@ -154,12 +154,15 @@ def voxelize_triangles(vertices: np.ndarray, faces: np.ndarray, resolution: int 
     ambiguous = ~occupied & (nonzero > 0)
     lap("enclosed")
     pts = np.argwhere(ambiguous).astype(np.float64) + 0.5  # voxel centres, voxel units
+    added = False
     if len(pts):
-        w = _k.winding_kernel(tri, pts, float(G), _k.BETA)
-        occupied[ambiguous] = np.abs(w) >= WINDING_THRESHOLD
+        inside = np.abs(_k.winding_kernel(tri, pts, float(G), _k.BETA)) >= WINDING_THRESHOLD
+        occupied[ambiguous] = inside
+        added = bool(inside.any())
     lap("winding")
     if timings is not None:
         timings["winding_points"] = timings.get("winding_points", 0) + len(pts)
-    out = _k.fill_holes_kernel(occupied)
+    # ``occupied`` is already hole-free unless winding numbers added voxels (filling is idempotent)
+    out = _k.fill_holes_kernel(occupied) if added else occupied
     lap("fill")
     return out

@@ -35,6 +35,7 @@ from torch.utils.data import Dataset, Sampler
 
 from sc3d_data.camera import scale_intrinsics
 from sc3d_data.shards import io_reason, load_index, read_strings, shard_files
+from sc3d_train.batch_transfer import PackedBatch, pack, unpack
 from sc3d_train.self_consistency import area_downsample
 
 
@@ -200,14 +201,14 @@ class ShardDataset(Dataset):
         self._files = {}
 
     def object_arrays(self, obj_i: int) -> dict:
-        """All arrays of object ``obj_i`` (every view): ``images [V,S,S,3]``, ``masks [V,S,S]``,
-        ``masks_sc [V,M,M]``, ``K [V,3,3]``, ``distance [V]``, ``voxels [G,G,G]``, ... (numpy,
-        ``masks_sc`` torch)."""
+        """All stored arrays of object ``obj_i`` (every view, numpy): ``images [V,S,S,3]``,
+        ``masks [V,S,S]``, ``K [V,3,3]``, ``R``, ``t``, ``distance [V]``, ``azimuth``,
+        ``elevation``, ``voxels [G,G,G]`` (with ``require_voxels``)."""
         return self._object(obj_i)
 
     def _object(self, obj_i: int) -> dict:
-        """All arrays of object ``obj_i`` (every view), from this process's LRU cache. A chunk
-        holds one whole object, so reading every view costs the same as reading one."""
+        """All arrays of object ``obj_i`` (every view, as stored), from this process's LRU cache.
+        A chunk holds one whole object, so reading every view costs the same as reading one."""
         arrays = self._cache.get(obj_i)
         if arrays is not None:
             self._cache.move_to_end(obj_i)
@@ -221,7 +222,9 @@ class ShardDataset(Dataset):
         except (OSError, KeyError, RuntimeError) as e:  # checksum / gzip error: name the file
             raise DataError(f"{ref.shard}: object {ref.model_id} (row {ref.row}) cannot be read "
                             f"({io_reason(e)}); see `sc3d-data info --verify`") from e
-        arrays["masks_sc"] = sc_masks(arrays["masks"], self.mask_size)
+        m = self.mask_size
+        arrays["masks_sc"] = np.zeros((self.num_views, m, m), dtype=bool)  # filled per view
+        arrays["has_sc"] = np.zeros(self.num_views, dtype=bool)            # by _masks_sc
         if self.cache_objects > 0:
             self._cache[obj_i] = arrays
             while len(self._cache) > self.cache_objects:
@@ -229,31 +232,80 @@ class ShardDataset(Dataset):
         return arrays
 
     def __getitem__(self, index: int) -> dict:
-        obj_i, view = divmod(int(index), self.num_views)
-        ref = self.objects[obj_i]
-        a = self._object(obj_i)
-        image, mask = a["images"][view], a["masks"][view]
-        K = a["K"][view].astype(np.float32)
-        item = {
-            "images": torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1))).float() / 255.0,
-            "masks": torch.from_numpy((mask > 0).astype(np.float32)),
-            "masks_sc": a["masks_sc"][view].clone(),
-            "K": torch.from_numpy(K),
-            "K_sc": torch.from_numpy(scale_intrinsics(K.astype(np.float64), self.mask_size,
-                                                      self.image_size).astype(np.float32)),
-            "R": torch.from_numpy(a["R"][view].astype(np.float32)),
-            "t": torch.from_numpy(a["t"][view].astype(np.float32)),
-            "distance": torch.tensor(float(a["distance"][view])),
-            "azimuth": torch.tensor(float(a["azimuth"][view])),
-            "elevation": torch.tensor(float(a["elevation"][view])),
-            "category": ref.category,
-            "model_id": ref.model_id,
-            "labeled": torch.tensor(bool(self.labeled[obj_i])),
-            "index": torch.tensor(int(index)),
-        }
+        """One sample (the keys of the module docstring without the batch axis)."""
+        batch = self.get_batch([index])
+        return {k: v[0] for k, v in batch.items()}
+
+    def get_batch(self, indices) -> dict:
+        """The batch of dataset ``indices`` (length B): the keys of the module docstring, equal
+        to ``default_collate`` of the single items."""
+        return expand_batch(*self.compact_batch(indices))
+
+    def compact_batch(self, indices) -> tuple[dict[str, np.ndarray], dict]:
+        """The batch of ``indices`` in stored dtypes, as ``(arrays, strings)``: ``images``
+        [B,S,S,3] uint8 (HWC), ``masks`` [B,S,S] and ``masks_sc`` [B,M,M] bool, ``voxels``
+        [B,G,G,G] uint8 (with ``require_voxels``), ``K``, ``K_sc``, ``R``, ``t``, ``distance``,
+        ``azimuth``, ``elevation`` float32, ``labeled`` bool, ``index`` int64; strings:
+        ``category``, ``model_id``. Objects are decoded once (LRU cache) and the 48 px masks
+        computed once per (object, view)."""
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1)
+        objs, views = np.divmod(idx, self.num_views)
+        arrays = [self._object(int(o)) for o in objs]
+
+        def gather(name: str) -> np.ndarray:
+            return np.stack([a[name][v] for a, v in zip(arrays, views)])
+
+        raw_masks = gather("masks")
+        K = gather("K").astype(np.float32)
+        out = {"images": gather("images"), "masks": raw_masks > 0,
+               "masks_sc": self._masks_sc(arrays, views, raw_masks), "K": K,
+               "K_sc": np.asarray(scale_intrinsics(K.astype(np.float64), self.mask_size,
+                                                   self.image_size), dtype=np.float32)}
+        for name in ("R", "t", "distance", "azimuth", "elevation"):
+            out[name] = gather(name).astype(np.float32)
+        out["labeled"] = self.labeled[objs].astype(bool)
+        out["index"] = idx
         if self.require_voxels:
-            item["voxels"] = torch.from_numpy(a["voxels"].astype(np.float32))
-        return item
+            out["voxels"] = np.stack([a["voxels"] for a in arrays])
+        strings = {"category": [self.objects[o].category for o in objs],
+                   "model_id": [self.objects[o].model_id for o in objs]}
+        return out, strings
+
+    def _masks_sc(self, arrays: list[dict], views: np.ndarray, masks: np.ndarray) -> np.ndarray:
+        """``masks_sc [B, M, M]`` bool of the B views (stored ``masks [B, S, S]``), computed with
+        :func:`sc_masks` for the views not yet in their object's cache entry, then cached."""
+        todo = [i for i, (a, v) in enumerate(zip(arrays, views)) if not a["has_sc"][v]]
+        if todo:
+            new = sc_masks(masks[todo], self.mask_size).bool().numpy()
+            for i, m in zip(todo, new):
+                arrays[i]["masks_sc"][views[i]], arrays[i]["has_sc"][views[i]] = m, True
+        return np.stack([a["masks_sc"][v] for a, v in zip(arrays, views)])
+
+
+#: arrays of a compact batch that are 0/1 and travel bit-packed between processes
+BINARY_KEYS = ("masks", "masks_sc", "voxels")
+
+
+def expand_batch(arrays: dict[str, np.ndarray], strings: dict, pin: bool = False) -> dict:
+    """The training batch (module docstring) of a compact batch (``ShardDataset.compact_batch``):
+    images to float ``[B,3,S,S]`` / 255, masks and voxels to float, the rest as tensors. Done
+    with numpy (one thread: torch's intra-op threads only contend on a loaded CPU); ``pin``
+    puts the large tensors in page-locked memory (CUDA host-to-device copies)."""
+    def new(shape) -> torch.Tensor:
+        return torch.empty(shape, dtype=torch.float32, pin_memory=pin)
+
+    images = arrays["images"]
+    b, s = images.shape[:2]
+    batch = {"images": new((b, 3, s, s))}
+    np.divide(images.transpose(0, 3, 1, 2), np.float32(255.0), out=batch["images"].numpy(),
+              dtype=np.float32)
+    for name in ("masks", "masks_sc") + (("voxels",) if "voxels" in arrays else ()):
+        batch[name] = new(arrays[name].shape)
+        batch[name].numpy()[...] = arrays[name]
+    for name in ("K", "K_sc", "R", "t", "distance", "azimuth", "elevation", "labeled", "index"):
+        batch[name] = torch.from_numpy(np.array(arrays[name]))
+    batch.update({k: list(v) for k, v in strings.items()})
+    return batch
 
 
 # ----------------------------------------------------------------------------- sampling
@@ -292,18 +344,77 @@ class ViewSampler(Sampler):
         return 2 ** 62
 
 
+class BatchSampler(Sampler):
+    """The stream of :class:`ViewSampler` cut into consecutive lists of ``batch_size`` indices
+    (``drop_last``), so batch ``k`` holds samples ``k*B .. k*B+B-1`` of the rank's stream:
+    exactly the batches ``DataLoader(batch_size=B, sampler=views, drop_last=True)`` forms."""
+
+    def __init__(self, views: ViewSampler, batch_size: int):
+        self.views, self.batch_size = views, batch_size
+
+    def __iter__(self) -> Iterator[list[int]]:
+        it = iter(self.views)
+        while True:
+            yield [next(it) for _ in range(self.batch_size)]
+
+    def __len__(self):
+        return len(self.views) // self.batch_size
+
+
+class _PackedBatches(Dataset):
+    """``dataset.compact_batch`` as a map-style dataset keyed by whole lists of indices, packed
+    for the trip to the main process (:mod:`sc3d_train.batch_transfer`): one loader worker
+    assembles one whole batch and sends one ~1 MB tensor instead of ~10 MB in 14 tensors."""
+
+    def __init__(self, dataset: ShardDataset):
+        self.dataset = dataset
+
+    def __len__(self) -> int:
+        return len(self.dataset)
+
+    def __getitem__(self, indices: list[int]) -> PackedBatch | tuple[dict, dict]:
+        arrays, strings = self.dataset.compact_batch(indices)
+        if torch.utils.data.get_worker_info() is None:  # in-process: nothing to send
+            return arrays, strings
+        return pack(arrays, strings, bits=BINARY_KEYS)
+
+
+class BatchLoader(torch.utils.data.DataLoader):
+    """A DataLoader of packed batches whose iterator yields expanded training batches (the
+    expansion runs in the consuming process, :func:`expand_batch`)."""
+
+    def __init__(self, *args, pin: bool = False, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.pin = pin
+
+    def __iter__(self):
+        for item in super().__iter__():
+            if isinstance(item, PackedBatch):
+                item = unpack(item), item.other
+            yield expand_batch(*item, pin=self.pin)
+
+
 def make_loader(dataset: ShardDataset, batch_size: int, seed: int, start: int = 0,
                 rank: int = 0, world_size: int = 1, workers: int = 0,
                 pin_memory: bool = False) -> torch.utils.data.DataLoader:
-    """An endless DataLoader of ``batch_size`` samples per step for this rank, starting at sample
-    ``start`` of the rank's stream. A private generator keeps the global torch RNG untouched."""
-    sampler = ViewSampler(dataset.num_objects, dataset.num_views, seed, rank, world_size, start)
-    return torch.utils.data.DataLoader(
-        dataset, batch_size=batch_size, sampler=sampler, num_workers=workers,
-        pin_memory=pin_memory, drop_last=True, persistent_workers=False,
+    """An endless loader of ``batch_size`` samples per step for this rank, starting at sample
+    ``start`` of the rank's stream (batch ``k`` = samples ``k*B .. k*B+B-1``, whatever
+    ``workers``). Each batch is assembled whole by one worker process (or in-process with
+    ``workers=0``) from its decoded-object cache, sent packed, and expanded to float here;
+    workers run one torch thread. ``pin_memory`` (CUDA) returns page-locked tensors. A
+    private generator keeps the global torch RNG untouched."""
+    sampler = BatchSampler(ViewSampler(dataset.num_objects, dataset.num_views, seed, rank,
+                                       world_size, start), batch_size)
+    return BatchLoader(
+        _PackedBatches(dataset), batch_size=None, sampler=sampler, num_workers=workers,
+        collate_fn=_keep, pin=pin_memory, persistent_workers=False,
         generator=torch.Generator().manual_seed(seed),
         worker_init_fn=_limit_worker_threads if workers else None,
         prefetch_factor=4 if workers else None)
+
+
+def _keep(batch):
+    return batch
 
 
 def _limit_worker_threads(_worker_id: int) -> None:
