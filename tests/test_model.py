@@ -215,7 +215,7 @@ def test_unsupervised_loss_updates_encoder_and_voxel_decoder_not_mask_decoder():
     losses = unsupervised_loss(out, unlabeled, grid=model.pose_grid)
     # no 3D/2D label terms are reported for unlabelled images (nothing is optimised there)
     assert set(losses) == set(LOSS_KEYS) - {"l3d", "l2d"}
-    assert float(losses["pose"]) > 0  # the pose search between predicted voxels and mask
+    assert float(losses["pose"].detach()) > 0  # the pose search between predicted voxels and mask
     losses["total"].backward()
     grad = lambda mod: sum(float(p.grad.abs().sum()) for p in mod.parameters() if p.grad is not None)  # noqa: E731
     assert grad(model.voxel_decoder) > 0 and grad(model.encoder) > 0 and grad(model.pose_head) > 0
