@@ -36,6 +36,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from .model import ModelOutput
+from .pose import pose_classification_loss
 from .self_consistency import DEFAULT_NUM_SAMPLES, area_downsample, iou_loss, self_consistency_losses
 
 LOSS_KEYS = ("total", "l3d", "l2d", "lsc", "ray", "proj", "kl", "pose")
@@ -101,26 +102,15 @@ def _sc(out: ModelOutput, occupancy: Tensor, masks_sc: Tensor, batch: dict, weig
     return {"lsc": weights.ray * sc["ray"] + weights.proj * sc["proj"], "ray": sc["ray"], "proj": sc["proj"]}
 
 
-def _pose(out: ModelOutput, target: Tensor, grid) -> Tensor:
-    from .pose import pose_classification_loss
-
-    return pose_classification_loss(out.pose_logits, target, grid)
-
-
-def search_target(occupancy: Tensor, masks: Tensor, batch: dict, grid, weights: LossWeights,
-                  elevation_bin: Tensor | None = None) -> Tensor:
+def search_target(occupancy: Tensor, masks: Tensor, batch: dict, grid, weights: LossWeights) -> Tensor:
     """The candidate pose (index ``[B]``, long) of ``grid`` with the lowest L_sc between
-    ``occupancy [B, G, G, G]`` and ``masks [B, S, S]`` (camera ``batch["K_sc"]`` at S): over all
-    candidates, or with ``elevation_bin [B]`` over the azimuths at that elevation (the unlabelled
-    search, at ``unlabeled_search_*`` resolution)."""
-    from .pose_search import search_azimuth, search_losses
+    ``occupancy [B, G, G, G]`` and ``masks [B, S, S]`` (camera ``batch["K_sc"]`` at S), over all
+    candidates."""
+    from .pose_search import search_losses
 
-    if elevation_bin is None:
-        losses = search_losses(occupancy, masks, batch["distance"], batch["K_sc"], grid, weights.ray,
-                               weights.proj, weights.search_mask_size, weights.search_samples)
-        return losses.argmin(1)
-    return search_azimuth(occupancy, masks, batch["distance"], batch["K_sc"], grid, elevation_bin, weights.ray,
-                          weights.proj, weights.unlabeled_search_mask_size, weights.unlabeled_search_samples)
+    losses = search_losses(occupancy, masks, batch["distance"], batch["K_sc"], grid, weights.ray,
+                           weights.proj, weights.search_mask_size, weights.search_samples)
+    return losses.argmin(1)
 
 
 def supervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None = None,
@@ -139,7 +129,7 @@ def supervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None =
         target = batch.get("pose_target")
         if target is None:
             target = search_target(batch["voxels"].float(), batch["masks_sc"], batch, grid, w)
-        pose = _pose(out, target, grid)
+        pose = pose_classification_loss(out.pose_logits, target, grid)
     total = w.w3d * l3d + w.w2d * l2d + w.wsc * sc["lsc"] + w.wkl * kl + w.wpose * pose
     return {"total": total, "l3d": l3d, "l2d": l2d, "kl": kl, "pose": pose, **sc}
 
@@ -163,10 +153,10 @@ def unsupervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None
     pose = torch.zeros((), device=kl.device)
     at = out
     if grid is not None and (w.wpose_unlabeled or w.unlabeled_sc_at_search):
-        from .pose import pose_classification_loss
+        from .pose_search import search_at_head_elevation
 
-        elevation_bin = out.pose_logits[:, grid.azimuth_bins:].detach().argmax(1)
-        target = search_target(occupancy.detach(), masks_pred, batch, grid, w, elevation_bin)
+        target = search_at_head_elevation(occupancy, masks_pred, batch["distance"], batch["K_sc"],
+                                          out.pose_logits, grid, w)
         pose = pose_classification_loss(out.pose_logits, target, grid, elevation=False)
         if w.unlabeled_sc_at_search:
             cand_az, _ = grid.candidates()
@@ -184,9 +174,7 @@ def true_pose_mask_loss(out: ModelOutput, batch: dict, weights: LossWeights | No
     a pose label, used by ``sc3d-train claims`` only): ``wsc (ray L_ray + proj L_proj) + wkl L_KL``
     on ``sigmoid(voxel_logits)`` against ``batch["masks_sc"]``. Set ``proj = 0`` for "Ray"."""
     w = weights or LossWeights()
-    occupancy = torch.sigmoid(out.voxel_logits.float())
-    sc = self_consistency_losses(occupancy, batch["masks_sc"], batch["azimuth"].float(),
-                                 batch["elevation"].float(), batch["distance"], batch["K_sc"], w.num_samples)
-    lsc = w.ray * sc["ray"] + w.proj * sc["proj"]
+    at_true_pose = replace(out, azimuth=batch["azimuth"].float(), elevation=batch["elevation"].float())
+    sc = _sc(at_true_pose, torch.sigmoid(out.voxel_logits.float()), batch["masks_sc"], batch, w)
     kl = kl_loss(out.z_mean, out.z_logvar)
-    return {"total": w.wsc * lsc + w.wkl * kl, "lsc": lsc, "ray": sc["ray"], "proj": sc["proj"], "kl": kl}
+    return {"total": w.wsc * sc["lsc"] + w.wkl * kl, "kl": kl, **sc}

@@ -26,7 +26,7 @@ import torch
 from torch import Tensor
 
 from .pose import PoseGrid
-from .self_consistency import _fp32, area_downsample, sample_rays
+from .self_consistency import _fp32, area_downsample, escape_probability, iou_loss_per_sample, sample_rays
 
 
 def sc_loss_per_sample(projection: Tensor, masks: Tensor, ray_weight: float, proj_weight: float,
@@ -36,10 +36,7 @@ def sc_loss_per_sample(projection: Tensor, masks: Tensor, ray_weight: float, pro
     ``L_ray = mean(m (1 - P) + (1 - m) P)``, ``L_proj = exp(1 - IoU_soft(P, m)) - 1``. ``[B]``."""
     p, m = projection.flatten(1), masks.flatten(1).to(projection.dtype)
     ray = (m * (1.0 - p) + (1.0 - m) * p).mean(1)
-    inter = (p * m).sum(1)
-    union = (p + m - p * m).sum(1)
-    proj = torch.exp(1.0 - inter / (union + eps)) - 1.0
-    return ray_weight * ray + proj_weight * proj
+    return ray_weight * ray + proj_weight * iou_loss_per_sample(p, m, eps)
 
 
 def _projections(occupancy: Tensor, azimuth: Tensor, elevation: Tensor, distance: Tensor, K: Tensor,
@@ -48,7 +45,7 @@ def _projections(occupancy: Tensor, azimuth: Tensor, elevation: Tensor, distance
     with _fp32(occupancy.device):
         y = sample_rays(occupancy.float(), azimuth.float(), elevation.float(), distance.float(), K.float(),
                         size, num_samples)
-        escape = torch.exp(torch.log1p(-y.clamp(max=1.0 - 1e-6)).sum(-1))
+        escape = escape_probability(y)
     return (1.0 - escape).reshape(-1, size, size)
 
 
@@ -159,6 +156,25 @@ def search_azimuth(occupancy: Tensor, masks: Tensor, distance: Tensor, K: Tensor
 
 
 @torch.no_grad()
+def search_at_head_elevation(occupancy: Tensor, masks: Tensor, distance: Tensor, K: Tensor,
+                             pose_logits: Tensor, grid: PoseGrid, weights=None, prior_weight: float = 0.0) -> Tensor:
+    """The candidate index ``[B]`` of :func:`search_azimuth` between predicted ``occupancy
+    [B, G, G, G]`` and predicted ``masks [B, S, S]`` (``K`` at S) at the elevation bin of the
+    head's ``pose_logits [B, A + E]``, with the head's azimuth log-probabilities as the prior
+    (``prior_weight``), at the ``unlabeled_search_*`` resolution of ``weights``
+    (:class:`~sc3d_train.losses.LossWeights`). Shared by the unlabelled training loss (no prior)
+    and :func:`self_consistent_pose`."""
+    from .losses import LossWeights
+
+    w = weights or LossWeights()
+    a = grid.azimuth_bins
+    logits = pose_logits.detach().float()
+    prior = torch.log_softmax(logits[:, :a], 1) if prior_weight else None
+    return search_azimuth(occupancy.detach(), masks.detach(), distance, K, grid, logits[:, a:].argmax(1), w.ray,
+                          w.proj, w.unlabeled_search_mask_size, w.unlabeled_search_samples, prior, prior_weight)
+
+
+@torch.no_grad()
 def self_consistent_pose(out, K: Tensor, distance: Tensor, grid: PoseGrid, weights=None,
                          prior_weight: float = HEAD_PRIOR_WEIGHT) -> tuple[Tensor, Tensor]:
     """Test-time self-consistency: ``(azimuth [B], elevation [B])`` degrees where the azimuth is
@@ -167,14 +183,6 @@ def self_consistent_pose(out, K: Tensor, distance: Tensor, grid: PoseGrid, weigh
     the pose head predicts, and the elevation is the head's. ``out``: a
     :class:`~sc3d_train.model.ModelOutput`; ``K [B, 3, 3]`` pixels at the size of
     ``out.mask_logits``; ``distance [B]``. No label is read."""
-    from .losses import LossWeights
-
-    w = weights or LossWeights()
-    a = grid.azimuth_bins
-    elevation_bin = out.pose_logits[:, a:].argmax(1)
-    best = search_azimuth(torch.sigmoid(out.voxel_logits.float()), torch.sigmoid(out.mask_logits.float()),
-                          distance, K, grid, elevation_bin, w.ray, w.proj, w.unlabeled_search_mask_size,
-                          w.unlabeled_search_samples, torch.log_softmax(out.pose_logits[:, :a].float(), 1),
-                          prior_weight)
-    cand_az, _ = grid.candidates()
-    return cand_az.to(best.device, torch.float32)[best], out.elevation.float()
+    best = search_at_head_elevation(torch.sigmoid(out.voxel_logits.float()), torch.sigmoid(out.mask_logits.float()),
+                                    distance, K, out.pose_logits, grid, weights, prior_weight)
+    return grid.azimuths().to(best.device, torch.float32)[grid.split(best)[0]], out.elevation.float()

@@ -164,13 +164,25 @@ def project_occupancy(occupancy: Tensor, azimuth: Tensor, elevation: Tensor, dis
     return projection, q
 
 
-def iou_loss(pred: Tensor, target: Tensor, eps: float = 1e-6) -> Tensor:
-    """``exp(1 - IoU_soft) - 1`` per sample (all but the first axis reduced), averaged over the
-    batch; ``IoU_soft = sum(p t) / sum(p + t - p t)``. Used for L_proj and the IoU part of L_3D."""
+def iou_loss_per_sample(pred: Tensor, target: Tensor, eps: float = 1e-6) -> Tensor:
+    """``exp(1 - IoU_soft) - 1`` per sample ``[B]`` (all but the first axis reduced);
+    ``IoU_soft = sum(p t) / sum(p + t - p t)``."""
     p, t = pred.flatten(1), target.flatten(1)
     inter = (p * t).sum(1)
     union = (p + t - p * t).sum(1)
-    return (torch.exp(1.0 - inter / (union + eps)) - 1.0).mean()
+    return torch.exp(1.0 - inter / (union + eps)) - 1.0
+
+
+def iou_loss(pred: Tensor, target: Tensor, eps: float = 1e-6) -> Tensor:
+    """:func:`iou_loss_per_sample` averaged over the batch. Used for L_proj and the IoU part of
+    L_3D."""
+    return iou_loss_per_sample(pred, target, eps).mean()
+
+
+def escape_probability(y: Tensor) -> Tensor:
+    """``prod_i (1 - y_i)`` over the last axis (samples along a ray), computed in log space (a
+    cheaper backward than ``cumprod``); ``y`` is clamped below 1 so the log stays finite."""
+    return torch.exp(torch.log1p(-y.clamp(max=1.0 - 1e-6)).sum(-1))
 
 
 def self_consistency_losses(occupancy: Tensor, masks: Tensor, azimuth: Tensor, elevation: Tensor,
@@ -186,7 +198,7 @@ def self_consistency_losses(occupancy: Tensor, masks: Tensor, azimuth: Tensor, e
         y = sample_rays(occupancy, azimuth, elevation, distance, K, s, num_samples)
         # escape = prod_i (1 - y_i), in log space (cheaper backward than cumprod); the sum of the
         # termination probabilities is 1 - escape, so L_ray needs only the escape probability
-        escape = torch.exp(torch.log1p(-y.clamp(max=1.0 - 1e-6)).sum(-1))  # [B, R]
+        escape = escape_probability(y)  # [B, R]
         m = masks.float().reshape(masks.shape[0], -1)
         ray = (m * escape + (1.0 - m) * (1.0 - escape)).mean()
         projection = (1.0 - escape).reshape(-1, s, s)

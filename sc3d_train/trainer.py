@@ -209,16 +209,14 @@ class MetricsLog:
         if not self.enabled:
             return
         row = {"step": step, **values}
+        self.rows.append(row)
         new = [k for k in row if k not in (self.fields or [])]
-        if new:  # first row, or a phase that logs more terms: widen the header
+        if new:  # first row, or a phase that logs more terms: widen the header, rewrite the file
             self.fields = (self.fields or []) + new
-            self.rows.append(row)
             self._rewrite()
-            row = None
-        if row is not None:
+        else:
             with open(self.path, "a", newline="") as f:
                 csv.DictWriter(f, fieldnames=self.fields, extrasaction="ignore").writerow(row)
-            self.rows.append(row)
         for k, v in values.items():
             if isinstance(v, (int, float)):
                 self.tb.add_scalar(k if "/" in k else f"train/{k}", v, step)
@@ -455,11 +453,8 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
                     if n_lab:
                         loaders["supervised"] = loader(labeled_ds, n_lab, "labeled_mix",
                                                        pos["labeled_samples_per_rank"])
-                for group in optimizer.param_groups:
-                    group["lr"] = cfg.lr_at(step)
-            if cfg.lr_schedule != "constant":
-                for group in optimizer.param_groups:
-                    group["lr"] = cfg.lr_at(step)
+            for group in optimizer.param_groups:
+                group["lr"] = cfg.lr_at(step)
             batches = {p: training_batch(next(it), cfg.mode if cfg.mode == "true-pose-masks" else p,
                                          device, channels_last, pose_targets)
                        for p, it in loaders.items()}
