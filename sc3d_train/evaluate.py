@@ -70,7 +70,7 @@ def predict_dataset(model, dataset: ShardDataset, device, batch_size: int = 64,
     rows, examples = [], []
     for batch in loader:
         out = model(batch["images"].to(device))
-        if pose_from == "search":  # test-time self-consistency (no label): see predicted_pose
+        if pose_from == "search":  # test-time self-consistency (no label): pose_search.self_consistent_pose
             from sc3d_train.pose_search import self_consistent_pose
 
             out.azimuth, out.elevation = self_consistent_pose(out, batch["K"].to(device).float(),
