@@ -8,7 +8,7 @@ before timing (loading is not timed). Measured per side: views/s (wall) and CPU-
 over all meshes and over the "typical" 2-30k-face ones, peak RSS, and RSS after each pass
 (sc3d only: ``--repeat`` passes over the meshes; flat RSS = no leak).
 
-- sc3d: one ``sc3d_data.render.MeshRenderer`` for all meshes (all views of an object in one
+- sc3d: one ``sc3d_data.render.renderer.MeshRenderer`` for all meshes (all views of an object in one
   atlas framebuffer, one instanced draw per mesh part, one readback).
 - baseline: per mesh a new ``pyrender.Scene`` and ``OffscreenRenderer`` (default settings,
   4x MSAA), ``render`` per view, ``delete()`` afterwards: the README's usage.
@@ -109,8 +109,8 @@ def run_pipeline_memory(paths, root: Path, repeat: int, workers: int, views: int
 
 
 def _load(paths):
-    from sc3d_data.mesh_io import load_mesh
-    from sc3d_data.normalize import to_canonical_transform
+    from sc3d_data.io.meshes import load_mesh
+    from sc3d_data.geometry.normalize import to_canonical_transform
 
     out = []
     for p in paths:
@@ -128,8 +128,8 @@ def _typical(n_faces: int) -> bool:
 
 
 def run_sc3d(paths, views, repeat, backend, queue):
-    from sc3d_data.camera import ViewSettings
-    from sc3d_data.render import MeshRenderer
+    from sc3d_data.geometry.camera import ViewSettings
+    from sc3d_data.render.renderer import MeshRenderer
 
     meshes = _load(paths)
     r = MeshRenderer(ViewSettings(num_views=views), backend=backend)
@@ -151,15 +151,15 @@ def run_sc3d(paths, views, repeat, backend, queue):
 
 
 def run_baseline(paths, views, backend, queue):
-    from sc3d_data.gl_backend import activate
+    from sc3d_data.render.gl_backend import activate
 
     activate(backend)
     import numpy as np
     import pyrender
     import trimesh
 
-    from sc3d_data.camera import ViewSettings
-    from sc3d_data.render import opengl_camera_pose
+    from sc3d_data.geometry.camera import ViewSettings
+    from sc3d_data.render.renderer import opengl_camera_pose
 
     meshes = _load(paths)
     cams = ViewSettings(num_views=views).cameras()
@@ -215,7 +215,7 @@ def main():
     ap.add_argument("--stages", action="store_true",
                     help="stage profile of the pipeline as users run it (render --voxelize --workers N)")
     a = ap.parse_args()
-    from sc3d_data.mesh_io import MESH_SUFFIXES
+    from sc3d_data.io.meshes import MESH_SUFFIXES
 
     paths = sorted(p for p in a.meshes.rglob("*") if p.suffix.lower() in MESH_SUFFIXES)
     if a.limit:

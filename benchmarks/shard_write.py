@@ -4,7 +4,7 @@
 
 Takes the arrays of an existing shard directory (e.g. the output of ``sc3d-data render
 --voxelize``), writes them again with each candidate setting (``h5py``, one dataset per array
-as ``sc3d_data.shards.write_shard`` does) and reports, per setting: CPU ms to write one object
+as ``sc3d_data.io.shards.write_shard`` does) and reports, per setting: CPU ms to write one object
 (stack + compress + write, the best of ``--repeat``), bytes per object, CPU ms to read one whole
 object (every array) and one view (image + mask, as the training loader needs), and whether the
 arrays read back are bit-identical. CPU time, because the machine is shared.
@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import h5py  # noqa: E402
 import numpy as np  # noqa: E402
 
-from sc3d_data.shards import STRING_FIELDS, shard_files  # noqa: E402
+from sc3d_data.io.shards import STRING_FIELDS, shard_files  # noqa: E402
 
 #: name -> (dataset keyword arguments, chunk rule: "object" = one object per chunk,
 #: "view" = one view per chunk for the per-view image arrays)

@@ -56,11 +56,11 @@ def _wrap(obj, attr: str, stage: str, acc: dict | None = None) -> None:
 
 def install_worker_hooks() -> None:
     """Wrap the worker-side pipeline functions (in this process) with timers."""
-    import sc3d_data.mesh_io as mesh_io
-    import sc3d_data.normalize as normalize
-    import sc3d_data.render as render
+    import sc3d_data.io.meshes as mesh_io
+    import sc3d_data.geometry.normalize as normalize
+    import sc3d_data.render.renderer as render
     import sc3d_data.render_pipeline as rp
-    import sc3d_data.voxelize as voxelize
+    import sc3d_data.voxel.voxelize as voxelize
 
     log_dir = Path(os.environ[ENV])
     _wrap(mesh_io, "load_mesh", "load")

@@ -15,7 +15,7 @@ the same run, so improvements show as ratios:
    ``make_loader``) against ``make_loader`` (whole batches per worker, packed transfer), with
    the decoded-object cache and without (every sample decoded: large datasets), against the
    training step's samples/s (the loader should outrun the step);
-3. the self-consistency module (C1's ``benchmark_self_consistency``): ms per batch and memory,
+3. the self-consistency module (``benchmark_self_consistency`` below): ms per batch and memory,
    against the gather + loop baseline.
 """
 from __future__ import annotations
@@ -33,6 +33,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "tests"))  # drc_reference: the plain baseline the tests also use
 
 import torch  # noqa: E402
 
@@ -42,7 +43,7 @@ warnings.filterwarnings("ignore", message="This DataLoader will create")
 def render_samples(out: Path) -> Path:
     from click.testing import CliRunner
 
-    from cli.data import main
+    from sc3d_cli.data import main
 
     res = CliRunner().invoke(main, ["render", "--meshes", str(REPO / "assets" / "sample_meshes"),
                                     "--out", str(out), "--voxelize", "--workers", "2"])
@@ -116,7 +117,7 @@ def time_train_steps(cfg, batch, device, variants, steps: int) -> list[float | N
 def per_item_loader(ds, batch_size: int, workers: int):
     """The previous make_loader, kept as the baseline: per-sample ``__getitem__`` in the
     workers, ``default_collate`` into ~14 float tensors sent through shared memory."""
-    from sc3d_train.data import ViewSampler, _limit_worker_threads
+    from sc3d_train.loader import ViewSampler, _limit_worker_threads
 
     return torch.utils.data.DataLoader(
         ds, batch_size=batch_size, sampler=ViewSampler(ds.num_objects, ds.num_views, 0),
@@ -130,7 +131,8 @@ def time_loaders(shards: Path, batch_size: int, workers: tuple[int, ...], batche
     over ``rounds`` rounds, each round running every variant once, interleaved (a fresh loader
     each time; the first ``2 + 4 * workers`` batches, worker start-up and the prefetch queue,
     are not timed). ``cache_objects=0`` makes every sample decode its object from the file."""
-    from sc3d_train.data import ShardDataset, make_loader
+    from sc3d_train.data import ShardDataset
+    from sc3d_train.loader import make_loader
 
     ds = ShardDataset(shards, "train", cache_objects=cache_objects)
     makers = {("per-item", w): (lambda w=w: per_item_loader(ds, batch_size, w)) for w in workers}
@@ -158,6 +160,70 @@ def table(title: str, header: tuple[str, ...], rows: list[tuple]) -> str:
     return "\n".join(lines)
 
 
+def benchmark_self_consistency(batch_size: int = 48, device: str | torch.device = "cpu", repeats: int = 3,
+                               voxel_resolution: int = 32, mask_size: int = 48,
+                               num_samples: int | None = None) -> list[dict]:
+    """Time forward + backward of the self-consistency loss at ``batch_size`` on ``device``:
+    the baseline (``tests/drc_reference.py``, hand-written gather + loop) and the module
+    (grid_sample + log-space escape). Returns one row per variant: ``name``, ``ms_per_batch`` (median of
+    ``repeats`` after one warm-up), ``saved_mb`` (tensors kept for backward, measured with
+    saved-tensor hooks; device independent) and ``peak_mb`` (CUDA peak allocation, else None)."""
+
+    from drc_reference import project_occupancy_reference
+
+    from sc3d_data.geometry.camera import intrinsics, scale_intrinsics
+    from sc3d_train.self_consistency import DEFAULT_NUM_SAMPLES, iou_loss, self_consistency_losses
+
+    num_samples = num_samples or DEFAULT_NUM_SAMPLES
+    dev = torch.device(device)
+    gen = torch.Generator().manual_seed(0)
+    occ0 = (torch.rand(batch_size, voxel_resolution, voxel_resolution, voxel_resolution, generator=gen) * 0.3)
+    masks = (torch.rand(batch_size, mask_size, mask_size, generator=gen) > 0.5).float().to(dev)
+    K = torch.as_tensor(scale_intrinsics(intrinsics(64), mask_size, 64), dtype=torch.float32)
+    K = K.expand(batch_size, 3, 3).contiguous().to(dev)
+    az0 = torch.rand(batch_size, generator=gen) * 360
+    el = torch.full((batch_size,), 30.0, device=dev)
+    dist = torch.full((batch_size,), 2.0, device=dev)
+
+    def run_module(occ, az):
+        out = self_consistency_losses(occ, masks, az, el, dist, K, num_samples)
+        return 5.0 * out["ray"] + 0.125 * out["proj"]
+
+    def run_reference(occ, az):
+        p = project_occupancy_reference(occ, az, el, dist, K, mask_size, num_samples)
+        return iou_loss(p, masks)
+
+    rows = []
+    for name, fn in (("baseline: gather + loop (fp32)", run_reference), ("grid_sample + log-space escape (fp32)", run_module)):
+        times, saved = [], 0
+        for rep in range(repeats + 1):
+            occ = occ0.to(dev).requires_grad_(True)
+            az = az0.to(dev).requires_grad_(True)
+            nbytes = [0]
+
+            def pack(t, nbytes=nbytes):
+                nbytes[0] += t.numel() * t.element_size()
+                return t
+
+            if dev.type == "cuda":
+                torch.cuda.synchronize(dev)
+                torch.cuda.reset_peak_memory_stats(dev)
+            t0 = time.perf_counter()
+            with torch.autograd.graph.saved_tensors_hooks(pack, lambda t: t):
+                loss = fn(occ, az)
+            loss.backward()
+            if dev.type == "cuda":
+                torch.cuda.synchronize(dev)
+            if rep > 0:
+                times.append(time.perf_counter() - t0)
+            saved = nbytes[0]
+        peak = torch.cuda.max_memory_allocated(dev) / 2**20 if dev.type == "cuda" else None
+        times.sort()
+        rows.append({"name": name, "ms_per_batch": 1000 * times[len(times) // 2], "saved_mb": saved / 2**20,
+                     "peak_mb": peak, "batch_size": batch_size, "device": str(dev)})
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--shards", type=Path, default=None)
@@ -171,7 +237,8 @@ def main() -> None:
     ap.add_argument("--loader-only", action="store_true", help="only table 2 (no training step: its last column is then -)")
     args = ap.parse_args()
 
-    from sc3d_train.data import ShardDataset, make_loader
+    from sc3d_train.data import ShardDataset
+    from sc3d_train.loader import make_loader
     from sc3d_train.self_consistency import benchmark_self_consistency
     from sc3d_train.trainer import DistInfo, resolve_config, resolve_device
 

@@ -32,10 +32,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 
-from sc3d_data.discover import discover_meshes  # noqa: E402
-from sc3d_data.mesh_io import load_mesh_triangles  # noqa: E402
-from sc3d_data.normalize import apply_transform, to_canonical_transform  # noqa: E402
-from sc3d_data.voxelize import voxelize_triangles  # noqa: E402
+from sc3d_data.formats.discover import discover_meshes  # noqa: E402
+from sc3d_data.io.meshes import load_mesh_triangles  # noqa: E402
+from sc3d_data.geometry.normalize import apply_transform, to_canonical_transform  # noqa: E402
+from sc3d_data.voxel.voxelize import voxelize_triangles  # noqa: E402
 
 
 def trimesh_fill(vertices, faces, G):

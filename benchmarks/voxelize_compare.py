@@ -25,14 +25,14 @@ sys.path.insert(0, str(REPO))
 
 import numpy as np  # noqa: E402
 
-from sc3d_data import voxelize as new  # noqa: E402
-from sc3d_data.discover import discover_meshes  # noqa: E402
-from sc3d_data.mesh_io import load_mesh_triangles  # noqa: E402
-from sc3d_data.normalize import apply_transform, to_canonical_transform  # noqa: E402
+from sc3d_data.voxel import voxelize as new  # noqa: E402
+from sc3d_data.formats.discover import discover_meshes  # noqa: E402
+from sc3d_data.io.meshes import load_mesh_triangles  # noqa: E402
+from sc3d_data.geometry.normalize import apply_transform, to_canonical_transform  # noqa: E402
 
 
 def import_old(tree: Path):
-    """``sc3d_data.voxelize`` of another source tree, as ``sc3d_data_old.voxelize``."""
+    """``sc3d_data.voxel.voxelize`` of another source tree, as ``sc3d_data_old.voxelize``."""
     pkg = tree / "sc3d_data"
     spec = importlib.util.spec_from_file_location("sc3d_data_old", pkg / "__init__.py",
                                                   submodule_search_locations=[str(pkg)])

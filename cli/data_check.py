@@ -32,7 +32,7 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
     Exits 1 when any object's mean coverage is below --min-coverage or its mean near below
     --min-near (a consistent dataset scores 1.000 on both, thin objects included: voxels cover
     every mask pixel and reach no further than one voxel from the mask)."""
-    from sc3d_data.check import check_shards, write_worst_png
+    from sc3d_data.qa.check import check_shards, write_worst_png
 
     shards = shards_opt or shards_arg
     if shards is None:
@@ -41,7 +41,7 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
         report = check_shards(Path(shards), min_iou=min_iou, min_coverage=min_coverage, progress=progress,
                               min_near=min_near)
     except (FileNotFoundError, ValueError, OSError) as e:
-        from sc3d_data.shards import one_line
+        from sc3d_data.io.shards import one_line
 
         raise click.ClickException(one_line(e))
     if not report.objects:

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import click
 
-from sc3d_data.r2n2_import import R2N2_FRONT, VOXEL_FRAMES
-from sc3d_data.splits import SPLIT_FILE_HELP, SPLIT_HELP
+from sc3d_data.formats.r2n2 import R2N2_FRONT, VOXEL_FRAMES
+from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
 
 
 @click.command("import-r2n2")
@@ -37,7 +37,7 @@ def import_r2n2(renderings, voxels, out, image_size, background, categories, spl
 
     Cameras are rebuilt from rendering_metadata.txt as explicit K, R, t (see README,
     "ShapeNet and 3D-R2N2 data"); check them with `sc3d-data check --shards OUT`."""
-    from sc3d_data.r2n2_import import ImportConfig, import_r2n2 as run
+    from sc3d_data.formats.r2n2 import ImportConfig, import_r2n2 as run
 
     try:
         bg = tuple(int(c) for c in background.split(","))
@@ -51,7 +51,7 @@ def import_r2n2(renderings, voxels, out, image_size, background, categories, spl
     bar = None
     try:
         if progress:
-            from sc3d_data.progress import progress_bar
+            from sc3d_data.pipeline.progress import progress_bar
 
             bar = progress_bar(unit="obj", desc="import-r2n2")
         summary = run(config, progress=bar.update if bar is not None else None)

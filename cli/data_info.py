@@ -14,14 +14,14 @@ import click
 def info(shard_dir: Path, max_failures: int, verify: bool):
     """Print object counts per category and split, settings and failures of SHARD_DIR.
     Exits 1 when a shard is missing, truncated or (--verify) corrupted."""
-    from sc3d_data.index_report import index_report, integrity_report
+    from sc3d_data.qa.index_report import index_report, integrity_report
 
     try:
         click.echo(index_report(shard_dir, max_failures))
         broken = integrity_report(shard_dir, full=verify)
     except (FileNotFoundError, ValueError) as e:
         raise click.ClickException(str(e))
-    from sc3d_data.shards import load_index
+    from sc3d_data.io.shards import load_index
 
     n = len(load_index(shard_dir).get("shards", []))
     if broken:

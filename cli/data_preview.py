@@ -18,7 +18,7 @@ def preview(shard_dir: Path, out: Path, max_objects: int, views: int, scale: int
     not covered by voxels) of several views."""
     from PIL import Image
 
-    from sc3d_data.preview import contact_sheet
+    from sc3d_data.qa.preview import contact_sheet
 
     try:
         sheet = contact_sheet(shard_dir, max_objects, views, scale)

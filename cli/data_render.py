@@ -6,10 +6,10 @@ from pathlib import Path
 
 import click
 
-from sc3d_data.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS
-from sc3d_data.mesh_io import DEFAULT_MAX_FACES
+from sc3d_data.geometry.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS
+from sc3d_data.io.meshes import DEFAULT_MAX_FACES
 from sc3d_data.render_pipeline import SAMPLE_MESHES, RenderConfig, render_dataset
-from sc3d_data.splits import SPLIT_FILE_HELP, SPLIT_HELP
+from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
 
 
 def _floats(text: str) -> tuple[float, ...]:
@@ -70,7 +70,7 @@ def render(elevations, background, **options):
     try:
         s = render_dataset(config)
     except (ValueError, RuntimeError, OSError) as e:  # bad option/folder, lock, disk full: one line
-        from sc3d_data.shards import one_line
+        from sc3d_data.io.shards import one_line
 
         raise click.ClickException(one_line(e))
     for note in s["notes"]:

@@ -42,7 +42,7 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
             click.echo(f"wrote {s.objects} .binvox files to {out} ({s.shards_skipped} already there), "
                        f"{s.failed} failed, {s.seconds:.1f} s")
     except (ValueError, RuntimeError, OSError) as e:  # bad shard/index, lock held, disk full: one line
-        from sc3d_data.shards import one_line
+        from sc3d_data.io.shards import one_line
 
         raise click.ClickException(one_line(e))
     sys.exit(0)

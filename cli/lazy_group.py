@@ -25,3 +25,15 @@ class LazyGroup(click.Group):
             module_name, attr = self.lazy_commands[name].split(":")
             return getattr(importlib.import_module(module_name), attr)
         return super().get_command(ctx, name)
+
+
+def lazy_main(commands: dict[str, str], doc: str) -> click.Group:
+    """The ``main`` of a console script: a versioned :class:`LazyGroup` of ``commands``
+    (name -> ``"module.path:attribute"``) whose help text is ``doc``."""
+
+    def main():
+        pass
+
+    main.__doc__ = doc
+    return click.version_option(package_name="sc3d")(
+        click.group(cls=LazyGroup, lazy_commands=commands)(main))

@@ -29,7 +29,7 @@ def eval_cmd(checkpoint, shards, split, out, batch_size, examples, pose_from, de
     try:
         result = evaluate(checkpoint, shards, split, out, device, batch_size, examples, pose_from)
     except (DataError, CheckpointError, ValueError, OSError) as e:
-        from sc3d_data.shards import one_line
+        from sc3d_data.io.shards import one_line
 
         raise click.ClickException(one_line(e)) from e
     click.echo(f"{checkpoint} (step {result['step']}) on split {split!r} of {shards} (pose: {pose_from}):")

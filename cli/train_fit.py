@@ -77,7 +77,7 @@ def fit(ctx, shards, out, steps, batch_size, lr, lr_schedule, semi_lr, semi_labe
                        f"model {cfg.model}, run dir {cfg.out}")
         summary = run_fit(cfg, resume=resume)
     except (DataError, CheckpointError, TrainingDiverged, ValueError, OSError) as e:  # OSError: disk full...
-        from sc3d_data.shards import one_line
+        from sc3d_data.io.shards import one_line
 
         raise click.ClickException(one_line(e)) from e
     if not main_rank:

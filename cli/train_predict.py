@@ -27,7 +27,7 @@ def predict(checkpoint, images, out, threshold, pose_from, device):
     try:
         results = run_predict(checkpoint, list(images), out, device, threshold, pose_from)
     except (ImageError, CheckpointError, ValueError, OSError) as e:
-        from sc3d_data.shards import one_line
+        from sc3d_data.io.shards import one_line
 
         raise click.ClickException(one_line(e)) from e
     for r in results:

@@ -23,7 +23,7 @@ Design
   killed by the OOM killer or a preempted node is not the object's fault) and rewrites their
   shard with the objects that now succeed, in plan order; each failure records its
   ``attempts``. ``retry_failed=False`` (``--no-retry-failed``) keeps them as they are.
-- One writer: the run holds ``sc3d_data.outlock.exclusive_lock(out)``; a second render into
+- One writer: the run holds ``sc3d_data.io.outlock.exclusive_lock(out)``; a second render into
   the same ``--out`` is refused with one line and does not disturb the first.
 - Validation: ``RenderConfig.validate`` bounds the options by what the renderer and the
   machine's memory can do (message names the option); an object whose silhouettes are empty
@@ -42,11 +42,11 @@ from pathlib import Path
 
 import numpy as np
 
-from sc3d_data.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS, ViewSettings
-from sc3d_data.mesh_io import DEFAULT_MAX_FACES, MESH_SUFFIXES
-from sc3d_data.shards import (INDEX_NAME, SHARD_PATTERN, ObjectRecord, add_shard_to_index, border_clipped,
+from sc3d_data.geometry.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS, ViewSettings
+from sc3d_data.io.meshes import DEFAULT_MAX_FACES, MESH_SUFFIXES
+from sc3d_data.io.shards import (INDEX_NAME, SHARD_PATTERN, ObjectRecord, add_shard_to_index, border_clipped,
                               write_shard)
-from sc3d_data.shards import write_index as write_index_file
+from sc3d_data.io.shards import write_index as write_index_file
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SAMPLE_MESHES = REPO_ROOT / "assets" / "sample_meshes"
@@ -139,7 +139,7 @@ class RenderConfig:
         d["background"] = [int(c) for c in self.background]
         d["backend"] = backend
         d["requested_backend"] = self.backend
-        from sc3d_data.render import RenderSettings
+        from sc3d_data.render.renderer import RenderSettings
 
         rs = RenderSettings()
         d["lighting"] = {"headlight_intensity": rs.light_intensity, "ambient": rs.ambient, "shading": rs.shading,
@@ -160,11 +160,11 @@ class Task:
 def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord, list[str]]:
     """Load, validate, normalise, render (and voxelize) one object in this process.
     Returns the shard record and warnings; raises on bad input."""
-    from sc3d_data.mesh_io import load_mesh
-    from sc3d_data.normalize import apply_transform, to_canonical_transform
-    from sc3d_data.shapenet import resolve_front
+    from sc3d_data.io.meshes import load_mesh
+    from sc3d_data.geometry.normalize import apply_transform, to_canonical_transform
+    from sc3d_data.formats.shapenet import resolve_front
 
-    from sc3d_data.mesh_io import MeshError
+    from sc3d_data.io.meshes import MeshError
 
     root = Path(config.meshes)
     scene, vertices, faces, warnings = load_mesh(Path(task.path), config.max_faces, config.bad_texture,
@@ -184,7 +184,7 @@ def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord
     arrays["clipped"] = border_clipped(arrays["masks"])
     arrays["to_canonical"] = to_canonical
     if config.voxelize:
-        from sc3d_data.voxelize import voxelize_triangles
+        from sc3d_data.voxel.voxelize import voxelize_triangles
 
         arrays["voxels"] = voxelize_triangles(apply_transform(vertices, to_canonical), faces,
                                               resolution=config.voxel_resolution)
@@ -208,7 +208,7 @@ def _worker_main(conn, config: RenderConfig, backend: str) -> None:
     """Worker process: one renderer, then (task -> result) until ``None``."""
     for k, v in THREAD_ENV.items():
         os.environ.setdefault(k, v)
-    from sc3d_data.render import MeshRenderer, RenderSettings
+    from sc3d_data.render.renderer import MeshRenderer, RenderSettings
 
     try:
         renderer = MeshRenderer(config.view_settings(), RenderSettings(background=tuple(config.background),
@@ -331,7 +331,7 @@ class WorkerPool:
                         w.ready = True
                     elif status == "dead":
                         self.close()
-                        from sc3d_data.gl_backend import BackendError
+                        from sc3d_data.render.gl_backend import BackendError
 
                         raise BackendError(f"render worker could not start a renderer: {payload}")
                     elif status in ("ok", "fail"):
@@ -370,7 +370,7 @@ def start_pool(n: int, config: RenderConfig) -> WorkerPool:
     """Start ``n`` workers with ``config.backend``; ``auto`` tries EGL, then OSMesa (the
     workers themselves are the probe: the main process never creates a GL context). Raises
     ``BackendError`` naming the Debian packages when no backend works."""
-    from sc3d_data.gl_backend import BACKENDS, BackendError, install_hint
+    from sc3d_data.render.gl_backend import BACKENDS, BackendError, install_hint
 
     errors = []
     for backend in (BACKENDS if config.backend == "auto" else (config.backend,)):
@@ -393,8 +393,8 @@ def _clean_tmp(out: Path) -> None:
 
 
 def _plan(config: RenderConfig):
-    from sc3d_data.discover import discover_meshes
-    from sc3d_data.splits import assign_splits
+    from sc3d_data.formats.discover import discover_meshes
+    from sc3d_data.formats.splits import assign_splits
 
     entries, problems = discover_meshes(Path(config.meshes), categories=config.categories,
                                         category_override=config.category)
@@ -434,7 +434,7 @@ def _same_settings(old: dict, new: dict) -> list[str]:
 def _resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[Task]) -> dict:
     """What an existing index lets this run keep: chunks whose shard is intact (or that were
     empty), their index entries, and the failures to render again (``retry_failed``)."""
-    from sc3d_data.shards import verify_shard
+    from sc3d_data.io.shard_reader import verify_shard
 
     by_key = {(t.category, t.model_id): t for t in tasks}
     done_chunks, broken = set(old.get("empty_chunks", [])), []
@@ -470,7 +470,7 @@ def render_dataset(config: RenderConfig) -> dict:
     Raises ``ValueError`` (bad option or folder), ``LockError`` (another writer),
     ``ShardError`` / ``OSError`` (a shard or the index cannot be written: disk full...) with
     one-line messages naming the option or file."""
-    from sc3d_data.outlock import exclusive_lock
+    from sc3d_data.io.outlock import exclusive_lock
 
     config.validate(config.workers or os.cpu_count() or 1)
     out = Path(config.out)
@@ -480,7 +480,8 @@ def render_dataset(config: RenderConfig) -> dict:
 
 
 def _render_locked(config: RenderConfig, out: Path) -> dict:
-    from sc3d_data.shards import ShardError, read_records, shard_path
+    from sc3d_data.io.shards import ShardError, shard_path
+    from sc3d_data.io.shard_reader import read_records
 
     t0 = time.monotonic()
     index_file = out / INDEX_NAME
@@ -499,7 +500,7 @@ def _render_locked(config: RenderConfig, out: Path) -> dict:
     # ---- resume
     old = None
     if index_file.is_file():
-        from sc3d_data.shards import load_index
+        from sc3d_data.io.shards import load_index
 
         old = load_index(out)
     state = {"done_chunks": set(), "shards": [], "objects": [], "failures": [], "warnings": [],
@@ -577,7 +578,7 @@ def _render_locked(config: RenderConfig, out: Path) -> dict:
         write_index(not todo)
         if pool is not None:
             if config.progress:
-                from sc3d_data.progress import progress_bar
+                from sc3d_data.pipeline.progress import progress_bar
 
                 bar = progress_bar(total=len(todo), unit="obj", desc="render")
             first_open = lambda: pending_chunks[0] * K if pending_chunks else 0  # noqa: E731
@@ -587,7 +588,7 @@ def _render_locked(config: RenderConfig, out: Path) -> dict:
                     bar.update(1)
                 flush_ready_chunks()
     except OSError as e:  # the index could not be written (disk full, ...): one line naming it
-        from sc3d_data.shards import io_reason
+        from sc3d_data.io.shards import io_reason
 
         raise ShardError(f"{e.filename or out / INDEX_NAME}: {io_reason(e)}") from e
     finally:

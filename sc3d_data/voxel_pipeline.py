@@ -3,20 +3,20 @@
 
 Shards (``voxelize_shards``)
     For every object the source mesh recorded in the shard (``source``) is loaded with
-    ``sc3d_data.mesh_io.load_mesh_triangles`` (exactly the geometry the renderer drew), moved
+    ``sc3d_data.io.meshes.load_mesh_triangles`` (exactly the geometry the renderer drew), moved
     into the canonical frame with the object's stored ``to_canonical`` and voxelized with
-    ``sc3d_data.voxelize.voxelize_triangles``. The ``voxels`` dataset ``[N, G, G, G]`` is added
+    ``sc3d_data.voxel.voxelize.voxelize_triangles``. The ``voxels`` dataset ``[N, G, G, G]`` is added
     to each shard atomically (``shards.replace_dataset_atomically``), one shard at a time.
     Resume: a shard that already holds ``voxels`` at the requested resolution is skipped
     (``overwrite=True`` redoes it). The index's ``bytes``/``sha256`` of a shard are updated
     right after it is rewritten (``replace_dataset_atomically``), and the run holds the folder's write lock
-    (``sc3d_data.outlock``). An object that fails (mesh missing or unreadable) gets an
+    (``sc3d_data.io.outlock``). An object that fails (mesh missing or unreadable) gets an
     all-empty grid so the shard stays rectangular, and is recorded in the index under
     ``failures`` with ``"stage": "voxelize"``, its shard, row and reason. The index also gets
     ``"voxels": {"resolution": G, "occupancy": ...}``.
 
 Meshes (``voxelize_meshes``)
-    Every mesh under ``meshes`` (``sc3d_data.discover`` layouts) is normalised like
+    Every mesh under ``meshes`` (``sc3d_data.formats.discover`` layouts) is normalised like
     ``render`` does (``--normalize``/``--up``/``--front``) and written to
     ``out/<same relative path>.binvox`` (sc3d header: translate -0.5, scale 1). Existing
     ``.binvox`` files are complete (written atomically) and skipped on a rerun; failures go
@@ -32,11 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
-from sc3d_data.shards import (load_index, read_strings, replace_dataset_atomically, shard_files,
-                              write_json_atomic, index_path)
+from sc3d_data.io.shards import load_index, replace_dataset_atomically, shard_files, write_json_atomic, index_path
+from sc3d_data.io.shard_reader import read_strings
 
 OCCUPANCY_RULE = ("surface-touching voxels + voxel centres with |winding number| >= 0.5 "
-                  "+ enclosed voxels (sc3d_data/voxelize.py)")
+                  "+ enclosed voxels (sc3d_data/voxel/voxelize.py)")
 
 
 def _limit_threads() -> None:
@@ -50,7 +50,7 @@ def voxelize_source(source: str, to_canonical: np.ndarray, resolution: int, max_
                     ) -> np.ndarray:
     """Voxels ``[G, G, G]`` bool of the mesh file ``source`` moved into the canonical frame with
     the 4x4 ``to_canonical`` (as stored in the shard)."""
-    from sc3d_data.mesh_io import load_mesh_triangles
+    from sc3d_data.io.meshes import load_mesh_triangles
 
     kwargs = {} if max_faces is None else {"max_faces": max_faces}
     vertices, faces = load_mesh_triangles(Path(source), **kwargs)
@@ -60,8 +60,8 @@ def voxelize_source(source: str, to_canonical: np.ndarray, resolution: int, max_
 def voxelize_canonical(vertices: np.ndarray, faces: np.ndarray, to_canonical: np.ndarray,
                        resolution: int) -> np.ndarray:
     """Source-frame triangles -> canonical frame (4x4 ``to_canonical``) -> voxels [G, G, G]."""
-    from sc3d_data.normalize import apply_transform
-    from sc3d_data.voxelize import voxelize_triangles
+    from sc3d_data.geometry.normalize import apply_transform
+    from sc3d_data.voxel.voxelize import voxelize_triangles
 
     return voxelize_triangles(apply_transform(vertices, to_canonical), faces, resolution)
 
@@ -110,14 +110,15 @@ class VoxelizeSummary:
 def voxelize_shards(shard_dir: Path, resolution: int = 32, workers: int = 1, overwrite: bool = False,
                     progress: bool = False) -> VoxelizeSummary:
     """Add ``voxels [N, G, G, G]`` to every shard of ``shard_dir`` (module doc)."""
-    from sc3d_data.outlock import exclusive_lock
+    from sc3d_data.io.outlock import exclusive_lock
 
     with exclusive_lock(Path(shard_dir), "sc3d-data voxelize"):
         return _voxelize_shards_locked(shard_dir, resolution, workers, overwrite, progress)
 
 
 def _voxelize_shards_locked(shard_dir, resolution, workers, overwrite, progress) -> VoxelizeSummary:
-    from sc3d_data.shards import ShardError, io_reason, open_shard
+    from sc3d_data.io.shards import ShardError, io_reason
+    from sc3d_data.io.shard_reader import open_shard
 
     t0 = time.monotonic()
     shard_dir = Path(shard_dir)
@@ -130,7 +131,7 @@ def _voxelize_shards_locked(shard_dir, resolution, workers, overwrite, progress)
     old_voxel_failures = [f for f in index.get("failures", []) if f.get("stage") == "voxelize"]
     bar = None
     if progress:
-        from sc3d_data.progress import progress_bar
+        from sc3d_data.pipeline.progress import progress_bar
 
         bar = progress_bar(total=len(paths), unit="shard", desc="voxelize")
     new_failures = []
@@ -183,8 +184,8 @@ def voxelize_meshes(meshes: Path, out: Path, resolution: int = 32, normalize: st
                     up: str = "+Y", front: str = "auto", workers: int = 1, overwrite: bool = False,
                     progress: bool = False) -> VoxelizeSummary:
     """One ``.binvox`` per mesh under ``meshes``, same relative paths under ``out``."""
-    from sc3d_data.binvox import write_binvox
-    from sc3d_data.discover import discover_meshes
+    from sc3d_data.io.binvox import write_binvox
+    from sc3d_data.formats.discover import discover_meshes
 
     t0 = time.monotonic()
     meshes, out = Path(meshes), Path(out)
@@ -218,9 +219,9 @@ def _mesh_job(args):
     path, normalize, up, front, resolution = args
     _limit_threads()
     try:
-        from sc3d_data.mesh_io import load_mesh_triangles
-        from sc3d_data.normalize import to_canonical_transform
-        from sc3d_data.shapenet import resolve_front
+        from sc3d_data.io.meshes import load_mesh_triangles
+        from sc3d_data.geometry.normalize import to_canonical_transform
+        from sc3d_data.formats.shapenet import resolve_front
 
         vertices, faces = load_mesh_triangles(Path(path))
         T = to_canonical_transform(vertices, faces, mode=normalize, up=up, front=resolve_front(front, path))
@@ -233,7 +234,7 @@ def _map_meshes(jobs, workers: int, progress: bool):
     if workers <= 1 or len(jobs) <= 1:
         it = map(_mesh_job, jobs)
         if progress:
-            from sc3d_data.progress import progress_bar
+            from sc3d_data.pipeline.progress import progress_bar
 
             it = progress_bar(it, total=len(jobs), unit="mesh", desc="voxelize")
         return list(it)

@@ -130,7 +130,7 @@ def _row(res: dict, cats: list[str], key: str, fmt: str) -> list[str]:
 def format_report(results: dict) -> str:
     """The markdown tables: reconstruction (IoU@0.4 %, per category and mean), pose (median
     rotation error, share within 30 deg), ablations."""
-    from sc3d_data.shapenet import category_label
+    from sc3d_data.formats.shapenet import category_label
 
     cats = _categories(results)
     names = [category_label(c).split(" (")[0] for c in cats]
@@ -180,7 +180,7 @@ def plot_report(results: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from sc3d_data.shapenet import category_label
+    from sc3d_data.formats.shapenet import category_label
 
     cats = _categories(results)
     labels = [category_label(c).split(" (")[0] for c in cats] + ["mean"]

@@ -103,7 +103,7 @@ class RunConfig:
         return dataclass_from_dict(cls, d)
 
     def save(self, path: Path) -> None:
-        from sc3d_data.shards import write_json_atomic
+        from sc3d_data.io.shards import write_json_atomic
 
         write_json_atomic(Path(path), self.to_dict())
 

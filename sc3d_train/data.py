@@ -1,16 +1,14 @@
 """Training data from sc3d shards: a map-style torch Dataset over (object, view) pairs and a
 seeded, resumable, rank-aware sampler that draws a random view per object.
 
-* File handles: the dataset never keeps an ``h5py.File`` across pickling or ``fork``. Each
-  process (main or DataLoader worker) opens its own handles lazily on first read (keyed by
-  the process id), so ``num_workers > 0`` is safe with any start method.
-* Randomness lives in :class:`ViewSampler` only (``numpy`` generator seeded by
-  ``(seed, epoch)``), so the stream of (object, view) pairs is a pure function of the seed and
-  the position; resuming at sample ``k`` reproduces the stream exactly.
+* File handles: reads go through ``sc3d_data.io.shard_reader.ShardReader``, which never keeps a
+  handle across pickling or ``fork``: each process (main or DataLoader worker) opens its own
+  lazily on first read, so ``num_workers > 0`` is safe with any start method.
+* Sampling and batching (seeded, resumable, rank-aware) are ``sc3d_train.loader``.
 * Masks for the self-consistency module (48x48 by default) are the exact area average of the
   64x64 rendered mask (each output pixel covers 4/3 x 4/3 input pixels under the pixel-edge
-  convention of ``sc3d_data.camera``; C1's ``area_downsample``), thresholded at >= 0.5; ``K`` is scaled with
-  ``sc3d_data.camera.scale_intrinsics``, which keeps the principal point at the image centre.
+  convention of ``sc3d_data.geometry.camera``; C1's ``area_downsample``), thresholded at >= 0.5; ``K`` is scaled with
+  ``sc3d_data.geometry.camera.scale_intrinsics``, which keeps the principal point at the image centre.
 
 Batch keys (B samples): ``images`` [B,3,S,S] float in [0,1]; ``voxels`` [B,G,G,G] float {0,1}
 (index order [x,y,z]); ``masks`` [B,S,S] float; ``masks_sc`` [B,M,M] float; ``K`` [B,3,3] and
@@ -21,21 +19,18 @@ evaluation only); ``category``, ``model_id`` (lists of str); ``labeled`` [B] boo
 """
 from __future__ import annotations
 
-import math
 import os
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
-import h5py
 import numpy as np
 import torch
-from torch.utils.data import Dataset, Sampler
+from torch.utils.data import Dataset
 
-from sc3d_data.camera import scale_intrinsics
-from sc3d_data.shards import io_reason, load_index, read_strings, shard_files
-from sc3d_train.batch_transfer import PackedBatch, pack, unpack
+from sc3d_data.geometry.camera import scale_intrinsics
+from sc3d_data.io.shard_reader import ShardReader
+from sc3d_data.io.shards import ShardError
 from sc3d_train.self_consistency import area_downsample
 
 
@@ -71,36 +66,25 @@ def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
     shard_dir = Path(shard_dir)
     if not shard_dir.is_dir():
         raise DataError(f"{shard_dir}: shard directory does not exist")
-    index = load_index(shard_dir)
-    files = shard_files(shard_dir)
-    if not files:
-        raise DataError(f"{shard_dir}: the index lists no shard files")
-    refs: list[ObjectRef] = []
-    image_sizes, views, vres, no_vox = set(), set(), set(), []
-    for path in files:
-        if not path.is_file():
-            raise DataError(f"{path}: listed in {shard_dir}/index.json but missing")
-        try:
-            with h5py.File(path, "r") as f:
-                ids, cats, splits = (read_strings(f[k]) for k in ("model_id", "category", "split"))
-                n, v, s = f["images"].shape[:3]
-                image_sizes.add(int(s))
-                views.add(int(v))
-                if not refs:
-                    camera = {"K": f["K"][0, 0].tolist(), "distance": float(f["distance"][0, 0])}
-                if "voxels" in f:
-                    vres.add(int(f["voxels"].shape[1]))
-                else:
-                    no_vox.append(str(path))
-        except (OSError, KeyError, RuntimeError) as e:  # truncated / corrupted shard
-            raise DataError(f"{path}: broken shard ({io_reason(e)}); see `sc3d-data info --verify "
-                            f"{shard_dir}`") from e
-        refs += [ObjectRef(str(path), r, ids[r], cats[r], splits[r]) for r in range(n)]
+    try:
+        reader = ShardReader(shard_dir)
+        if not reader.files:
+            raise DataError(f"{shard_dir}: the index lists no shard files")
+        summaries = reader.summaries()
+    except ShardError as e:
+        raise DataError(str(e)) from e
+    refs = [ObjectRef(str(sm.path), r, sm.model_id[r], sm.category[r], sm.split[r])
+            for sm in summaries for r in range(sm.num_objects)]
+    image_sizes = {sm.image_size for sm in summaries}
+    views = {sm.num_views for sm in summaries}
+    vres = {sm.voxel_resolution for sm in summaries if sm.voxel_resolution is not None}
+    no_vox = [str(sm.path) for sm in summaries if sm.voxel_resolution is None]
+    camera = {"K": summaries[0].K.tolist(), "distance": summaries[0].distance}
     if len(image_sizes) != 1 or len(views) != 1:
         raise DataError(f"{shard_dir}: shards disagree on image size {image_sizes} or views {views}")
     info = {"image_size": image_sizes.pop(), "num_views": views.pop(),
             "voxel_resolution": vres.pop() if len(vres) == 1 else None,
-            "files_without_voxels": no_vox, "settings": index.get("settings", {}),
+            "files_without_voxels": no_vox, "settings": reader.settings,
             "K": camera["K"], "distance": camera["distance"]}
     return refs, info
 
@@ -172,7 +156,7 @@ class ShardDataset(Dataset):
         self.image_size, self.num_views = info["image_size"], info["num_views"]
         self.mask_size, self.require_voxels = mask_size, require_voxels
         self.cache_objects = cache_objects
-        self._files: dict[str, h5py.File] = {}
+        self._reader = ShardReader(shard_dir)
         self._cache: OrderedDict[int, dict] = OrderedDict()
         self._pid = None
 
@@ -185,20 +169,11 @@ class ShardDataset(Dataset):
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        state["_files"], state["_cache"], state["_pid"] = {}, OrderedDict(), None
+        state["_cache"], state["_pid"] = OrderedDict(), None
         return state
 
-    def _file(self, path: str) -> h5py.File:
-        if self._pid != os.getpid():  # new process (forked worker): never reuse parent handles
-            self._files, self._cache, self._pid = {}, OrderedDict(), os.getpid()
-        if path not in self._files:
-            self._files[path] = h5py.File(path, "r")
-        return self._files[path]
-
     def close(self) -> None:
-        for f in self._files.values():
-            f.close()
-        self._files = {}
+        self._reader.close()
 
     def object_arrays(self, obj_i: int) -> dict:
         """All stored arrays of object ``obj_i`` (every view, numpy): ``images [V,S,S,3]``,
@@ -209,6 +184,8 @@ class ShardDataset(Dataset):
     def _object(self, obj_i: int) -> dict:
         """All arrays of object ``obj_i`` (every view, as stored), from this process's LRU cache.
         A chunk holds one whole object, so reading every view costs the same as reading one."""
+        if self._pid != os.getpid():  # new process (forked worker): its own cache
+            self._cache, self._pid = OrderedDict(), os.getpid()
         arrays = self._cache.get(obj_i)
         if arrays is not None:
             self._cache.move_to_end(obj_i)
@@ -217,11 +194,9 @@ class ShardDataset(Dataset):
         names = ("images", "masks", "K", "R", "t", "distance", "azimuth", "elevation") + \
             (("voxels",) if self.require_voxels else ())
         try:
-            f = self._file(ref.shard)
-            arrays = {k: f[k][ref.row] for k in names}
-        except (OSError, KeyError, RuntimeError) as e:  # checksum / gzip error: name the file
-            raise DataError(f"{ref.shard}: object {ref.model_id} (row {ref.row}) cannot be read "
-                            f"({io_reason(e)}); see `sc3d-data info --verify`") from e
+            arrays = self._reader.read(ref.shard, ref.row, names)
+        except ShardError as e:  # checksum / gzip error: the reader names the file and row
+            raise DataError(f"{e} (object {ref.model_id})") from e
         m = self.mask_size
         arrays["masks_sc"] = np.zeros((self.num_views, m, m), dtype=bool)  # filled per view
         arrays["has_sc"] = np.zeros(self.num_views, dtype=bool)            # by _masks_sc
@@ -306,121 +281,3 @@ def expand_batch(arrays: dict[str, np.ndarray], strings: dict, pin: bool = False
         batch[name] = torch.from_numpy(np.array(arrays[name]))
     batch.update({k: list(v) for k, v in strings.items()})
     return batch
-
-
-# ----------------------------------------------------------------------------- sampling
-class ViewSampler(Sampler):
-    """An endless, seeded stream of dataset indices ``object * V + view`` for one DDP rank.
-
-    Epoch ``e`` shuffles the objects with ``default_rng([seed, e])`` and draws one random view
-    per object; the permutation is padded to a multiple of ``world_size`` and rank ``r`` takes
-    every ``world_size``-th entry from ``r`` (DistributedSampler's partitioning). ``start`` skips
-    the first ``start`` indices of this rank's stream (resume), without drawing them.
-    """
-
-    def __init__(self, num_objects: int, num_views: int, seed: int = 0, rank: int = 0,
-                 world_size: int = 1, start: int = 0):
-        self.n, self.v, self.seed = num_objects, num_views, seed
-        self.rank, self.world, self.start = rank, world_size, start
-        self.per_rank = math.ceil(num_objects / world_size)
-
-    def epoch_indices(self, epoch: int) -> np.ndarray:
-        rng = np.random.default_rng([self.seed, epoch])
-        perm = rng.permutation(self.n)
-        views = rng.integers(0, self.v, size=self.n)
-        idx = perm * self.v + views[perm]
-        pad = self.per_rank * self.world - self.n
-        idx = np.concatenate([idx, idx[:pad]]) if pad else idx
-        return idx[self.rank::self.world]
-
-    def __iter__(self) -> Iterator[int]:
-        epoch, offset = divmod(self.start, self.per_rank)
-        while True:
-            for i in self.epoch_indices(epoch)[offset:]:
-                yield int(i)
-            epoch, offset = epoch + 1, 0
-
-    def __len__(self):  # endless; DataLoader only needs this for len(loader)
-        return 2 ** 62
-
-
-class BatchSampler(Sampler):
-    """The stream of :class:`ViewSampler` cut into consecutive lists of ``batch_size`` indices
-    (``drop_last``), so batch ``k`` holds samples ``k*B .. k*B+B-1`` of the rank's stream:
-    exactly the batches ``DataLoader(batch_size=B, sampler=views, drop_last=True)`` forms."""
-
-    def __init__(self, views: ViewSampler, batch_size: int):
-        self.views, self.batch_size = views, batch_size
-
-    def __iter__(self) -> Iterator[list[int]]:
-        it = iter(self.views)
-        while True:
-            yield [next(it) for _ in range(self.batch_size)]
-
-    def __len__(self):
-        return len(self.views) // self.batch_size
-
-
-class _PackedBatches(Dataset):
-    """``dataset.compact_batch`` as a map-style dataset keyed by whole lists of indices, packed
-    for the trip to the main process (:mod:`sc3d_train.batch_transfer`): one loader worker
-    assembles one whole batch and sends one ~1 MB tensor instead of ~10 MB in 14 tensors."""
-
-    def __init__(self, dataset: ShardDataset):
-        self.dataset = dataset
-
-    def __len__(self) -> int:
-        return len(self.dataset)
-
-    def __getitem__(self, indices: list[int]) -> PackedBatch | tuple[dict, dict]:
-        arrays, strings = self.dataset.compact_batch(indices)
-        if torch.utils.data.get_worker_info() is None:  # in-process: nothing to send
-            return arrays, strings
-        return pack(arrays, strings, bits=BINARY_KEYS)
-
-
-class BatchLoader(torch.utils.data.DataLoader):
-    """A DataLoader of packed batches whose iterator yields expanded training batches (the
-    expansion runs in the consuming process, :func:`expand_batch`)."""
-
-    def __init__(self, *args, pin: bool = False, **kwargs):
-        super().__init__(*args, **kwargs)
-        self.pin = pin
-
-    def __iter__(self):
-        for item in super().__iter__():
-            if isinstance(item, PackedBatch):
-                item = unpack(item), item.other
-            yield expand_batch(*item, pin=self.pin)
-
-
-def make_loader(dataset: ShardDataset, batch_size: int, seed: int, start: int = 0,
-                rank: int = 0, world_size: int = 1, workers: int = 0,
-                pin_memory: bool = False) -> torch.utils.data.DataLoader:
-    """An endless loader of ``batch_size`` samples per step for this rank, starting at sample
-    ``start`` of the rank's stream (batch ``k`` = samples ``k*B .. k*B+B-1``, whatever
-    ``workers``). Each batch is assembled whole by one worker process (or in-process with
-    ``workers=0``) from its decoded-object cache, sent packed, and expanded to float here;
-    workers run one torch thread. ``pin_memory`` (CUDA) returns page-locked tensors. A
-    private generator keeps the global torch RNG untouched."""
-    sampler = BatchSampler(ViewSampler(dataset.num_objects, dataset.num_views, seed, rank,
-                                       world_size, start), batch_size)
-    return BatchLoader(
-        _PackedBatches(dataset), batch_size=None, sampler=sampler, num_workers=workers,
-        collate_fn=_keep, pin=pin_memory, persistent_workers=False,
-        generator=torch.Generator().manual_seed(seed),
-        worker_init_fn=_limit_worker_threads if workers else None,
-        prefetch_factor=4 if workers else None)
-
-
-def _keep(batch):
-    return batch
-
-
-def _limit_worker_threads(_worker_id: int) -> None:
-    torch.set_num_threads(1)
-
-
-def all_views(dataset: ShardDataset) -> list[int]:
-    """Every (object, view) index in order: for evaluation."""
-    return list(range(len(dataset)))

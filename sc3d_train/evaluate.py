@@ -29,10 +29,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from sc3d_data.shapenet import category_label
+from sc3d_data.formats.shapenet import category_label
 from sc3d_train.checkpoint import load_model
 from sc3d_train.data import ShardDataset
 from sc3d_train.pose import pose_errors
+from sc3d_train.losses import LossWeights
 
 VOXEL_THRESHOLDS = (0.4, 0.5)
 #: where the evaluated pose comes from: ``search`` (default) the azimuth whose projection of the
@@ -60,7 +61,7 @@ def predict_dataset(model, dataset: ShardDataset, device, batch_size: int = 64,
     true, rotation_error) and, for the first ``keep`` objects of every category, views
     ``keep_views`` (default 3 and 15: opposite sides) with input, masks, voxels and poses (numpy)
     for the figure."""
-    from sc3d_data.camera import look_at_rotation
+    from sc3d_data.geometry.camera import look_at_rotation
     from sc3d_train.pose import rotation_error_deg
     from sc3d_train.self_consistency import area_downsample
 
@@ -75,7 +76,7 @@ def predict_dataset(model, dataset: ShardDataset, device, batch_size: int = 64,
 
             out.azimuth, out.elevation = self_consistent_pose(out, batch["K"].to(device).float(),
                                                               batch["distance"].to(device).float(),
-                                                              model.pose_grid, loss_weights)
+                                                              model.pose_grid, loss_weights or LossWeights())
         probs = torch.sigmoid(out.voxel_logits.float()).cpu()
         gt = batch["voxels"] > 0.5
         mask_prob = torch.sigmoid(out.mask_logits.float()).cpu()
@@ -162,10 +163,10 @@ def format_table(summary: dict) -> str:
 
 def voxel_silhouette(voxels: np.ndarray, azimuth: float, elevation: float, distance: float,
                      K: np.ndarray, image_size: int) -> np.ndarray:
-    """Silhouette ``[S, S]`` bool of a boolean grid seen from a pose (``sc3d_data.project_voxels``
-    with the camera of ``sc3d_data.camera``)."""
-    from sc3d_data.camera import extrinsics
-    from sc3d_data.project_voxels import project_voxels
+    """Silhouette ``[S, S]`` bool of a boolean grid seen from a pose (``sc3d_data.geometry.projection``
+    with the camera of ``sc3d_data.geometry.camera``)."""
+    from sc3d_data.geometry.camera import extrinsics
+    from sc3d_data.geometry.projection import project_voxels
 
     R, t = extrinsics(np.float64(azimuth), np.float64(elevation), np.float64(distance))
     return project_voxels(voxels, K, R, t, image_size)
@@ -235,8 +236,6 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
                          f"predicts {cfg.model['voxel_resolution']}^3")
     if pose_from not in POSE_SOURCES:
         raise ValueError(f"pose_from must be one of {POSE_SOURCES}, got {pose_from!r}")
-    from sc3d_train.losses import LossWeights
-
     rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
                                  loss_weights=LossWeights(**cfg.loss_weights))
     summary = summarize(rows)

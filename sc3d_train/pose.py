@@ -16,7 +16,7 @@ The continuous pose (:func:`pose_from_logits`) is differentiable:
 - elevation: the expectation of the elevation softmax, within ``[elevation_min, elevation_max]``
   (bounded: the camera never reaches the poles).
 
-Angles are degrees and follow ``sc3d_data.camera`` (azimuth 0 = camera on +Z, counter-clockwise
+Angles are degrees and follow ``sc3d_data.geometry.camera`` (azimuth 0 = camera on +Z, counter-clockwise
 seen from +Y; elevation > 0 above the object).
 """
 from __future__ import annotations

@@ -12,7 +12,7 @@ images), masks, the intrinsics and the camera distance, as in the paper.
 Candidate grid (:class:`PoseGrid`)
     ``azimuth_bins`` azimuths evenly spaced from 0 deg (``360 / azimuth_bins`` apart) times
     ``elevation_bins`` elevations evenly spaced over ``[elevation_min, elevation_max]`` degrees.
-    Candidate ``p = a * elevation_bins + e`` (azimuth-major). Angles follow ``sc3d_data.camera``.
+    Candidate ``p = a * elevation_bins + e`` (azimuth-major). Angles follow ``sc3d_data.geometry.camera``.
 
 Resolution
     The search projects at a reduced mask size (``search_mask_size``, default 24 px, K scaled with
@@ -51,7 +51,7 @@ def _projections(occupancy: Tensor, azimuth: Tensor, elevation: Tensor, distance
 
 def _search_inputs(masks: Tensor, K: Tensor, size: int) -> tuple[Tensor, Tensor]:
     """Masks area-downsampled to ``size`` and K ``[..., 3, 3]`` scaled with them."""
-    from sc3d_data.camera import scale_intrinsics
+    from sc3d_data.geometry.camera import scale_intrinsics
 
     s = masks.shape[-1]
     size = min(size, s)
@@ -157,16 +157,14 @@ def search_azimuth(occupancy: Tensor, masks: Tensor, distance: Tensor, K: Tensor
 
 @torch.no_grad()
 def search_at_head_elevation(occupancy: Tensor, masks: Tensor, distance: Tensor, K: Tensor,
-                             pose_logits: Tensor, grid: PoseGrid, weights=None, prior_weight: float = 0.0) -> Tensor:
+                             pose_logits: Tensor, grid: PoseGrid, weights, prior_weight: float = 0.0) -> Tensor:
     """The candidate index ``[B]`` of :func:`search_azimuth` between predicted ``occupancy
     [B, G, G, G]`` and predicted ``masks [B, S, S]`` (``K`` at S) at the elevation bin of the
     head's ``pose_logits [B, A + E]``, with the head's azimuth log-probabilities as the prior
     (``prior_weight``), at the ``unlabeled_search_*`` resolution of ``weights``
     (:class:`~sc3d_train.losses.LossWeights`). Shared by the unlabelled training loss (no prior)
     and :func:`self_consistent_pose`."""
-    from .losses import LossWeights
-
-    w = weights or LossWeights()
+    w = weights
     a = grid.azimuth_bins
     logits = pose_logits.detach().float()
     prior = torch.log_softmax(logits[:, :a], 1) if prior_weight else None
@@ -175,7 +173,7 @@ def search_at_head_elevation(occupancy: Tensor, masks: Tensor, distance: Tensor,
 
 
 @torch.no_grad()
-def self_consistent_pose(out, K: Tensor, distance: Tensor, grid: PoseGrid, weights=None,
+def self_consistent_pose(out, K: Tensor, distance: Tensor, grid: PoseGrid, weights,
                          prior_weight: float = HEAD_PRIOR_WEIGHT) -> tuple[Tensor, Tensor]:
     """Test-time self-consistency: ``(azimuth [B], elevation [B])`` degrees where the azimuth is
     the grid azimuth whose projection of the predicted voxels best matches the predicted mask

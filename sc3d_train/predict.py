@@ -2,7 +2,7 @@
 
 Per input image ``NAME.png`` (written to the output directory):
 
-* ``NAME.binvox``: occupancy ``>= threshold`` (sc3d's [-0.5, 0.5]^3 cube, ``sc3d_data.binvox``),
+* ``NAME.binvox``: occupancy ``>= threshold`` (sc3d's [-0.5, 0.5]^3 cube, ``sc3d_data.io.binvox``),
 * ``NAME.npz``: ``probabilities`` float32 [G,G,G] ([x,y,z]), ``voxels`` bool, ``mask`` float32
   [S,S] (predicted mask probability), ``azimuth``, ``elevation`` (degrees), ``threshold``,
 * ``NAME.obj``: marching-cubes surface (scikit-image) of the probabilities at ``threshold``, in
@@ -10,7 +10,7 @@ Per input image ``NAME.png`` (written to the output directory):
 * ``NAME.json``: the predicted pose (azimuth, elevation in degrees; the camera distance of the
   training data) and the paths above,
 * ``NAME.png``: the input, the predicted mask, and the predicted voxels' silhouette seen from the
-  predicted pose (``sc3d_data.project_voxels`` through ``sc3d_data.camera``).
+  predicted pose (``sc3d_data.geometry.projection`` through ``sc3d_data.geometry.camera``).
 
 Input images must have the training image size (no silent resizing: the camera intrinsics and
 the framing of the training renders would no longer hold). Modes: RGB is used as is; RGBA, LA,
@@ -63,12 +63,14 @@ def voxel_mesh(probabilities: np.ndarray, threshold: float) -> tuple[np.ndarray,
     voxel centres sit at ``-0.5 + (i + 0.5)/G`` (SPEC). Empty arrays when nothing is occupied."""
     from skimage.measure import marching_cubes
 
+    from sc3d_data.geometry.voxel_grid import voxel_centres
+
     G = probabilities.shape[0]
     padded = np.pad(probabilities.astype(np.float32), 1)
     if padded.max() < threshold:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
     verts, faces, _, _ = marching_cubes(padded, level=threshold)
-    verts = -0.5 + (verts - 1 + 0.5) / G
+    verts = voxel_centres(verts - 1, G)  # undo the padding: vertex coordinates are voxel indices
     # skimage's faces wind inwards for a solid of high values (negative signed volume): flip
     return verts, faces[:, ::-1].copy()
 
@@ -106,7 +108,7 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = "auto
             threshold: float = 0.5, pose_from: str = "search") -> list[dict]:
     """Predict every image (all are checked before the model runs); returns one dict per image
     (the content of its JSON file)."""
-    from sc3d_data.binvox import write_binvox
+    from sc3d_data.io.binvox import write_binvox
     from sc3d_train.evaluate import voxel_silhouette
 
     if not images:
@@ -155,6 +157,6 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = "auto
 
 
 def _default_K(size: int) -> np.ndarray:
-    from sc3d_data.camera import intrinsics
+    from sc3d_data.geometry.camera import intrinsics
 
     return intrinsics(size)

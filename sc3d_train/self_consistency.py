@@ -1,8 +1,8 @@
 """2D-3D self-consistency module: differentiable ray consistency (L_ray) and projection (L_proj).
 
 For every pixel of a ``S x S`` mask (S = 48 in the paper) a ray is cast through the camera of the
-shards: ``R, t`` from the (predicted) pose via ``sc3d_data.camera.extrinsics`` and the rays from
-``sc3d_data.camera.pixel_rays`` (pixel centres, OpenCV axes; K in pixels *at mask size*, e.g.
+shards: ``R, t`` from the (predicted) pose via ``sc3d_data.geometry.camera.extrinsics`` and the rays from
+``sc3d_data.geometry.camera.pixel_rays`` (pixel centres, OpenCV axes; K in pixels *at mask size*, e.g.
 ``scale_intrinsics(K_64, 48, 64)``). No camera math lives here.
 
 Sampling
@@ -31,17 +31,16 @@ Precision
 """
 from __future__ import annotations
 
-import time
 from contextlib import nullcontext
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from sc3d_data.camera import extrinsics, pixel_rays
+from sc3d_data.geometry.camera import extrinsics, pixel_rays
+from sc3d_data.geometry.voxel_grid import CUBE_HALF
 
 DEFAULT_NUM_SAMPLES = 64
-CUBE_HALF = 0.5
 
 
 def area_downsample(masks: Tensor, size: int) -> Tensor:
@@ -204,94 +203,3 @@ def self_consistency_losses(occupancy: Tensor, masks: Tensor, azimuth: Tensor, e
         projection = (1.0 - escape).reshape(-1, s, s)
         proj = iou_loss(projection, masks.float())
     return {"ray": ray, "proj": proj, "projection": projection}
-
-
-# ----------------------------------------------------------------------------- baseline + timing
-def project_occupancy_reference(occupancy: Tensor, azimuth: Tensor, elevation: Tensor, distance: Tensor,
-                                K: Tensor, mask_size: int, num_samples: int = DEFAULT_NUM_SAMPLES) -> Tensor:
-    """Straightforward baseline of :func:`project_occupancy` (same rays and samples), for tests and
-    the benchmark: trilinear interpolation by gathering the 8 corner voxels by hand and the escape
-    product accumulated in a Python loop over the samples. Returns ``projection [B, S, S]``."""
-    origins, dirs = camera_rays(azimuth.float(), elevation.float(), distance.float(), K.float(), mask_size)
-    pts = sample_points(origins, dirs, num_samples)  # [B, R, N, 3]
-    b, g = occupancy.shape[0], occupancy.shape[1]
-    occ = occupancy.float().reshape(b, -1)
-    f = (pts + CUBE_HALF) * g - 0.5  # continuous index, voxel centres at integers
-    i0 = torch.floor(f)
-    w1 = f - i0
-    i0 = i0.long()
-    y = torch.zeros(pts.shape[:-1], dtype=occ.dtype, device=occ.device)
-    for corner in range(8):
-        offs = [(corner >> a) & 1 for a in range(3)]
-        idx = [i0[..., a] + offs[a] for a in range(3)]
-        w = torch.ones_like(y)
-        valid = torch.ones_like(y, dtype=torch.bool)
-        for a in range(3):
-            w = w * (w1[..., a] if offs[a] else 1.0 - w1[..., a])
-            valid &= (idx[a] >= 0) & (idx[a] < g)
-        flat = ((idx[0].clamp(0, g - 1) * g + idx[1].clamp(0, g - 1)) * g + idx[2].clamp(0, g - 1))
-        vals = torch.gather(occ, 1, flat.reshape(b, -1)).reshape(y.shape)
-        y = y + torch.where(valid, w * vals, torch.zeros_like(vals))
-    escape = torch.ones_like(y[..., 0])
-    for i in range(num_samples):
-        escape = escape * (1.0 - y[..., i])
-    return (1.0 - escape).reshape(b, mask_size, mask_size)
-
-
-def benchmark_self_consistency(batch_size: int = 48, device: str | torch.device = "cpu", repeats: int = 3,
-                               voxel_resolution: int = 32, mask_size: int = 48,
-                               num_samples: int = DEFAULT_NUM_SAMPLES) -> list[dict]:
-    """Time forward + backward of the self-consistency loss at ``batch_size`` on ``device``:
-    the baseline (:func:`project_occupancy_reference`, hand-written gather + loop) and the module
-    (grid_sample + log-space escape). Returns one row per variant: ``name``, ``ms_per_batch`` (median of
-    ``repeats`` after one warm-up), ``saved_mb`` (tensors kept for backward, measured with
-    saved-tensor hooks; device independent) and ``peak_mb`` (CUDA peak allocation, else None)."""
-    from sc3d_data.camera import intrinsics, scale_intrinsics
-
-    dev = torch.device(device)
-    gen = torch.Generator().manual_seed(0)
-    occ0 = (torch.rand(batch_size, voxel_resolution, voxel_resolution, voxel_resolution, generator=gen) * 0.3)
-    masks = (torch.rand(batch_size, mask_size, mask_size, generator=gen) > 0.5).float().to(dev)
-    K = torch.as_tensor(scale_intrinsics(intrinsics(64), mask_size, 64), dtype=torch.float32)
-    K = K.expand(batch_size, 3, 3).contiguous().to(dev)
-    az0 = torch.rand(batch_size, generator=gen) * 360
-    el = torch.full((batch_size,), 30.0, device=dev)
-    dist = torch.full((batch_size,), 2.0, device=dev)
-
-    def run_module(occ, az):
-        out = self_consistency_losses(occ, masks, az, el, dist, K, num_samples)
-        return 5.0 * out["ray"] + 0.125 * out["proj"]
-
-    def run_reference(occ, az):
-        p = project_occupancy_reference(occ, az, el, dist, K, mask_size, num_samples)
-        return iou_loss(p, masks)
-
-    rows = []
-    for name, fn in (("baseline: gather + loop (fp32)", run_reference), ("grid_sample + log-space escape (fp32)", run_module)):
-        times, saved = [], 0
-        for rep in range(repeats + 1):
-            occ = occ0.to(dev).requires_grad_(True)
-            az = az0.to(dev).requires_grad_(True)
-            nbytes = [0]
-
-            def pack(t, nbytes=nbytes):
-                nbytes[0] += t.numel() * t.element_size()
-                return t
-
-            if dev.type == "cuda":
-                torch.cuda.synchronize(dev)
-                torch.cuda.reset_peak_memory_stats(dev)
-            t0 = time.perf_counter()
-            with torch.autograd.graph.saved_tensors_hooks(pack, lambda t: t):
-                loss = fn(occ, az)
-            loss.backward()
-            if dev.type == "cuda":
-                torch.cuda.synchronize(dev)
-            if rep > 0:
-                times.append(time.perf_counter() - t0)
-            saved = nbytes[0]
-        peak = torch.cuda.max_memory_allocated(dev) / 2**20 if dev.type == "cuda" else None
-        times.sort()
-        rows.append({"name": name, "ms_per_batch": 1000 * times[len(times) // 2], "saved_mb": saved / 2**20,
-                     "peak_mb": peak, "batch_size": batch_size, "device": str(dev)})
-    return rows

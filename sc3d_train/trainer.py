@@ -45,7 +45,8 @@ import torch
 from sc3d_train.checkpoint import (CheckpointError, build_model, last_path, resume_checkpoint,
                                    rng_state, save_checkpoint, set_rng_state, state_dict_mismatch)
 from sc3d_train.config import RunConfig
-from sc3d_train.data import ShardDataset, make_loader
+from sc3d_train.data import ShardDataset
+from sc3d_train.loader import make_loader
 
 #: batch keys that carry the ground-truth pose: never given to the model or a loss
 POSE_KEYS = ("azimuth", "elevation", "R", "t")
@@ -411,7 +412,7 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
     log = MetricsLog(run_dir, start_step, enabled=dist_info.is_main)
     progress = None
     if dist_info.is_main and cfg.progress:
-        from sc3d_data.progress import progress_bar
+        from sc3d_data.pipeline.progress import progress_bar
 
         progress = progress_bar(total=cfg.steps, initial=start_step, unit="step", desc="train")
 

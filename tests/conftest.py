@@ -27,7 +27,7 @@ def run_cli(group, args: list[str], expect_exit: int | None = 0):
 def sample_shards(tmp_path_factory) -> Path:
     """Shards of the 11 bundled sample meshes: 24 views of 64x64, masks, cameras and 32^3 voxels,
     default split (seeded 70/10/20 by object)."""
-    from cli.data import main
+    from sc3d_cli.data import main
 
     out = tmp_path_factory.mktemp("sample_shards")
     run_cli(main, ["render", "--meshes", SAMPLE_MESHES, "--out", out, "--voxelize", "--workers", "2"])
@@ -42,7 +42,7 @@ TRAINED_RUN_STEPS = 120
 def trained_run(sample_shards, tmp_path_factory) -> Path:
     """A short supervised run of a tiny model on the sample shards through `sc3d-train fit`
     (run directory; checkpoints at half way and the end, every step logged)."""
-    from cli.train import main
+    from sc3d_cli.train import main
 
     out = tmp_path_factory.mktemp("trained_run") / "run"
     run_cli(main, ["fit", "--shards", sample_shards, "--out", out, "--steps", TRAINED_RUN_STEPS,

@@ -1,10 +1,10 @@
-"""binvox files built byte by byte from the format description (sc3d_data.binvox)."""
+"""binvox files built byte by byte from the format description (sc3d_data.io.binvox)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from sc3d_data.binvox import Binvox, binvox_bytes, read_binvox, write_binvox
+from sc3d_data.io.binvox import Binvox, binvox_bytes, read_binvox, write_binvox
 
 # ShapeNetVox32-style header (as binvox writes it: 6 significant digits)
 HEADER = b"#binvox 1\ndim 2 2 2\ntranslate -0.120158 -0.481158 -0.863158\nscale 7.24632\ndata\n"

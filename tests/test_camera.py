@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 import torch
 
-from sc3d_data import camera
+from sc3d_data.geometry import camera
 
 
 def test_ptn_poses_default():

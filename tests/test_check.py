@@ -10,10 +10,11 @@ import h5py
 import numpy as np
 import pytest
 
-from cli.data import main
+from sc3d_cli.data import main
 from conftest import SAMPLE_MESHES, run_cli
-from sc3d_data.binvox import read_binvox
-from sc3d_data.shards import iter_objects, load_index, replace_dataset_atomically, shard_files
+from sc3d_data.io.binvox import read_binvox
+from sc3d_data.io.shards import load_index, replace_dataset_atomically, shard_files
+from sc3d_data.io.shard_reader import iter_objects
 
 
 @pytest.fixture()

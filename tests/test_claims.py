@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from cli.train import main
+from sc3d_cli.train import main
 from tests.conftest import run_cli
 
 

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from sc3d_data.discover import discover_meshes
-from sc3d_data.shapenet import R2N2_SYNSETS, category_name, resolve_categories
+from sc3d_data.formats.discover import discover_meshes
+from sc3d_data.formats.shapenet import R2N2_SYNSETS, category_name, resolve_categories
 
 REPO = Path(__file__).resolve().parents[1]
 AIRPLANE, CAR, CHAIR = "02691156", "02958343", "03001627"

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 from PIL import Image
 
-from cli.train import main
+from sc3d_cli.train import main
 from tests.conftest import run_cli
 
 
@@ -71,7 +71,7 @@ def test_eval_metric_definitions():
 def test_predict_writes_voxels_mesh_pose_and_picture(trained_run, sample_shards, tmp_path):
     import trimesh
 
-    from sc3d_data.binvox import read_binvox
+    from sc3d_data.io.binvox import read_binvox
 
     shard = sorted(sample_shards.glob("shard-*.h5"))[0]
     with h5py.File(shard, "r") as f:
@@ -128,7 +128,7 @@ def test_predict_and_eval_refuse_bad_input(trained_run, sample_shards, tmp_path)
 
 def test_eval_refuses_shards_of_another_image_size(trained_run, tmp_path):
     """A checkpoint trained on 64x64 images against shards rendered at 32x32."""
-    from cli.data import main as data_main
+    from sc3d_cli.data import main as data_main
     from tests.conftest import SAMPLE_MESHES
 
     small = tmp_path / "small"

@@ -2,7 +2,7 @@
 
 * Pinned numbers (issue 10, computed from 3D-R2N2's Blender script and PyTorch3D's
   ``compute_extrinsic_matrix``) for one real metadata line and one real binvox header.
-* Fake ``ShapeNetRendering``/``ShapeNetVox32`` written by ``sc3d_data.r2n2_synth`` (run in a
+* Fake ``ShapeNetRendering``/``ShapeNetVox32`` written by ``tests/r2n2_synth.py`` (run in a
   subprocess so no GL context lives in the test process), which builds the cameras from the
   Blender rig, stores the meshes facing +X as ShapeNetCore v1 does and writes the binvox files
   the way ``binvox -cb`` does, without calling importer code: the import must recover the
@@ -23,12 +23,13 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from sc3d_data.binvox import read_binvox, write_binvox
-from sc3d_data.normalize import apply_transform
-from sc3d_data.r2n2_import import (grid_placement, obj_to_canonical, parse_metadata_line,
+from sc3d_data.io.binvox import read_binvox, write_binvox
+from sc3d_data.geometry.normalize import apply_transform
+from sc3d_data.formats.r2n2 import (grid_placement, obj_to_canonical, parse_metadata_line,
                                    r2n2_cameras, rotate_grid)
-from sc3d_data.r2n2_synth import blender_camera
-from sc3d_data.shards import iter_objects, load_index
+from r2n2_synth import blender_camera
+from sc3d_data.io.shards import load_index
+from sc3d_data.io.shard_reader import iter_objects
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "assets" / "sample_meshes"
@@ -47,7 +48,7 @@ PINNED_VOXEL0 = (-0.431324, -0.431324, -0.431324)
 
 
 def cli(args, expect=0):
-    from cli.data import main
+    from sc3d_cli.data import main
 
     res = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
     assert res.exit_code == expect, f"{args} exited {res.exit_code}:\n{res.output}"
@@ -60,7 +61,7 @@ def synthesize(root: Path, seed: int, in_plane_max: float = 0.0):
         shutil.copy(SAMPLES / rel, root / "meshes" / rel)
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
     env.setdefault("PYOPENGL_PLATFORM", "egl")
-    proc = subprocess.run([sys.executable, "-m", "sc3d_data.r2n2_synth", root / "meshes",
+    proc = subprocess.run([sys.executable, str(Path(__file__).with_name("r2n2_synth.py")), root / "meshes",
                            root / "ShapeNetRendering", root / "ShapeNetVox32", root / "truth.json",
                            str(seed), str(in_plane_max)],
                           cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
@@ -192,9 +193,9 @@ def test_imported_front_is_plus_z(imported):
     """The sample meshes face +Z in their own files; after the round trip through a v1-style
     OBJ frame (front +X) the imported voxels must match sc3d's voxels of the original mesh.
     Negative control: --front +Z (taking the v1 files as canonical) does not."""
-    from sc3d_data.mesh_io import load_mesh_triangles
-    from sc3d_data.normalize import to_canonical_transform
-    from sc3d_data.voxelize import voxelize_triangles
+    from sc3d_data.io.meshes import load_mesh_triangles
+    from sc3d_data.geometry.normalize import to_canonical_transform
+    from sc3d_data.voxel.voxelize import voxelize_triangles
 
     def iou(a, b):
         return (a & b).sum() / (a | b).sum()
@@ -233,9 +234,9 @@ def test_check_passes_and_wrong_conventions_fail(imported, fake_r2n2, tmp_path):
 def test_wrong_front_is_caught_by_voxels(fake_r2n2, tmp_path):
     """--front +Z leaves the v1 files' front at +X: cameras and voxels stay consistent (check
     cannot see it) but the voxels no longer match the canonical mesh."""
-    from sc3d_data.mesh_io import load_mesh_triangles
-    from sc3d_data.normalize import to_canonical_transform
-    from sc3d_data.voxelize import voxelize_triangles
+    from sc3d_data.io.meshes import load_mesh_triangles
+    from sc3d_data.geometry.normalize import to_canonical_transform
+    from sc3d_data.voxel.voxelize import voxelize_triangles
 
     renderings, voxels, _ = fake_r2n2
     out = tmp_path / "front_z"

@@ -36,7 +36,8 @@ def _stored(ds, index):
 
 
 def test_loader_batches_are_the_stored_data_with_and_without_workers(sample_shards):
-    from sc3d_train.data import ShardDataset, ViewSampler, make_loader, sc_masks
+    from sc3d_train.data import ShardDataset, sc_masks
+    from sc3d_train.loader import ViewSampler, make_loader
 
     ds = ShardDataset(sample_shards, "train")
     B = 5

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from sc3d_data.camera import intrinsics, scale_intrinsics
+from sc3d_data.geometry.camera import intrinsics, scale_intrinsics
 from sc3d_train.losses import LOSS_KEYS, LossWeights, supervised_loss, unsupervised_loss, voxel_loss
 from sc3d_train.model import ModelConfig, SelfConsistencyNet, VoxelDecoder
 from sc3d_train.pose import (PoseGrid, angular_error_deg, pose_classification_loss, pose_errors, pose_from_logits,
@@ -150,7 +150,7 @@ def test_pose_from_logits_hand_derived():
 
 
 def test_rotation_error_hand_derived():
-    from sc3d_data.camera import look_at_rotation
+    from sc3d_data.geometry.camera import look_at_rotation
 
     R0 = look_at_rotation(np.array([0.0, 0.0, 0.0]), np.array([0.0, 0.0, 30.0]))
     R1 = look_at_rotation(np.array([90.0, 180.0, 30.0]), np.array([0.0, 0.0, 30.0]))

@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 from scipy.ndimage import binary_dilation
 
-from sc3d_data.camera import DEFAULT_IMAGE_SIZE, project_points
-from sc3d_data.mesh_io import DEFAULT_MAX_FACES, MeshError, load_mesh_triangles, validate_triangles
-from sc3d_data.normalize import apply_transform, canonical_rotation, to_canonical_transform
-from sc3d_data.shards import iter_objects, load_index
+from sc3d_data.geometry.camera import DEFAULT_IMAGE_SIZE, project_points
+from sc3d_data.io.meshes import DEFAULT_MAX_FACES, MeshError, load_mesh_triangles, validate_triangles
+from sc3d_data.geometry.normalize import apply_transform, canonical_rotation, to_canonical_transform
+from sc3d_data.io.shards import load_index
+from sc3d_data.io.shard_reader import iter_objects
 
 
 def test_shapes_dtypes_and_nonempty_masks(sample_shards):
@@ -92,7 +93,7 @@ def test_default_face_limit_rejects_two_million_faces():
 def test_resolve_backend_probes_the_renderer_in_a_subprocess():
     """``auto`` finds a backend by rendering a box with sc3d's renderer in a child process (this
     process never gets a GL context); unknown names are refused."""
-    from sc3d_data.gl_backend import resolve_backend
+    from sc3d_data.render.probe import resolve_backend
 
     assert resolve_backend("auto") in ("egl", "osmesa")
     with pytest.raises(ValueError):

@@ -15,7 +15,7 @@ import h5py
 import numpy as np
 import pytest
 
-from cli.data import main
+from sc3d_cli.data import main
 from conftest import REPO, SAMPLE_MESHES, run_cli
 
 FAST = ["--views", "4", "--no-progress"]
@@ -117,7 +117,7 @@ def test_parallel_equals_serial(sample_shards, tmp_path):
 
 def test_resume_after_kill_keeps_finished_shards(tmp_path):
     out = tmp_path / "out"
-    cmd = [sys.executable, "-c", "from cli.data import main; main()", "render", "--out", str(out),
+    cmd = [sys.executable, "-c", "from sc3d_cli.data import main; main()", "render", "--out", str(out),
            "--objects-per-shard", "2", "--workers", "1", *FAST]
     env = dict(os.environ, PYTHONPATH=str(REPO))
     proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,

@@ -7,10 +7,11 @@ import pytest
 import torch
 from scipy.spatial import Delaunay
 
-from sc3d_data.camera import extrinsics, intrinsics, project_points, scale_intrinsics
+from sc3d_data.geometry.camera import extrinsics, intrinsics, project_points, scale_intrinsics
 from sc3d_train.pose import angular_error_deg
-from sc3d_train.self_consistency import (area_downsample, project_occupancy, project_occupancy_reference,
-                                         ray_cube_bounds, self_consistency_losses)
+from drc_reference import project_occupancy_reference
+from sc3d_train.self_consistency import (area_downsample, project_occupancy, ray_cube_bounds,
+                                         self_consistency_losses)
 
 G, S = 32, 48
 K48 = scale_intrinsics(intrinsics(64), S, 64)
@@ -123,9 +124,9 @@ def sweep_losses(occ: torch.Tensor, target: torch.Tensor, azimuths: np.ndarray,
 
 
 def exact_silhouette(occ: torch.Tensor, azimuth: float, elevation: float = 30.0, distance: float = 2.0) -> torch.Tensor:
-    """The voxel cubes' silhouette at 48 px by sc3d_data.project_voxels (an independent
+    """The voxel cubes' silhouette at 48 px by sc3d_data.geometry.projection (an independent
     rasteriser, not the module under test)."""
-    from sc3d_data.project_voxels import project_voxels
+    from sc3d_data.geometry.projection import project_voxels
 
     R, t = extrinsics(np.float64(azimuth), np.float64(elevation), np.float64(distance))
     return torch.as_tensor(project_voxels(occ.numpy() > 0.5, K48, R, t, S), dtype=torch.float32)
@@ -160,7 +161,7 @@ def test_gradients_reach_voxels_and_pose_and_point_to_the_truth():
 @pytest.fixture(scope="module")
 def shard_views(sample_shards):
     """Per bundled object: voxels, 48x48 rendered masks (area average >= 0.5) and the cameras."""
-    from sc3d_data.shards import iter_objects
+    from sc3d_data.io.shard_reader import iter_objects
 
     objs = []
     for obj in iter_objects(sample_shards, ("voxels", "masks", "K", "R", "t", "azimuth", "elevation", "distance")):
@@ -184,11 +185,11 @@ def project_views(obj: dict, azimuth=None) -> torch.Tensor:
 def test_gt_voxels_reproduce_rendered_masks_with_gt_pose(shard_views):
     """Ground-truth voxels projected at the ground-truth pose of every view: they cover the
     rendered masks (camera, axes and pixel convention agree with the renderer), they match the
-    exact voxel-cube silhouette of sc3d_data.project_voxels (an independent rasteriser), and the
+    exact voxel-cube silhouette of sc3d_data.geometry.projection (an independent rasteriser), and the
     overlap with the rendered mask is largest at the true azimuth. The IoU with the rendered mask
     itself is bounded by the voxelization (surface-touching voxels fatten thin parts: wings,
     legs), so it is asserted as a floor only (measured: 0.41 glider .. 0.90 armchair)."""
-    from sc3d_data.project_voxels import project_voxels
+    from sc3d_data.geometry.projection import project_voxels
 
     ious = []
     for obj in shard_views:

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from sc3d_data.discover import discover_meshes
-from sc3d_data.shards import iter_objects, load_index
+from sc3d_data.formats.discover import discover_meshes
+from sc3d_data.io.shards import load_index
+from sc3d_data.io.shard_reader import iter_objects
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = REPO / "assets" / "sample_meshes"
@@ -56,10 +57,10 @@ def trees(tmp_path_factory):
 
 
 def render(args):
-    from cli.data import main
+    from sc3d_cli.data import main
 
     try:
-        import cli.data_render  # noqa: F401  (helper A's command)
+        import sc3d_cli.data_render  # noqa: F401  (helper A's command)
     except ImportError:
         pytest.skip("sc3d-data render is not available in this checkout")
 
@@ -116,9 +117,9 @@ def test_render_turns_shapenet_front_to_plus_z(trees, tmp_path, version):
     """With the default --front auto, a ShapeNet v1 (front +X) or v2 (front -Z) file ends up
     with its front at +Z: its voxels match the voxels of the original sample mesh (front +Z).
     Negative control: the file taken as canonical (front +Z) leaves the chair turned."""
-    from sc3d_data.mesh_io import load_mesh_triangles
-    from sc3d_data.normalize import apply_transform, to_canonical_transform
-    from sc3d_data.voxelize import voxelize_triangles
+    from sc3d_data.io.meshes import load_mesh_triangles
+    from sc3d_data.geometry.normalize import apply_transform, to_canonical_transform
+    from sc3d_data.voxel.voxelize import voxelize_triangles
 
     def voxels(path, front):
         v, f = load_mesh_triangles(path)

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from sc3d_data.discover import MeshEntry
-from sc3d_data.splits import assign_splits
+from sc3d_data.formats.discover import MeshEntry
+from sc3d_data.formats.splits import assign_splits
 
 AIRPLANE, CAR, CHAIR = "02691156", "02958343", "03001627"
 

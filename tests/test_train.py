@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from cli.train import main
+from sc3d_cli.train import main
 from tests.conftest import TRAINED_RUN_STEPS, run_cli
 
 TINY = ["--tiny", "--base-channels", "4", "--no-progress", "--log-every", "1"]
@@ -156,7 +156,8 @@ def test_fit_refuses_the_test_split(sample_shards, tmp_path):
 
 def test_loader_masks_follow_the_camera(sample_shards):
     """The 48 px masks come from the 64 px masks, and K_sc is K scaled by 3/4."""
-    from sc3d_train.data import ShardDataset, ViewSampler
+    from sc3d_train.data import ShardDataset
+    from sc3d_train.loader import ViewSampler
 
     ds = ShardDataset(sample_shards, "train")
     item = ds[5]

@@ -1,12 +1,12 @@
-"""project_voxels against analytic silhouettes (sc3d_data.project_voxels)."""
+"""project_voxels against analytic silhouettes (sc3d_data.geometry.projection)."""
 from __future__ import annotations
 
 import numpy as np
 from matplotlib.path import Path
 from scipy.spatial import ConvexHull
 
-from sc3d_data.camera import ViewSettings, project_points
-from sc3d_data.project_voxels import project_voxels
+from sc3d_data.geometry.camera import ViewSettings, project_points
+from sc3d_data.geometry.projection import project_voxels
 
 S = 64
 
@@ -55,7 +55,7 @@ def test_empty_grid_and_full_grid():
 
 
 def test_several_views_at_once():
-    from sc3d_data.project_voxels import project_voxels_views
+    from sc3d_data.geometry.projection import project_voxels_views
 
     cams = ViewSettings().cameras()
     vox = np.zeros((32, 32, 32), bool)

@@ -1,11 +1,11 @@
-"""Solid voxelization on shapes with exact answers (sc3d_data.voxelize)."""
+"""Solid voxelization on shapes with exact answers (sc3d_data.voxel.voxelize)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 import trimesh
 
-from sc3d_data.voxelize import voxel_centers, voxelize_triangles
+from sc3d_data.voxel.voxelize import voxel_centers, voxelize_triangles
 
 G = 32
 

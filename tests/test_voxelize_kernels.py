@@ -1,12 +1,12 @@
-"""The compiled pieces of sc3d_data.voxelize against slow references."""
+"""The compiled pieces of sc3d_data.voxel.voxelize against slow references."""
 from __future__ import annotations
 
 import numpy as np
 import trimesh
 from scipy import ndimage
 
-from sc3d_data import _voxel_kernels as K
-from sc3d_data.voxelize import winding_numbers
+from sc3d_data.voxel import _kernels as K
+from sc3d_data.voxel.voxelize import winding_numbers
 
 
 def test_fast_winding_numbers_match_exact_solid_angles():

@@ -92,12 +92,12 @@ def synthesize_r2n2(entries, renderings: Path, voxels: Path, seed: int = 0, obj_
     "obj_scale", "bbox_min"}}``."""
     from PIL import Image
 
-    from sc3d_data.binvox import write_binvox
-    from sc3d_data.camera import ViewSettings, fov_from_focal
-    from sc3d_data.mesh_io import load_mesh
-    from sc3d_data.normalize import apply_transform, to_canonical_transform
-    from sc3d_data.render import MeshRenderer, RenderSettings
-    from sc3d_data.voxelize import voxelize_triangles
+    from sc3d_data.io.binvox import write_binvox
+    from sc3d_data.geometry.camera import ViewSettings, fov_from_focal
+    from sc3d_data.io.meshes import load_mesh
+    from sc3d_data.geometry.normalize import apply_transform, to_canonical_transform
+    from sc3d_data.render.renderer import MeshRenderer, RenderSettings
+    from sc3d_data.voxel.voxelize import voxelize_triangles
 
     rng = np.random.default_rng(seed)
     views = ViewSettings(num_views=NUM_VIEWS, image_size=IMAGE_SIZE, distance=2.0,
@@ -140,11 +140,11 @@ def synthesize_r2n2(entries, renderings: Path, voxels: Path, seed: int = 0, obj_
 
 
 def main(argv=None) -> None:
-    """``python -m sc3d_data.r2n2_synth MESHES RENDERINGS VOXELS TRUTH.json [SEED [IN_PLANE_MAX]]``:
-    fake data for every mesh under MESHES (``sc3d_data.discover`` layouts)."""
+    """``python tests/r2n2_synth.py MESHES RENDERINGS VOXELS TRUTH.json [SEED [IN_PLANE_MAX]]``:
+    fake data for every mesh under MESHES (``sc3d_data.formats.discover`` layouts)."""
     import sys
 
-    from sc3d_data.discover import discover_meshes
+    from sc3d_data.formats.discover import discover_meshes
 
     args = list(sys.argv[1:] if argv is None else argv)
     meshes, renderings, voxels, truth_path = args[:4]

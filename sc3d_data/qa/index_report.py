@@ -3,8 +3,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sc3d_data.shards import load_index, verify_shards
-from sc3d_data.shapenet import category_label
+from sc3d_data.io.shards import load_index
+from sc3d_data.io.shard_reader import verify_shards
+from sc3d_data.formats.shapenet import category_label
 
 
 def integrity_report(shard_dir: Path, full: bool = False) -> list[str]:

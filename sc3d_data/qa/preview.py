@@ -2,7 +2,7 @@
 
 One row per object: ``views`` rendered images, then the masks of the same views, then (when
 the shards hold ``voxels``) the silhouettes of the voxels through the same stored cameras
-(``sc3d_data.project_voxels``), each tile the stored image size times ``scale``. A label on
+(``sc3d_data.geometry.projection``), each tile the stored image size times ``scale``. A label on
 the left names the category, model id and split. Objects are picked round-robin over
 categories so every category shows up.
 """
@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sc3d_data.shapenet import category_name
-from sc3d_data.shards import iter_objects
+from sc3d_data.formats.shapenet import category_name
+from sc3d_data.io.shard_reader import iter_objects
 
 LABEL_WIDTH = 150
 
@@ -45,7 +45,7 @@ def contact_sheet(shard_dir: Path, max_objects: int = 8, views: int = 6, scale: 
         tiles = [o["images"][v] for v in sel]
         tiles += [np.repeat(o["masks"][v][..., None] * 255, 3, -1).astype(np.uint8) for v in sel]
         if "voxels" in o:
-            from sc3d_data.project_voxels import project_voxels_views
+            from sc3d_data.geometry.projection import project_voxels_views
 
             sil = project_voxels_views(o["voxels"].astype(bool), o["K"].astype(np.float64),
                                        o["R"].astype(np.float64), o["t"].astype(np.float64), S, sel)

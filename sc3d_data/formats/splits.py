@@ -29,7 +29,7 @@ import re
 from pathlib import Path
 from typing import Iterable, Sequence
 
-from sc3d_data.shapenet import resolve_category
+from sc3d_data.formats.shapenet import resolve_category
 
 DEFAULT_SPLIT = "random:0.7,0.1,0.2"
 #: the ``--split`` / ``--split-file`` rules as the CLIs' ``--help`` shows them (module doc)
@@ -181,7 +181,7 @@ def _file_splits(keys: Sequence[tuple[str, str]], files: list[Path], problems: l
 def assign_splits(entries, spec: str = DEFAULT_SPLIT, seed: int = 0, split_file=None
                   ) -> tuple[dict[tuple[str, str], str], dict, list[dict]]:
     """Assign a split to every entry (anything with ``category`` and ``model_id``, e.g.
-    :class:`sc3d_data.discover.MeshEntry`).
+    :class:`sc3d_data.formats.discover.MeshEntry`).
 
     Returns ``(splits, description, problems)``: ``splits`` maps ``(category, model_id)`` to a
     split name (entries missing from it must be skipped: only possible with ``split_file``);

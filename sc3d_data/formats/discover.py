@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterable
 
-from sc3d_data.shapenet import is_synset_id, resolve_categories, resolve_category
+from sc3d_data.formats.shapenet import is_synset_id, resolve_categories, resolve_category
 
 MESH_EXTENSIONS = (".obj", ".glb", ".gltf", ".ply", ".off", ".stl")
 SHAPENET_V1_MESH = ("model.obj",)

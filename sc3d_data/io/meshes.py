@@ -3,7 +3,7 @@
 Every file becomes a ``trimesh.Scene`` (a multi-part file is one object: all its geometries
 with their node transforms). ``load_mesh_triangles`` returns exactly the triangles the
 renderer draws, in the SOURCE frame of the file (node transforms baked in); the canonical
-frame is reached with the 4x4 ``to_canonical`` of ``sc3d_data.normalize``.
+frame is reached with the 4x4 ``to_canonical`` of ``sc3d_data.geometry.normalize``.
 
 Bad input raises ``MeshError`` whose message names the file and the problem: a file that does
 not parse, no triangles, NaN/inf vertices, zero surface area, more than ``max_faces``
@@ -247,7 +247,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
 def load_mesh_triangles(path: Path, max_faces: int = DEFAULT_MAX_FACES) -> tuple[np.ndarray, np.ndarray]:
     """The exact geometry the renderer draws for ``path``: ``(vertices [n,3] float64,
     faces [m,3] int64)`` in the SOURCE frame (all scene geometry, node transforms baked in).
-    Apply the shard's ``to_canonical`` with ``sc3d_data.normalize.apply_transform`` to get
+    Apply the shard's ``to_canonical`` with ``sc3d_data.geometry.normalize.apply_transform`` to get
     canonical coordinates. Raises ``MeshError`` on bad input."""
     _, vertices, faces, _ = load_mesh(path, max_faces=max_faces, bad_texture="fallback")
     return vertices, faces

@@ -4,7 +4,7 @@ The voxels are treated as closed cubes (not points): voxel (i, j, k) of a ``G^3`
 cube ``[-0.5 + i/G, -0.5 + (i+1)/G] x ...`` of the canonical frame (SPEC.md). A pixel is set
 when its centre ``(u + 0.5, v + 0.5)`` lies in the projection of some occupied cube, which
 is the same sampling rule as the rendered masks (a pixel is covered when the ray through its
-centre hits the object). Cameras follow ``sc3d_data.camera`` (OpenCV K, R, t world->camera).
+centre hits the object). Cameras follow ``sc3d_data.geometry.camera`` (OpenCV K, R, t world->camera).
 
 The union of the cubes' projections equals the union of the projections of their exposed
 faces (faces whose neighbour is empty or outside the grid), so only those quads are
@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sc3d_data.camera import project_points
+from sc3d_data.geometry.camera import project_points
+from sc3d_data.geometry.voxel_grid import index_to_world
 
 # corner offsets (in voxel units) of the face of a unit cube on each side, in cyclic order
 _FACES = {
@@ -43,7 +44,7 @@ def exposed_faces(voxels: np.ndarray) -> np.ndarray:
             quads.append(ijk[:, None, :] + np.asarray(corners)[None])
     if not quads:
         return np.zeros((0, 4, 3))
-    return np.concatenate(quads).astype(np.float64) / G - 0.5
+    return index_to_world(np.concatenate(quads).astype(np.float64), G)
 
 
 def project_voxels(voxels: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,

@@ -1,7 +1,7 @@
 """``sc3d-data check``: do renderer, voxelizer and cameras agree?
 
 For every object and view the occupied voxels are projected through the stored camera
-(``sc3d_data.project_voxels``, voxels as cubes) and compared with the rendered mask:
+(``sc3d_data.geometry.projection``, voxels as cubes) and compared with the rendered mask:
 
 - ``coverage``: |mask AND projected| / |mask|, the share of rendered pixels the voxels cover;
 - ``near``: the share of projected-voxel pixels that lie within one voxel's projected
@@ -38,9 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
-from sc3d_data.project_voxels import project_voxels
-from sc3d_data.shards import ShardError, iter_objects, verify_shards
-from sc3d_data.shapenet import category_label
+from sc3d_data.geometry.projection import project_voxels
+from sc3d_data.io.shard_reader import ShardReader, iter_objects, verify_shards
+from sc3d_data.io.shards import ShardError, shard_path
+from sc3d_data.formats.shapenet import category_label
 
 DEFAULT_MIN_IOU = 0.0
 DEFAULT_MIN_COVERAGE = 0.98
@@ -134,13 +135,14 @@ class CheckReport:
 def voxel_footprint(voxels: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray) -> float:
     """Pixels one voxel's cube diagonal (``sqrt(3)/G``) spans at the nearest occupied voxel
     (units: pixels of ``K``): how far a correct voxel's projection may reach from the surface."""
-    from sc3d_data.camera import world_to_camera
+    from sc3d_data.geometry.camera import world_to_camera
+    from sc3d_data.geometry.voxel_grid import voxel_centres, voxel_size
 
     G = voxels.shape[0]
-    centres = (np.argwhere(voxels) + 0.5) / G - 0.5
+    centres = voxel_centres(np.argwhere(voxels), G)
     if not len(centres):
         return 1.0
-    diag = np.sqrt(3.0) / G
+    diag = np.sqrt(3.0) * voxel_size(G)
     z_near = max(float(world_to_camera(centres, R, t)[:, 2].min()) - diag / 2, 1e-6)
     return float(K[0, 0]) * diag / z_near
 
@@ -195,7 +197,7 @@ def check_shards(shard_dir: Path, min_iou: float = DEFAULT_MIN_IOU,
     report = CheckReport(min_iou=min_iou, min_coverage=min_coverage, min_near=min_near)
     it = iter_objects(shard_dir, fields=("voxels", "masks", "K", "R", "t"))
     if progress:
-        from sc3d_data.progress import progress_bar
+        from sc3d_data.pipeline.progress import progress_bar
 
         it = progress_bar(it, unit="obj", desc="check")
     for obj in it:
@@ -211,7 +213,6 @@ def write_worst_png(shard_dir: Path, report: CheckReport, path: Path, n: int = 8
     """PNG with one row per worst object (its worst view): image | mask | projected voxels,
     plus a fourth panel showing their difference (green = both, red = mask only,
     blue = voxels only)."""
-    import h5py
     import matplotlib
 
     matplotlib.use("Agg")
@@ -221,13 +222,12 @@ def write_worst_png(shard_dir: Path, report: CheckReport, path: Path, n: int = 8
     if not worst:
         raise ValueError("no objects to draw")
     fig, axes = plt.subplots(len(worst), 4, figsize=(8, 2.1 * len(worst)), squeeze=False)
+    reader = ShardReader(shard_dir)
     for r, o in enumerate(worst):
         v = o.worst_view
-        with h5py.File(Path(shard_dir) / o.shard, "r") as f:
-            image = f["images"][o.row, v]
-            mask = f["masks"][o.row, v].astype(bool)
-            proj = project_voxels(f["voxels"][o.row], f["K"][o.row, v], f["R"][o.row, v],
-                                  f["t"][o.row, v], mask.shape[-1])
+        obj = reader.read(shard_path(shard_dir, o.shard), o.row, ("images", "masks", "voxels", "K", "R", "t"))
+        image, mask = obj["images"][v], obj["masks"][v].astype(bool)
+        proj = project_voxels(obj["voxels"], obj["K"][v], obj["R"][v], obj["t"][v], mask.shape[-1])
         diff = np.zeros(mask.shape + (3,))
         diff[mask & proj] = (0, 0.8, 0)
         diff[mask & ~proj] = (1, 0, 0)
@@ -239,6 +239,7 @@ def write_worst_png(shard_dir: Path, report: CheckReport, path: Path, n: int = 8
             ax.set_xticks([])
             ax.set_yticks([])
             ax.set_title(title if c else f"{o.model_id[:16]} v{v} cov {o.coverage[v]:.2f} IoU {o.iou[v]:.2f}", fontsize=7)
+    reader.close()
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -1,4 +1,8 @@
-"""numba kernels of sc3d_data.voxelize (compiled once, cached in __pycache__)."""
+"""numba kernels of sc3d_data.voxel.voxelize (compiled once, cached in __pycache__).
+
+Length: one module because numba compiles these kernels together and they call each other
+(winding-number tree build, traversal, surface rasterisation, flood fill).
+"""
 from __future__ import annotations
 
 import math

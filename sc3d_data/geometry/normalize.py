@@ -3,7 +3,7 @@
 Canonical frame: right-handed, +Y up, the object's front facing +Z. A source mesh is first
 rotated so that its ``up`` axis becomes +Y and its ``front`` axis becomes +Z (the bundled GLB
 meshes are already canonical: ``up="+Y", front="+Z"``; ShapeNetCore v1 faces +X and v2 -Z,
-``sc3d_data.shapenet.resolve_front``), then its axis-aligned
+``sc3d_data.formats.shapenet.resolve_front``), then its axis-aligned
 bounding box is centred at the origin and scaled:
 
 - ``fit`` (default): longest bounding-box side = 1, so the object fills [-0.5, 0.5]^3 (3D-R2N2);

@@ -36,6 +36,9 @@ Cameras are built in the OBJ frame and moved into the canonical one (``R' = R A^
 
 Images: premultiplied RGB and alpha are area-averaged (PIL box filter) to the target size,
 mask = alpha >= 0.5, RGB = composited over the background colour.
+
+Length: one module because every 3D-R2N2 convention (metadata columns, Blender camera, binvox
+placement, v1 front axis) is read in one place next to the code that applies it.
 """
 from __future__ import annotations
 
@@ -46,9 +49,9 @@ from typing import Callable
 
 import numpy as np
 
-from sc3d_data import camera
-from sc3d_data.normalize import canonical_rotation
-from sc3d_data.shapenet import is_synset_id, resolve_categories
+from sc3d_data.geometry import camera
+from sc3d_data.geometry.normalize import canonical_rotation
+from sc3d_data.formats.shapenet import is_synset_id, resolve_categories
 
 R2N2_NUM_VIEWS = 24
 R2N2_IMAGE_SIZE = 137
@@ -154,7 +157,7 @@ def grid_placement(translate, scale: float, voxel_frame: str = "cube") -> tuple[
 
 def obj_to_canonical(centre, size: float, front: str = R2N2_FRONT) -> np.ndarray:
     """4x4 OBJ -> canonical matrix ``p_can = A (p_obj - centre) / size`` with ``A`` taking the
-    source ``front`` axis to +Z and +Y to +Y (``sc3d_data.normalize.canonical_rotation``)."""
+    source ``front`` axis to +Z and +Y to +Y (``sc3d_data.geometry.normalize.canonical_rotation``)."""
     A = canonical_rotation("+Y", front)
     M = np.eye(4)
     M[:3, :3] = A / float(size)
@@ -313,11 +316,11 @@ class ImportConfig:
 
 
 def load_r2n2_object(model: R2N2Model, config: ImportConfig, split: str):
-    """Read one model into a :class:`sc3d_data.shards.ObjectRecord` (cameras, voxels and
+    """Read one model into a :class:`sc3d_data.io.shards.ObjectRecord` (cameras, voxels and
     ``to_canonical`` in the canonical frame, module doc); ``ValueError`` naming the file and
     the problem on bad input (metadata, PNGs, binvox)."""
-    from sc3d_data.binvox import read_binvox
-    from sc3d_data.shards import ObjectRecord, border_clipped
+    from sc3d_data.io.binvox import read_binvox
+    from sc3d_data.io.shards import ObjectRecord, border_clipped
 
     views = read_rendering_metadata(model.rendering_dir / "rendering_metadata.txt")
     names = read_rendering_list(model.rendering_dir)
@@ -357,9 +360,9 @@ def import_r2n2(config: ImportConfig, progress: Callable[[int], None] | None = N
     ``{"done", "failed", "skipped", "problems", "seconds", "out"}``."""
     import time
 
-    from sc3d_data.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index, write_index as write_index_file, \
+    from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index, write_index as write_index_file, \
         write_shard
-    from sc3d_data.splits import assign_splits
+    from sc3d_data.formats.splits import assign_splits
 
     t0 = time.monotonic()
     out = Path(config.out)

@@ -40,7 +40,9 @@ import time
 
 import numpy as np
 
-from . import _voxel_kernels as _k
+from sc3d_data.geometry.voxel_grid import centre_grid, world_to_index
+
+from . import _kernels as _k
 
 #: a voxel centre is inside when |winding number| reaches this
 WINDING_THRESHOLD = 0.5
@@ -77,13 +79,12 @@ def surface_voxels(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32
 
 def _voxel_triangles(v: np.ndarray, f: np.ndarray, G: int) -> np.ndarray:
     """Triangles ``[m, 3 vertices, 3 coords]`` in voxel units (the grid spans [0, G])."""
-    return np.ascontiguousarray((v[f] + 0.5) * G)
+    return np.ascontiguousarray(world_to_index(v[f], G))
 
 
 def voxel_centers(resolution: int = 32) -> np.ndarray:
     """Centres of all voxels, float64 ``[G, G, G, 3]`` (x, y, z) in the canonical frame."""
-    c = -0.5 + (np.arange(resolution, dtype=np.float64) + 0.5) / resolution
-    return np.stack(np.meshgrid(c, c, c, indexing="ij"), -1)
+    return centre_grid(resolution)
 
 
 def winding_numbers(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,

@@ -1,4 +1,5 @@
-"""HDF5 shard layout, writer and reader (the data contract of SPEC.md, "Shards").
+"""HDF5 shard layout, index and writer (the data contract of SPEC.md, "Shards"); reading is
+``sc3d_data.io.shard_reader``.
 
 A dataset is one directory holding shard files ``shard-NNNNN.h5`` and one JSON index
 ``index.json``. Every per-object dataset has the object axis first (``N``) and is chunked one
@@ -13,7 +14,7 @@ images         [N, V, S, S, 3]       uint8    RGB on the dataset background colo
 masks          [N, V, S, S]          uint8    silhouette, 1 where the object covers the pixel
 depth          [N, V, S, S]          float32  camera-frame z (world units), 0 = background;
                                               optional
-K              [N, V, 3, 3]          float32  intrinsics in pixels (sc3d_data.camera)
+K              [N, V, 3, 3]          float32  intrinsics in pixels (sc3d_data.geometry.camera)
 R, t           [N, V, 3, 3], [N,V,3] float32  world->camera, OpenCV axes
 azimuth        [N, V]                float32  degrees
 elevation      [N, V]                float32  degrees
@@ -35,10 +36,13 @@ always complete; the index is rewritten atomically after each shard.
 
 Integrity: every numeric dataset carries HDF5's Fletcher-32 checksum per chunk (a flipped byte
 makes the read of that object fail instead of returning wrong numbers), and the index records
-each shard's ``bytes`` and ``sha256`` (``verify_shard``: ``sc3d-data info --verify``, ``check``
+each shard's ``bytes`` and ``sha256`` (``shard_reader.verify_shard``: ``sc3d-data info --verify``, ``check``
 and a render resume use it; a truncated shard is caught by the size alone). Shard names in the
 index must be plain file names inside the dataset folder (``shard_path``); anything else is
 refused, so an edited index cannot make a command read or rewrite a file elsewhere.
+
+Length: one module because it is the file-format contract: the layout table, the writer and
+the index are changed together whenever the format changes.
 """
 from __future__ import annotations
 
@@ -48,7 +52,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import h5py
 import numpy as np
@@ -324,40 +328,6 @@ def shard_path(shard_dir: Path, name: str) -> Path:
     return path
 
 
-def verify_shard(shard_dir: Path, entry: dict, full: bool = True) -> str | None:
-    """Problem of the shard of index ``entry`` (missing, size or SHA-256 differs from the index,
-    not readable), or None when it is intact. ``full=False`` checks existence and size only
-    (cheap). Entries without a recorded checksum (older datasets) are checked by reading every
-    dataset (HDF5 Fletcher-32 / gzip errors)."""
-    try:
-        path = shard_path(shard_dir, entry.get("file"))
-    except ShardError as e:
-        return str(e)
-    if not path.is_file():
-        return f"{path}: listed in the index but missing"
-    size = path.stat().st_size
-    if "bytes" in entry and size != entry["bytes"]:
-        return f"{path}: {size} bytes, the index says {entry['bytes']} (truncated or modified)"
-    if not full:
-        return None
-    if "sha256" in entry:
-        if file_sha256(path) != entry["sha256"]:
-            return f"{path}: SHA-256 differs from the index (corrupted or modified)"
-        return None
-    try:
-        with h5py.File(path, "r") as f:
-            for name in f:
-                f[name][()]
-    except Exception as e:  # noqa: BLE001 - any HDF5 failure means the file is broken
-        return f"{path}: not readable ({io_reason(e)})"
-    return None
-
-
-def verify_shards(shard_dir: Path, full: bool = True) -> list[str]:
-    """Problems (one line each, naming the file) of every shard listed in the index."""
-    return [p for e in load_index(shard_dir).get("shards", []) if (p := verify_shard(shard_dir, e, full))]
-
-
 def load_index(shard_dir: Path) -> dict:
     """Read ``index.json`` of a shard directory; a clear error if it is missing or broken."""
     p = index_path(shard_dir)
@@ -380,64 +350,3 @@ def shard_files(shard_dir: Path) -> list[Path]:
     """Complete shard files listed in the index, in order."""
     index = load_index(shard_dir)
     return [shard_path(shard_dir, s["file"]) for s in index.get("shards", [])]
-
-
-# ----------------------------------------------------------------------------- reading
-def read_strings(ds) -> list[str]:
-    return [s.decode() if isinstance(s, bytes) else str(s) for s in ds[()]]
-
-
-def iter_objects(shard_dir: Path, fields: tuple[str, ...] | None = None) -> Iterator[dict]:
-    """Yield one dict per object over all shards: string fields plus the requested array
-    fields (all present ones when ``fields`` is None), plus ``shard`` and ``row``. A shard
-    that cannot be read raises ``ShardError`` naming it."""
-    for path in shard_files(shard_dir):
-        with open_shard(path) as f:
-            try:
-                strings = {k: read_strings(f[k]) for k in STRING_FIELDS if k in f}
-                names = [k for k in (fields or f.keys()) if k in f and k not in STRING_FIELDS]
-                rows = range(f["model_id"].shape[0])
-            except (OSError, KeyError, RuntimeError) as e:
-                raise ShardError(f"{path}: broken shard ({io_reason(e)}); see `sc3d-data info --verify`") from e
-            for row in rows:
-                obj = {k: v[row] for k, v in strings.items()}
-                try:
-                    obj.update({k: f[k][row] for k in names})
-                except (OSError, RuntimeError) as e:
-                    raise ShardError(f"{path}: row {row} cannot be read ({io_reason(e)}); "
-                                     "see `sc3d-data info --verify`") from e
-                obj["shard"], obj["row"] = path.name, row
-                yield obj
-
-
-class open_shard:
-    """``with open_shard(path) as f``: an ``h5py.File`` read-only; ``ShardError`` naming the
-    file when it is missing, truncated or not HDF5."""
-
-    def __init__(self, path: Path):
-        self.path = Path(path)
-        try:
-            self.file = h5py.File(self.path, "r")
-        except (OSError, RuntimeError) as e:
-            raise ShardError(f"{self.path}: cannot open shard ({io_reason(e)}); "
-                             "see `sc3d-data info --verify`") from e
-
-    def __enter__(self) -> h5py.File:
-        return self.file
-
-    def __exit__(self, *exc) -> None:
-        self.file.close()
-
-
-def read_records(path: Path) -> list[ObjectRecord]:
-    """All objects of one shard back as ``ObjectRecord`` s (to rewrite a shard with more objects)."""
-    with open_shard(path) as f:
-        try:
-            strings = {k: read_strings(f[k]) for k in STRING_FIELDS}
-            arrays = {k: f[k][()] for k in f if k not in STRING_FIELDS}
-        except (OSError, KeyError, RuntimeError) as e:
-            raise ShardError(f"{path}: broken shard ({io_reason(e)})") from e
-    return [ObjectRecord(model_id=strings["model_id"][i], category=strings["category"][i],
-                         split=strings["split"][i], source=strings["source"][i],
-                         arrays={k: v[i] for k, v in arrays.items()})
-            for i in range(len(strings["model_id"]))]

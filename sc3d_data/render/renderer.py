@@ -1,5 +1,5 @@
 """One reusable offscreen renderer per process: RGB, silhouette masks and depth of an object
-seen from the cameras of ``sc3d_data.camera.ViewSettings``.
+seen from the cameras of ``sc3d_data.geometry.camera.ViewSettings``.
 
 A small dedicated OpenGL path (PyOpenGL, one shader program), not pyrender's renderer: per
 view pyrender spends ~8 ms of Python (scene traversal, uniform look-ups, one framebuffer
@@ -23,8 +23,11 @@ Cameras: the shards store OpenCV ``K, R, t`` (world->camera, x right, y down, z 
 projection from ``K`` as pyrender's ``IntrinsicsCamera`` does (masks are pixel-identical to the
 former pyrender path; the tests project vertices with the stored K, R, t onto them). The OpenGL
 context comes from pyrender's EGL/OSMesa platform classes; call
-``sc3d_data.gl_backend.activate(backend)`` (done by ``MeshRenderer``) before anything imports
+``sc3d_data.render.gl_backend.activate(backend)`` (done by ``MeshRenderer``) before anything imports
 OpenGL, and never fork a process after a renderer exists.
+
+Length: one module because the context, shaders, instanced draw and readback share one piece
+of OpenGL state; split, each part would reach into the others' GL objects.
 """
 from __future__ import annotations
 
@@ -34,8 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sc3d_data.camera import ViewSettings
-from sc3d_data.gl_backend import activate
+from sc3d_data.geometry.camera import ViewSettings
+from sc3d_data.render.gl_backend import activate
 
 #: OpenCV camera axes -> OpenGL camera axes (flip y and z)
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])

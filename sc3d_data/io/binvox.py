@@ -22,7 +22,7 @@ Axis mapping between binvox files and sc3d grids
 i = x, j = y, k = z after de-interleaving the "xzy" storage): the array that a binvox file
 stores as ``data.reshape(D, D, D)[x, z, y]`` becomes ``voxels[x, y, z]``. No axis is
 flipped or swapped beyond that: ShapeNetVox32 files are in the frame of the ShapeNetCore v1
-models (+Y up, front +X); ``sc3d_data.r2n2_import`` turns them to sc3d's front +Z and places the
+models (+Y up, front +X); ``sc3d_data.formats.r2n2`` turns them to sc3d's front +Z and places the
 grid (ShapeNetVox32 was written with ``binvox -cb``, whose header ``translate`` is the mesh's
 bounding-box minimum, not the grid corner: docs/data-conventions.md). sc3d grids cover
 [-0.5, 0.5]^3, which is ``translate = (-0.5, -0.5, -0.5)``, ``scale = 1``; ``write_binvox``
@@ -163,6 +163,6 @@ def write_binvox(path: str | Path, voxels: np.ndarray, translate=SC3D_TRANSLATE,
                  scale: float = SC3D_SCALE) -> None:
     """Write ``voxels`` (sc3d order ``[x, y, z]``) as a binvox file; the default header
     describes sc3d's [-0.5, 0.5]^3 cube. Written to ``NAME.tmp`` and renamed."""
-    from sc3d_data.shards import atomic_write_bytes
+    from sc3d_data.io.shards import atomic_write_bytes
 
     atomic_write_bytes(Path(path), binvox_bytes(Binvox(voxels, tuple(translate), scale)))

@@ -1,0 +1,207 @@
+"""Reading sc3d datasets: the one place that opens shard files for reading.
+
+``ShardReader(shard_dir)`` is what the training loader, ``check``, ``preview`` and ``voxelize`` use:
+it reads the index, summarises each shard from its string fields and shapes (``summaries``),
+and reads one object's arrays (``read``) through HDF5 handles it keeps per process (a forked
+worker or a pickled copy opens its own, never the parent's). Errors are ``ShardError`` naming the
+file and pointing at ``sc3d-data info --verify``. The layout itself (dataset names, shapes, dtypes)
+is documented in ``sc3d_data.io.shards``.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import h5py
+import numpy as np
+
+from sc3d_data.io.shards import (STRING_FIELDS, ObjectRecord, ShardError, file_sha256, io_reason, load_index,
+                                 shard_files, shard_path)
+
+
+@dataclass
+class ShardSummary:
+    """One shard file as the index and its string fields describe it. ``num_objects``,
+    ``num_views``, ``image_size`` from ``images [N, V, S, S, 3]``; ``voxel_resolution`` G of
+    ``voxels [N, G, G, G]`` or None without voxels; ``K [3, 3]`` (pixels) and ``distance``
+    (world units) of view 0 of object 0 (all views of a dataset share them, SPEC)."""
+
+    path: Path
+    model_id: list[str]
+    category: list[str]
+    split: list[str]
+    num_objects: int
+    num_views: int
+    image_size: int
+    voxel_resolution: int | None
+    K: np.ndarray
+    distance: float
+
+
+class ShardReader:
+    """Read access to the dataset in ``shard_dir`` (module doc). Usable as a context manager;
+    ``close()`` closes the handles this process opened."""
+
+    def __init__(self, shard_dir: Path):
+        self.shard_dir = Path(shard_dir)
+        self.index = load_index(self.shard_dir)
+        self.files = shard_files(self.shard_dir)
+        self._handles: dict[str, h5py.File] = {}
+        self._pid = os.getpid()
+
+    @property
+    def settings(self) -> dict:
+        return self.index.get("settings", {})
+
+    def summaries(self) -> list[ShardSummary]:
+        """A ``ShardSummary`` per shard file in index order (reads strings and shapes only)."""
+        out = []
+        for path in self.files:
+            if not path.is_file():
+                raise ShardError(f"{path}: listed in {self.shard_dir}/index.json but missing")
+            with open_shard(path) as f:
+                try:
+                    ids, cats, splits = (read_strings(f[k]) for k in ("model_id", "category", "split"))
+                    n, v, s = f["images"].shape[:3]
+                    out.append(ShardSummary(path, ids, cats, splits, int(n), int(v), int(s),
+                                            int(f["voxels"].shape[1]) if "voxels" in f else None,
+                                            f["K"][0, 0], float(f["distance"][0, 0])))
+                except (OSError, KeyError, RuntimeError) as e:  # truncated / corrupted shard
+                    raise ShardError(f"{path}: broken shard ({io_reason(e)}); see `sc3d-data info --verify "
+                                     f"{self.shard_dir}`") from e
+        return out
+
+    def _handle(self, path: Path) -> h5py.File:
+        if self._pid != os.getpid():  # forked: never use the parent's handles
+            self._handles, self._pid = {}, os.getpid()
+        key = str(path)
+        if key not in self._handles:
+            self._handles[key] = open_shard(path).file
+        return self._handles[key]
+
+    def read(self, path: Path, row: int, fields: tuple[str, ...]) -> dict[str, np.ndarray]:
+        """Arrays ``fields`` of object ``row`` of shard file ``path`` (one of ``self.files``),
+        without the object axis. A chunk holds one object, so reading all its views costs the
+        same as reading one. ``ShardError`` naming the file when a checksum or gzip check fails."""
+        try:
+            f = self._handle(Path(path))
+            return {k: f[k][row] for k in fields}
+        except (OSError, KeyError, RuntimeError) as e:
+            raise ShardError(f"{path}: row {row} cannot be read ({io_reason(e)}); "
+                             "see `sc3d-data info --verify`") from e
+
+    def iter_objects(self, fields: tuple[str, ...] | None = None) -> Iterator[dict]:
+        """See :func:`iter_objects`."""
+        return iter_objects(self.shard_dir, fields)
+
+    def close(self) -> None:
+        for f in self._handles.values():
+            f.close()
+        self._handles = {}
+
+    def __enter__(self) -> "ShardReader":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state["_handles"], state["_pid"] = {}, None
+        return state
+
+
+def read_strings(ds) -> list[str]:
+    return [s.decode() if isinstance(s, bytes) else str(s) for s in ds[()]]
+
+
+def iter_objects(shard_dir: Path, fields: tuple[str, ...] | None = None) -> Iterator[dict]:
+    """Yield one dict per object over all shards: string fields plus the requested array
+    fields (all present ones when ``fields`` is None), plus ``shard`` and ``row``. A shard
+    that cannot be read raises ``ShardError`` naming it."""
+    for path in shard_files(shard_dir):
+        with open_shard(path) as f:
+            try:
+                strings = {k: read_strings(f[k]) for k in STRING_FIELDS if k in f}
+                names = [k for k in (fields or f.keys()) if k in f and k not in STRING_FIELDS]
+                rows = range(f["model_id"].shape[0])
+            except (OSError, KeyError, RuntimeError) as e:
+                raise ShardError(f"{path}: broken shard ({io_reason(e)}); see `sc3d-data info --verify`") from e
+            for row in rows:
+                obj = {k: v[row] for k, v in strings.items()}
+                try:
+                    obj.update({k: f[k][row] for k in names})
+                except (OSError, RuntimeError) as e:
+                    raise ShardError(f"{path}: row {row} cannot be read ({io_reason(e)}); "
+                                     "see `sc3d-data info --verify`") from e
+                obj["shard"], obj["row"] = path.name, row
+                yield obj
+
+
+class open_shard:
+    """``with open_shard(path) as f``: an ``h5py.File`` read-only; ``ShardError`` naming the
+    file when it is missing, truncated or not HDF5."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        try:
+            self.file = h5py.File(self.path, "r")
+        except (OSError, RuntimeError) as e:
+            raise ShardError(f"{self.path}: cannot open shard ({io_reason(e)}); "
+                             "see `sc3d-data info --verify`") from e
+
+    def __enter__(self) -> h5py.File:
+        return self.file
+
+    def __exit__(self, *exc) -> None:
+        self.file.close()
+
+
+def read_records(path: Path) -> list[ObjectRecord]:
+    """All objects of one shard back as ``ObjectRecord`` s (to rewrite a shard with more objects)."""
+    with open_shard(path) as f:
+        try:
+            strings = {k: read_strings(f[k]) for k in STRING_FIELDS}
+            arrays = {k: f[k][()] for k in f if k not in STRING_FIELDS}
+        except (OSError, KeyError, RuntimeError) as e:
+            raise ShardError(f"{path}: broken shard ({io_reason(e)})") from e
+    return [ObjectRecord(model_id=strings["model_id"][i], category=strings["category"][i],
+                         split=strings["split"][i], source=strings["source"][i],
+                         arrays={k: v[i] for k, v in arrays.items()})
+            for i in range(len(strings["model_id"]))]
+
+
+def verify_shard(shard_dir: Path, entry: dict, full: bool = True) -> str | None:
+    """Problem of the shard of index ``entry`` (missing, size or SHA-256 differs from the index,
+    not readable), or None when it is intact. ``full=False`` checks existence and size only
+    (cheap). Entries without a recorded checksum (older datasets) are checked by reading every
+    dataset (HDF5 Fletcher-32 / gzip errors)."""
+    try:
+        path = shard_path(shard_dir, entry.get("file"))
+    except ShardError as e:
+        return str(e)
+    if not path.is_file():
+        return f"{path}: listed in the index but missing"
+    size = path.stat().st_size
+    if "bytes" in entry and size != entry["bytes"]:
+        return f"{path}: {size} bytes, the index says {entry['bytes']} (truncated or modified)"
+    if not full:
+        return None
+    if "sha256" in entry:
+        if file_sha256(path) != entry["sha256"]:
+            return f"{path}: SHA-256 differs from the index (corrupted or modified)"
+        return None
+    try:
+        with h5py.File(path, "r") as f:
+            for name in f:
+                f[name][()]
+    except Exception as e:  # noqa: BLE001 - any HDF5 failure means the file is broken
+        return f"{path}: not readable ({io_reason(e)})"
+    return None
+
+
+def verify_shards(shard_dir: Path, full: bool = True) -> list[str]:
+    """Problems (one line each, naming the file) of every shard listed in the index."""
+    return [p for e in load_index(shard_dir).get("shards", []) if (p := verify_shard(shard_dir, e, full))]

@@ -1,0 +1,2 @@
+"""Solid voxelization of (possibly open) meshes: ``voxelize`` (public API) over numba kernels
+(``_kernels``)."""
