@@ -56,8 +56,7 @@ class StepRunner:
 
     def __init__(self, cfg, batch, device, amp_dtype, channels_last: bool):
         from sc3d_train.checkpoint import build_model
-        from sc3d_train.losses import LossWeights
-        from sc3d_train.trainer import training_batch
+        from sc3d_train.phase_step import training_batch
 
         torch.manual_seed(0)
         self.device, self.amp_dtype = device, amp_dtype
@@ -67,7 +66,7 @@ class StepRunner:
         self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr)
         self.scaler = torch.amp.GradScaler("cuda") if amp_dtype == torch.float16 else None
         self.batch = training_batch(batch, "supervised", device, channels_last)
-        self.weights = LossWeights(**cfg.loss_weights)
+        self.weights = cfg.loss_weights
 
     def step(self) -> float:
         """Seconds of one optimiser step (forward, losses, backward, Adam)."""
@@ -173,7 +172,8 @@ def main() -> None:
 
     from sc3d_train.data import ShardDataset, make_loader
     from sc3d_train.self_consistency import benchmark_self_consistency
-    from sc3d_train.trainer import DistInfo, resolve_config, resolve_device
+    from sc3d_train.resolve import resolve_config
+    from sc3d_train.runtime import DistInfo, resolve_device
 
     device = resolve_device(args.device, DistInfo())
     tmp = None
@@ -182,7 +182,7 @@ def main() -> None:
         tmp = tempfile.TemporaryDirectory()
         shards = render_samples(Path(tmp.name) / "shards")
     cfg = resolve_config({"shards": str(shards), "out": "unused", "batch_size": args.batch_size},
-                         {"tiny": args.tiny}, set(), resume=False)
+                         {"tiny": args.tiny})
     gpu = torch.cuda.get_device_name(device) if device.type == "cuda" else None
     print(f"device: {device} ({gpu or platform.processor() or 'cpu'}; {torch.get_num_threads()} torch threads); "
           f"GPU available: {torch.cuda.is_available()}; torch {torch.__version__}")

@@ -36,6 +36,7 @@ from torch.utils.data import Dataset, Sampler
 from sc3d_data.camera import scale_intrinsics
 from sc3d_data.shards import io_reason, load_index, read_strings, shard_files
 from sc3d_train.batch_transfer import PackedBatch, pack, unpack
+from sc3d_train.config import MASK_SIZE
 from sc3d_train.self_consistency import area_downsample
 
 
@@ -145,7 +146,7 @@ class ShardDataset(Dataset):
     """
 
     def __init__(self, shard_dir: Path, split: str = "train", subset: str = "all",
-                 labeled_fraction: float = 1.0, seed: int = 0, mask_size: int = 48,
+                 labeled_fraction: float = 1.0, seed: int = 0, mask_size: int = MASK_SIZE,
                  require_voxels: bool = True, image_size: int | None = None,
                  cache_objects: int = 128):
         refs, info = scan_objects(shard_dir)

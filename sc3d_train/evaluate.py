@@ -228,17 +228,15 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     dev = torch.device("cuda" if device == "auto" and torch.cuda.is_available() else
                        "cpu" if device == "auto" else device)
     model, cfg, ckpt = load_model(checkpoint, dev)
-    dataset = ShardDataset(shards, split, subset="all", mask_size=cfg.model.get("mask_size", 48),
-                           require_voxels=True, image_size=cfg.model["image_size"])
-    if dataset.info["voxel_resolution"] != cfg.model["voxel_resolution"]:
+    dataset = ShardDataset(shards, split, subset="all", mask_size=cfg.model.mask_size,
+                           require_voxels=True, image_size=cfg.model.image_size)
+    if dataset.info["voxel_resolution"] != cfg.model.voxel_resolution:
         raise ValueError(f"{shards}: voxels are {dataset.info['voxel_resolution']}^3 but the checkpoint "
-                         f"predicts {cfg.model['voxel_resolution']}^3")
+                         f"predicts {cfg.model.voxel_resolution}^3")
     if pose_from not in POSE_SOURCES:
         raise ValueError(f"pose_from must be one of {POSE_SOURCES}, got {pose_from!r}")
-    from sc3d_train.losses import LossWeights
-
     rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
-                                 loss_weights=LossWeights(**cfg.loss_weights))
+                                 loss_weights=cfg.loss_weights)
     summary = summarize(rows)
     out = Path(out) if out is not None else default_output_dir(checkpoint, f"eval_{split}")
     out.mkdir(parents=True, exist_ok=True)

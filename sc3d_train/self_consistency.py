@@ -40,7 +40,7 @@ from torch import Tensor
 
 from sc3d_data.camera import extrinsics, pixel_rays
 
-DEFAULT_NUM_SAMPLES = 64
+from sc3d_train.config import RAY_SAMPLES as DEFAULT_NUM_SAMPLES
 CUBE_HALF = 0.5
 
 
