@@ -106,23 +106,25 @@ class LossWeights(_Plain):
     training), ``unlabeled_search_*`` for unlabelled images (every step, over the azimuths at the
     predicted elevation: cheaper). Set in the config file (no command-line options)."""
 
-    w3d: float = 0.5
-    w2d: float = 0.5
-    wsc: float = 1.0
-    wkl: float = 0.02
-    ray: float = 5.0
-    proj: float = 0.125
-    pos_weight: float = 3.0
-    num_samples: int = RAY_SAMPLES
-    wpose: float = 1.0
-    wpose_unlabeled: float = 1.0
-    wsc_unlabeled: float = 1.0
-    wkl_unlabeled: float = 0.02
-    unlabeled_sc_at_search: bool = True
-    search_mask_size: int = 24
-    search_samples: int = 32
-    unlabeled_search_mask_size: int = 16
-    unlabeled_search_samples: int = 16
+    w3d: float = setting(0.5, "Weight of L_3D (alpha_3).", cli=False)
+    w2d: float = setting(0.5, "Weight of L_2D (alpha_4).", cli=False)
+    wsc: float = setting(1.0, "Weight of L_sc on labelled images (alpha_5).", cli=False)
+    wkl: float = setting(0.02, "Weight of L_KL on labelled images (alpha_6).", cli=False)
+    ray: float = setting(5.0, "Weight of L_ray inside L_sc (alpha_1).", cli=False)
+    proj: float = setting(0.125, "Weight of L_proj inside L_sc (alpha_2).", cli=False)
+    pos_weight: float = setting(3.0, "Weight of occupied voxels in the cross-entropy (alpha_p).", cli=False)
+    num_samples: int = setting(RAY_SAMPLES, "Samples per ray of L_sc.", cli=False)
+    wpose: float = setting(1.0, "Weight of the pose loss on labelled images.", cli=False)
+    wpose_unlabeled: float = setting(1.0, "Weight of the pose loss on unlabelled images.", cli=False)
+    wsc_unlabeled: float = setting(1.0, "Weight of L_sc on unlabelled images.", cli=False)
+    wkl_unlabeled: float = setting(0.02, "Weight of L_KL on unlabelled images.", cli=False)
+    unlabeled_sc_at_search: bool = setting(True, "Unlabelled images: L_sc at the searched pose "
+                                           "(else at the pose head's).", cli=False)
+    search_mask_size: int = setting(24, "Mask size of the pose search for labelled images.", cli=False)
+    search_samples: int = setting(32, "Samples per ray of that search.", cli=False)
+    unlabeled_search_mask_size: int = setting(16, "Mask size of the pose search for unlabelled images.",
+                                              cli=False)
+    unlabeled_search_samples: int = setting(16, "Samples per ray of that search.", cli=False)
 
 
 @dataclass
@@ -161,7 +163,7 @@ class RunConfig(_Plain):
                                         "images alone).")
     # loader, device, logging
     workers: int = setting(0, "DataLoader worker processes per rank.")
-    device: str = setting("auto", "auto (CUDA if present) | cpu | cuda | cuda:N")
+    device: str = setting("auto", "auto (CUDA if present), cpu, cuda or cuda:N.")
     amp: str = setting("auto", "Mixed precision; auto = bf16/fp16 on CUDA, off on CPU.",
                        choices=("auto", "off", "bf16", "fp16"))
     channels_last: str = setting("auto", "Channels-last memory format (auto: on for CUDA).",

@@ -123,10 +123,14 @@ def check_choices(obj) -> None:
 
 
 def dump_yaml(data: dict, header: str = "") -> str:
-    """``data`` (plain) as YAML text, keys in field order, short lists inline."""
+    """``data`` (plain) as YAML text: keys in field order, one per line, lists inline."""
     import yaml
 
-    text = yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100)
+    class Dumper(yaml.SafeDumper):
+        pass
+
+    Dumper.add_representer(list, lambda d, v: d.represent_sequence("tag:yaml.org,2002:seq", v, flow_style=True))
+    text = yaml.dump(data, Dumper=Dumper, sort_keys=False, default_flow_style=False, width=100)
     return "".join(f"# {line}\n" for line in header.splitlines()) + text
 
 
@@ -149,3 +153,21 @@ def load_yaml(path: Path) -> dict:
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping of settings, got {type(data).__name__}")
     return data
+
+
+def markdown_table(cls) -> str:
+    """The fields of config dataclass ``cls`` as a markdown table (key, default, ``fit``
+    option, meaning): the tables of docs/config.md, which a test compares with this."""
+    import json
+
+    rows = ["| key | default | option | meaning |", "|---|---|---|---|"]
+    for f in fields(cls):
+        d = default_of(f)
+        default = ("required" if d is MISSING else "see below" if is_dataclass(d)
+                   else f"`{json.dumps(d)}`")
+        name = f.name.replace("_", "-")
+        option = "-"
+        if f.metadata.get("cli"):
+            option = f"`--{name}/--no-{name}`" if isinstance(d, bool) else f"`--{name}`"
+        rows.append(f"| `{f.name}` | {default} | {option} | {f.metadata.get('help', '')} |")
+    return "\n".join(rows) + "\n"
