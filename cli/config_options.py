@@ -9,14 +9,10 @@ from dataclasses import MISSING
 
 import click
 
-from sc3d_train.config import cli_fields
-from sc3d_train.config_io import default_of, field_types
+from sc3d_train.config_io import cli_fields, default_of, field_types, option_name
 
 CLICK_TYPES = {int: click.INT, float: click.FLOAT, str: click.STRING}
 
-
-def option_name(field_name: str) -> str:
-    return "--" + field_name.replace("_", "-")
 
 
 def _base_type(hint):
@@ -31,12 +27,12 @@ def config_option(f, hint, note: str = ""):
     default = None if default is MISSING else default
     help_text = f.metadata["help"] + (f" {note}" if note else "")
     if _base_type(hint) is bool:
-        name = f.name.replace("_", "-")
-        return click.option(f"--{name}/--no-{name}", f.name, default=default, show_default=True,
+        name = option_name(f)
+        return click.option(f"{name}/--no-{name[2:]}", f.name, default=default, show_default=True,
                             help=help_text)
     choices = f.metadata.get("choices")
     kind = click.Choice(choices) if choices else CLICK_TYPES[_base_type(hint)]
-    return click.option(option_name(f.name), f.name, type=kind, default=default,
+    return click.option(option_name(f), f.name, type=kind, default=default,
                         show_default=default is not None, help=help_text)
 
 

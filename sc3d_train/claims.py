@@ -28,6 +28,7 @@ import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
+from sc3d_train.command_config import ClaimsConfig
 from sc3d_train.config import RunConfig
 from sc3d_train.config_io import defaults_of
 
@@ -59,8 +60,8 @@ PRESETS = {
 }
 
 
-def run_config(name: str, preset: ClaimsPreset, shards: Path, out: Path, device: str = "auto",
-               workers: int = 0) -> RunConfig:
+def run_config(name: str, preset: ClaimsPreset, shards: Path, out: Path, device: str = ClaimsConfig.device,
+               workers: int = ClaimsConfig.workers) -> RunConfig:
     """The :class:`RunConfig` of run ``name`` (one of :data:`RUNS`)."""
     from sc3d_train.resolve import resolve_config
 
@@ -77,8 +78,9 @@ def run_config(name: str, preset: ClaimsPreset, shards: Path, out: Path, device:
     return cfg
 
 
-def run_all(train_shards: Path, eval_shards: Path, out: Path, preset: "str | ClaimsPreset" = "cpu",
-            eval_split: str = "test", device: str = "auto", workers: int = 0, runs=None,
+def run_all(train_shards: Path, eval_shards: Path, out: Path,
+            preset: "str | ClaimsPreset" = ClaimsConfig.preset, eval_split: str = ClaimsConfig.eval_split,
+            device: str = ClaimsConfig.device, workers: int = ClaimsConfig.workers, runs=None,
             echo=print) -> dict:
     """Train and evaluate every run of ``preset`` (skipping finished ones); write the report.
     Returns ``{run name: eval metrics}``."""

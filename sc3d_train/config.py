@@ -9,15 +9,19 @@ Each setting is declared once (:func:`~sc3d_train.config_io.setting`: type, defa
 ``sc3d-train fit`` options are generated from these declarations (``cli/config_options.py``).
 A run's resolved config is written beside it as ``RUN_DIR/config.yaml`` and, as plain data,
 inside every checkpoint; ``fit --config RUN_DIR/config.yaml`` starts the same run again
-(docs/config.md). This module imports nothing heavy (no torch), so ``fit --help`` stays fast.
+(docs/config.md). The settings of ``eval``, ``predict`` and ``claims`` are declared the same way
+in :mod:`sc3d_train.command_config`. This module imports nothing heavy (no torch), so
+``fit --help`` stays fast.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from sc3d_train.config_io import ConfigError, check_choices, dump_yaml, from_plain, load_yaml, setting
 
+#: the help of every ``--device`` option
+DEVICE_HELP = "auto (CUDA if present), cpu, cuda or cuda:N."
 #: the side (pixels) of the masks of the self-consistency module: 48 as in the paper
 MASK_SIZE = 48
 #: samples per ray of the self-consistency losses
@@ -163,7 +167,7 @@ class RunConfig(_Plain):
                                         "images alone).")
     # loader, device, logging
     workers: int = setting(0, "DataLoader worker processes per rank.")
-    device: str = setting("auto", "auto (CUDA if present), cpu, cuda or cuda:N.")
+    device: str = setting("auto", DEVICE_HELP)
     amp: str = setting("auto", "Mixed precision; auto = bf16/fp16 on CUDA, off on CPU.",
                        choices=("auto", "off", "bf16", "fp16"))
     channels_last: str = setting("auto", "Channels-last memory format (auto: on for CUDA).",
@@ -226,8 +230,3 @@ class RunConfig(_Plain):
         """Names and values of the fields that differ, other than ``ignore``."""
         a, b = self.to_dict(), other.to_dict()
         return [f"{k}: {a[k]!r} != {b[k]!r}" for k in a if k not in ignore and a[k] != b[k]]
-
-
-def cli_fields(cls) -> list:
-    """The fields of config dataclass ``cls`` that ``fit`` has an option for."""
-    return [f for f in fields(cls) if f.metadata.get("cli")]

@@ -24,13 +24,23 @@ class ConfigError(ValueError):
 
 
 def setting(default=MISSING, help: str = "", *, cli: bool = True, choices=None,
-            default_factory=MISSING):
-    """A dataclass field carrying its help text. ``cli``: ``fit`` gets an option for it;
-    ``choices``: the allowed values (a click Choice)."""
-    meta = {"help": help, "cli": cli, "choices": tuple(choices) if choices else None}
+            default_factory=MISSING, option: str | None = None):
+    """A dataclass field carrying its help text. ``cli``: the command gets an option for it
+    (named ``option``, default ``--field-name``); ``choices``: the allowed values."""
+    meta = {"help": help, "cli": cli, "choices": tuple(choices) if choices else None, "option": option}
     if default_factory is not MISSING:
         return field(default_factory=default_factory, metadata=meta)
     return field(default=default, metadata=meta)
+
+
+def cli_fields(cls) -> list:
+    """The fields of config dataclass ``cls`` that its command has an option for."""
+    return [f for f in fields(cls) if f.metadata.get("cli")]
+
+
+def option_name(f) -> str:
+    """The option of field ``f``: ``--field-name``, or the name its declaration gives."""
+    return f.metadata.get("option") or "--" + f.name.replace("_", "-")
 
 
 def default_of(f):
@@ -165,9 +175,9 @@ def markdown_table(cls) -> str:
         d = default_of(f)
         default = ("required" if d is MISSING else "see below" if is_dataclass(d)
                    else f"`{json.dumps(d)}`")
-        name = f.name.replace("_", "-")
+        name = option_name(f)
         option = "-"
         if f.metadata.get("cli"):
-            option = f"`--{name}/--no-{name}`" if isinstance(d, bool) else f"`--{name}`"
+            option = f"`{name}/--no-{name[2:]}`" if isinstance(d, bool) else f"`{name}`"
         rows.append(f"| `{f.name}` | {default} | {option} | {f.metadata.get('help', '')} |")
     return "\n".join(rows) + "\n"

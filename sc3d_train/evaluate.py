@@ -31,6 +31,7 @@ import torch
 
 from sc3d_data.shapenet import category_label
 from sc3d_train.checkpoint import load_model
+from sc3d_train.command_config import POSE_SOURCES, EvalConfig
 from sc3d_train.data import ShardDataset
 from sc3d_train.pose import pose_errors
 
@@ -39,7 +40,6 @@ VOXEL_THRESHOLDS = (0.4, 0.5)
 #: predicted voxels best matches the predicted mask, at the head's elevation (test-time
 #: self-consistency, :func:`sc3d_train.pose_search.self_consistent_pose`); ``head`` the pose
 #: head's soft-argmax alone
-POSE_SOURCES = ("search", "head")
 MASK_THRESHOLD = 0.5
 
 
@@ -219,8 +219,9 @@ def default_output_dir(checkpoint: Path, name: str) -> Path:
     return (parent.parent if parent.name == "checkpoints" else parent) / name
 
 
-def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, device: str = "auto",
-             batch_size: int = 64, examples: int = 2, pose_from: str = "search") -> dict:
+def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, device: str = EvalConfig.device,
+             batch_size: int = EvalConfig.batch_size, examples: int = EvalConfig.examples,
+             pose_from: str = EvalConfig.pose_from) -> dict:
     """Evaluate ``checkpoint`` on ``split`` of ``shards``; writes ``out/metrics.json`` and
     ``out/predictions.png`` (``out`` None: ``RUN_DIR/eval_SPLIT``, :func:`default_output_dir`);
     ``examples`` objects per category are drawn. Returns the metrics dict (also holding

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from sc3d_train.checkpoint import load_model
+from sc3d_train.command_config import PredictConfig
 
 ACCEPTED_MODES = ("RGB", "RGBA", "LA", "L", "P")
 
@@ -102,8 +103,8 @@ def plot_prediction(path: Path, image: np.ndarray, mask: np.ndarray, silhouette:
 
 
 @torch.no_grad()
-def predict(checkpoint: Path, images: list[Path], out: Path, device: str = "auto",
-            threshold: float = 0.5, pose_from: str = "search") -> list[dict]:
+def predict(checkpoint: Path, images: list[Path], out: Path, device: str = PredictConfig.device,
+            threshold: float = PredictConfig.threshold, pose_from: str = PredictConfig.pose_from) -> list[dict]:
     """Predict every image (all are checked before the model runs); returns one dict per image
     (the content of its JSON file)."""
     from sc3d_data.binvox import write_binvox

@@ -10,8 +10,9 @@ Phases (see :class:`~sc3d_train.config.RunConfig`):
   boundary), then mixed batches at ``semi_lr`` (default ``lr``): ``semi_labeled_share`` of each
   batch labelled images with ``supervised_loss``, the rest unlabelled training objects with
   ``unsupervised_loss`` (L_sc on predicted voxels and masks + KL + pose search on the
-  predictions), two forward passes (BatchNorm statistics of the labelled images only); the Adam moments carry over. Logged: the labelled
-  terms under their names, the unlabelled ones prefixed ``u_``.
+  predictions), two forward passes (BatchNorm statistics of the labelled images only); the Adam
+  moments carry over. Logged: the labelled terms under their names, the unlabelled ones prefixed
+  ``u_``.
 
 Pose: the pose head is a classifier over a candidate grid (:mod:`sc3d_train.pose`); its target
 for a labelled image is the candidate with the lowest L_sc between the image's ground-truth voxels
@@ -43,8 +44,9 @@ from pathlib import Path
 
 import torch
 
-from sc3d_train.checkpoint import (CheckpointError, build_model, checkpoint_config, last_path, resume_checkpoint,
-                                   rng_state, save_checkpoint, set_rng_state, state_dict_mismatch)
+from sc3d_train.checkpoint import (CheckpointError, build_model, checkpoint_config, last_path,
+                                   resume_checkpoint, rng_state, save_checkpoint, set_rng_state,
+                                   state_dict_mismatch)
 from sc3d_train.config import CONFIG_NAME, RunConfig
 from sc3d_train.data import ShardDataset
 from sc3d_train.metrics_log import MetricsLog, plot_curves
