@@ -3,6 +3,7 @@ drift from them), a run's config.yaml reproduces it, and bad config files fail w
 naming the file and the key."""
 from __future__ import annotations
 
+import json
 from dataclasses import fields
 
 import pytest
@@ -105,7 +106,8 @@ def test_plain_data_round_trip_and_errors(tmp_path):
 def test_config_yaml_reproduces_the_run(sample_shards, tmp_path):
     """A run made with options and a run made from its config.yaml (another --out) end with
     identical weights; an option given beside --config overrides the file (different weights:
-    the negative control); an unknown or ill-typed key in the file is refused with one line."""
+    the negative control); a run folder with the config.json of earlier versions resumes; an
+    unknown or ill-typed key in the file is refused with one line."""
     from sc3d_train.checkpoint import load_checkpoint
     from sc3d_train.config import RunConfig
 
@@ -122,6 +124,12 @@ def test_config_yaml_reproduces_the_run(sample_shards, tmp_path):
     w = {d: load_checkpoint(d / "checkpoints" / "last.pt")["model"] for d in (a, b, c)}  # weights_only
     assert all(torch.equal(w[a][k], w[b][k]) for k in w[a])
     assert not all(torch.equal(w[a][k], w[c][k]) for k in w[a] if w[a][k].is_floating_point())
+
+    # a run folder of an earlier version holds config.json (the same dict, as JSON): it resumes
+    (a / "config.json").write_text(json.dumps(yaml.safe_load((a / "config.yaml").read_text())))
+    (a / "config.yaml").unlink()
+    r = run_cli(main, ["fit", "--out", a, "--resume", "--steps", "3"])
+    assert "done: step 3" in r.output and (a / "config.yaml").is_file()
 
     bad = tmp_path / "bad.yaml"
     plain = yaml.safe_load((a / "config.yaml").read_text())
