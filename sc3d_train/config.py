@@ -157,7 +157,8 @@ class RunConfig(_Plain):
     lr_min_ratio: float = setting(0.1, "End of the cosine schedule, as a share of the phase's lr.")
     seed: int = setting(0, "Seed of the weights, the labelled subset and the data order.")
     # modes and the semi-supervised phases
-    mode: str = setting("supervised", "Training mode (--semi, --labeled-only).", cli=False, choices=MODES)
+    mode: str = setting("supervised", "supervised, semi (--semi), labeled-only (--labeled-only) "
+                       "or true-pose-masks (the claims ablation).", cli=False, choices=MODES)
     labeled_fraction: float = setting(0.15, "Fraction of training objects with labels (semi / "
                                       "labeled-only); chosen by object, seeded.")
     pretrain_steps: int | None = setting(None, "semi: supervised steps first [steps // 2].")
