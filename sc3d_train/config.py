@@ -42,11 +42,6 @@ RESUMABLE_FIELDS = ("steps", "checkpoint_every", "workers", "log_every", "device
 TINY_MODEL = {"base_channels": 8, "shape_dim": 32, "pose_dim": 8}
 
 
-def dataclass_from_dict(cls, d: dict):
-    """``cls`` rebuilt from plain data (see :func:`~sc3d_train.config_io.from_plain`)."""
-    return from_plain(cls, d)
-
-
 class _Plain:
     """``to_dict`` / ``from_dict`` of a config dataclass (nested ones become nested dicts)."""
 
