@@ -57,8 +57,7 @@ class StepRunner:
 
     def __init__(self, cfg, batch, device, amp_dtype, channels_last: bool):
         from sc3d_train.checkpoint import build_model
-        from sc3d_train.losses import LossWeights
-        from sc3d_train.trainer import training_batch
+        from sc3d_train.phase_step import training_batch
 
         torch.manual_seed(0)
         self.device, self.amp_dtype = device, amp_dtype
@@ -68,7 +67,7 @@ class StepRunner:
         self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr)
         self.scaler = torch.amp.GradScaler("cuda") if amp_dtype == torch.float16 else None
         self.batch = training_batch(batch, "supervised", device, channels_last)
-        self.weights = LossWeights(**cfg.loss_weights)
+        self.weights = cfg.loss_weights
 
     def step(self) -> float:
         """Seconds of one optimiser step (forward, losses, backward, Adam)."""
@@ -161,7 +160,7 @@ def table(title: str, header: tuple[str, ...], rows: list[tuple]) -> str:
 
 
 def benchmark_self_consistency(batch_size: int = 48, device: str | torch.device = "cpu", repeats: int = 3,
-                               voxel_resolution: int = 32, mask_size: int = 48,
+                               voxel_resolution: int = 32, mask_size: int | None = None,
                                num_samples: int | None = None) -> list[dict]:
     """Time forward + backward of the self-consistency loss at ``batch_size`` on ``device``:
     the baseline (``tests/drc_reference.py``, hand-written gather + loop) and the module
@@ -174,7 +173,10 @@ def benchmark_self_consistency(batch_size: int = 48, device: str | torch.device 
     from sc3d_data.geometry.camera import intrinsics, scale_intrinsics
     from sc3d_train.self_consistency import DEFAULT_NUM_SAMPLES, iou_loss, self_consistency_losses
 
+    from sc3d_train.config import MASK_SIZE
+
     num_samples = num_samples or DEFAULT_NUM_SAMPLES
+    mask_size = mask_size or MASK_SIZE
     dev = torch.device(device)
     gen = torch.Generator().manual_seed(0)
     occ0 = (torch.rand(batch_size, voxel_resolution, voxel_resolution, voxel_resolution, generator=gen) * 0.3)
@@ -240,7 +242,8 @@ def main() -> None:
     from sc3d_train.data import ShardDataset
     from sc3d_train.loader import make_loader
     from sc3d_train.self_consistency import benchmark_self_consistency
-    from sc3d_train.trainer import DistInfo, resolve_config, resolve_device
+    from sc3d_train.resolve import resolve_config
+    from sc3d_train.runtime import DistInfo, resolve_device
 
     device = resolve_device(args.device, DistInfo())
     tmp = None
@@ -249,7 +252,7 @@ def main() -> None:
         tmp = tempfile.TemporaryDirectory()
         shards = render_samples(Path(tmp.name) / "shards")
     cfg = resolve_config({"shards": str(shards), "out": "unused", "batch_size": args.batch_size},
-                         {"tiny": args.tiny}, set(), resume=False)
+                         {"tiny": args.tiny})
     gpu = torch.cuda.get_device_name(device) if device.type == "cuda" else None
     print(f"device: {device} ({gpu or platform.processor() or 'cpu'}; {torch.get_num_threads()} torch threads); "
           f"GPU available: {torch.cuda.is_available()}; torch {torch.__version__}")

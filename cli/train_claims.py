@@ -5,22 +5,20 @@ from pathlib import Path
 
 import click
 
+from sc3d_cli.config_options import config_options
+from sc3d_train.command_config import ClaimsConfig
+
 
 @click.command()
 @click.option("--train-shards", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Shards to train on (their 'train' split).")
 @click.option("--eval-shards", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Shards to evaluate on (objects never trained on; may be the same folder).")
-@click.option("--eval-split", default="test", show_default=True, help="Split of --eval-shards to evaluate.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Study folder: runs/NAME (each run and its eval), claims.md, claims.json, claims.png.")
-@click.option("--preset", type=click.Choice(["cpu", "paper"]), default="cpu", show_default=True,
-              help="cpu: tiny network, 700 steps of 32 (~30-40 min on 2 cores for ~200 objects); "
-              "paper: full width, 20000 steps of 48, for a GPU.")
 @click.option("--runs", default=None, help="Comma-separated subset of: sup-3tube, sup-1tube, "
               "labeled-only, semi, ray, ray-proj [all].")
-@click.option("--device", default="auto", show_default=True)
-@click.option("--workers", type=int, default=0, show_default=True, help="DataLoader workers per run.")
+@config_options(ClaimsConfig)
 def claims(train_shards, eval_shards, eval_split, out, preset, runs, device, workers):
     """Train the paper's comparisons (supervised 3/1 tubes, labelled-only vs semi at 15%, ray vs
     ray+projection at the true pose) with one seed and equal budgets, evaluate each on held-out

@@ -5,22 +5,18 @@ from pathlib import Path
 
 import click
 
+from sc3d_cli.config_options import config_options
+from sc3d_train.command_config import EvalConfig
+
 
 @click.command("eval")
 @click.option("--checkpoint", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="A checkpoint of `sc3d-train fit` (e.g. RUN_DIR/checkpoints/last.pt).")
 @click.option("--shards", type=click.Path(file_okay=False, path_type=Path), required=True)
-@click.option("--split", default="test", show_default=True)
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Directory for metrics.json and predictions.png [RUN_DIR/eval_SPLIT beside the checkpoint].")
-@click.option("--batch-size", type=int, default=64, show_default=True)
-@click.option("--examples", type=int, default=2, show_default=True,
-              help="Objects per category shown in predictions.png (views 3 and 15 of each).")
-@click.option("--pose", "pose_from", type=click.Choice(["search", "head"]), default="search", show_default=True,
-              help="search: the pose head's elevation and the azimuth whose projection of the predicted "
-              "voxels best matches the predicted mask (test-time self-consistency); head: the pose head alone.")
-@click.option("--device", default="auto", show_default=True)
-def eval_cmd(checkpoint, shards, split, out, batch_size, examples, pose_from, device):
+@config_options(EvalConfig)
+def eval_cmd(checkpoint, shards, out, pose_from, device, split, batch_size, examples):
     """Voxel IoU (0.4, 0.5), mask IoU and pose error per category on a split."""
     from sc3d_train.checkpoint import CheckpointError
     from sc3d_train.data import DataError

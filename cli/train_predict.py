@@ -5,17 +5,17 @@ from pathlib import Path
 
 import click
 
+from sc3d_cli.config_options import config_options
+from sc3d_train.command_config import PredictConfig
+
 
 @click.command()
 @click.option("--checkpoint", type=click.Path(dir_okay=False, path_type=Path), required=True)
 @click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory [RUN_DIR/predictions beside the checkpoint].")
-@click.option("--threshold", type=float, default=0.5, show_default=True, help="Occupancy threshold.")
-@click.option("--pose", "pose_from", type=click.Choice(["search", "head"]), default="search", show_default=True,
-              help="search: test-time self-consistency (as in `eval`); head: the pose head alone.")
-@click.option("--device", default="auto", show_default=True)
-def predict(checkpoint, images, out, threshold, pose_from, device):
+@config_options(PredictConfig)
+def predict(checkpoint, images, out, pose_from, device, threshold):
     """Voxels (.binvox, .npz), mesh (.obj), pose (.json) and a picture (.png) per IMAGE."""
     from sc3d_train.checkpoint import CheckpointError
     from sc3d_train.predict import ImageError, predict as run_predict

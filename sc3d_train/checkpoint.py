@@ -4,7 +4,9 @@ is rebuilt from one (for ``--resume``, ``eval`` and ``predict``).
 A checkpoint (``torch.save`` dict) holds ``model`` (state dict of the unwrapped network),
 ``optimizer``, ``scaler`` (AMP GradScaler or None), ``rng`` (one entry per DDP rank: torch CPU,
 CUDA, numpy and python states), ``step`` (optimiser steps done), ``config`` (the
-:class:`~sc3d_train.config.RunConfig` dict, with the model config inside), ``data_position``
+:class:`~sc3d_train.config.RunConfig` as plain data: nested dicts of numbers, strings and lists,
+the model config and loss weights inside; :func:`checkpoint_config` rebuilds the typed
+dataclasses, so checkpoints of earlier versions, which stored the same dict, still load), ``data_position``
 (phase, phase start and samples consumed by each rank in that phase) and ``format_version``.
 Files are written under a temporary name and renamed, so ``step_XXXXXX.pt`` and ``last.pt``
 are always complete; a write that fails (disk full) removes its temporary file and raises
@@ -154,11 +156,19 @@ def resume_checkpoint(run_dir: Path) -> tuple[Path, dict]:
                           + (f" (and no complete step_*.pt: {errors[0]})" if errors else ""))
 
 
-def build_model(run_config: RunConfig):
-    """The network described by ``run_config.model`` (a ModelConfig dict)."""
-    from sc3d_train.model import ModelConfig, SelfConsistencyNet
+def checkpoint_config(path: Path, ckpt: dict) -> RunConfig:
+    """The typed run config stored in checkpoint ``ckpt`` (read from ``path``)."""
+    try:
+        return RunConfig.from_dict(ckpt["config"])
+    except ValueError as e:
+        raise CheckpointError(f"{path}: its config is not one this version reads ({e})") from e
 
-    return SelfConsistencyNet(ModelConfig.from_dict(run_config.model))
+
+def build_model(run_config: RunConfig):
+    """The network described by ``run_config.model`` (a :class:`~sc3d_train.config.ModelConfig`)."""
+    from sc3d_train.model import SelfConsistencyNet
+
+    return SelfConsistencyNet(run_config.model)
 
 
 def state_dict_mismatch(expected: dict, found: dict) -> str:
@@ -177,7 +187,7 @@ def load_model(path: Path, device="cpu"):
     """``(model in eval mode on device, RunConfig, checkpoint dict)`` from a checkpoint file;
     a clear error when the weights do not fit the stored configuration."""
     ckpt = load_checkpoint(path)
-    cfg = RunConfig.from_dict(ckpt["config"])
+    cfg = checkpoint_config(path, ckpt)
     model = build_model(cfg)
     problems = state_dict_mismatch(model.state_dict(), ckpt["model"])
     if problems:

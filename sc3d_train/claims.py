@@ -28,36 +28,42 @@ import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
+from sc3d_train.command_config import ClaimsConfig
 from sc3d_train.config import RunConfig
+from sc3d_train.config_io import defaults_of
 
 RUNS = ("sup-3tube", "sup-1tube", "labeled-only", "semi", "ray", "ray-proj")
 
 
+#: ``fit``'s defaults (:class:`RunConfig`), which a preset does not set again
+_FIT = defaults_of(RunConfig)
+
+
 @dataclass(frozen=True)
 class ClaimsPreset:
-    """Budget and network of every run of a claims study."""
+    """Budget and network of every run of a claims study (unset fields: ``fit``'s defaults)."""
 
     steps: int
     batch_size: int
     lr: float
     tiny: bool
-    lr_schedule: str = "cosine"
-    labeled_fraction: float = 0.15
-    seed: int = 0
+    lr_schedule: str = _FIT["lr_schedule"]
+    labeled_fraction: float = _FIT["labeled_fraction"]
+    seed: int = _FIT["seed"]
     runs: tuple = RUNS
     extra: dict = field(default_factory=dict)
 
 
 PRESETS = {
-    "cpu": ClaimsPreset(steps=700, batch_size=32, lr=1e-3, tiny=True),          # fit's defaults
+    "cpu": ClaimsPreset(steps=700, batch_size=32, lr=_FIT["lr"], tiny=True),
     "paper": ClaimsPreset(steps=20000, batch_size=48, lr=2e-4, tiny=False, lr_schedule="constant"),
 }
 
 
-def run_config(name: str, preset: ClaimsPreset, shards: Path, out: Path, device: str = "auto",
-               workers: int = 0) -> RunConfig:
+def run_config(name: str, preset: ClaimsPreset, shards: Path, out: Path, device: str = ClaimsConfig.device,
+               workers: int = ClaimsConfig.workers) -> RunConfig:
     """The :class:`RunConfig` of run ``name`` (one of :data:`RUNS`)."""
-    from sc3d_train.trainer import resolve_config
+    from sc3d_train.resolve import resolve_config
 
     options = dict(shards=str(Path(shards).resolve()), out=str(out), steps=preset.steps,
                    batch_size=preset.batch_size, lr=preset.lr, lr_schedule=preset.lr_schedule, seed=preset.seed,
@@ -66,14 +72,15 @@ def run_config(name: str, preset: ClaimsPreset, shards: Path, out: Path, device:
     options["mode"] = {"labeled-only": "labeled-only", "semi": "semi", "ray": "true-pose-masks",
                        "ray-proj": "true-pose-masks"}.get(name, "supervised")
     model_options = {"tiny": preset.tiny, "voxel_decoder": "1tube" if name == "sup-1tube" else "3tube"}
-    cfg = resolve_config(options, model_options, set(options), resume=False)
+    cfg = resolve_config(options, model_options)
     if name == "ray":
-        cfg = replace(cfg, loss_weights={**cfg.loss_weights, "proj": 0.0})
+        cfg = replace(cfg, loss_weights=replace(cfg.loss_weights, proj=0.0))
     return cfg
 
 
-def run_all(train_shards: Path, eval_shards: Path, out: Path, preset: "str | ClaimsPreset" = "cpu",
-            eval_split: str = "test", device: str = "auto", workers: int = 0, runs=None,
+def run_all(train_shards: Path, eval_shards: Path, out: Path,
+            preset: "str | ClaimsPreset" = ClaimsConfig.preset, eval_split: str = ClaimsConfig.eval_split,
+            device: str = ClaimsConfig.device, workers: int = ClaimsConfig.workers, runs=None,
             echo=print) -> dict:
     """Train and evaluate every run of ``preset`` (skipping finished ones); write the report.
     Returns ``{run name: eval metrics}``."""
@@ -94,7 +101,7 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path, preset: "str | Cla
             continue
         t0 = time.perf_counter()
         resume = (run_dir / "checkpoints" / "last.pt").is_file()
-        cfg = RunConfig.load(run_dir / "config.json") if resume else \
+        cfg = RunConfig.load(RunConfig.path_in(run_dir)) if resume else \
             run_config(name, p, train_shards, run_dir, device, workers)
         echo(f"[{i + 1}/{len(names)}] {name}: {cfg.mode}, {cfg.steps} steps of {cfg.batch_size}"
              + (" (resuming)" if resume else ""))

@@ -31,6 +31,7 @@ from torch.utils.data import Dataset
 from sc3d_data.geometry.camera import scale_intrinsics
 from sc3d_data.io.shard_reader import ShardReader
 from sc3d_data.io.shards import ShardError
+from sc3d_train.config import MASK_SIZE
 from sc3d_train.self_consistency import area_downsample
 
 
@@ -129,7 +130,7 @@ class ShardDataset(Dataset):
     """
 
     def __init__(self, shard_dir: Path, split: str = "train", subset: str = "all",
-                 labeled_fraction: float = 1.0, seed: int = 0, mask_size: int = 48,
+                 labeled_fraction: float = 1.0, seed: int = 0, mask_size: int = MASK_SIZE,
                  require_voxels: bool = True, image_size: int | None = None,
                  cache_objects: int = 128):
         refs, info = scan_objects(shard_dir)

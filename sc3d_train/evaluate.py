@@ -31,16 +31,16 @@ import torch
 
 from sc3d_data.formats.shapenet import category_label
 from sc3d_train.checkpoint import load_model
+from sc3d_train.command_config import POSE_SOURCES, EvalConfig
 from sc3d_train.data import ShardDataset
 from sc3d_train.pose import pose_errors
-from sc3d_train.losses import LossWeights
+from sc3d_train.config import LossWeights
 
 VOXEL_THRESHOLDS = (0.4, 0.5)
 #: where the evaluated pose comes from: ``search`` (default) the azimuth whose projection of the
 #: predicted voxels best matches the predicted mask, at the head's elevation (test-time
 #: self-consistency, :func:`sc3d_train.pose_search.self_consistent_pose`); ``head`` the pose
 #: head's soft-argmax alone
-POSE_SOURCES = ("search", "head")
 MASK_THRESHOLD = 0.5
 
 
@@ -220,8 +220,9 @@ def default_output_dir(checkpoint: Path, name: str) -> Path:
     return (parent.parent if parent.name == "checkpoints" else parent) / name
 
 
-def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, device: str = "auto",
-             batch_size: int = 64, examples: int = 2, pose_from: str = "search") -> dict:
+def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, device: str = EvalConfig.device,
+             batch_size: int = EvalConfig.batch_size, examples: int = EvalConfig.examples,
+             pose_from: str = EvalConfig.pose_from) -> dict:
     """Evaluate ``checkpoint`` on ``split`` of ``shards``; writes ``out/metrics.json`` and
     ``out/predictions.png`` (``out`` None: ``RUN_DIR/eval_SPLIT``, :func:`default_output_dir`);
     ``examples`` objects per category are drawn. Returns the metrics dict (also holding
@@ -229,15 +230,15 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     dev = torch.device("cuda" if device == "auto" and torch.cuda.is_available() else
                        "cpu" if device == "auto" else device)
     model, cfg, ckpt = load_model(checkpoint, dev)
-    dataset = ShardDataset(shards, split, subset="all", mask_size=cfg.model.get("mask_size", 48),
-                           require_voxels=True, image_size=cfg.model["image_size"])
-    if dataset.info["voxel_resolution"] != cfg.model["voxel_resolution"]:
+    dataset = ShardDataset(shards, split, subset="all", mask_size=cfg.model.mask_size,
+                           require_voxels=True, image_size=cfg.model.image_size)
+    if dataset.info["voxel_resolution"] != cfg.model.voxel_resolution:
         raise ValueError(f"{shards}: voxels are {dataset.info['voxel_resolution']}^3 but the checkpoint "
-                         f"predicts {cfg.model['voxel_resolution']}^3")
+                         f"predicts {cfg.model.voxel_resolution}^3")
     if pose_from not in POSE_SOURCES:
         raise ValueError(f"pose_from must be one of {POSE_SOURCES}, got {pose_from!r}")
     rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
-                                 loss_weights=LossWeights(**cfg.loss_weights))
+                                 loss_weights=cfg.loss_weights)
     summary = summarize(rows)
     out = Path(out) if out is not None else default_output_dir(checkpoint, f"eval_{split}")
     out.mkdir(parents=True, exist_ok=True)

@@ -29,49 +29,18 @@ the pose head predicts.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, replace
+from dataclasses import replace
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from .config import MASK_SIZE, LossWeights
 from .model import ModelOutput
 from .pose import pose_classification_loss
-from .self_consistency import DEFAULT_NUM_SAMPLES, area_downsample, iou_loss, self_consistency_losses
+from .self_consistency import area_downsample, iou_loss, self_consistency_losses
 
 LOSS_KEYS = ("total", "l3d", "l2d", "lsc", "ray", "proj", "kl", "pose")
-
-
-@dataclass
-class LossWeights:
-    """Loss weights (paper): ``w3d`` alpha_3, ``w2d`` alpha_4, ``wsc`` alpha_5, ``wkl`` alpha_6,
-    ``ray`` alpha_1, ``proj`` alpha_2, ``pos_weight`` alpha_p; ``num_samples`` per ray;
-    ``wpose`` / ``wpose_unlabeled`` the pose classification loss on labelled / unlabelled images
-    (not in the paper: how its L_sc is minimised over the pose grid); ``search_mask_size`` and
-    ``search_samples`` the resolution of that search for labelled images (once per object before
-    training), ``unlabeled_search_*`` for unlabelled images (every step, over the azimuths at the
-    predicted elevation: cheaper)."""
-
-    w3d: float = 0.5
-    w2d: float = 0.5
-    wsc: float = 1.0
-    wkl: float = 0.02
-    ray: float = 5.0
-    proj: float = 0.125
-    pos_weight: float = 3.0
-    num_samples: int = DEFAULT_NUM_SAMPLES
-    wpose: float = 1.0
-    wpose_unlabeled: float = 1.0
-    wsc_unlabeled: float = 1.0
-    wkl_unlabeled: float = 0.02
-    unlabeled_sc_at_search: bool = True
-    search_mask_size: int = 24
-    search_samples: int = 32
-    unlabeled_search_mask_size: int = 16
-    unlabeled_search_samples: int = 16
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 def voxel_loss(voxel_logits: Tensor, voxels: Tensor, pos_weight: float = 3.0) -> Tensor:
@@ -146,7 +115,7 @@ def unsupervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None
     viewpoint that explains it best. ``batch`` needs ``K_sc``, ``distance``. Returns
     ``LOSS_KEYS`` without ``l3d`` and ``l2d`` (no labels)."""
     w = weights or LossWeights()
-    size = batch["masks_sc"].shape[-1] if "masks_sc" in batch else 48
+    size = batch["masks_sc"].shape[-1] if "masks_sc" in batch else MASK_SIZE
     occupancy = torch.sigmoid(out.voxel_logits.float())
     masks_pred = area_downsample(torch.sigmoid(out.mask_logits.float()).detach(), size)
     kl = kl_loss(out.z_mean, out.z_logvar)

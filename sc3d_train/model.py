@@ -27,69 +27,17 @@ Mask decoder D_m (U-Net, from z_mean and z_p)
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .config import dataclass_from_dict
-from .pose import PoseGrid, pose_from_logits
+from .config import ModelConfig  # the settings (defined with the other configs)
+from .pose import pose_from_logits
 
 NUM_ENCODER_BLOCKS = 5
 LEAKY_SLOPE = 0.2
-VOXEL_DECODERS = ("3tube", "1tube")
-
-
-@dataclass
-class ModelConfig:
-    """Architecture settings (saved with every checkpoint).
-
-    ``image_size`` input RGB size (square, divisible by 32); ``voxel_resolution`` G of the output
-    grid (divisible by 4); ``mask_size`` size of the masks of the self-consistency module (48 as in
-    the paper); ``shape_dim`` size of z_s (200); ``pose_dim`` size of z_p (16);
-    ``voxel_decoder`` "3tube" (paper) or "1tube" (ablation); ``base_channels`` width C (32; use 4-8
-    for fast CPU tests); ``azimuth_bins``, ``elevation_bins``, ``elevation_min``,
-    ``elevation_max`` (degrees): the candidate poses of the pose head (:class:`PoseGrid`)."""
-
-    image_size: int = 64
-    voxel_resolution: int = 32
-    mask_size: int = 48
-    shape_dim: int = 200
-    pose_dim: int = 16
-    voxel_decoder: str = "3tube"
-    base_channels: int = 32
-    azimuth_bins: int = 24
-    elevation_bins: int = 5
-    elevation_min: float = 10.0
-    elevation_max: float = 50.0
-
-    def pose_grid(self) -> PoseGrid:
-        return PoseGrid(self.azimuth_bins, self.elevation_bins, self.elevation_min, self.elevation_max)
-
-    def __post_init__(self) -> None:
-        if self.image_size % 32 or self.image_size < 32:
-            raise ValueError(f"image_size must be a multiple of 32 (5 stride-2 blocks), got {self.image_size}")
-        if self.voxel_resolution % 4 or self.voxel_resolution < 8:
-            raise ValueError(f"voxel_resolution must be a multiple of 4 and >= 8, got {self.voxel_resolution}")
-        if self.voxel_decoder not in VOXEL_DECODERS:
-            raise ValueError(f"voxel_decoder must be one of {VOXEL_DECODERS}, got {self.voxel_decoder!r}")
-        for name in ("mask_size", "shape_dim", "pose_dim", "base_channels"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
-        self.pose_grid()  # validates the grid
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "ModelConfig":
-        return dataclass_from_dict(cls, d)
-
-    @classmethod
-    def tiny(cls, **overrides) -> "ModelConfig":
-        """A small model for fast CPU tests (C = 4, z_s 16, z_p 8)."""
-        return cls(**{"base_channels": 4, "shape_dim": 16, "pose_dim": 8, **overrides})
 
 
 @dataclass

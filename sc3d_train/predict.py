@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from sc3d_train.checkpoint import load_model
+from sc3d_train.command_config import PredictConfig
 
 ACCEPTED_MODES = ("RGB", "RGBA", "LA", "L", "P")
 
@@ -104,8 +105,8 @@ def plot_prediction(path: Path, image: np.ndarray, mask: np.ndarray, silhouette:
 
 
 @torch.no_grad()
-def predict(checkpoint: Path, images: list[Path], out: Path, device: str = "auto",
-            threshold: float = 0.5, pose_from: str = "search") -> list[dict]:
+def predict(checkpoint: Path, images: list[Path], out: Path, device: str = PredictConfig.device,
+            threshold: float = PredictConfig.threshold, pose_from: str = PredictConfig.pose_from) -> list[dict]:
     """Predict every image (all are checked before the model runs); returns one dict per image
     (the content of its JSON file)."""
     from sc3d_data.io.binvox import write_binvox
@@ -116,7 +117,7 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = "auto
     dev = torch.device("cuda" if device == "auto" and torch.cuda.is_available() else
                        "cpu" if device == "auto" else device)
     model, cfg, _ = load_model(checkpoint, dev)
-    size = cfg.model["image_size"]
+    size = cfg.model.image_size
     arrays = [load_image(Path(p), size, cfg.background) for p in images]
     K = np.asarray(cfg.intrinsics if cfg.intrinsics is not None else _default_K(size), dtype=np.float64)
     out = Path(out)
@@ -130,13 +131,12 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = "auto
         x = torch.from_numpy(arr.transpose(2, 0, 1).copy())[None].to(dev)
         res = model(x)
         if pose_from == "search":  # test-time self-consistency, as in `eval`
-            from sc3d_train.losses import LossWeights
             from sc3d_train.pose_search import self_consistent_pose
 
             res.azimuth, res.elevation = self_consistent_pose(
                 res, torch.as_tensor(K, dtype=torch.float32, device=dev)[None],
                 torch.tensor([float(cfg.camera_distance)], device=dev), model.pose_grid,
-                LossWeights(**cfg.loss_weights))
+                cfg.loss_weights)
         probs = torch.sigmoid(res.voxel_logits.float())[0].cpu().numpy()
         mask = torch.sigmoid(res.mask_logits.float())[0].cpu().numpy()
         az, el = float(res.azimuth[0]), float(res.elevation[0])

@@ -40,7 +40,7 @@ from torch import Tensor
 from sc3d_data.geometry.camera import extrinsics, pixel_rays
 from sc3d_data.geometry.voxel_grid import CUBE_HALF
 
-DEFAULT_NUM_SAMPLES = 64
+from sc3d_train.config import RAY_SAMPLES as DEFAULT_NUM_SAMPLES
 
 
 def area_downsample(masks: Tensor, size: int) -> Tensor:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import yaml
+
 from sc3d_cli.train import main
 from tests.conftest import run_cli
 
@@ -17,10 +19,10 @@ def test_claims_trains_every_run_and_writes_the_tables(sample_shards, tmp_path):
     results = run_all(sample_shards, sample_shards, out, preset, eval_split="test", device="cpu", echo=lines.append)
     assert set(results) == set(RUNS)
     for name in RUNS:
-        cfg = json.loads((out / "runs" / name / "config.json").read_text())
+        cfg = yaml.safe_load((out / "runs" / name / "config.yaml").read_text())
         assert cfg["steps"] == 2 and cfg["seed"] == 0  # equal budgets, one seed
         assert (out / "runs" / name / "eval" / "metrics.json").is_file()
-    modes = {n: json.loads((out / "runs" / n / "config.json").read_text()) for n in RUNS}
+    modes = {n: yaml.safe_load((out / "runs" / n / "config.yaml").read_text()) for n in RUNS}
     assert modes["sup-1tube"]["model"]["voxel_decoder"] == "1tube"
     assert modes["semi"]["mode"] == "semi" and modes["labeled-only"]["mode"] == "labeled-only"
     assert modes["ray"]["loss_weights"]["proj"] == 0.0 and modes["ray-proj"]["loss_weights"]["proj"] == 0.125

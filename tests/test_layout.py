@@ -28,7 +28,7 @@ LAYERS = [
 ]
 MAX_LINES = 300
 #: modules being split on other branches (removed when they land)
-BEING_SPLIT = {"sc3d_data.render_pipeline", "sc3d_train.trainer"}
+BEING_SPLIT = {"sc3d_data.render_pipeline"}
 LONG_MODULE_NOTE = re.compile(r"Length:")
 
 

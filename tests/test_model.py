@@ -8,8 +8,9 @@ import pytest
 import torch
 
 from sc3d_data.geometry.camera import intrinsics, scale_intrinsics
-from sc3d_train.losses import LOSS_KEYS, LossWeights, supervised_loss, unsupervised_loss, voxel_loss
-from sc3d_train.model import ModelConfig, SelfConsistencyNet, VoxelDecoder
+from sc3d_train.config import LossWeights, ModelConfig
+from sc3d_train.losses import LOSS_KEYS, supervised_loss, unsupervised_loss, voxel_loss
+from sc3d_train.model import SelfConsistencyNet, VoxelDecoder
 from sc3d_train.pose import (PoseGrid, angular_error_deg, pose_classification_loss, pose_errors, pose_from_logits,
                              rotation_error_deg, wrap_degrees)
 from sc3d_train.self_consistency import area_downsample

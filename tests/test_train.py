@@ -29,13 +29,13 @@ def test_fit_writes_the_run_and_learns(trained_run, sample_shards):
     from sc3d_train.data import ShardDataset
     from sc3d_train.evaluate import predict_dataset, summarize
 
-    for name in ("config.json", "metrics.csv", "curves.png", "checkpoints/last.pt",
+    for name in ("config.yaml", "metrics.csv", "curves.png", "checkpoints/last.pt",
                  f"checkpoints/step_{TRAINED_RUN_STEPS:06d}.pt",
                  f"checkpoints/step_{TRAINED_RUN_STEPS // 2:06d}.pt"):
         assert (trained_run / name).is_file(), name
     assert list((trained_run / "tb").glob("events.out.tfevents.*"))
-    cfg = RunConfig.load(trained_run / "config.json")
-    assert cfg.model["base_channels"] == 4 and cfg.model["image_size"] == 64 and cfg.mode == "supervised"
+    cfg = RunConfig.load(trained_run / "config.yaml")
+    assert cfg.model.base_channels == 4 and cfg.model.image_size == 64 and cfg.mode == "supervised"
 
     rows = read_csv(trained_run / "metrics.csv")
     assert [int(r["step"]) for r in rows] == list(range(TRAINED_RUN_STEPS))
@@ -264,8 +264,9 @@ def test_semi_resume_across_the_phase_boundary_equals_uninterrupted(sample_shard
 def test_unlabelled_pass_leaves_batchnorm_running_statistics_alone():
     """The unlabelled pass of the semi phase normalises with its own batch statistics (train
     mode) but does not move the running statistics that eval uses."""
-    from sc3d_train.model import ModelConfig, SelfConsistencyNet
-    from sc3d_train.trainer import frozen_batchnorm_statistics
+    from sc3d_train.config import ModelConfig
+    from sc3d_train.model import SelfConsistencyNet
+    from sc3d_train.phase_step import frozen_batchnorm_statistics
 
     torch.manual_seed(0)
     model = SelfConsistencyNet(ModelConfig.tiny()).train()

@@ -1,0 +1,93 @@
+"""The training log of a run: ``metrics.csv`` (one row per logged step), TensorBoard scalars
+(``tb/``) and the ``curves.png`` plot."""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+CSV_NAME = "metrics.csv"
+
+
+class MetricsLog:
+    """Scalars to ``metrics.csv`` (one row per logged step) and TensorBoard (``tb/``).
+    On resume, rows at or after the resume step (written after the checkpoint by the
+    interrupted run) are dropped first, so the CSV has each step once."""
+
+    def __init__(self, run_dir: Path, start_step: int, enabled: bool = True):
+        self.path = Path(run_dir) / CSV_NAME
+        self.enabled = enabled
+        self.rows: list[dict] = []
+        if not enabled:
+            return
+        if start_step > 0 and self.path.is_file():
+            with open(self.path, newline="") as f:
+                self.rows = [r for r in csv.DictReader(f) if int(r["step"]) < start_step]
+        self.fields = list(self.rows[0].keys()) if self.rows else None
+        if self.fields is not None:
+            for r in self.rows[1:]:
+                self.fields += [k for k in r if k not in self.fields]
+        self._rewrite()
+        from torch.utils.tensorboard import SummaryWriter
+
+        self.tb = SummaryWriter(str(Path(run_dir) / "tb"), purge_step=start_step or None)
+
+    def _rewrite(self):
+        if self.fields is None:
+            self.path.write_text("")
+            return
+        with open(self.path, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=self.fields)
+            w.writeheader()
+            w.writerows(self.rows)
+
+    def log(self, step: int, values: dict) -> None:
+        if not self.enabled:
+            return
+        row = {"step": step, **values}
+        self.rows.append(row)
+        new = [k for k in row if k not in (self.fields or [])]
+        if new:  # first row, or a phase that logs more terms: widen the header, rewrite the file
+            self.fields = (self.fields or []) + new
+            self._rewrite()
+        else:
+            with open(self.path, "a", newline="") as f:
+                csv.DictWriter(f, fieldnames=self.fields, extrasaction="ignore").writerow(row)
+        for k, v in values.items():
+            if isinstance(v, (int, float)):
+                self.tb.add_scalar(k if "/" in k else f"train/{k}", v, step)
+
+    def close(self):
+        if self.enabled:
+            self.tb.close()
+
+
+def plot_curves(csv_path: Path, png_path: Path) -> None:
+    """Loss terms (log scale) and samples/s against the step, from ``metrics.csv``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with open(csv_path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        return
+    steps = [int(r["step"]) for r in rows]
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+    for key in ("total", "l3d", "l2d", "lsc", "kl", "pose", "u_lsc", "u_pose"):
+        if any(r.get(key) not in ("", None) for r in rows):
+            vals = [float(r[key]) if r.get(key) not in ("", None) else math.nan for r in rows]
+            if any(v > 0 for v in vals if not math.isnan(v)):
+                ax.plot(steps, vals, label=key)
+    ax.set_yscale("log")
+    ax.set_xlabel("step")
+    ax.set_title("training losses")
+    ax.legend(fontsize=8)
+    ax2.plot(steps, [float(r["samples_per_s"]) for r in rows])
+    ax2.set_xlabel("step")
+    ax2.set_title("samples/s")
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=80)
+    plt.close(fig)
+
