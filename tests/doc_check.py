@@ -263,3 +263,22 @@ def page_script(page: str) -> str:
             parts += [f"echo '### running {block.where()}' >&2", rewrite_for_run(block.text)]
     return "\n".join(parts) + "\n"
 
+
+def python_name_problems(text: str, where: str) -> list[str]:
+    """Dotted names of this repository's packages (``sc3d_data.normalize.apply_transform``) that
+    do not import: the longest importable module prefix, then attributes."""
+    problems = []
+    for name in sorted(set(re.findall(r"\b(?:sc3d_data|sc3d_train)(?:\.\w+)+", text))):
+        parts = name.split(".")
+        for cut in range(len(parts), 0, -1):
+            try:
+                obj = import_module(".".join(parts[:cut]))
+                break
+            except ImportError:
+                continue
+        for attr in parts[cut:]:
+            if not hasattr(obj, attr):
+                problems.append(f"{where}: {name} does not exist")
+                break
+            obj = getattr(obj, attr)
+    return problems

@@ -24,7 +24,8 @@ The convention (README.md, "Documentation", points here):
   promises are then checked (``PROMISED`` below).
 * **Links.** Relative links ``[text](path#anchor)`` must name existing files (and headings, by
   GitHub's anchor rule), and repository paths in inline code or commands (``benchmarks/x.py``,
-  ``tests/test_x.py::test_name`` ...) must exist. ``PENDING_PAGES`` are pages written on other
+  ``tests/test_x.py::test_name`` ...) must exist, and so must dotted names of the packages in
+  inline code (``sc3d_data.normalize.apply_transform``). ``PENDING_PAGES`` are pages written on other
   branches of the same change: a link to one is checked once the page exists.
 """
 from __future__ import annotations
@@ -36,8 +37,8 @@ import subprocess
 import pytest
 
 from doc_check import (PAGES, REPO, RUN_MARKER, all_blocks, check_text, cli_groups, cli_shims, commands,
-                       link_problems, page_script, prose, repo_path_problems, rewrite_for_run, shell_blocks,
-                       slug)
+                       link_problems, page_script, prose, python_name_problems, repo_path_problems,
+                       rewrite_for_run, shell_blocks, slug)
 
 #: files each page's doc-run blocks must leave in their folder (what the text says they write)
 PROMISED = {
@@ -97,6 +98,9 @@ def test_link_and_path_checks_catch_missing_targets(tmp_path):
     assert repo_path_problems("see `benchmarks/no_such.py` and `tests/test_docs.py::test_nope`", "x") == [
         "x: benchmarks/no_such.py does not exist", "x: tests/test_docs.py has no test_nope"]
     assert repo_path_problems("`run/config.json`, `tests/test_docs.py::test_rewrite_shrinks_training`", "x") == []
+    assert python_name_problems("`sc3d_data.normalize.apply_transform`, `sc3d_data.no_such.f`, "
+                                "`sc3d_data.normalize.no_such_function`", "x") == [
+        "x: sc3d_data.no_such.f does not exist", "x: sc3d_data.normalize.no_such_function does not exist"]
     assert slug("3D-R2N2's release: `import-r2n2`") == "3d-r2n2s-release-import-r2n2"
 
 
@@ -120,7 +124,8 @@ def test_links_and_paths_exist(page):
     where = str(page.relative_to(REPO))
     inline = " ".join(re.findall(r"`([^`\n]+)`", prose(page)))
     blocks = " ".join(b.text for b in shell_blocks(page))
-    problems = link_problems(page) + repo_path_problems(inline + " " + blocks, where)
+    problems = (link_problems(page) + repo_path_problems(inline + " " + blocks, where)
+                + python_name_problems(inline, where))
     assert problems == [], "\n".join(problems)
 
 
