@@ -35,8 +35,8 @@ def import_r2n2(renderings, voxels, out, image_size, background, categories, spl
                 voxel_frame, front, objects_per_shard, overwrite, progress):
     """Build sc3d shards from 3D-R2N2's released renderings and voxels, without re-rendering.
 
-    Cameras are rebuilt from rendering_metadata.txt as explicit K, R, t (see README,
-    "ShapeNet and 3D-R2N2 data"); check them with `sc3d-data check --shards OUT`."""
+    Cameras are rebuilt from rendering_metadata.txt as explicit K, R, t (see docs/data.md,
+    "3D-R2N2's release"); check them with `sc3d-data check --shards OUT`."""
     from sc3d_data.formats.r2n2 import ImportConfig, import_r2n2 as run
 
     try:

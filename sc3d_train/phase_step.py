@@ -65,7 +65,7 @@ def step_losses(batches: dict, model: torch.nn.Module, train_model: torch.nn.Mod
         # unlabelled ones; the unlabelled pass leaves the running statistics alone (eval
         # normalises as the labelled training did). Measured: one pass over the concatenated
         # batch let held-out mask IoU fall from 0.85 to 0.20 even with every unlabelled loss
-        # weight at 0 (docs/pose-learning.md).
+        # weight at 0 (docs/training.md).
         sup, uns = batches["supervised"], batches["unsupervised"]
         ls = supervised_loss(train_model(sup["images"]), sup, weights, grid)
         with frozen_batchnorm_statistics(model):

@@ -6,7 +6,7 @@ evenly spaced over ``[elevation_min, elevation_max]``. It outputs ``pose_logits 
 first A are azimuth logits, the last E elevation logits (two factorised distributions). Why a
 classifier and not one regressed angle: the self-consistency loss over azimuth has a narrow basin
 and near-symmetric secondary minima, so the pose is learnt from the best candidate of a search of
-that loss over the grid (:mod:`sc3d_train.pose_search`, docs/pose-learning.md), which a
+that loss over the grid (:mod:`sc3d_train.pose_search`, docs/training.md), which a
 classifier can represent (including its ambiguity between candidates) and a single angle cannot.
 
 The continuous pose (:func:`pose_from_logits`) is differentiable:

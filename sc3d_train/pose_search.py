@@ -3,7 +3,7 @@
 The paper learns the pose by descending L_sc from the pose head's current guess. The L_sc
 landscape over azimuth has a narrow basin (about +/- 40-60 deg) and near-symmetric secondary
 minima (front/back, mirror), so gradient descent from a random start rarely reaches the truth
-(docs/pose-learning.md). This module evaluates the *same* objective, L_sc = a1 L_ray + a2 L_proj,
+(docs/training.md). This module evaluates the *same* objective, L_sc = a1 L_ray + a2 L_proj,
 at every pose of a candidate grid and returns the loss per candidate; the pose head is then trained
 to put its probability on the best candidate (:func:`sc3d_train.pose.pose_classification_loss`). No pose
 label is read: only voxels (ground-truth ones for labelled images, predicted ones for unlabelled

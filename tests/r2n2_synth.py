@@ -1,5 +1,5 @@
 """Write a ``ShapeNetRendering`` + ``ShapeNetVox32`` pair in 3D-R2N2's exact layout from any
-meshes, following the conventions of the released files (``docs/data-conventions.md``) and
+meshes, following the conventions of the released files (``docs/data.md``) and
 *not* the importer's code, so that ``import-r2n2`` is tested against an independent
 statement of them: the test data of ``import-r2n2``, since the release cannot be
 downloaded on every machine.

@@ -22,7 +22,7 @@ PICK = {AIRPLANE: ["airplane/f16_lowpoly_fgai.glb", "airplane/c182_fgai.glb"],
 
 
 # the sample meshes face +Z; ShapeNetCore v1 files face +X, v2 files -Z (+Y up in all; see
-# docs/data-conventions.md for the evidence): rotations about +Y taking +Z to that front
+# docs/data.md for the evidence): rotations about +Y taking +Z to that front
 TO_SHAPENET = {1: np.array([[0, 0, 1, 0], [0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1]], float),
                2: np.diag([-1.0, 1.0, -1.0, 1.0])}
 

@@ -10,7 +10,7 @@ Input layout (Choy et al. 2016)::
 
 ``rendering_metadata.txt`` has one line per view: ``azimuth elevation in_plane distance_ratio
 fov`` (degrees, degrees, degrees, fraction, degrees). Every convention below is stated with its
-source in ``docs/data-conventions.md``; in short:
+source in ``docs/data.md``; in short:
 
 * camera (3D-R2N2 ``lib/blender_renderer.py``): distance = ``distance_ratio * 1.75``, looking
   at the origin of the ShapeNet OBJ frame; Blender's default camera, 35 mm lens on a 32 mm

@@ -79,7 +79,7 @@ def resolve_categories(spec: str | Iterable[str]) -> set[str]:
 
 
 # ----------------------------------------------------------------------------- front axes
-#: front axis of ShapeNetCore OBJ files (+Y up in both; docs/data-conventions.md): v1
+#: front axis of ShapeNetCore OBJ files (+Y up in both; docs/data.md): v1
 #: ``SYNSET/MODEL_ID/model.obj`` faces +X (3D-R2N2's renders and ShapeNetVox32 voxels), v2
 #: ``SYNSET/MODEL_ID/models/model_normalized.obj`` faces -Z (public v2 samples: airplane nose,
 #: rifle muzzle, helmet visor, desk drawers all at -Z)

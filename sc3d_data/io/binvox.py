@@ -24,7 +24,7 @@ stores as ``data.reshape(D, D, D)[x, z, y]`` becomes ``voxels[x, y, z]``. No axi
 flipped or swapped beyond that: ShapeNetVox32 files are in the frame of the ShapeNetCore v1
 models (+Y up, front +X); ``sc3d_data.formats.r2n2`` turns them to sc3d's front +Z and places the
 grid (ShapeNetVox32 was written with ``binvox -cb``, whose header ``translate`` is the mesh's
-bounding-box minimum, not the grid corner: docs/data-conventions.md). sc3d grids cover
+bounding-box minimum, not the grid corner: docs/data.md). sc3d grids cover
 [-0.5, 0.5]^3, which is ``translate = (-0.5, -0.5, -0.5)``, ``scale = 1``; ``write_binvox``
 writes that header by default.
 """
