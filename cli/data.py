@@ -10,6 +10,7 @@ COMMANDS = {
     "voxelize": "cli.data_voxelize:voxelize",
     "check": "cli.data_check:check",
     "import-r2n2": "cli.data_import_r2n2:import_r2n2",
+    "merge": "cli.data_merge:merge",
 }
 
 

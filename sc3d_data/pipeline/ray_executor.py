@@ -1,0 +1,127 @@
+"""Ray executor of ``sc3d-data render --executor ray [--address auto|HOST:PORT]``.
+
+Each object is one Ray task running :func:`render_job.render_task` (1 CPU). Ray worker
+processes are reused between tasks, and each keeps one renderer (``cached_renderer``), so the
+per-object cost is the same as in the local pool plus Ray's scheduling and the transfer of the
+object's arrays through the object store to the driver, which writes the shards into ``--out``
+in plan order (``render_run``; the driver runs where ``--out`` is).
+
+- Cluster: ``address=None`` starts a local Ray cluster with ``n_workers`` CPUs for the run and
+  stops it at the end; ``"auto"`` or ``HOST:PORT`` joins a running one (sc3d must be
+  installed on its nodes, ``--meshes`` readable at the same path). A Ray session the caller
+  already started (``ray.init``) is used as it is.
+- Time limit: at most one task per CPU is in flight, so a task runs from its submission; one
+  that takes longer than ``config.timeout_s`` (all attempts together) is cancelled with
+  ``force=True`` (its worker process is killed) and recorded as failed with the reason; the
+  run goes on.
+- Retries: a task whose worker process dies (killed, OOM, segfault) is run again by Ray up to
+  ``config.retries`` times; after that it is recorded as failed. Errors of the mesh itself are
+  results (``"fail"``), never retried.
+- Results: same ``(pos, status, payload)`` stream as ``local_pool.WorkerPool.run``.
+"""
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+from sc3d_data.pipeline.render_job import THREAD_ENV, RenderConfig, cached_renderer, render_task
+
+MISSING = "the Ray executor needs Ray: pip install 'sc3d[ray]'"
+
+
+def require_ray():
+    """``import ray`` or ``ImportError`` with the one-line install hint."""
+    try:
+        import ray
+    except ImportError:
+        raise ImportError(MISSING) from None
+    return ray
+
+
+def worker_env(local: bool) -> dict:
+    """``runtime_env`` of sc3d's Ray workers: one BLAS thread each; on a local cluster also this
+    checkout on ``PYTHONPATH`` (workers import the same sc3d as the driver)."""
+    env = dict(THREAD_ENV)
+    if local:
+        root = str(Path(__file__).resolve().parents[2])
+        env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in [os.environ.get("PYTHONPATH")] if p])
+    return {"env_vars": env}
+
+
+def init_local(num_cpus: int):
+    """Start a local Ray cluster of ``num_cpus`` CPUs for sc3d (no dashboard, quiet)."""
+    ray = require_ray()
+    ray.init(num_cpus=num_cpus, include_dashboard=False, runtime_env=worker_env(True),
+             logging_level="warning", log_to_driver=False, configure_logging=True)
+    return ray
+
+
+def _probe_backend(config: RenderConfig) -> str:
+    """Make this worker's renderer; the GL backend it got."""
+    return cached_renderer(config, config.backend)[1]
+
+
+class RayExecutor:
+    """See module doc; make one with :meth:`start`."""
+
+    def __init__(self, ray, config: RenderConfig, backend: str, slots: int, owns_cluster: bool):
+        self.ray, self.config, self.backend, self.slots = ray, config, backend, slots
+        self.owns_cluster = owns_cluster
+        self.remote = ray.remote(render_task).options(num_cpus=1, max_retries=config.retries,
+                                                      retry_exceptions=False)
+
+    @classmethod
+    def start(cls, config: RenderConfig, n_workers: int) -> "RayExecutor":
+        """Join or start the cluster (module doc) and start one renderer per CPU slot (the first
+        error of the GL backend is raised here, naming the packages)."""
+        ray = require_ray()
+        owns = False
+        if not ray.is_initialized():
+            if config.address:
+                ray.init(address=config.address, runtime_env=worker_env(False), logging_level="warning",
+                         log_to_driver=False)
+            else:
+                init_local(n_workers)
+                owns = True
+        slots = int(config.workers or ray.cluster_resources().get("CPU", n_workers))
+        slots = max(1, slots)
+        probe = ray.remote(_probe_backend).options(num_cpus=1, max_retries=0)
+        try:
+            backends = ray.get([probe.remote(config) for _ in range(slots)])
+        except Exception as e:
+            if owns:
+                ray.shutdown()
+            cause = getattr(e, "cause", None) or e
+            raise RuntimeError(f"Ray workers could not start a renderer: {type(cause).__name__}: {cause}") from None
+        return cls(ray, config, backends[0], slots, owns)
+
+    def run(self, tasks, may_dispatch=lambda pos: True):
+        ray, timeout = self.ray, self.config.timeout_s
+        todo = list(tasks)[::-1]  # pop() from the end = plan order
+        inflight: dict = {}  # ObjectRef -> (task, submitted)
+        while todo or inflight:
+            while todo and len(inflight) < self.slots and may_dispatch(todo[-1].pos):
+                task = todo.pop()
+                inflight[self.remote.remote(self.config, self.backend, task)] = (task, time.monotonic())
+            now = time.monotonic()
+            wait_s = min([s + timeout - now for _, s in inflight.values()], default=1.0)
+            ready, _ = ray.wait(list(inflight), num_returns=1, timeout=max(0.0, min(wait_s, 1.0)))
+            for ref in ready:
+                task, _ = inflight.pop(ref)
+                try:
+                    yield ray.get(ref)
+                except ray.exceptions.RayError as e:  # the worker died on every attempt
+                    why = type(getattr(e, "cause", None) or e).__name__
+                    yield (task.pos, "fail", f"{task.path}: render worker died on all {self.config.retries + 1} "
+                                             f"attempts ({why}; --retries)")
+            now = time.monotonic()
+            for ref, (task, submitted) in list(inflight.items()):
+                if now - submitted > timeout:
+                    ray.cancel(ref, force=True)  # kills the worker process running it
+                    del inflight[ref]
+                    yield task.pos, "fail", f"{task.path}: timed out after {timeout:g} s (--timeout)"
+
+    def close(self) -> None:
+        if self.owns_cluster and self.ray.is_initialized():
+            self.ray.shutdown()
