@@ -59,7 +59,8 @@ def install_worker_hooks() -> None:
     import sc3d_data.mesh_io as mesh_io
     import sc3d_data.normalize as normalize
     import sc3d_data.render as render
-    import sc3d_data.render_pipeline as rp
+    import sc3d_data.pipeline.local_pool as pool
+    import sc3d_data.pipeline.render_job as job
     import sc3d_data.voxelize as voxelize
 
     log_dir = Path(os.environ[ENV])
@@ -83,14 +84,14 @@ def install_worker_hooks() -> None:
 
     render.mesh_parts = timed_parts
     _wrap(render.MeshRenderer, "render", "render (all)")
-    one = rp.render_one
+    one = job.render_one
 
     def render_one(renderer, task, config):
         _current.clear()
         return one(renderer, task, config)
 
-    rp.render_one = render_one
-    main = rp._worker_main
+    job.render_one = render_one
+    main = pool._worker_main
 
     class TimedConn:
         def __init__(self, conn):
@@ -107,7 +108,7 @@ def install_worker_hooks() -> None:
                 with open(log_dir / f"worker-{os.getpid()}.jsonl", "a") as f:
                     f.write(json.dumps(row) + "\n")
 
-    rp._worker_main = lambda conn, *a, **k: main(TimedConn(conn), *a, **k)
+    pool._worker_main = lambda conn, *a, **k: main(TimedConn(conn), *a, **k)
 
 
 def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = True) -> dict:
@@ -115,8 +116,8 @@ def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = Tr
     temporary folder) with the hooks; per-stage seconds summed over objects, worker and main."""
     from multiprocessing import connection
 
-    import sc3d_data.render_pipeline as rp
-    from sc3d_data.render_pipeline import RenderConfig, render_dataset
+    import sc3d_data.pipeline.render_run as rp
+    from sc3d_data.pipeline.render_run import RenderConfig, render_dataset
 
     main_acc: dict[str, float] = {}
     saved = (rp.write_shard, rp.write_index_file, connection.Connection.recv)

@@ -294,6 +294,7 @@ class ImportConfig:
     front: str = R2N2_FRONT
     objects_per_shard: int = 256
     overwrite: bool = False
+    part: "Part | None" = None  # --part I/N (sc3d_data.pipeline.partition); None = all models
 
     def settings(self) -> dict:
         """JSON-able record of every setting (stored in the shards and the index)."""
@@ -349,6 +350,19 @@ def load_r2n2_object(model: R2N2Model, config: ImportConfig, split: str):
                         source=str(model.rendering_dir.parent), arrays=arrays)
 
 
+def _take_part(plan: list, part, problems: list, skipped: list):
+    """This run's share of ``plan`` (``[(model, split)]``) for ``--part`` (all when None), the
+    index's ``part`` record, and the problems/skipped files (reported by part 0 only)."""
+    from sc3d_data.pipeline.partition import Part, part_of, part_record, plan_digest
+
+    part = part or Part(0, 1)
+    digest = plan_digest((m.category, m.model_id, s) for m, s in plan)
+    mine = [(m, s) for m, s in plan if part.whole or part_of(m.category, m.model_id, part.count) == part.index]
+    if part.index != 0:
+        problems, skipped = [], []
+    return mine, part_record(part, len(mine), len(plan), digest), problems, skipped
+
+
 def import_r2n2(config: ImportConfig, progress: Callable[[int], None] | None = None) -> dict:
     """Import ``config.renderings`` + ``config.voxels`` into shards under ``config.out``.
 
@@ -380,13 +394,14 @@ def import_r2n2(config: ImportConfig, progress: Callable[[int], None] | None = N
             plan.append((m, splits[(m.category, m.model_id)]))
         else:
             skipped.append({"source": str(m.rendering_dir.parent), "reason": "not in any split (--split-file)"})
+    plan, part, problems, skipped = _take_part(plan, config.part, problems, skipped)
     failures = [dict(p, category="", model_id="") for p in problems]
     shards, objects = [], []
     K = max(1, int(config.objects_per_shard))
 
     def write_index(complete: bool) -> None:
         write_index_file(out, complete=complete, settings=settings, split=split_desc, shards=shards,
-                         objects=objects, failures=failures, skipped=skipped, warnings=[])
+                         objects=objects, failures=failures, skipped=skipped, warnings=[], extra={"part": part})
 
     write_index(False)
     chunk = 0

@@ -100,9 +100,6 @@ def check_parts(dirs: list[Path]) -> list[dict]:
     if missing:
         raise MergeError(f"missing part(s) {', '.join(f'{i}/{n}' for i in missing)} (given: "
                          f"{', '.join(str(i) for i in sorted(seen))}); run them, then merge")
-    if sum(ix["part"]["assigned"] for ix in indexes) != first["part"]["planned_total"]:
-        raise MergeError(f"the parts were assigned {sum(ix['part']['assigned'] for ix in indexes)} objects, "
-                         f"the plan has {first['part']['planned_total']}")
     owner: dict[tuple[str, str], Path] = {}
     for d, index in zip(dirs, indexes):
         for e in index.get("objects", []) + index.get("failures", []):
@@ -112,6 +109,9 @@ def check_parts(dirs: list[Path]) -> list[dict]:
             if key in owner:
                 raise MergeError(f"{d}: object {key[0]}/{key[1]} is also in {owner[key]} (duplicate); refused")
             owner[key] = d
+    if sum(ix["part"]["assigned"] for ix in indexes) != first["part"]["planned_total"]:
+        raise MergeError(f"the parts were assigned {sum(ix['part']['assigned'] for ix in indexes)} objects, "
+                         f"the plan has {first['part']['planned_total']}")
     order = sorted(range(len(dirs)), key=lambda k: indexes[k]["part"]["index"])
     return [dict(indexes[k], _dir=str(dirs[k])) for k in order]
 

@@ -1,0 +1,296 @@
+"""Issue 13: partition (--part I/N), merge, and the Ray / SLURM (submitit local) executors, with
+the real renderer, real HDF5, a real local Ray cluster and submitit's real LocalExecutor.
+
+The reference of every equality test is an ordinary local run (`sc3d-data render`, local
+pool) of the same meshes with the same settings; "equal" means: the same object ids, each
+once, with identical arrays (images, masks, cameras, voxels, ...) and strings, and identical
+shard settings attributes."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import threading
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from cli.data import main
+from conftest import SAMPLE_MESHES, run_cli
+from sc3d_data.pipeline.partition import Part, parse_part, part_from_env, part_of
+
+SETTINGS = ["--views", "4", "--voxelize", "--objects-per-shard", "2", "--no-progress"]
+
+
+def objects_by_id(out: Path) -> dict:
+    """``{(category, model_id): {name: array or string}}`` over the dataset's index, checking
+    that each id appears once."""
+    from sc3d_data.shards import iter_objects
+
+    objs = {}
+    for o in iter_objects(out):
+        key = (o["category"], o["model_id"])
+        assert key not in objs, f"{key} twice in {out}"
+        objs[key] = {k: v for k, v in o.items() if k not in ("shard", "row")}
+    return objs
+
+
+def shard_settings(out: Path) -> set[str]:
+    vals = set()
+    for p in out.glob("shard-*.h5"):
+        with h5py.File(p) as f:
+            vals.add(f.attrs["settings"])
+    return vals
+
+
+def assert_same_dataset(a: Path, b: Path) -> None:
+    oa, ob = objects_by_id(a), objects_by_id(b)
+    assert sorted(oa) == sorted(ob)
+    for key in oa:
+        assert oa[key].keys() == ob[key].keys(), key
+        for name, va in oa[key].items():
+            vb = ob[key][name]
+            if isinstance(va, np.ndarray):
+                assert va.dtype == vb.dtype and va.shape == vb.shape, (key, name)
+                np.testing.assert_array_equal(va, vb, err_msg=f"{key} {name}")
+            else:
+                assert va == vb, (key, name)
+    assert shard_settings(a) == shard_settings(b) and len(shard_settings(a)) == 1
+    ia, ib = (json.loads((d / "index.json").read_text()) for d in (a, b))
+    assert ia["counts"] == ib["counts"] and ia["complete"] and ib["complete"]
+    assert ia["split"] == ib["split"]
+
+
+@pytest.fixture(scope="module")
+def local_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("scale") / "local"
+    run_cli(main, ["render", "--meshes", SAMPLE_MESHES, "--out", out, "--workers", "2", *SETTINGS])
+    return out
+
+
+# ----------------------------------------------------------------------------- partition
+def test_partition_rule_is_the_id_hash_not_the_order():
+    # expected parts from `printf chair/abc | sha256sum` (50871c6746338957...) and
+    # `printf airplane/x1 | sha256sum` (753d9a691c1b9834...), first 64 bits mod N by hand
+    assert part_of("chair", "abc", 7) == 1 and part_of("chair", "abc", 3) == 1
+    assert part_of("airplane", "x1", 7) == 4 and part_of("airplane", "x1", 3) == 0
+    ids = [("c%d" % (i % 5), "m%04d" % i) for i in range(500)]
+    for n in (1, 2, 3, 7):
+        parts = [part_of(c, m, n) for c, m in ids]
+        assert sorted(set(parts)) == list(range(n))                      # every part used
+        assert all(0 <= p < n for p in parts)
+        # another order of the collection, or more objects, leave every object where it was
+        assert [part_of(c, m, n) for c, m in reversed(ids)] == parts[::-1]
+    assert parse_part("2/7") == Part(2, 7)
+    for bad in ("7/7", "-1/3", "3", "a/b"):
+        with pytest.raises(ValueError, match="--part"):
+            parse_part(bad)
+    env = {"SLURM_ARRAY_TASK_ID": "5", "SLURM_ARRAY_TASK_MIN": "1", "SLURM_ARRAY_TASK_COUNT": "8"}
+    assert part_from_env(env) == Part(4, 8) and part_from_env({}) is None
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 7])
+def test_n_parts_plus_merge_equal_one_local_run(local_run, tmp_path, n):
+    parts = []
+    for i in range(n):
+        parts.append(tmp_path / f"p{i}")
+        res = run_cli(main, ["render", "--meshes", SAMPLE_MESHES, "--out", parts[-1], "--part", f"{i}/{n}",
+                             "--workers", "1", *SETTINGS])
+        assert "failed 0" in res.output
+    ids = [{(o["category"], o["model_id"]) for o in json.loads((p / "index.json").read_text())["objects"]}
+           for p in parts]
+    assert sum(map(len, ids)) == 11 and len(set().union(*ids)) == 11      # each object in one part
+    res = run_cli(main, ["merge", tmp_path / "merged", *parts[::-1]])     # any order of the folders
+    assert f"merged {n} parts" in res.output and "11 objects" in res.output
+    assert_same_dataset(tmp_path / "merged", local_run)
+    assert not any((tmp_path / "merged" / f).is_symlink() for f in os.listdir(tmp_path / "merged"))
+
+
+def test_merged_dataset_is_read_by_every_command_and_merge_resumes(local_run, tmp_path):
+    p0, p1 = tmp_path / "p0", tmp_path / "p1"
+    for i, p in enumerate((p0, p1)):
+        run_cli(main, ["render", "--meshes", SAMPLE_MESHES, "--out", p, "--part", f"{i}/2", "--workers", "1", *SETTINGS])
+    m = tmp_path / "m"
+    res = run_cli(main, ["merge", m, p0, p1])
+    n = len(list(m.glob("shard-*.h5")))
+    assert f"({n} linked, 0 copied, 0 already there)" in res.output
+    (m / "shard-00000.h5").unlink()                 # an interrupted merge: one shard placed, no index
+    (m / "index.json").unlink()
+    res = run_cli(main, ["merge", m, p0, p1])
+    assert f"(1 linked, 0 copied, {n - 1} already there)" in res.output
+    assert_same_dataset(m, local_run)
+    shutil.rmtree(p0)                               # the merged folder holds its own files
+    shutil.rmtree(p1)
+    assert "objects: 11 in" in run_cli(main, ["info", m, "--verify"]).output
+    run_cli(main, ["check", "--shards", m, "--no-progress", "--json", tmp_path / "check.json"])
+    run_cli(main, ["preview", m, "--out", tmp_path / "sheet.png"])
+    assert (tmp_path / "sheet.png").stat().st_size > 1000
+    from cli.train import main as train
+
+    run_cli(train, ["fit", "--shards", m, "--out", tmp_path / "run", "--steps", 2, "--batch-size", 4, "--tiny",
+                    "--base-channels", 4, "--no-progress"])
+    # rendering into a merged folder is refused (its chunks are not a plan's)
+    res = run_cli(main, ["render", "--meshes", SAMPLE_MESHES, "--out", m, *SETTINGS], expect_exit=1)
+    assert "merged dataset" in res.output
+
+
+def test_merge_refuses_missing_unfinished_foreign_and_duplicate_parts(tmp_path):
+    meshes = tmp_path / "meshes" / "chair"
+    meshes.mkdir(parents=True)
+    for f in sorted((SAMPLE_MESHES / "chair").glob("*.glb"))[:3] + sorted((SAMPLE_MESHES / "airplane").glob("*.glb"))[:2]:
+        shutil.copy(f, meshes / f.name)
+    common = ["--meshes", tmp_path / "meshes", "--views", "2", "--no-progress", "--workers", "1", "--split", "random:1,0,0"]
+    p = [tmp_path / f"p{i}" for i in range(3)]
+    for i in range(3):
+        run_cli(main, ["render", "--out", p[i], "--part", f"{i}/3", *common])
+
+    def refused(*parts) -> str:
+        res = run_cli(main, ["merge", tmp_path / "m", *parts], expect_exit=1)
+        assert "Traceback" not in res.output and len(res.output.strip().splitlines()) == 1
+        return res.output
+
+    assert "missing part(s) 2/3" in refused(p[0], p[1])
+    assert "given twice" in refused(p[0], p[1], p[1], p[2])
+    other = tmp_path / "other"
+    run_cli(main, ["render", "--out", other, "--part", "2/3", "--image-size", "32", *common])
+    assert "other settings (image_size differ)" in refused(p[0], p[1], other)
+    two = tmp_path / "two"
+    run_cli(main, ["render", "--out", two, "--part", "1/2", *common])
+    assert "another plan" in refused(p[0], p[1], two)
+    # an unfinished part (killed mid-run): its index is not complete
+    idx = json.loads((p[2] / "index.json").read_text())
+    broken = tmp_path / "unfinished"
+    shutil.copytree(p[2], broken)
+    (broken / "index.json").write_text(json.dumps(dict(idx, complete=False)))
+    assert "not finished" in refused(p[0], p[1], broken)
+    # an object listed by two parts
+    i0 = json.loads((p[0] / "index.json").read_text())
+    dup = tmp_path / "dup"
+    shutil.copytree(p[1], dup)
+    i1 = json.loads((dup / "index.json").read_text())
+    i1["objects"].append(dict(i0["objects"][0], shard=i1["shards"][0]["file"]))
+    i1["part"]["assigned"] += 1
+    (dup / "index.json").write_text(json.dumps(i1))
+    assert "duplicate" in refused(p[0], dup, p[2])
+    # a part into the folder of another part is refused at render time
+    res = run_cli(main, ["render", "--out", p[0], "--part", "1/3", *common], expect_exit=1)
+    assert "holds part 0/3" in res.output
+    assert not (tmp_path / "m" / "index.json").exists()
+    run_cli(main, ["merge", tmp_path / "m", *p])
+
+
+def test_slurm_env_sets_the_part(tmp_path):
+    from click.testing import CliRunner
+
+    env = {"SLURM_ARRAY_TASK_ID": "3", "SLURM_ARRAY_TASK_MIN": "1", "SLURM_ARRAY_TASK_COUNT": "3"}
+    res = CliRunner(env=env).invoke(main, ["render", "--meshes", SAMPLE_MESHES / "car", "--out", tmp_path / "o",
+                                           "--category", "car", "--views", "2", "--no-progress", "--workers", "1"])
+    assert res.exit_code == 0, res.output
+    assert json.loads((tmp_path / "o" / "index.json").read_text())["part"]["index"] == 2
+    assert res.output.startswith("part 2/3, ")
+
+
+# ----------------------------------------------------------------------------- SLURM
+def test_slurm_array_through_submitit_local_equals_local_run_and_reruns(local_run, tmp_path):
+    args = ["render", "--meshes", SAMPLE_MESHES, "--out", tmp_path / "out", "--executor", "slurm",
+            "--slurm-cluster", "local", "--slurm-parts", "3", "--slurm-cpus-per-task", "1", *SETTINGS]
+    res = run_cli(main, args)
+    assert "3/3 parts finished" in res.output and "done 11" in res.output
+    assert_same_dataset(tmp_path / "out", local_run)
+    assert sorted(os.listdir(tmp_path / "out" / "parts"))[:3] == ["part-000-of-003", "part-001-of-003",
+                                                                  "part-002-of-003"]
+    res = run_cli(main, args)                          # a rerun: every part resumes, nothing redone
+    assert "done 0, resumed 11" in res.output
+
+
+# ----------------------------------------------------------------------------- Ray
+@pytest.fixture(scope="module")
+def ray_cluster():
+    from sc3d_data.pipeline.ray_executor import init_local
+
+    ray = init_local(2)
+    yield ray
+    ray.shutdown()
+
+
+def test_ray_equals_local_run(ray_cluster, local_run, tmp_path):
+    res = run_cli(main, ["render", "--meshes", SAMPLE_MESHES, "--out", tmp_path / "ray", "--executor", "ray", *SETTINGS])
+    assert "done 11" in res.output and "failed 0" in res.output
+    assert_same_dataset(tmp_path / "ray", local_run)
+    # same plan, same chunks: even the shard layout is the local run's
+    names = lambda d: sorted(p.name for p in d.glob("shard-*.h5"))  # noqa: E731
+    assert names(tmp_path / "ray") == names(local_run)
+
+
+def _kill_first_render_task(killed: list, stop: threading.Event) -> None:
+    """SIGKILL the first Ray worker seen running render_task (as the OOM killer would)."""
+    import psutil
+
+    while not stop.is_set() and not killed:
+        for proc in psutil.process_iter(["pid", "cmdline"]):
+            cmd = " ".join(proc.info["cmdline"] or [])
+            if cmd.startswith("ray::render_task"):
+                try:
+                    os.kill(proc.info["pid"], signal.SIGKILL)
+                    killed.append(proc.info["pid"])
+                except ProcessLookupError:
+                    continue
+                return
+        time.sleep(0.01)
+
+
+def test_ray_killed_worker_is_retried_and_a_hung_mesh_is_timed_out(ray_cluster, local_run, tmp_path):
+    """12 objects: the 11 samples and a glTF whose buffer is a FIFO nobody writes to (the loader
+    blocks forever, ~8 % of the run); one worker is SIGKILLed while rendering."""
+    meshes = tmp_path / "meshes"
+    shutil.copytree(SAMPLE_MESHES, meshes)
+    os.mkfifo(meshes / "chair" / "hang.bin")
+    (meshes / "chair" / "hang.gltf").write_text(json.dumps({
+        "asset": {"version": "2.0"}, "buffers": [{"uri": "hang.bin", "byteLength": 36}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0, 0, 0], "max": [1, 1, 0]}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}], "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}], "scene": 0}))
+    killed, stop = [], threading.Event()
+    killer = threading.Thread(target=_kill_first_render_task, args=(killed, stop), daemon=True)
+    killer.start()
+    t0 = time.monotonic()
+    try:
+        res = run_cli(main, ["render", "--meshes", meshes, "--out", tmp_path / "ray", "--executor", "ray",
+                             "--timeout", "8", *SETTINGS])
+    finally:
+        stop.set()
+        killer.join()
+    assert time.monotonic() - t0 < 90
+    assert killed, "no Ray worker was seen rendering"
+    index = json.loads((tmp_path / "ray" / "index.json").read_text())
+    (failure,) = index["failures"]
+    assert failure["model_id"] == "hang" and "timed out after 8 s" in failure["reason"]
+    assert "done 11" in res.output and "failed 1" in res.output
+    # nothing lost: the 11 objects are those of the local run (ids, arrays, cameras)
+    got, ref = objects_by_id(tmp_path / "ray"), objects_by_id(local_run)
+    assert sorted(got) == sorted(ref)
+    for key in ref:
+        for name in ("images", "masks", "K", "R", "t", "voxels", "to_canonical"):
+            np.testing.assert_array_equal(got[key][name], ref[key][name], err_msg=f"{key} {name}")
+
+
+def test_missing_engine_gives_one_line(tmp_path, monkeypatch):
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_submitit(name, *a, **k):
+        if name == "submitit":
+            raise ImportError("No module named 'submitit'")
+        return real_import(name, *a, **k)
+
+    monkeypatch.setattr(builtins, "__import__", no_submitit)
+    res = run_cli(main, ["render", "--meshes", SAMPLE_MESHES / "car", "--out", tmp_path / "o", "--executor", "slurm",
+                         "--slurm-cluster", "local", "--no-progress"], expect_exit=1)
+    assert res.output.strip() == "Error: the SLURM executor needs submitit: pip install 'sc3d[slurm]'"
