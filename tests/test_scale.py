@@ -72,6 +72,34 @@ def local_run(tmp_path_factory) -> Path:
     return out
 
 
+def part_config(out: Path, part: Part):
+    """``render --meshes SAMPLE_MESHES *SETTINGS --part I/N --out OUT`` as a library config."""
+    from sc3d_data.pipeline.render_job import RenderConfig
+
+    return RenderConfig(out=out, meshes=SAMPLE_MESHES, num_views=4, voxelize=True, objects_per_shard=2,
+                        progress=False, part=part)
+
+
+@pytest.fixture(scope="module")
+def pool():
+    """One local pool (2 workers) shared by the part runs of this module (``render_dataset(...,
+    executor=pool)``: the parts differ only in their objects, the workers are reused)."""
+    from sc3d_data.pipeline.local_pool import start_pool
+
+    p = start_pool(2, part_config(Path("unused"), Part(0, 1)))
+    yield p
+    p.close()
+
+
+def render_parts(root: Path, n: int, pool) -> list[Path]:
+    from sc3d_data.pipeline.render_run import render_dataset
+
+    parts = [root / f"p{i}" for i in range(n)]
+    for i, out in enumerate(parts):
+        assert render_dataset(part_config(out, Part(i, n)), executor=pool)["failed"] == 0
+    return parts
+
+
 # ----------------------------------------------------------------------------- partition
 def test_partition_rule_is_the_id_hash_not_the_order():
     # expected parts from `printf chair/abc | sha256sum` (50871c6746338957...) and
@@ -94,13 +122,8 @@ def test_partition_rule_is_the_id_hash_not_the_order():
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 7])
-def test_n_parts_plus_merge_equal_one_local_run(local_run, tmp_path, n):
-    parts = []
-    for i in range(n):
-        parts.append(tmp_path / f"p{i}")
-        res = run_cli(main, ["render", "--meshes", SAMPLE_MESHES, "--out", parts[-1], "--part", f"{i}/{n}",
-                             "--workers", "1", *SETTINGS])
-        assert "failed 0" in res.output
+def test_n_parts_plus_merge_equal_one_local_run(local_run, pool, tmp_path, n):
+    parts = render_parts(tmp_path, n, pool)
     ids = [{(o["category"], o["model_id"]) for o in json.loads((p / "index.json").read_text())["objects"]}
            for p in parts]
     assert sum(map(len, ids)) == 11 and len(set().union(*ids)) == 11      # each object in one part
@@ -110,10 +133,8 @@ def test_n_parts_plus_merge_equal_one_local_run(local_run, tmp_path, n):
     assert not any((tmp_path / "merged" / f).is_symlink() for f in os.listdir(tmp_path / "merged"))
 
 
-def test_merged_dataset_is_read_by_every_command_and_merge_resumes(local_run, tmp_path):
-    p0, p1 = tmp_path / "p0", tmp_path / "p1"
-    for i, p in enumerate((p0, p1)):
-        run_cli(main, ["render", "--meshes", SAMPLE_MESHES, "--out", p, "--part", f"{i}/2", "--workers", "1", *SETTINGS])
+def test_merged_dataset_is_read_by_every_command_and_merge_resumes(local_run, pool, tmp_path):
+    p0, p1 = render_parts(tmp_path, 2, pool)
     m = tmp_path / "m"
     res = run_cli(main, ["merge", m, p0, p1])
     n = len(list(m.glob("shard-*.h5")))
@@ -157,7 +178,7 @@ def test_merge_refuses_missing_unfinished_foreign_and_duplicate_parts(tmp_path):
     assert "given twice" in refused(p[0], p[1], p[1], p[2])
     other = tmp_path / "other"
     run_cli(main, ["render", "--out", other, "--part", "2/3", "--image-size", "32", *common])
-    assert "other settings (image_size differ)" in refused(p[0], p[1], other)
+    assert "made with other settings than" in (msg := refused(p[0], p[1], other)) and "(image_size differ)" in msg
     two = tmp_path / "two"
     run_cli(main, ["render", "--out", two, "--part", "1/2", *common])
     assert "another plan" in refused(p[0], p[1], two)
@@ -233,7 +254,7 @@ def _kill_first_render_task(killed: list, stop: threading.Event) -> None:
     while not stop.is_set() and not killed:
         for proc in psutil.process_iter(["pid", "cmdline"]):
             cmd = " ".join(proc.info["cmdline"] or [])
-            if cmd.startswith("ray::render_task"):
+            if cmd.startswith("ray::timed_render_task"):
                 try:
                     os.kill(proc.info["pid"], signal.SIGKILL)
                     killed.append(proc.info["pid"])
@@ -269,6 +290,7 @@ def test_ray_killed_worker_is_retried_and_a_hung_mesh_is_timed_out(ray_cluster, 
     assert time.monotonic() - t0 < 90
     assert killed, "no Ray worker was seen rendering"
     index = json.loads((tmp_path / "ray" / "index.json").read_text())
+    assert len(index["failures"]) == 1, index["failures"]
     (failure,) = index["failures"]
     assert failure["model_id"] == "hang" and "timed out after 8 s" in failure["reason"]
     assert "done 11" in res.output and "failed 1" in res.output

@@ -10,10 +10,13 @@ in plan order (``render_run``; the driver runs where ``--out`` is).
   stops it at the end; ``"auto"`` or ``HOST:PORT`` joins a running one (sc3d must be
   installed on its nodes, ``--meshes`` readable at the same path). A Ray session the caller
   already started (``ray.init``) is used as it is.
-- Time limit: at most one task per CPU is in flight, so a task runs from its submission; one
-  that takes longer than ``config.timeout_s`` (all attempts together) is cancelled with
-  ``force=True`` (its worker process is killed) and recorded as failed with the reason; the
-  run goes on.
+- Time limit: the task itself arms a ``SIGALRM`` timer of ``config.timeout_s`` once its
+  worker's renderer exists (so a worker's start-up does not count, as in the local pool); a
+  loader that blocks (a FIFO, a stuck network file system) is interrupted and the object is
+  recorded as failed with the reason, and the worker drops its renderer. A hang the signal
+  cannot interrupt (inside a C call) is caught by the driver: a task still running
+  ``2 * timeout_s + 60`` s after its submission is cancelled with ``force=True`` (its worker
+  process is killed) and recorded the same way. The run goes on in both cases.
 - Retries: a task whose worker process dies (killed, OOM, segfault) is run again by Ray up to
   ``config.retries`` times; after that it is recorded as failed. Errors of the mesh itself are
   results (``"fail"``), never retried.
@@ -57,6 +60,46 @@ def init_local(num_cpus: int):
     return ray
 
 
+class _TimedOut(BaseException):
+    """Raised by the ``SIGALRM`` handler (a BaseException: ``render_task`` does not catch it)."""
+
+
+def timed_render_task(config: RenderConfig, backend: str, task):
+    """:func:`render_task` under a ``SIGALRM`` timer of ``config.timeout_s`` (module doc)."""
+    import signal
+    import threading
+
+    cached_renderer(config, backend)  # start-up is not the object's time
+    if threading.current_thread() is not threading.main_thread():
+        return render_task(config, backend, task)
+
+    def on_alarm(signum, frame):
+        raise _TimedOut()
+
+    old = signal.signal(signal.SIGALRM, on_alarm)
+    signal.setitimer(signal.ITIMER_REAL, config.timeout_s)
+    try:
+        return render_task(config, backend, task)
+    except _TimedOut:
+        drop_renderers()  # it may have been interrupted mid-draw
+        return task.pos, "fail", f"{task.path}: timed out after {config.timeout_s:g} s (--timeout)"
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def drop_renderers() -> None:
+    """Close and forget this process's cached renderers."""
+    from sc3d_data.pipeline import render_job
+
+    for renderer, _ in render_job._RENDERERS.values():
+        try:
+            renderer.close()
+        except Exception:  # noqa: BLE001 - it is being dropped
+            pass
+    render_job._RENDERERS.clear()
+
+
 def _probe_backend(config: RenderConfig) -> str:
     """Make this worker's renderer; the GL backend it got."""
     return cached_renderer(config, config.backend)[1]
@@ -68,7 +111,7 @@ class RayExecutor:
     def __init__(self, ray, config: RenderConfig, backend: str, slots: int, owns_cluster: bool):
         self.ray, self.config, self.backend, self.slots = ray, config, backend, slots
         self.owns_cluster = owns_cluster
-        self.remote = ray.remote(render_task).options(num_cpus=1, max_retries=config.retries,
+        self.remote = ray.remote(timed_render_task).options(num_cpus=1, max_retries=config.retries,
                                                       retry_exceptions=False)
 
     @classmethod
@@ -98,6 +141,7 @@ class RayExecutor:
 
     def run(self, tasks, may_dispatch=lambda pos: True):
         ray, timeout = self.ray, self.config.timeout_s
+        backstop = 2 * timeout + 60
         todo = list(tasks)[::-1]  # pop() from the end = plan order
         inflight: dict = {}  # ObjectRef -> (task, submitted)
         while todo or inflight:
@@ -105,7 +149,7 @@ class RayExecutor:
                 task = todo.pop()
                 inflight[self.remote.remote(self.config, self.backend, task)] = (task, time.monotonic())
             now = time.monotonic()
-            wait_s = min([s + timeout - now for _, s in inflight.values()], default=1.0)
+            wait_s = min([s + backstop - now for _, s in inflight.values()], default=1.0)
             ready, _ = ray.wait(list(inflight), num_returns=1, timeout=max(0.0, min(wait_s, 1.0)))
             for ref in ready:
                 task, _ = inflight.pop(ref)
@@ -117,7 +161,7 @@ class RayExecutor:
                                              f"attempts ({why}; --retries)")
             now = time.monotonic()
             for ref, (task, submitted) in list(inflight.items()):
-                if now - submitted > timeout:
+                if now - submitted > backstop:
                     ray.cancel(ref, force=True)  # kills the worker process running it
                     del inflight[ref]
                     yield task.pos, "fail", f"{task.path}: timed out after {timeout:g} s (--timeout)"

@@ -46,24 +46,29 @@ def start_executor(config: RenderConfig, n_workers: int):
     return start_pool(n_workers, config)
 
 
-def render_dataset(config: RenderConfig) -> dict:
+def render_dataset(config: RenderConfig, executor=None) -> dict:
     """Render ``config.meshes`` into shards under ``config.out`` (see module doc).
 
     Returns the summary ``{"done", "skipped", "failed", "resumed", "retried", "repaired",
     "seconds", "views", "views_per_s", "out", "notes"}``; ``index.json`` holds the details.
     Raises ``ValueError`` (bad option or folder), ``LockError`` (another writer),
     ``ShardError`` / ``OSError`` (a shard or the index cannot be written: disk full...) with
-    one-line messages naming the option or file."""
+    one-line messages naming the option or file.
+
+    ``executor``: an executor already started (``local_pool.start_pool`` /
+    ``RayExecutor.start``) with the same output settings, used instead of starting one and
+    left open (a library caller rendering several parts in one process); else one is started
+    for the run and closed at its end."""
     from sc3d_data.outlock import exclusive_lock
 
     config.validate(config.workers or os.cpu_count() or 1)
     out = Path(config.out)
     check_out(out)
     with exclusive_lock(out, "sc3d-data render"):
-        return _render_locked(config, out)
+        return _render_locked(config, out, executor)
 
 
-def _render_locked(config: RenderConfig, out: Path) -> dict:
+def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
     from sc3d_data.shards import ShardError, read_records, shard_path
 
     t0 = time.monotonic()
@@ -102,7 +107,9 @@ def _render_locked(config: RenderConfig, out: Path) -> dict:
     resumed = sum(1 for t in tasks if t.pos // K in done_chunks and t.pos not in retry
                   and (t.category, t.model_id) not in kept_failed)
     n_workers = max(1, min(config.workers or os.cpu_count() or 1, max(1, len(todo))))
-    pool = start_executor(config, n_workers) if todo else None
+    if executor is not None and executor.config.settings(None) != settings:
+        raise ValueError("the executor given was started with other render settings than this run")
+    pool = executor if executor is not None else start_executor(config, n_workers) if todo else None
     settings["backend"] = pool.backend if pool else (old or {}).get("settings", {}).get("backend")
 
     def write_index(complete: bool) -> None:
@@ -176,7 +183,7 @@ def _render_locked(config: RenderConfig, out: Path) -> dict:
 
         raise ShardError(f"{e.filename or out / INDEX_NAME}: {io_reason(e)}") from e
     finally:
-        if pool is not None:
+        if pool is not None and executor is None:
             pool.close()
         if bar is not None:
             bar.close()
