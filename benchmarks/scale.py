@@ -121,8 +121,8 @@ def main() -> None:
     views = n * args.views
     t_local = rows["local"][0]
     print(f"{n} objects x {args.views} views (+ 32^3 voxels), {args.workers} CPU slots, meshes {args.meshes}")
-    print(f"| engine | wall s | objects/s | views/s | vs local | overhead ms/object |")
-    print(f"|---|---|---|---|---|---|")
+    print("| engine | wall s | objects/s | views/s | vs local | overhead ms/object |")
+    print("|---|---|---|---|---|---|")
     for name, (t, t0) in rows.items():
         for label, total in ((name, t),) + (((f"{name} incl. start-up {t0:.1f} s", t + t0),) if t0 else ()):
             print(f"| {label} | {total:.1f} | {n / total:.2f} | {views / total:.0f} | {t_local / total:.2f}x | "

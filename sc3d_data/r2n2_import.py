@@ -48,6 +48,7 @@ import numpy as np
 
 from sc3d_data import camera
 from sc3d_data.normalize import canonical_rotation
+from sc3d_data.pipeline.partition import Part
 from sc3d_data.shapenet import is_synset_id, resolve_categories
 
 R2N2_NUM_VIEWS = 24
@@ -294,7 +295,7 @@ class ImportConfig:
     front: str = R2N2_FRONT
     objects_per_shard: int = 256
     overwrite: bool = False
-    part: "Part | None" = None  # --part I/N (sc3d_data.pipeline.partition); None = all models
+    part: Part | None = None  # --part I/N (sc3d_data.pipeline.partition); None = all models
 
     def settings(self) -> dict:
         """JSON-able record of every setting (stored in the shards and the index)."""
@@ -353,7 +354,7 @@ def load_r2n2_object(model: R2N2Model, config: ImportConfig, split: str):
 def _take_part(plan: list, part, problems: list, skipped: list):
     """This run's share of ``plan`` (``[(model, split)]``) for ``--part`` (all when None), the
     index's ``part`` record, and the problems/skipped files (reported by part 0 only)."""
-    from sc3d_data.pipeline.partition import Part, part_of, part_record, plan_digest
+    from sc3d_data.pipeline.partition import part_of, part_record, plan_digest
 
     part = part or Part(0, 1)
     digest = plan_digest((m.category, m.model_id, s) for m, s in plan)

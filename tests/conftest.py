@@ -15,6 +15,23 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
+def write_hanging_gltf(folder: Path, name: str = "hang") -> Path:
+    """``folder/NAME.gltf`` whose buffer is a FIFO nobody writes to: its loader blocks forever
+    (a real pathological input for the per-object time limit)."""
+    import json
+
+    os.mkfifo(folder / f"{name}.bin")
+    path = folder / f"{name}.gltf"
+    path.write_text(json.dumps({
+        "asset": {"version": "2.0"}, "buffers": [{"uri": f"{name}.bin", "byteLength": 36}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0, 0, 0], "max": [1, 1, 0]}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}], "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}], "scene": 0}))
+    return path
+
+
 def run_cli(group, args: list[str], expect_exit: int | None = 0):
     """Invoke a click group in-process; fail with the command's output when the exit code differs."""
     result = CliRunner().invoke(group, [str(a) for a in args], catch_exceptions=False)

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from cli.data import main
-from conftest import SAMPLE_MESHES, run_cli
+from conftest import SAMPLE_MESHES, run_cli, write_hanging_gltf
 from sc3d_data.pipeline.partition import Part, parse_part, part_from_env, part_of
 
 SETTINGS = ["--views", "4", "--voxelize", "--objects-per-shard", "2", "--no-progress"]
@@ -269,14 +269,7 @@ def test_ray_killed_worker_is_retried_and_a_hung_mesh_is_timed_out(ray_cluster, 
     blocks forever, ~8 % of the run); one worker is SIGKILLed while rendering."""
     meshes = tmp_path / "meshes"
     shutil.copytree(SAMPLE_MESHES, meshes)
-    os.mkfifo(meshes / "chair" / "hang.bin")
-    (meshes / "chair" / "hang.gltf").write_text(json.dumps({
-        "asset": {"version": "2.0"}, "buffers": [{"uri": "hang.bin", "byteLength": 36}],
-        "bufferViews": [{"buffer": 0, "byteLength": 36}],
-        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
-                       "min": [0, 0, 0], "max": [1, 1, 0]}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}], "nodes": [{"mesh": 0}],
-        "scenes": [{"nodes": [0]}], "scene": 0}))
+    write_hanging_gltf(meshes / "chair")
     killed, stop = [], threading.Event()
     killer = threading.Thread(target=_kill_first_render_task, args=(killed, stop), daemon=True)
     killer.start()

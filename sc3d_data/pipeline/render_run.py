@@ -27,7 +27,7 @@ from collections import defaultdict
 from pathlib import Path
 
 from sc3d_data.mesh_io import MESH_SUFFIXES
-from sc3d_data.pipeline.render_job import SAMPLE_MESHES, RenderConfig  # noqa: F401 - re-exported
+from sc3d_data.pipeline.render_job import RenderConfig
 from sc3d_data.pipeline.resume import check_out, check_resume, clean_tmp, empty_state, resume_state
 from sc3d_data.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index, write_shard
 from sc3d_data.shards import write_index as write_index_file

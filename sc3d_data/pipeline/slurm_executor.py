@@ -73,6 +73,9 @@ def render_on_slurm(config: RenderConfig, options: SlurmOptions) -> dict:
     from sc3d_data.pipeline.merge import merge_parts
 
     t0 = time.monotonic()
+    if not config.part.whole:
+        raise ValueError(f"--part {config.part} with --executor slurm: the array makes the parts "
+                         "(--slurm-parts); give one or the other")
     config.validate(options.cpus_per_task)
     configs = part_configs(config, options.parts, options.cpus_per_task)
     for c in configs:
