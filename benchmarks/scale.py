@@ -15,7 +15,8 @@ same number of CPU slots (``--workers``):
 
 Prints objects/s and views/s (views of the objects that succeeded), the ratio to ``local``
 and the overhead per object of each engine, ``(T_engine - T_local) / objects``. Every run is
-checked to produce the same objects as ``local``.
+checked to produce the same objects as ``local``. ``--repeat R`` runs R rounds of all four
+(the machine's load changes over time) and shows the fastest of each.
 """
 from __future__ import annotations
 
@@ -98,6 +99,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--parts", type=int, default=2)
     ap.add_argument("--views", type=int, default=24)
+    ap.add_argument("--repeat", type=int, default=1, help="rounds of all engines; the fastest of each is shown")
     args = ap.parse_args()
     sys.argv = sys.argv[:1]
     from sc3d_data.pipeline.render_job import RenderConfig
@@ -109,15 +111,23 @@ def main() -> None:
             return RenderConfig(out=tmp / name, meshes=args.meshes, num_views=args.views, voxelize=True,
                                 workers=args.workers, bad_texture="fallback", progress=False, objects_per_shard=64)
 
-        rows = {}
-        rows["local"] = (run_local(cfg("local")), 0.0)
-        n = len(ids(tmp / "local"))
-        t_init, t_ray = run_ray(cfg("ray"), args.workers)
-        rows["ray"] = (t_ray, t_init)
-        rows[f"{args.parts} parts + merge"] = (run_parts(cfg("parts"), tmp / "parts", args.parts, args.workers), 0.0)
-        rows[f"slurm-local {args.parts} parts + merge"] = (run_slurm_local(cfg("slurm"), args.parts, args.workers), 0.0)
-        for out in ("ray", "parts/merged", "slurm"):
-            assert ids(tmp / out) == ids(tmp / "local"), f"{out}: other objects than the local run"
+        rows: dict = {}
+
+        def keep(name, t, t0=0.0):
+            if name not in rows or t < rows[name][0]:
+                rows[name] = (t, t0)
+
+        for r in range(args.repeat):  # rounds, so that a change of load hits every engine alike
+            sub = tmp / f"round{r}"
+            keep("local", run_local(cfg(f"round{r}/local")))
+            n = len(ids(sub / "local"))
+            t_init, t_ray = run_ray(cfg(f"round{r}/ray"), args.workers)
+            keep("ray", t_ray, t_init)
+            keep(f"{args.parts} parts + merge", run_parts(cfg("parts"), sub / "parts", args.parts, args.workers))
+            keep(f"slurm-local {args.parts} parts + merge",
+                 run_slurm_local(cfg(f"round{r}/slurm"), args.parts, args.workers))
+            for out in ("ray", "parts/merged", "slurm"):
+                assert ids(sub / out) == ids(sub / "local"), f"{out}: other objects than the local run"
     views = n * args.views
     t_local = rows["local"][0]
     print(f"{n} objects x {args.views} views (+ 32^3 voxels), {args.workers} CPU slots, meshes {args.meshes}")

@@ -231,11 +231,18 @@ def test_slurm_array_through_submitit_local_equals_local_run_and_reruns(local_ru
 # ----------------------------------------------------------------------------- Ray
 @pytest.fixture(scope="module")
 def ray_cluster():
+    """A local Ray cluster of 2 CPUs; its workers get the test-only crash hook for the model id
+    ``crash_me`` (no other test mesh has that id)."""
     from sc3d_data.pipeline.ray_executor import init_local
+    from sc3d_data.pipeline.render_job import CRASH_ENV
 
-    ray = init_local(2)
-    yield ray
-    ray.shutdown()
+    os.environ[CRASH_ENV] = "crash_me"
+    try:
+        ray = init_local(2)
+        yield ray
+        ray.shutdown()
+    finally:
+        del os.environ[CRASH_ENV]
 
 
 def test_ray_equals_local_run(ray_cluster, local_run, tmp_path):
@@ -265,10 +272,17 @@ def _kill_first_render_task(killed: list, stop: threading.Event) -> None:
 
 
 def test_ray_killed_worker_is_retried_and_a_hung_mesh_is_timed_out(ray_cluster, local_run, tmp_path):
-    """12 objects: the 11 samples and a glTF whose buffer is a FIFO nobody writes to (the loader
-    blocks forever, ~8 % of the run); one worker is SIGKILLed while rendering."""
+    """13 objects: the 11 samples, a glTF whose buffer is a FIFO nobody writes to (the loader
+    blocks forever) and a cube whose worker dies every time (test-only hook, as a mesh that
+    crashes the GL driver): 15 % of the run hangs or crashes. On top, one worker is SIGKILLed
+    from outside while rendering (as the OOM killer would): Ray runs that object again."""
     meshes = tmp_path / "meshes"
     shutil.copytree(SAMPLE_MESHES, meshes)
+    cube = [[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)]
+    faces = [[1, 2, 4], [1, 4, 3], [5, 7, 8], [5, 8, 6], [1, 5, 6], [1, 6, 2], [3, 4, 8], [3, 8, 7], [1, 3, 7],
+             [1, 7, 5], [2, 6, 8], [2, 8, 4]]
+    (meshes / "chair" / "crash_me.obj").write_text("".join(f"v {x} {y} {z}\n" for x, y, z in cube)
+                                                    + "".join(f"f {a} {b} {c}\n" for a, b, c in faces))
     write_hanging_gltf(meshes / "chair")
     killed, stop = [], threading.Event()
     killer = threading.Thread(target=_kill_first_render_task, args=(killed, stop), daemon=True)
@@ -276,17 +290,18 @@ def test_ray_killed_worker_is_retried_and_a_hung_mesh_is_timed_out(ray_cluster, 
     t0 = time.monotonic()
     try:
         res = run_cli(main, ["render", "--meshes", meshes, "--out", tmp_path / "ray", "--executor", "ray",
-                             "--timeout", "8", *SETTINGS])
+                             "--timeout", "8", "--retries", "1", *SETTINGS])
     finally:
         stop.set()
         killer.join()
     assert time.monotonic() - t0 < 90
     assert killed, "no Ray worker was seen rendering"
     index = json.loads((tmp_path / "ray" / "index.json").read_text())
-    assert len(index["failures"]) == 1, index["failures"]
-    (failure,) = index["failures"]
-    assert failure["model_id"] == "hang" and "timed out after 8 s" in failure["reason"]
-    assert "done 11" in res.output and "failed 1" in res.output
+    reasons = {f["model_id"]: f["reason"] for f in index["failures"]}
+    assert sorted(reasons) == ["crash_me", "hang"], reasons
+    assert "hang.gltf: timed out after 8 s (--timeout)" in reasons["hang"]
+    assert "crash_me.obj: render worker died on all 2 attempts" in reasons["crash_me"]
+    assert "done 11" in res.output and "failed 2" in res.output
     # nothing lost: the 11 objects are those of the local run (ids, arrays, cameras)
     got, ref = objects_by_id(tmp_path / "ray"), objects_by_id(local_run)
     assert sorted(got) == sorted(ref)

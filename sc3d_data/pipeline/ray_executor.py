@@ -28,7 +28,7 @@ import os
 import time
 from pathlib import Path
 
-from sc3d_data.pipeline.render_job import THREAD_ENV, RenderConfig, cached_renderer, render_task
+from sc3d_data.pipeline.render_job import CRASH_ENV, THREAD_ENV, RenderConfig, cached_renderer, render_task
 
 MISSING = "the Ray executor needs Ray: pip install 'sc3d[ray]'"
 
@@ -46,6 +46,8 @@ def worker_env(local: bool) -> dict:
     """``runtime_env`` of sc3d's Ray workers: one BLAS thread each; on a local cluster also this
     checkout on ``PYTHONPATH`` (workers import the same sc3d as the driver)."""
     env = dict(THREAD_ENV)
+    if os.environ.get(CRASH_ENV):  # the test-only fault injection reaches the workers
+        env[CRASH_ENV] = os.environ[CRASH_ENV]
     if local:
         root = str(Path(__file__).resolve().parents[2])
         env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in [os.environ.get("PYTHONPATH")] if p])

@@ -189,6 +189,10 @@ def _backend_order(backend: str) -> tuple[str, ...]:
 
 
 _RENDERERS: dict = {}
+#: TEST-ONLY fault injection (tests/test_scale.py): comma-separated model ids whose worker
+#: process kills itself with SIGKILL when it starts them, as a mesh that crashes the GL driver
+#: would. Unset in normal use; nothing else reads it.
+CRASH_ENV = "SC3D_TEST_CRASH_MODEL_IDS"
 
 
 def cached_renderer(config: RenderConfig, backend: str):
@@ -228,6 +232,10 @@ def render_task(config: RenderConfig, backend: str, task: Task) -> tuple[int, st
     ``(pos, "fail", reason)``. Bad input never raises; a crash or hang of this process is the
     executor's to catch (it kills and replaces the worker)."""
     renderer, _ = cached_renderer(config, backend)
+    if task.model_id in os.environ.get(CRASH_ENV, "").split(","):
+        import signal
+
+        os.kill(os.getpid(), signal.SIGKILL)
     try:
         record, warnings = render_one(renderer, task, config)
         return task.pos, "ok", (record, warnings)
