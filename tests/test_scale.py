@@ -15,54 +15,14 @@ import threading
 import time
 from pathlib import Path
 
-import h5py
 import numpy as np
 import pytest
 
 from cli.data import main
-from conftest import SAMPLE_MESHES, run_cli, write_hanging_gltf
+from conftest import SAMPLE_MESHES, assert_same_dataset, objects_by_id, run_cli, write_hanging_gltf
 from sc3d_data.pipeline.partition import Part, parse_part, part_from_env, part_of
 
 SETTINGS = ["--views", "4", "--voxelize", "--objects-per-shard", "2", "--no-progress"]
-
-
-def objects_by_id(out: Path) -> dict:
-    """``{(category, model_id): {name: array or string}}`` over the dataset's index, checking
-    that each id appears once."""
-    from sc3d_data.shards import iter_objects
-
-    objs = {}
-    for o in iter_objects(out):
-        key = (o["category"], o["model_id"])
-        assert key not in objs, f"{key} twice in {out}"
-        objs[key] = {k: v for k, v in o.items() if k not in ("shard", "row")}
-    return objs
-
-
-def shard_settings(out: Path) -> set[str]:
-    vals = set()
-    for p in out.glob("shard-*.h5"):
-        with h5py.File(p) as f:
-            vals.add(f.attrs["settings"])
-    return vals
-
-
-def assert_same_dataset(a: Path, b: Path) -> None:
-    oa, ob = objects_by_id(a), objects_by_id(b)
-    assert sorted(oa) == sorted(ob)
-    for key in oa:
-        assert oa[key].keys() == ob[key].keys(), key
-        for name, va in oa[key].items():
-            vb = ob[key][name]
-            if isinstance(va, np.ndarray):
-                assert va.dtype == vb.dtype and va.shape == vb.shape, (key, name)
-                np.testing.assert_array_equal(va, vb, err_msg=f"{key} {name}")
-            else:
-                assert va == vb, (key, name)
-    assert shard_settings(a) == shard_settings(b) and len(shard_settings(a)) == 1
-    ia, ib = (json.loads((d / "index.json").read_text()) for d in (a, b))
-    assert ia["counts"] == ib["counts"] and ia["complete"] and ib["complete"]
-    assert ia["split"] == ib["split"]
 
 
 @pytest.fixture(scope="module")
@@ -324,3 +284,20 @@ def test_missing_engine_gives_one_line(tmp_path, monkeypatch):
     res = run_cli(main, ["render", "--meshes", SAMPLE_MESHES / "car", "--out", tmp_path / "o", "--executor", "slurm",
                          "--slurm-cluster", "local", "--no-progress"], expect_exit=1)
     assert res.output.strip() == "Error: the SLURM executor needs submitit: pip install 'sc3d[slurm]'"
+
+
+def test_voxelize_meshes_in_parts_share_one_folder(tmp_path):
+    """`voxelize --meshes --part I/2` twice into one folder == one run: same .binvox files."""
+    meshes = SAMPLE_MESHES / "chair"
+    run_cli(main, ["voxelize", "--meshes", meshes, "--out", tmp_path / "whole", "--resolution", "16", "--no-progress"])
+    for i in range(2):
+        res = run_cli(main, ["voxelize", "--meshes", meshes, "--out", tmp_path / "parts", "--part", f"{i}/2",
+                             "--resolution", "16", "--no-progress"])
+        assert "0 failed" in res.output
+    whole = sorted(p.relative_to(tmp_path / "whole") for p in (tmp_path / "whole").rglob("*.binvox"))
+    parts = sorted(p.relative_to(tmp_path / "parts") for p in (tmp_path / "parts").rglob("*.binvox"))
+    assert whole == parts and len(whole) == 4
+    for rel in whole:
+        assert (tmp_path / "whole" / rel).read_bytes() == (tmp_path / "parts" / rel).read_bytes()
+    assert sorted(p.name for p in (tmp_path / "parts").glob("failures*.json")) == [
+        "failures.part-000-of-002.json", "failures.part-001-of-002.json"]
