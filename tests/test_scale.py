@@ -270,20 +270,24 @@ def test_ray_killed_worker_is_retried_and_a_hung_mesh_is_timed_out(ray_cluster, 
             np.testing.assert_array_equal(got[key][name], ref[key][name], err_msg=f"{key} {name}")
 
 
-def test_missing_engine_gives_one_line(tmp_path, monkeypatch):
+@pytest.mark.parametrize("engine,args,message", [
+    ("submitit", ["--executor", "slurm", "--slurm-cluster", "local"],
+     "the SLURM executor needs submitit: pip install 'sc3d[slurm]'"),
+    ("ray", ["--executor", "ray"], "the Ray executor needs Ray: pip install 'sc3d[ray]'")])
+def test_missing_engine_gives_one_line(tmp_path, monkeypatch, engine, args, message):
     import builtins
 
     real_import = builtins.__import__
 
-    def no_submitit(name, *a, **k):
-        if name == "submitit":
-            raise ImportError("No module named 'submitit'")
+    def without_engine(name, *a, **k):
+        if name == engine:
+            raise ImportError(f"No module named {engine!r}")
         return real_import(name, *a, **k)
 
-    monkeypatch.setattr(builtins, "__import__", no_submitit)
-    res = run_cli(main, ["render", "--meshes", SAMPLE_MESHES / "car", "--out", tmp_path / "o", "--executor", "slurm",
-                         "--slurm-cluster", "local", "--no-progress"], expect_exit=1)
-    assert res.output.strip() == "Error: the SLURM executor needs submitit: pip install 'sc3d[slurm]'"
+    monkeypatch.setattr(builtins, "__import__", without_engine)
+    res = run_cli(main, ["render", "--meshes", SAMPLE_MESHES / "car", "--out", tmp_path / "o", *args, "--no-progress"],
+                  expect_exit=1)
+    assert res.output.strip() == f"Error: {message}"
 
 
 def test_voxelize_meshes_in_parts_share_one_folder(tmp_path):

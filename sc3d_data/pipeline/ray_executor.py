@@ -114,7 +114,7 @@ class RayExecutor:
         self.ray, self.config, self.backend, self.slots = ray, config, backend, slots
         self.owns_cluster = owns_cluster
         self.remote = ray.remote(timed_render_task).options(num_cpus=1, max_retries=config.retries,
-                                                      retry_exceptions=False)
+                                                            retry_exceptions=False)
 
     @classmethod
     def start(cls, config: RenderConfig, n_workers: int) -> "RayExecutor":
@@ -156,17 +156,19 @@ class RayExecutor:
             for ref in ready:
                 task, _ = inflight.pop(ref)
                 try:
-                    yield ray.get(ref)
+                    result = ray.get(ref)
                 except ray.exceptions.RayError as e:  # the worker died on every attempt
                     why = type(getattr(e, "cause", None) or e).__name__
-                    yield (task.pos, "fail", f"{task.path}: render worker died on all {self.config.retries + 1} "
-                                             f"attempts ({why}; --retries)")
+                    result = (task.pos, "fail", f"{task.path}: render worker died on all "
+                                                f"{self.config.retries + 1} attempts ({why}; --retries)")
+                yield result
             now = time.monotonic()
             for ref, (task, submitted) in list(inflight.items()):
                 if now - submitted > backstop:
                     ray.cancel(ref, force=True)  # kills the worker process running it
                     del inflight[ref]
-                    yield task.pos, "fail", f"{task.path}: timed out after {timeout:g} s (--timeout)"
+                    yield task.pos, "fail", (f"{task.path}: timed out: still running {backstop:g} s after it was "
+                                             f"sent, its --timeout {timeout:g} s timer could not interrupt it")
 
     def close(self) -> None:
         if self.owns_cluster and self.ray.is_initialized():
