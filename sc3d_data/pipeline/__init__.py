@@ -4,8 +4,9 @@ Modules, one job each:
 
 - ``render_job``: settings of a render run and the work on one object (``render_task``);
 - ``plan`` / ``partition``: which objects a run (or part ``I/N`` of a run) handles;
-- ``local_pool`` / ``ray_executor``: executors that run ``render_task`` per object with a time
-  limit and yield ``(pos, status, payload)`` (same interface, see ``local_pool``);
+- ``executor``: the interface of an executor (run ``render_task`` per object with a time limit,
+  yield ``(pos, status, payload)``) and ``--executor``'s choice;
+- ``local_pool`` / ``ray_executor``: the two executors;
 - ``slurm_executor``: a job array of parts through submitit, then ``merge``;
 - ``render_run``: the render driver (chunks, shards and index in plan order);
 - ``resume``: what an existing index lets a rerun keep;

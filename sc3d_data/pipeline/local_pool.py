@@ -9,9 +9,7 @@ keeps ONE ``MeshRenderer`` and handles one object at a time: the main process se
 and replaced and the object is recorded as a failure; a worker that crashes is handled the same
 way (the next run retries it, ``retry_failed``).
 
-Executor interface (shared with ``ray_executor.RayExecutor``): ``backend`` (the GL backend the
-workers use), ``run(tasks, may_dispatch)`` yielding ``(pos, "ok", (record, warnings))`` or
-``(pos, "fail", reason)`` once per task in any order, and ``close()``.
+Implements ``sc3d_data.pipeline.executor.Executor`` (as ``ray_executor.RayExecutor`` does).
 """
 from __future__ import annotations
 

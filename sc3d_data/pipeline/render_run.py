@@ -7,11 +7,12 @@ Design
   optionally one part of a deterministic partition (``--part I/N``). The plan is cut into
   chunks of ``objects_per_shard`` objects; chunk ``c`` becomes ``shard-{c:05d}.h5`` (objects
   that fail are left out of it).
-- Executor (``local_pool.WorkerPool`` by default, ``ray_executor.RayExecutor`` with
-  ``executor="ray"``): runs :func:`render_job.render_task` per object with a per-object time
-  limit and yields results in any order; this module collects them by position and writes
-  chunk after chunk in order, so the output depends neither on the number of workers nor on
-  the executor. ``may_dispatch`` keeps at most ~2 chunks of results in memory.
+- Executor (``executor.Executor``: ``local_pool.WorkerPool`` by default,
+  ``ray_executor.RayExecutor`` with ``executor="ray"``): runs :func:`render_job.render_task`
+  per object with a per-object time limit and yields results in any order; this module
+  collects them by position and writes chunk after chunk in order, so the output depends
+  neither on the number of workers nor on the executor. ``may_dispatch`` keeps at most ~2
+  chunks of results in memory.
 - Resume and retry (``resume.py``): the index is rewritten atomically after every shard; a
   rerun keeps intact chunks and renders the rest (and the recorded failures). Ctrl-C or a kill
   loses at most the chunks in progress.
@@ -27,23 +28,11 @@ from collections import defaultdict
 from pathlib import Path
 
 from sc3d_data.mesh_io import MESH_SUFFIXES
+from sc3d_data.pipeline.executor import start_executor
 from sc3d_data.pipeline.render_job import RenderConfig
 from sc3d_data.pipeline.resume import check_out, check_resume, clean_tmp, empty_state, resume_state
 from sc3d_data.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index, write_shard
 from sc3d_data.shards import write_index as write_index_file
-
-
-def start_executor(config: RenderConfig, n_workers: int):
-    """The executor of ``config.executor`` with ``n_workers`` workers (module doc)."""
-    if config.executor == "ray":
-        from sc3d_data.pipeline.ray_executor import RayExecutor
-
-        return RayExecutor.start(config, n_workers)
-    if config.executor != "local":
-        raise ValueError(f"--executor {config.executor}: expected local or ray here (slurm submits parts)")
-    from sc3d_data.pipeline.local_pool import start_pool
-
-    return start_pool(n_workers, config)
 
 
 def render_dataset(config: RenderConfig, executor=None) -> dict:
