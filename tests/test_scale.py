@@ -188,6 +188,14 @@ def test_slurm_array_through_submitit_local_equals_local_run_and_reruns(local_ru
     assert "done 0, resumed 11" in res.output
 
 
+@pytest.mark.skipif(shutil.which("srun") is not None, reason="a real SLURM cluster is here")
+def test_slurm_without_a_cluster_is_refused_not_run_locally(tmp_path):
+    res = run_cli(main, ["render", "--meshes", SAMPLE_MESHES / "car", "--out", tmp_path / "o", "--executor", "slurm",
+                         "--no-progress"], expect_exit=1)
+    assert "srun" in res.output and "--slurm-cluster local" in res.output and len(res.output.splitlines()) == 1
+    assert not (tmp_path / "o" / "index.json").exists()
+
+
 # ----------------------------------------------------------------------------- Ray
 @pytest.fixture(scope="module")
 def ray_cluster():

@@ -56,7 +56,10 @@ def submit(configs: list[RenderConfig], options: SlurmOptions, log_dir: Path):
         import submitit
     except ImportError:
         raise ImportError(MISSING) from None
-    executor = submitit.AutoExecutor(folder=str(log_dir), cluster=None if options.cluster == "slurm" else "local")
+    try:
+        executor = submitit.AutoExecutor(folder=str(log_dir), cluster=options.cluster)
+    except RuntimeError as e:  # no srun/sbatch here; never fall back to running locally unasked
+        raise RuntimeError(f"--executor slurm: {e} (--slurm-cluster local runs the array on this machine)") from None
     params = {"timeout_min": options.time_min, "cpus_per_task": options.cpus_per_task, "nodes": 1,
               "tasks_per_node": 1, "name": "sc3d-render"}
     if options.partition and options.cluster == "slurm":
