@@ -116,12 +116,13 @@ def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = Tr
     temporary folder) with the hooks; per-stage seconds summed over objects, worker and main."""
     from multiprocessing import connection
 
+    import sc3d_data.pipeline.local_pool as pool
     import sc3d_data.pipeline.render_run as rp
     from sc3d_data.pipeline.render_run import RenderConfig, render_dataset
 
     main_acc: dict[str, float] = {}
-    saved = (rp.write_shard, rp.write_index_file, connection.Connection.recv)
-    _wrap(rp, "write_shard", "compress + write shard", main_acc)
+    saved = (pool.write_shard, rp.write_index_file, connection.Connection.recv)
+    _wrap(pool, "write_shard", "compress + write shard", main_acc)
     _wrap(rp, "write_index_file", "write index", main_acc)
     recv = connection.Connection.recv
 
@@ -144,7 +145,7 @@ def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = Tr
             rows = [json.loads(line) for p in Path(tmp).glob("worker-*.jsonl") for line in open(p)]
     finally:
         os.environ.pop(ENV, None)
-        rp.write_shard, rp.write_index_file, connection.Connection.recv = saved
+        pool.write_shard, rp.write_index_file, connection.Connection.recv = saved
     ok = [r for r in rows if r.get("status") == "ok"]
     worker = {s + c: 0.0 for s in WORKER_STAGES for c in ("", " cpu")}
     for r in ok:

@@ -229,7 +229,7 @@ def _kill_first_render_task(killed: list, stop: threading.Event) -> None:
     while not stop.is_set() and not killed:
         for proc in psutil.process_iter(["pid", "cmdline"]):
             cmd = " ".join(proc.info["cmdline"] or [])
-            if cmd.startswith("ray::timed_render_task"):
+            if cmd.startswith("ray::render_task_split"):
                 try:
                     os.kill(proc.info["pid"], signal.SIGKILL)
                     killed.append(proc.info["pid"])

@@ -4,7 +4,8 @@ An executor runs :func:`sc3d_data.pipeline.render_job.render_task` once per
 :class:`~sc3d_data.pipeline.render_job.Task` somewhere (worker processes on this machine, Ray
 tasks on a cluster) and hands each result back to the driver (``render_run``), which writes
 the shards in plan order. It owns everything about *where* and *how long*: worker start-up,
-the per-object time limit, replacing or retrying a worker that died. It never decides what an
+the per-object time limit, replacing or retrying a worker that died, and where a finished
+chunk's shard file is written from (``write_shard``). It never decides what an
 object's result is: that is ``render_task``'s (same arrays whatever the executor).
 
 SLURM is not an executor of this kind: a job array runs whole parts (``slurm_executor``), each
@@ -12,6 +13,7 @@ part with the local pool, and ``merge`` joins them.
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Callable, Iterable, Iterator, Protocol
 
 from sc3d_data.pipeline.render_job import RenderConfig, Task
@@ -31,6 +33,11 @@ class Executor(Protocol):
         ``may_dispatch(task.pos)`` (the driver bounds the results it holds); tasks are started
         in the given order. A task that hangs past ``config.timeout_s`` or whose worker dies
         yields ``"fail"`` with the reason; nothing raises for one object."""
+
+    def write_shard(self, path: Path, records: list, settings: dict) -> str:
+        """Write the shard ``path`` from the records of one chunk in plan order (``ObjectRecord``
+        s, or what this executor yielded in their place) as ``sc3d_data.shards.write_shard``
+        does, and return its SHA-256."""
 
     def close(self) -> None:
         """Stop the workers (and a cluster started for the run)."""

@@ -19,6 +19,7 @@ import time
 from multiprocessing.connection import wait
 
 from sc3d_data.pipeline.render_job import THREAD_ENV, RenderConfig, Task, cached_renderer, render_task
+from sc3d_data.shards import write_shard
 
 
 def _worker_main(conn, config: RenderConfig, backend: str) -> None:
@@ -163,6 +164,10 @@ class WorkerPool:
                     task = w.task
                     self._replace(w)
                     yield task.pos, "fail", f"{task.path}: timed out after {timeout:g} s (--timeout)"
+
+    def write_shard(self, path, records, settings: dict) -> str:
+        """Write the shard in this (the main) process (``Executor.write_shard``)."""
+        return write_shard(path, records, settings)
 
     def close(self) -> None:
         for w in self.workers:

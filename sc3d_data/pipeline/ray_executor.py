@@ -2,9 +2,13 @@
 
 Each object is one Ray task running :func:`render_job.render_task` (1 CPU). Ray worker
 processes are reused between tasks, and each keeps one renderer (``cached_renderer``), so the
-per-object cost is the same as in the local pool plus Ray's scheduling and the transfer of the
-object's arrays through the object store to the driver, which writes the shards into ``--out``
-in plan order (``render_run``; the driver runs where ``--out`` is).
+per-object cost is the same as in the local pool plus Ray's scheduling. A task has two
+results: the object's index fields and status (small, fetched by the driver) and its arrays
+(left in the object store). When a chunk is complete the driver asks a Ray task to write its
+shard (``write_shard``): that task receives the arrays straight from the object store and
+writes the file into ``--out``, which must therefore be one shared folder, at the same path,
+for the driver and every node (on one machine: any folder). The arrays never pass through
+the driver; it writes ``index.json``.
 
 - Cluster: ``address=None`` starts a local Ray cluster with ``n_workers`` CPUs for the run and
   stops it at the end; ``"auto"`` or ``HOST:PORT`` joins a running one (sc3d must be
@@ -26,6 +30,7 @@ from __future__ import annotations
 
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from sc3d_data.pipeline.render_job import CRASH_ENV, THREAD_ENV, RenderConfig, cached_renderer, render_task
@@ -102,6 +107,38 @@ def drop_renderers() -> None:
     render_job._RENDERERS.clear()
 
 
+@dataclass
+class RecordRef:
+    """What the driver holds for a rendered object: its index fields (``clipped`` [V] is the
+    only array) and ``ref``, the Ray object holding its ``ObjectRecord``."""
+
+    model_id: str
+    category: str
+    split: str
+    source: str
+    arrays: dict
+    ref: object = None
+
+
+def render_task_split(config: RenderConfig, backend: str, task):
+    """:func:`timed_render_task` as two Ray results: ``(pos, status, payload)`` with the record
+    replaced by a :class:`RecordRef` (no ``ref`` yet), and the ``ObjectRecord`` (None on failure)."""
+    pos, status, payload = timed_render_task(config, backend, task)
+    if status != "ok":
+        return (pos, status, payload), None
+    record, warnings = payload
+    stub = RecordRef(record.model_id, record.category, record.split, record.source,
+                     {"clipped": record.arrays["clipped"]})
+    return (pos, status, (stub, warnings)), record
+
+
+def _write_shard_task(path: str, settings: dict, *records) -> str:
+    """``sc3d_data.shards.write_shard`` on a worker (Ray hands ``records`` over resolved)."""
+    from sc3d_data.shards import write_shard
+
+    return write_shard(Path(path), list(records), settings)
+
+
 def _probe_backend(config: RenderConfig) -> str:
     """Make this worker's renderer; the GL backend it got."""
     return cached_renderer(config, config.backend)[1]
@@ -113,8 +150,10 @@ class RayExecutor:
     def __init__(self, ray, config: RenderConfig, backend: str, slots: int, owns_cluster: bool):
         self.ray, self.config, self.backend, self.slots = ray, config, backend, slots
         self.owns_cluster = owns_cluster
-        self.remote = ray.remote(timed_render_task).options(num_cpus=1, max_retries=config.retries,
+        self.remote = ray.remote(render_task_split).options(num_cpus=1, num_returns=2, max_retries=config.retries,
                                                             retry_exceptions=False)
+        # compressing a shard runs beside the renders, as the local pool's main process does
+        self.writer = ray.remote(_write_shard_task).options(num_cpus=0, max_retries=config.retries)
 
     @classmethod
     def start(cls, config: RenderConfig, n_workers: int) -> "RayExecutor":
@@ -145,30 +184,48 @@ class RayExecutor:
         ray, timeout = self.ray, self.config.timeout_s
         backstop = 2 * timeout + 60
         todo = list(tasks)[::-1]  # pop() from the end = plan order
-        inflight: dict = {}  # ObjectRef -> (task, submitted)
+        inflight: dict = {}  # status ObjectRef -> (task, submitted, record ObjectRef)
         while todo or inflight:
             while todo and len(inflight) < self.slots and may_dispatch(todo[-1].pos):
                 task = todo.pop()
-                inflight[self.remote.remote(self.config, self.backend, task)] = (task, time.monotonic())
+                status_ref, record_ref = self.remote.remote(self.config, self.backend, task)
+                inflight[status_ref] = (task, time.monotonic(), record_ref)
             now = time.monotonic()
-            wait_s = min([s + backstop - now for _, s in inflight.values()], default=1.0)
+            wait_s = min([s + backstop - now for _, s, _ in inflight.values()], default=1.0)
             ready, _ = ray.wait(list(inflight), num_returns=1, timeout=max(0.0, min(wait_s, 1.0)))
             for ref in ready:
-                task, _ = inflight.pop(ref)
+                task, _, record_ref = inflight.pop(ref)
                 try:
                     result = ray.get(ref)
+                    if result[1] == "ok":
+                        result[2][0].ref = record_ref
                 except ray.exceptions.RayError as e:  # the worker died on every attempt
                     why = type(getattr(e, "cause", None) or e).__name__
                     result = (task.pos, "fail", f"{task.path}: render worker died on all "
                                                 f"{self.config.retries + 1} attempts ({why}; --retries)")
                 yield result
             now = time.monotonic()
-            for ref, (task, submitted) in list(inflight.items()):
+            for ref, (task, submitted, _) in list(inflight.items()):
                 if now - submitted > backstop:
                     ray.cancel(ref, force=True)  # kills the worker process running it
                     del inflight[ref]
                     yield task.pos, "fail", (f"{task.path}: timed out: still running {backstop:g} s after it was "
                                              f"sent, its --timeout {timeout:g} s timer could not interrupt it")
+
+    def write_shard(self, path: Path, records: list, settings: dict) -> str:
+        """Write the shard on a Ray worker from the objects' arrays in the object store (records
+        read back from an existing shard on a retry are sent along); returns its SHA-256.
+        ``ShardError`` naming the file when the worker cannot write it."""
+        from sc3d_data.shards import ShardError
+
+        args = [r.ref if isinstance(r, RecordRef) else r for r in records]
+        try:
+            return self.ray.get(self.writer.remote(str(path), settings, *args))
+        except self.ray.exceptions.RayTaskError as e:
+            cause = getattr(e, "cause", None)
+            raise (cause if isinstance(cause, ShardError) else ShardError(f"{path}: cannot write shard on a Ray "
+                                                                          f"worker ({type(cause or e).__name__}: "
+                                                                          f"{cause or e})")) from None
 
     def close(self) -> None:
         if self.owns_cluster and self.ray.is_initialized():

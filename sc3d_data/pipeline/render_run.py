@@ -12,7 +12,9 @@ Design
   per object with a per-object time limit and yields results in any order; this module
   collects them by position and writes chunk after chunk in order, so the output depends
   neither on the number of workers nor on the executor. ``may_dispatch`` keeps at most ~2
-  chunks of results in memory.
+  chunks of results in memory. The shard file itself is written by the executor
+  (``Executor.write_shard``: here for the local pool, on a Ray worker for Ray, from the arrays
+  in the object store: they never pass through this process).
 - Resume and retry (``resume.py``): the index is rewritten atomically after every shard; a
   rerun keeps intact chunks and renders the rest (and the recorded failures). Ctrl-C or a kill
   loses at most the chunks in progress.
@@ -31,7 +33,7 @@ from sc3d_data.mesh_io import MESH_SUFFIXES
 from sc3d_data.pipeline.executor import start_executor
 from sc3d_data.pipeline.render_job import RenderConfig
 from sc3d_data.pipeline.resume import check_out, check_resume, clean_tmp, empty_state, resume_state
-from sc3d_data.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index, write_shard
+from sc3d_data.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index
 from sc3d_data.shards import write_index as write_index_file
 
 
@@ -148,7 +150,7 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
             records = [r for _, r in sorted(records, key=lambda pr: pr[0])]
             if records:
                 name = SHARD_PATTERN.format(c)
-                digest = write_shard(out / name, records, settings)
+                digest = pool.write_shard(out / name, records, settings)
                 add_shard_to_index(shards, objects, name, c, records, sha256=digest)
             else:
                 empty_chunks.append(c)
