@@ -59,7 +59,8 @@ def install_worker_hooks() -> None:
     import sc3d_data.io.meshes as mesh_io
     import sc3d_data.geometry.normalize as normalize
     import sc3d_data.render.renderer as render
-    import sc3d_data.render_pipeline as rp
+    import sc3d_data.pipeline.local_pool as pool
+    import sc3d_data.pipeline.render_job as job
     import sc3d_data.voxel.voxelize as voxelize
 
     log_dir = Path(os.environ[ENV])
@@ -83,14 +84,14 @@ def install_worker_hooks() -> None:
 
     render.mesh_parts = timed_parts
     _wrap(render.MeshRenderer, "render", "render (all)")
-    one = rp.render_one
+    one = job.render_one
 
     def render_one(renderer, task, config):
         _current.clear()
         return one(renderer, task, config)
 
-    rp.render_one = render_one
-    main = rp._worker_main
+    job.render_one = render_one
+    main = pool._worker_main
 
     class TimedConn:
         def __init__(self, conn):
@@ -107,7 +108,7 @@ def install_worker_hooks() -> None:
                 with open(log_dir / f"worker-{os.getpid()}.jsonl", "a") as f:
                     f.write(json.dumps(row) + "\n")
 
-    rp._worker_main = lambda conn, *a, **k: main(TimedConn(conn), *a, **k)
+    pool._worker_main = lambda conn, *a, **k: main(TimedConn(conn), *a, **k)
 
 
 def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = True) -> dict:
@@ -115,12 +116,13 @@ def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = Tr
     temporary folder) with the hooks; per-stage seconds summed over objects, worker and main."""
     from multiprocessing import connection
 
-    import sc3d_data.render_pipeline as rp
-    from sc3d_data.render_pipeline import RenderConfig, render_dataset
+    import sc3d_data.pipeline.local_pool as pool
+    import sc3d_data.pipeline.render_run as rp
+    from sc3d_data.pipeline.render_run import RenderConfig, render_dataset
 
     main_acc: dict[str, float] = {}
-    saved = (rp.write_shard, rp.write_index_file, connection.Connection.recv)
-    _wrap(rp, "write_shard", "compress + write shard", main_acc)
+    saved = (pool.write_shard, rp.write_index_file, connection.Connection.recv)
+    _wrap(pool, "write_shard", "compress + write shard", main_acc)
     _wrap(rp, "write_index_file", "write index", main_acc)
     recv = connection.Connection.recv
 
@@ -143,7 +145,7 @@ def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = Tr
             rows = [json.loads(line) for p in Path(tmp).glob("worker-*.jsonl") for line in open(p)]
     finally:
         os.environ.pop(ENV, None)
-        rp.write_shard, rp.write_index_file, connection.Connection.recv = saved
+        pool.write_shard, rp.write_index_file, connection.Connection.recv = saved
     ok = [r for r in rows if r.get("status") == "ok"]
     worker = {s + c: 0.0 for s in WORKER_STAGES for c in ("", " cpu")}
     for r in ok:

@@ -8,6 +8,7 @@ COMMANDS = {
     "voxelize": "sc3d_cli.data_voxelize:voxelize",
     "check": "sc3d_cli.data_check:check",
     "import-r2n2": "sc3d_cli.data_import_r2n2:import_r2n2",
+    "merge": "sc3d_cli.data_merge:merge",
 }
 
 

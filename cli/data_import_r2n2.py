@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import click
 
+from sc3d_cli.scale_options import part_option
 from sc3d_data.formats.r2n2 import R2N2_FRONT, VOXEL_FRAMES
 from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
 
@@ -31,13 +32,14 @@ from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
 @click.option("--objects-per-shard", default=256, show_default=True, type=click.IntRange(1))
 @click.option("--overwrite", is_flag=True, help="Replace shards already in --out.")
 @click.option("--progress/--no-progress", default=True, show_default=True)
+@part_option
 def import_r2n2(renderings, voxels, out, image_size, background, categories, split, split_file, seed,
-                voxel_frame, front, objects_per_shard, overwrite, progress):
+                voxel_frame, front, objects_per_shard, overwrite, progress, part):
     """Build sc3d shards from 3D-R2N2's released renderings and voxels, without re-rendering.
 
-    Cameras are rebuilt from rendering_metadata.txt as explicit K, R, t (see docs/data.md,
-    "3D-R2N2's release"); check them with `sc3d-data check --shards OUT`."""
-    from sc3d_data.formats.r2n2 import ImportConfig, import_r2n2 as run
+    Cameras are rebuilt from rendering_metadata.txt as explicit K, R, t (see README,
+    "ShapeNet and 3D-R2N2 data"); check them with `sc3d-data check --shards OUT`."""
+    from sc3d_data.pipeline.r2n2_job import ImportConfig, import_r2n2 as run
 
     try:
         bg = tuple(int(c) for c in background.split(","))
@@ -47,7 +49,7 @@ def import_r2n2(renderings, voxels, out, image_size, background, categories, spl
     config = ImportConfig(renderings=renderings, voxels=voxels, out=out, image_size=image_size,
                           background=bg, categories=categories, split=split,
                           split_file=list(split_file) or None, seed=seed, voxel_frame=voxel_frame, front=front,
-                          objects_per_shard=objects_per_shard, overwrite=overwrite)
+                          objects_per_shard=objects_per_shard, overwrite=overwrite, part=part)
     bar = None
     try:
         if progress:

@@ -1,5 +1,6 @@
 """``sc3d-data render``: meshes -> rendered views (+ voxels) in HDF5 shards. Thin wrapper over
-``sc3d_data.render_pipeline.render_dataset``."""
+``sc3d_data.pipeline.render_run.render_dataset`` (or, with ``--executor slurm``,
+``sc3d_data.pipeline.slurm_executor.render_on_slurm``)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,7 +9,8 @@ import click
 
 from sc3d_data.geometry.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS
 from sc3d_data.io.meshes import DEFAULT_MAX_FACES
-from sc3d_data.render_pipeline import SAMPLE_MESHES, RenderConfig, render_dataset
+from sc3d_cli.scale_options import executor_options, part_option, run_render
+from sc3d_data.pipeline.render_job import SAMPLE_MESHES, RenderConfig
 from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
 
 
@@ -64,19 +66,17 @@ def _rgb(text: str) -> tuple[int, int, int]:
 @click.option("--workers", type=click.IntRange(0), default=0, show_default="number of CPU cores")
 @click.option("--overwrite", is_flag=True, help="Delete existing shards in --out instead of resuming.")
 @click.option("--progress/--no-progress", default=True, show_default=True)
-def render(elevations, background, **options):
+@part_option
+@executor_options
+def render(elevations, background, part, slurm, **options):
     """Render every mesh under --meshes into HDF5 shards under --out (resumable)."""
-    config = RenderConfig(elevations=_floats(elevations), background=_rgb(background), **options)
-    try:
-        s = render_dataset(config)
-    except (ValueError, RuntimeError, OSError) as e:  # bad option/folder, lock, disk full: one line
-        from sc3d_data.io.shards import one_line
-
-        raise click.ClickException(one_line(e))
+    config = RenderConfig(elevations=_floats(elevations), background=_rgb(background), part=part, **options)
+    s = run_render(config, slurm)
     for note in s["notes"]:
         click.echo(f"warning: {note}", err=True)
     retried = f", retried {s['retried']}" if s["retried"] else ""
-    click.echo(f"done {s['done']}, resumed {s['resumed']}{retried}, skipped {s['skipped']}, failed {s['failed']} "
+    where = f"part {s['part']}, " if s.get("part", "0/1") != "0/1" else ""
+    click.echo(f"{where}done {s['done']}, resumed {s['resumed']}{retried}, skipped {s['skipped']}, failed {s['failed']} "
                f"in {s['seconds']:.1f} s ({s['views_per_s']:.0f} views/s, {s['workers']} workers, "
                f"backend {s['backend']}); index: {Path(s['out']) / 'index.json'}")
     if s["failed"]:

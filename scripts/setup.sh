@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Set up sc3d on a fresh Debian/Ubuntu machine: system OpenGL packages (EGL + OSMesa, no display
 # needed), a virtual environment in .venv, PyTorch (the CPU wheel unless a torch is already
-# there), pyrender without its PyOpenGL pin, and sc3d itself with its test extras.
+# there), pyrender without its PyOpenGL pin, and sc3d itself with its test, ray and slurm extras.
 # Idempotent: rerunning it only installs what is missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -28,5 +28,6 @@ python -c "import torch" 2>/dev/null || python -m pip install -q "torch==2.13.0"
 # from sc3d's pyproject with PyOpenGL 3.1.10.
 python -c "import importlib.util,sys; sys.exit(importlib.util.find_spec('pyrender') is None)" \
   || python -m pip install -q --no-deps "pyrender==0.1.45"
-python -m pip install -q -e ".[test]"
+# ray + submitit: the Ray and SLURM executors, exercised by tests/test_scale.py (docs/scale.md)
+python -m pip install -q -e ".[test,ray,slurm]"
 echo "[setup] done: activate with '. .venv/bin/activate'"

@@ -15,6 +15,72 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
+def write_hanging_gltf(folder: Path, name: str = "hang") -> Path:
+    """``folder/NAME.gltf`` whose buffer is a FIFO nobody writes to: its loader blocks forever
+    (a real pathological input for the per-object time limit)."""
+    import json
+
+    os.mkfifo(folder / f"{name}.bin")
+    path = folder / f"{name}.gltf"
+    path.write_text(json.dumps({
+        "asset": {"version": "2.0"}, "buffers": [{"uri": f"{name}.bin", "byteLength": 36}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0, 0, 0], "max": [1, 1, 0]}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}], "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}], "scene": 0}))
+    return path
+
+
+def objects_by_id(out: Path) -> dict:
+    """``{(category, model_id): {name: array or string}}`` over the dataset's index, checking
+    that each id appears once."""
+    from sc3d_data.io.shard_reader import iter_objects
+
+    objs = {}
+    for o in iter_objects(out):
+        key = (o["category"], o["model_id"])
+        assert key not in objs, f"{key} twice in {out}"
+        objs[key] = {k: v for k, v in o.items() if k not in ("shard", "row")}
+    return objs
+
+
+def shard_settings(out: Path) -> set[str]:
+    """The distinct ``settings`` attributes of the dataset's shard files."""
+    import h5py
+
+    vals = set()
+    for p in out.glob("shard-*.h5"):
+        with h5py.File(p) as f:
+            vals.add(f.attrs["settings"])
+    return vals
+
+
+def assert_same_dataset(a: Path, b: Path) -> None:
+    """The datasets in folders ``a`` and ``b`` hold the same object ids, each once, with identical
+    arrays (dtype, shape, values) and strings, one identical shard ``settings`` attribute, and
+    the same counts and split in complete indexes."""
+    import json
+
+    import numpy as np
+
+    oa, ob = objects_by_id(a), objects_by_id(b)
+    assert sorted(oa) == sorted(ob)
+    for key in oa:
+        assert oa[key].keys() == ob[key].keys(), key
+        for name, va in oa[key].items():
+            vb = ob[key][name]
+            if isinstance(va, np.ndarray):
+                assert va.dtype == vb.dtype and va.shape == vb.shape, (key, name)
+                np.testing.assert_array_equal(va, vb, err_msg=f"{key} {name}")
+            else:
+                assert va == vb, (key, name)
+    assert shard_settings(a) == shard_settings(b) and len(shard_settings(a)) == 1
+    ia, ib = (json.loads((d / "index.json").read_text()) for d in (a, b))
+    assert ia["counts"] == ib["counts"] and ia["complete"] and ib["complete"]
+    assert ia["split"] == ib["split"]
+
+
 def run_cli(group, args: list[str], expect_exit: int | None = 0):
     """Invoke a click group in-process; fail with the command's output when the exit code differs."""
     result = CliRunner().invoke(group, [str(a) for a in args], catch_exceptions=False)

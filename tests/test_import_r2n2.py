@@ -326,3 +326,18 @@ def test_bad_input_reported_rest_imported(fake_r2n2, tmp_path):
     res = cli(["import-r2n2", "--renderings", tmp_path / "R", "--voxels", tmp_path / "V", "--out", out,
                "--no-progress"], expect=1)
     assert "--overwrite" in res.output
+
+
+def test_import_in_parts_then_merge_equals_one_import(fake_r2n2, imported, tmp_path):
+    """issue 13: `import-r2n2 --part I/2` twice + `merge` == one import, object by object."""
+    from conftest import assert_same_dataset
+
+    renderings, voxels, _ = fake_r2n2
+    parts = [tmp_path / f"p{i}" for i in range(2)]
+    for i, out in enumerate(parts):
+        cli(["import-r2n2", "--renderings", renderings, "--voxels", voxels, "--out", out, "--part", f"{i}/2",
+             "--no-progress"])
+    assigned = [json.loads((p / "index.json").read_text())["part"]["assigned"] for p in parts]
+    assert sum(assigned) == 3
+    cli(["merge", tmp_path / "merged", *parts])
+    assert_same_dataset(tmp_path / "merged", imported)

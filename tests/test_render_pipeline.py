@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from sc3d_cli.data import main
-from conftest import REPO, SAMPLE_MESHES, run_cli
+from conftest import REPO, SAMPLE_MESHES, run_cli, write_hanging_gltf
 
 FAST = ["--views", "4", "--no-progress"]
 
@@ -66,14 +66,7 @@ def test_bad_inputs_are_recorded_and_the_run_goes_on(tmp_path):
     _write_obj(d / "tex.obj", v, f, extra="mtllib tex.mtl\nusemtl m")
     os.symlink("..", d / "loop")  # a folder that leads back to its parent
     # a loader that hangs: the glTF's buffer is a FIFO nobody writes to
-    os.mkfifo(d / "hang.bin")
-    (d / "hang.gltf").write_text(json.dumps({
-        "asset": {"version": "2.0"}, "buffers": [{"uri": "hang.bin", "byteLength": 36}],
-        "bufferViews": [{"buffer": 0, "byteLength": 36}],
-        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
-                       "min": [0, 0, 0], "max": [1, 1, 0]}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}], "nodes": [{"mesh": 0}],
-        "scenes": [{"nodes": [0]}], "scene": 0}))
+    write_hanging_gltf(d)
     out = tmp_path / "out"
     t0 = time.monotonic()
     result = run_cli(main, ["render", "--meshes", tmp_path / "meshes", "--out", out, "--workers", "2",

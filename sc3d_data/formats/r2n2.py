@@ -1,5 +1,5 @@
-"""Import 3D-R2N2's released data (``ShapeNetRendering`` + ``ShapeNetVox32``) into sc3d shards
-without re-rendering.
+"""3D-R2N2's released data (``ShapeNetRendering`` + ``ShapeNetVox32``): its layout, metadata,
+cameras, voxel placement and images, read into sc3d's conventions.
 
 Input layout (Choy et al. 2016)::
 
@@ -37,6 +37,8 @@ Cameras are built in the OBJ frame and moved into the canonical one (``R' = R A^
 Images: premultiplied RGB and alpha are area-averaged (PIL box filter) to the target size,
 mask = alpha >= 0.5, RGB = composited over the background colour.
 
+The import job (settings, plan, parts, shards and index) is ``sc3d_data.pipeline.r2n2_job``.
+
 Length: one module because every 3D-R2N2 convention (metadata columns, Blender camera, binvox
 placement, v1 front axis) is read in one place next to the code that applies it.
 """
@@ -45,7 +47,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -279,46 +280,12 @@ def find_r2n2_models(renderings: Path, voxels: Path, categories=None
     return models, problems
 
 
-# ----------------------------------------------------------------------------- import
-@dataclass
-class ImportConfig:
-    """Every option of ``sc3d-data import-r2n2`` (see ``cli/data_import_r2n2.py``)."""
-
-    renderings: Path
-    voxels: Path
-    out: Path
-    image_size: int = 64
-    background: tuple[int, int, int] = (255, 255, 255)
-    categories: str | None = None
-    split: str = "r2n2"
-    split_file: str | None = None
-    seed: int = 0
-    voxel_frame: str = "cube"
-    front: str = R2N2_FRONT
-    objects_per_shard: int = 256
-    overwrite: bool = False
-
-    def settings(self) -> dict:
-        """JSON-able record of every setting (stored in the shards and the index)."""
-        return {
-            "source": "3D-R2N2", "renderings": str(Path(self.renderings).resolve()),
-            "voxels": str(Path(self.voxels).resolve()), "image_size": int(self.image_size),
-            "background": [int(c) for c in self.background], "categories": self.categories,
-            "split": self.split, "split_file": self.split_file, "seed": int(self.seed),
-            "voxel_frame": self.voxel_frame, "front": self.front, "objects_per_shard": int(self.objects_per_shard),
-            "num_views": R2N2_NUM_VIEWS, "voxel_resolution": R2N2_VOXEL_RESOLUTION,
-            "r2n2_camera": {"distance": "distance_ratio * 1.75", "lens_mm": BLENDER_LENS_MM,
-                            "sensor_mm": BLENDER_SENSOR_MM, "fov_deg": R2N2_FOV_DEG,
-                            "azimuth": "read from the canonical camera centre (front -> +Z)",
-                            "roll": "-in_plane"},
-            "mask": f"box-filtered alpha >= {MASK_THRESHOLD}",
-        }
-
-
-def load_r2n2_object(model: R2N2Model, config: ImportConfig, split: str):
+def load_r2n2_object(model: R2N2Model, split: str, image_size: int = 64, background=(255, 255, 255),
+                     voxel_frame: str = "cube", front: str = R2N2_FRONT):
     """Read one model into a :class:`sc3d_data.io.shards.ObjectRecord` (cameras, voxels and
-    ``to_canonical`` in the canonical frame, module doc); ``ValueError`` naming the file and
-    the problem on bad input (metadata, PNGs, binvox)."""
+    ``to_canonical`` in the canonical frame, module doc), images resized to ``image_size`` over
+    ``background`` (R, G, B 0-255); ``voxel_frame`` and ``front`` as in the module doc.
+    ``ValueError`` naming the file and the problem on bad input (metadata, PNGs, binvox)."""
     from sc3d_data.io.binvox import read_binvox
     from sc3d_data.io.shards import ObjectRecord, border_clipped
 
@@ -329,10 +296,10 @@ def load_r2n2_object(model: R2N2Model, config: ImportConfig, split: str):
     if grid.shape != (R2N2_VOXEL_RESOLUTION,) * 3:
         raise ValueError(f"{model.binvox}: voxel grid {'x'.join(map(str, grid.shape))}, "
                          f"expected {R2N2_VOXEL_RESOLUTION}^3")
-    centre, size = grid_placement(vox.translate, vox.scale, config.voxel_frame)
-    to_canonical = obj_to_canonical(centre, size, config.front)
-    grid = rotate_grid(grid, canonical_rotation("+Y", config.front))
-    S = config.image_size
+    centre, size = grid_placement(vox.translate, vox.scale, voxel_frame)
+    to_canonical = obj_to_canonical(centre, size, front)
+    grid = rotate_grid(grid, canonical_rotation("+Y", front))
+    S = image_size
     images = np.empty((len(views), S, S, 3), dtype=np.uint8)
     masks = np.empty((len(views), S, S), dtype=np.uint8)
     for v, name in enumerate(names):
@@ -340,7 +307,7 @@ def load_r2n2_object(model: R2N2Model, config: ImportConfig, split: str):
         if not png.is_file():
             raise ValueError(f"{png}: missing rendering (view {v})")
         try:
-            images[v], masks[v] = load_rendering(png, S, config.background)
+            images[v], masks[v] = load_rendering(png, S, background)
         except ValueError:
             raise
         except Exception as e:  # PIL's errors on truncated / non-image files
@@ -350,66 +317,3 @@ def load_r2n2_object(model: R2N2Model, config: ImportConfig, split: str):
                    "to_canonical": to_canonical, "voxels": grid.astype(np.uint8)})
     return ObjectRecord(model_id=model.model_id, category=model.category, split=split,
                         source=str(model.rendering_dir.parent), arrays=arrays)
-
-
-def import_r2n2(config: ImportConfig, progress: Callable[[int], None] | None = None) -> dict:
-    """Import ``config.renderings`` + ``config.voxels`` into shards under ``config.out``.
-
-    Models that fail (bad metadata, missing PNGs, binvox of another resolution, ...) are recorded
-    in the index's ``failures`` with the reason; the others are imported. Returns the summary
-    ``{"done", "failed", "skipped", "problems", "seconds", "out"}``."""
-    import time
-
-    from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index, write_index as write_index_file, \
-        write_shard
-    from sc3d_data.formats.splits import assign_splits
-
-    t0 = time.monotonic()
-    out = Path(config.out)
-    out.mkdir(parents=True, exist_ok=True)
-    existing = list(out.glob("shard-*.h5")) + [p for p in [out / INDEX_NAME] if p.exists()]
-    if existing and not config.overwrite:
-        raise FileExistsError(f"{out}: already holds shards; use another --out or --overwrite")
-    for p in existing:
-        p.unlink()
-    settings = config.settings()
-    models, problems = find_r2n2_models(config.renderings, config.voxels, config.categories)
-    splits, split_desc, split_problems = assign_splits(models, spec=config.split, seed=config.seed,
-                                                       split_file=config.split_file)
-    skipped = list(split_problems)
-    plan = []
-    for m in models:
-        if (m.category, m.model_id) in splits:
-            plan.append((m, splits[(m.category, m.model_id)]))
-        else:
-            skipped.append({"source": str(m.rendering_dir.parent), "reason": "not in any split (--split-file)"})
-    failures = [dict(p, category="", model_id="") for p in problems]
-    shards, objects = [], []
-    K = max(1, int(config.objects_per_shard))
-
-    def write_index(complete: bool) -> None:
-        write_index_file(out, complete=complete, settings=settings, split=split_desc, shards=shards,
-                         objects=objects, failures=failures, skipped=skipped, warnings=[])
-
-    write_index(False)
-    chunk = 0
-    for start in range(0, len(plan), K):
-        records = []
-        for m, split in plan[start:start + K]:
-            try:
-                records.append(load_r2n2_object(m, config, split))
-            except (ValueError, OSError) as e:
-                failures.append({"source": str(m.rendering_dir.parent), "category": m.category,
-                                 "model_id": m.model_id, "reason": str(e)})
-            if progress is not None:
-                progress(1)
-        if records:
-            name = SHARD_PATTERN.format(chunk)
-            write_shard(out / name, records, settings)
-            add_shard_to_index(shards, objects, name, chunk, records)
-            chunk += 1
-            write_index(False)
-    write_index(True)
-    return {"done": len(objects), "failed": len(failures), "skipped": len(skipped),
-            "planned": len(plan), "seconds": time.monotonic() - t0, "out": str(out),
-            "failures": failures}

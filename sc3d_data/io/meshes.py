@@ -12,7 +12,7 @@ read or decoded, coordinates beyond float32 range (the renderer draws in float32
 whose text cannot be decoded. Warnings (recorded in the index, the object still renders): an
 OBJ's ``.mtl`` that is missing, and a texture read from outside the dataset folder (an absolute
 path or ``../``; ``outside_textures="refuse"`` makes that a failure). Loaders that hang are handled by the per-object time limit of
-``sc3d_data.render_pipeline`` (a worker is killed), not here.
+``sc3d_data.pipeline.local_pool`` (a worker is killed), not here.
 """
 from __future__ import annotations
 

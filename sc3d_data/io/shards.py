@@ -282,11 +282,12 @@ def add_shard_to_index(shards: list[dict], objects: list[dict], name: str, chunk
 
 def write_index(shard_dir: Path, *, complete: bool, settings: dict, split: dict, shards: list[dict],
                 objects: list[dict], failures: list[dict], skipped: list[dict], warnings: list[dict],
-                empty_chunks: list[int] = ()) -> None:
+                empty_chunks: list[int] = (), extra: dict | None = None) -> None:
     """Write ``index.json`` of ``shard_dir`` atomically: the given lists plus the derived
     ``counts`` and ``clipped`` totals, shards ordered by chunk. ``complete`` = every planned
     object is in a shard or in ``failures`` (else ``sc3d-data info`` says INCOMPLETE). Shard
-    entries without ``bytes``/``sha256`` get them from their file (once: the dicts are updated)."""
+    entries without ``bytes``/``sha256`` get them from their file (once: the dicts are updated).
+    ``extra``: further top-level keys (``part`` of a partitioned run, ``merged`` of a merge)."""
     for entry in shards:
         record_checksum(shard_dir, entry)
     write_json_atomic(index_path(shard_dir), {
@@ -298,6 +299,7 @@ def write_index(shard_dir: Path, *, complete: bool, settings: dict, split: dict,
         "shards": sorted(shards, key=lambda s: s["chunk"]),
         "empty_chunks": sorted(empty_chunks),
         "objects": objects, "failures": failures, "skipped": skipped, "warnings": warnings,
+        **(extra or {}),
     })
 
 

@@ -20,7 +20,10 @@ Meshes (``voxelize_meshes``)
     ``render`` does (``--normalize``/``--up``/``--front``) and written to
     ``out/<same relative path>.binvox`` (sc3d header: translate -0.5, scale 1). Existing
     ``.binvox`` files are complete (written atomically) and skipped on a rerun; failures go
-    to ``out/failures.json``.
+    to ``out/failures.json``. With ``part`` (``--part I/N``) only the meshes of that part
+    (``sc3d_data.pipeline.partition``) are done and failures go to
+    ``out/failures.part-00I-of-00N.json``, so N jobs can share one ``out`` folder.
+    (Shards: voxelize each part folder of a partitioned render, or render with ``--voxelize``.)
 """
 from __future__ import annotations
 
@@ -182,8 +185,9 @@ def _voxelize_shards_locked(shard_dir, resolution, workers, overwrite, progress)
 
 def voxelize_meshes(meshes: Path, out: Path, resolution: int = 32, normalize: str = "fit",
                     up: str = "+Y", front: str = "auto", workers: int = 1, overwrite: bool = False,
-                    progress: bool = False) -> VoxelizeSummary:
+                    progress: bool = False, part=None) -> VoxelizeSummary:
     """One ``.binvox`` per mesh under ``meshes``, same relative paths under ``out``."""
+    from sc3d_data.pipeline.partition import part_of
     from sc3d_data.io.binvox import write_binvox
     from sc3d_data.formats.discover import discover_meshes
 
@@ -193,6 +197,9 @@ def voxelize_meshes(meshes: Path, out: Path, resolution: int = 32, normalize: st
     out.mkdir(parents=True, exist_ok=True)
     summary = VoxelizeSummary()
     todo = []
+    if part is not None and not part.whole:
+        entries = [e for e in entries if part_of(e.category, e.model_id, part.count) == part.index]
+        problems = problems if part.index == 0 else []
     for e in entries:
         rel = Path(e.path).relative_to(meshes) if meshes.is_dir() else Path(Path(e.path).name)
         target = out / rel.with_suffix(".binvox")
@@ -210,7 +217,8 @@ def voxelize_meshes(meshes: Path, out: Path, resolution: int = 32, normalize: st
         else:
             failures.append({"source": str(e.path), "reason": payload})
             summary.failed += 1
-    write_json_atomic(out / "failures.json", failures)
+    name = "failures.json" if part is None or part.whole else f"failures.{part.dirname()}.json"
+    write_json_atomic(out / name, failures)
     summary.seconds = time.monotonic() - t0
     return summary
 

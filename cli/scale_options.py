@@ -1,0 +1,76 @@
+"""Options shared by the commands that scale out (``render``, ``voxelize``, ``import-r2n2``):
+``--part I/N`` and the executor choice (``--executor local|ray|slurm`` and its settings)."""
+from __future__ import annotations
+
+import click
+
+from sc3d_data.pipeline.partition import Part, parse_part, part_from_env
+
+
+def _part(ctx, param, value) -> Part:
+    try:
+        if value is not None:
+            return parse_part(value)
+        return part_from_env() or Part(0, 1)
+    except ValueError as e:
+        raise click.BadParameter(str(e)) from None
+
+
+def part_option(f):
+    """``--part I/N`` (default: the SLURM array task's, else the whole plan)."""
+    return click.option("--part", callback=_part, default=None, metavar="I/N",
+                        help="Only part I of N (0 <= I < N) of the objects, chosen by a hash of the object id; "
+                             "default: SLURM_ARRAY_TASK_ID/SLURM_ARRAY_TASK_COUNT inside a job array, else all. "
+                             "Combine part folders with `sc3d-data merge`.")(f)
+
+
+def _slurm(ctx, param, value):
+    from sc3d_data.pipeline.slurm_executor import SlurmOptions
+
+    p = ctx.params
+    return SlurmOptions(parts=value, cpus_per_task=p.pop("slurm_cpus_per_task"), partition=p.pop("slurm_partition"),
+                        time_min=p.pop("slurm_time"), cluster=p.pop("slurm_cluster"))
+
+
+def executor_options(f):
+    """``--executor``, ``--address``, ``--retries`` and the ``--slurm-*`` settings (the latter
+    arrive as one ``slurm`` argument, a ``SlurmOptions``)."""
+    opts = [
+        click.option("--executor", type=click.Choice(["local", "ray", "slurm"]), default="local", show_default=True,
+                     help="local: a process pool on this machine; ray: one Ray task per object "
+                          "(pip install 'sc3d[ray]'); slurm: a job array of --slurm-parts parts through "
+                          "submitit, merged into --out at the end (pip install 'sc3d[slurm]')."),
+        click.option("--address", default=None,
+                     help="ray: address of a running cluster (auto, HOST:PORT); default: start a local one."),
+        click.option("--retries", type=click.IntRange(0), default=3, show_default=True,
+                     help="ray: times an object is run again when its worker dies."),
+        click.option("--slurm-cpus-per-task", type=click.IntRange(1), default=4, show_default=True, is_eager=True,
+                     expose_value=True, help="slurm: CPUs (render workers) per array task."),
+        click.option("--slurm-partition", default=None, is_eager=True, help="slurm: partition to submit to."),
+        click.option("--slurm-time", type=click.IntRange(1), default=240, show_default=True, is_eager=True,
+                     help="slurm: time limit of one array task, minutes."),
+        click.option("--slurm-cluster", type=click.Choice(["slurm", "local"]), default="slurm", show_default=True,
+                     is_eager=True, help="slurm: 'local' runs the array on this machine with submitit's "
+                                         "LocalExecutor (to try a setup)."),
+        click.option("--slurm-parts", "slurm", type=click.IntRange(1), default=8, show_default=True, callback=_slurm,
+                     help="slurm: number of parts (array tasks)."),
+    ]
+    for o in reversed(opts):
+        f = o(f)
+    return f
+
+
+def run_render(config, slurm):
+    """Run ``render`` with ``config.executor``; errors become one line."""
+    from sc3d_data.io.shards import one_line
+
+    try:
+        if config.executor == "slurm":
+            from sc3d_data.pipeline.slurm_executor import render_on_slurm
+
+            return render_on_slurm(config, slurm)
+        from sc3d_data.pipeline.render_run import render_dataset
+
+        return render_dataset(config)
+    except (ValueError, RuntimeError, OSError, ImportError) as e:  # option, folder, lock, disk, missing extra
+        raise click.ClickException(one_line(e))

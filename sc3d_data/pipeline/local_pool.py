@@ -1,0 +1,198 @@
+"""The default executor of ``sc3d-data render``: a pool of ``spawn``-ed worker processes on this
+machine (no extra dependency).
+
+Workers are never forked after a GL context exists (the main process never creates one). Each
+keeps ONE ``MeshRenderer`` and handles one object at a time: the main process sends a
+:class:`~sc3d_data.pipeline.render_job.Task` down a pipe and gets the result of
+:func:`~sc3d_data.pipeline.render_job.render_task` back. Per-object time limit
+(``config.timeout_s``): a worker that takes longer (a loader that hangs, a huge mesh) is killed
+and replaced and the object is recorded as a failure; a worker that crashes is handled the same
+way (the next run retries it, ``retry_failed``).
+
+Implements ``sc3d_data.pipeline.executor.Executor`` (as ``ray_executor.RayExecutor`` does).
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import time
+from multiprocessing.connection import wait
+
+from sc3d_data.pipeline.render_job import THREAD_ENV, RenderConfig, Task, cached_renderer, render_task
+from sc3d_data.io.shards import write_shard
+
+
+def _worker_main(conn, config: RenderConfig, backend: str) -> None:
+    """Worker process: one renderer, then (task -> result) until ``None``."""
+    for k, v in THREAD_ENV.items():
+        os.environ.setdefault(k, v)
+    try:
+        renderer, _ = cached_renderer(config, backend)
+    except Exception as e:
+        conn.send(("dead", None, f"{type(e).__name__}: {e}"))
+        return
+    try:
+        conn.send(("ready", None, None))
+        while True:
+            task = conn.recv()
+            if task is None:
+                break
+            try:
+                pos, status, payload = render_task(config, backend, task)
+                reply = (status, pos, payload)
+                del payload
+            except KeyboardInterrupt:
+                break
+            conn.send(reply)
+            del reply
+    except (EOFError, OSError, KeyboardInterrupt):
+        pass  # the main process is gone or stopping: nothing to report to
+    renderer.close()
+
+
+def _signal_name(signum: int) -> str:
+    import signal
+
+    try:
+        name = signal.Signals(signum).name
+    except ValueError:
+        return "unknown signal"
+    return name + (": out of memory or killed from outside" if name == "SIGKILL" else "")
+
+
+class _Worker:
+    def __init__(self, ctx, config: RenderConfig, backend: str):
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=_worker_main, args=(child, config, backend), daemon=True)
+        self.proc.start()
+        child.close()
+        self.ready = False
+        self.task: Task | None = None
+        self.started = 0.0
+
+    def kill(self) -> None:
+        if self.proc.is_alive():
+            self.proc.kill()
+        self.proc.join(5)
+        self.conn.close()
+
+
+class WorkerPool:
+    """``n`` spawned render workers fed one task at a time; ``run(tasks)`` yields
+    ``(pos, status, payload)`` with status ``ok`` (payload: (record, warnings)) or ``fail``
+    (payload: reason), enforcing the per-object time limit."""
+
+    def __init__(self, n: int, config: RenderConfig, backend: str):
+        for k, v in THREAD_ENV.items():
+            os.environ.setdefault(k, v)
+        self.ctx = mp.get_context("spawn")
+        self.config, self.backend = config, backend
+        self.workers = [_Worker(self.ctx, config, backend) for _ in range(n)]
+
+    def wait_ready(self) -> str | None:
+        """Block until every worker has a renderer; return None, or the first start-up error
+        (the pool is then closed)."""
+        while not all(w.ready for w in self.workers):
+            ready = wait([w.conn for w in self.workers if not w.ready], timeout=120)
+            if not ready:
+                self.close()
+                return "render workers did not start within 120 s"
+            for w in self.workers:
+                if w.conn in ready:
+                    try:
+                        status, _, payload = w.conn.recv()
+                    except (EOFError, OSError):
+                        w.proc.join(5)
+                        status, payload = "dead", f"worker exited with code {w.proc.exitcode}"
+                    if status == "dead":
+                        self.close()
+                        return payload
+                    w.ready = True
+        return None
+
+    def _replace(self, w: _Worker) -> _Worker:
+        w.kill()
+        new = _Worker(self.ctx, self.config, self.backend)
+        self.workers[self.workers.index(w)] = new
+        return new
+
+    def run(self, tasks, may_dispatch=lambda pos: True):
+        todo = list(tasks)[::-1]  # pop() from the end = plan order
+        timeout = self.config.timeout_s
+        while todo or any(w.task for w in self.workers):
+            for w in self.workers:
+                if w.ready and w.task is None and todo and may_dispatch(todo[-1].pos):
+                    w.task, w.started = todo.pop(), time.monotonic()
+                    try:
+                        w.conn.send(w.task)
+                    except OSError:
+                        pass  # the worker died: its pipe reads EOF below and the task is failed
+
+            busy = [w for w in self.workers if w.task is not None]
+            now = time.monotonic()
+            wait_s = min([w.started + timeout - now for w in busy], default=1.0)
+            ready = wait([w.conn for w in self.workers], timeout=max(0.0, min(wait_s, 1.0)))
+            for w in list(self.workers):
+                if w.conn in ready:
+                    try:
+                        status, pos, payload = w.conn.recv()
+                    except (EOFError, OSError):
+                        status, pos, payload = "crash", None, None
+                    if status == "ready":
+                        w.ready = True
+                    elif status == "dead":
+                        self.close()
+                        from sc3d_data.render.gl_backend import BackendError
+
+                        raise BackendError(f"render worker could not start a renderer: {payload}")
+                    elif status in ("ok", "fail"):
+                        w.task = None
+                        yield pos, status, payload
+                    else:  # crashed
+                        task = w.task
+                        w.proc.join(5)
+                        code = w.proc.exitcode
+                        if not w.ready:
+                            self.close()
+                            raise RuntimeError(f"a render worker died while starting (exit code {code})")
+                        self._replace(w)
+                        if task is not None:
+                            how = (f"killed by signal {-code} ({_signal_name(-code)})" if code and code < 0
+                                   else f"exited with code {code}")
+                            yield task.pos, "fail", f"{task.path}: render worker {how} while rendering it"
+                elif w.task is not None and time.monotonic() - w.started > timeout:
+                    task = w.task
+                    self._replace(w)
+                    yield task.pos, "fail", f"{task.path}: timed out after {timeout:g} s (--timeout)"
+
+    def write_shard(self, path, records, settings: dict) -> str:
+        """Write the shard in this (the main) process (``Executor.write_shard``)."""
+        return write_shard(path, records, settings)
+
+    def close(self) -> None:
+        for w in self.workers:
+            try:
+                if w.proc.is_alive() and w.task is None:
+                    w.conn.send(None)
+            except OSError:
+                pass
+        for w in self.workers:
+            w.proc.join(2)
+            w.kill()
+
+
+def start_pool(n: int, config: RenderConfig) -> WorkerPool:
+    """Start ``n`` workers with ``config.backend``; ``auto`` tries EGL, then OSMesa (the
+    workers themselves are the probe: the main process never creates a GL context). Raises
+    ``BackendError`` naming the Debian packages when no backend works."""
+    from sc3d_data.render.gl_backend import BACKENDS, BackendError, install_hint
+
+    errors = []
+    for backend in (BACKENDS if config.backend == "auto" else (config.backend,)):
+        pool = WorkerPool(n, config, backend)
+        err = pool.wait_ready()
+        if err is None:
+            pool.backend = backend
+            return pool
+        errors.append(f"{backend}: {err}")
+    raise BackendError("no headless OpenGL backend works:\n  " + "\n  ".join(errors) + "\n" + install_hint())
