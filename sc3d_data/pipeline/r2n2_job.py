@@ -34,7 +34,7 @@ class ImportConfig:
     front: str = R2N2_FRONT
     objects_per_shard: int = 256
     overwrite: bool = False
-    part: Part | None = None  # --part I/N (sc3d_data.pipeline.partition); None = all models
+    part: Part = Part(0, 1)  # --part I/N (sc3d_data.pipeline.partition); 0/1 = all models
 
     def settings(self) -> dict:
         """JSON-able record of every setting (stored in the shards and the index)."""
