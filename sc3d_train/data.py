@@ -7,7 +7,7 @@ seeded, resumable, rank-aware sampler that draws a random view per object.
 * Sampling and batching (seeded, resumable, rank-aware) are ``sc3d_train.loader``.
 * Masks for the self-consistency module (48x48 by default) are the exact area average of the
   64x64 rendered mask (each output pixel covers 4/3 x 4/3 input pixels under the pixel-edge
-  convention of ``sc3d_data.geometry.camera``; C1's ``area_downsample``), thresholded at >= 0.5; ``K`` is scaled with
+  convention of ``sc3d_data.geometry.camera``; ``self_consistency.area_downsample``), thresholded at >= 0.5; ``K`` is scaled with
   ``sc3d_data.geometry.camera.scale_intrinsics``, which keeps the principal point at the image centre.
 
 Batch keys (B samples): ``images`` [B,3,S,S] float in [0,1]; ``voxels`` [B,G,G,G] float {0,1}
