@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from sc3d_cli.scale_options import part_option
+from sc3d_cli.scale_options import executor_options, part_option, run_scaled, timeout_option
 from sc3d_data.formats.r2n2 import R2N2_FRONT, VOXEL_FRAMES
 from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
 
@@ -30,16 +30,23 @@ from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
 @click.option("--front", default=R2N2_FRONT, show_default=True,
               help="OBJ axis the objects' front faces (ShapeNetCore v1: +X); turned to sc3d's +Z.")
 @click.option("--objects-per-shard", default=256, show_default=True, type=click.IntRange(1))
-@click.option("--overwrite", is_flag=True, help="Replace shards already in --out.")
+@click.option("--overwrite", is_flag=True, help="Delete shards already in --out instead of resuming.")
+@click.option("--workers", type=click.IntRange(0), default=0, show_default="number of CPU cores",
+              help="Processes (--executor ray: Ray CPUs, 0 = the cluster's).")
 @click.option("--progress/--no-progress", default=True, show_default=True)
 @part_option
+@timeout_option
+@executor_options
 def import_r2n2(renderings, voxels, out, image_size, background, categories, split, split_file, seed,
-                voxel_frame, front, objects_per_shard, overwrite, progress, part):
+                voxel_frame, front, objects_per_shard, overwrite, progress, part, slurm, **scale):
     """Build sc3d shards from 3D-R2N2's released renderings and voxels, without re-rendering.
 
     Cameras are rebuilt from rendering_metadata.txt as explicit K, R, t (see README,
-    "ShapeNet and 3D-R2N2 data"); check them with `sc3d-data check --shards OUT`."""
+    "ShapeNet and 3D-R2N2 data"); check them with `sc3d-data check --shards OUT`. A rerun
+    keeps the finished shards and imports the rest (resumable); runs on the local pool, Ray or
+    a SLURM job array (--executor)."""
     from sc3d_data.pipeline.r2n2_job import ImportConfig, import_r2n2 as run
+    from sc3d_data.pipeline.slurm_executor import import_on_slurm
 
     try:
         bg = tuple(int(c) for c in background.split(","))
@@ -49,21 +56,20 @@ def import_r2n2(renderings, voxels, out, image_size, background, categories, spl
     config = ImportConfig(renderings=renderings, voxels=voxels, out=out, image_size=image_size,
                           background=bg, categories=categories, split=split,
                           split_file=list(split_file) or None, seed=seed, voxel_frame=voxel_frame, front=front,
-                          objects_per_shard=objects_per_shard, overwrite=overwrite, part=part)
+                          objects_per_shard=objects_per_shard, overwrite=overwrite, part=part, **scale)
     bar = None
     try:
-        if progress:
+        if progress and config.executor != "slurm":
             from sc3d_data.pipeline.progress import progress_bar
 
             bar = progress_bar(unit="obj", desc="import-r2n2")
-        summary = run(config, progress=bar.update if bar is not None else None)
-    except (FileNotFoundError, FileExistsError, ValueError) as e:
-        raise click.ClickException(str(e))
+        summary = run_scaled(config, slurm, lambda c: run(c, progress=bar.update if bar is not None else None),
+                             import_on_slurm)
     finally:
         if bar is not None:
             bar.close()
     for f in summary["failures"]:
         click.echo(f"failed: {f['source']}: {f['reason']}", err=True)
     click.echo(f"imported {summary['done']} of {summary['planned']} models into {summary['out']} "
-               f"({summary['failed']} failed, {summary['skipped']} skipped; "
+               f"({summary['resumed']} already there, {summary['failed']} failed, {summary['skipped']} skipped; "
                f"{summary['seconds']:.1f} s); details in index.json")

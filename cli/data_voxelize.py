@@ -5,7 +5,7 @@ import sys
 
 import click
 
-from sc3d_cli.scale_options import part_option
+from sc3d_cli.scale_options import executor_options, part_option, run_scaled, timeout_option
 
 
 @click.command("voxelize")
@@ -20,16 +20,22 @@ from sc3d_cli.scale_options import part_option
 @click.option("--up", default="+Y", show_default=True, help="--meshes only: source up axis.")
 @click.option("--front", default="auto", show_default=True,
               help="--meshes only: source front axis (auto: as `render`, ShapeNetCore v1 +X, v2 -Z, else +Z).")
-@click.option("--workers", default=1, show_default=True, type=click.IntRange(1), help="Processes.")
+@click.option("--workers", default=1, show_default=True, type=click.IntRange(1),
+              help="Processes (--meshes with --executor ray: Ray CPUs, 0 = the cluster's).")
 @click.option("--overwrite", is_flag=True, help="Redo shards/files that already have voxels.")
 @click.option("--progress/--no-progress", default=True, show_default=True)
 @part_option
-def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, overwrite, progress, part):
+@timeout_option
+@executor_options
+def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, overwrite, progress, part, slurm,
+             **scale):
     """Add solid `voxels` [N,G,G,G] to every object of the shards in SHARDS (from the source mesh
     and the object's stored to_canonical, exactly as rendered), or with --meshes DIR --out DIR2
     write one .binvox per mesh. Reruns skip finished shards/files; failures go to the index
-    (shards) or DIR2/failures.json (meshes)."""
-    from sc3d_data.pipeline.voxel_job import voxelize_meshes, voxelize_shards
+    (shards) or DIR2/failures.json (meshes). --meshes runs on the local pool, Ray or a SLURM job
+    array (--executor), with a per-mesh --timeout."""
+    from sc3d_data.pipeline.slurm_executor import voxelize_on_slurm
+    from sc3d_data.pipeline.voxel_job import VoxelMeshesConfig, voxelize_meshes, voxelize_shards
 
     if (shards is None) == (meshes is None):
         raise click.UsageError("give either SHARDS or --meshes DIR --out DIR2")
@@ -38,15 +44,20 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
     if shards is not None and not part.whole:
         raise click.UsageError("--part is for --meshes; for shards, voxelize each part folder of a partitioned "
                                "render (or render with --voxelize), then merge")
+    if shards is not None and scale["executor"] != "local":
+        raise click.UsageError("--executor is for --meshes; shards are voxelized by a local pool (--workers)")
     try:
         if shards is not None:
             s = voxelize_shards(shards, resolution, workers, overwrite, progress)
             click.echo(f"voxelized {s.objects} objects in {s.shards_done} shards ({s.shards_skipped} shards "
                        f"already done), {s.failed} failed, {s.seconds:.1f} s")
         else:
-            s = voxelize_meshes(meshes, out, resolution, normalize, up, front, workers, overwrite, progress, part)
-            click.echo(f"wrote {s.objects} .binvox files to {out} ({s.shards_skipped} already there), "
-                       f"{s.failed} failed, {s.seconds:.1f} s")
+            config = VoxelMeshesConfig(meshes=meshes, out=out, resolution=resolution, normalize=normalize, up=up,
+                                       front=front, workers=workers, overwrite=overwrite, progress=progress,
+                                       part=part, **scale)
+            s = run_scaled(config, slurm, lambda c: voxelize_meshes(c).as_dict(), voxelize_on_slurm)
+            click.echo(f"wrote {s['done']} .binvox files to {out} ({s['resumed']} already there), "
+                       f"{s['failed']} failed, {s['seconds']:.1f} s")
     except (ValueError, RuntimeError, OSError) as e:  # bad shard/index, lock held, disk full: one line
         from sc3d_data.io.shards import one_line
 

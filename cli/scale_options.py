@@ -60,17 +60,27 @@ def executor_options(f):
     return f
 
 
-def run_render(config, slurm):
-    """Run ``render`` with ``config.executor``; errors become one line."""
+def timeout_option(f):
+    """``--timeout`` (per-object time limit, seconds) as ``timeout_s``."""
+    return click.option("--timeout", "timeout_s", type=click.FloatRange(0, min_open=True), default=120.0,
+                        show_default=True, help="Per-object time limit, seconds (a hung object is recorded as "
+                                                "failed).")(f)
+
+
+def run_scaled(config, slurm, run_local, run_slurm):
+    """``run_slurm(config, slurm)`` with ``--executor slurm``, else ``run_local(config)``
+    (local pool or Ray); errors become one line."""
     from sc3d_data.io.shards import one_line
 
     try:
-        if config.executor == "slurm":
-            from sc3d_data.pipeline.slurm_executor import render_on_slurm
-
-            return render_on_slurm(config, slurm)
-        from sc3d_data.pipeline.render_run import render_dataset
-
-        return render_dataset(config)
+        return run_slurm(config, slurm) if config.executor == "slurm" else run_local(config)
     except (ValueError, RuntimeError, OSError, ImportError) as e:  # option, folder, lock, disk, missing extra
         raise click.ClickException(one_line(e))
+
+
+def run_render(config, slurm):
+    """Run ``render`` with ``config.executor``; errors become one line."""
+    from sc3d_data.pipeline.render_run import render_dataset
+    from sc3d_data.pipeline.slurm_executor import render_on_slurm
+
+    return run_scaled(config, slurm, render_dataset, render_on_slurm)

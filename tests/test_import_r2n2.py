@@ -322,10 +322,14 @@ def test_bad_input_reported_rest_imported(fake_r2n2, tmp_path):
     assert any("'03001627/ghost'" in p["reason"] for p in index["skipped"])
     for name in ("badmeta", "shortmeta", "nopng", "nometa", "vox16"):
         assert "failed: " in res.output and name in res.output
-    # a second run into the same folder refuses without --overwrite
+    # a second run into the same folder resumes (nothing to do); with other settings it is refused
+    res = cli(["import-r2n2", "--renderings", tmp_path / "R", "--voxels", tmp_path / "V", "--out", out,
+               "--split-file", split, "--no-progress"])
+    assert "imported 0 of 6 models" in res.output and "(1 already there, 7 failed" in res.output
+    assert load_index(out)["objects"] == index["objects"] and load_index(out)["failures"] == index["failures"]
     res = cli(["import-r2n2", "--renderings", tmp_path / "R", "--voxels", tmp_path / "V", "--out", out,
                "--no-progress"], expect=1)
-    assert "--overwrite" in res.output
+    assert "other settings (split_file differ)" in res.output and "--overwrite" in res.output
 
 
 def test_import_in_parts_then_merge_equals_one_import(fake_r2n2, imported, tmp_path):
@@ -341,3 +345,53 @@ def test_import_in_parts_then_merge_equals_one_import(fake_r2n2, imported, tmp_p
     assert sum(assigned) == 3
     cli(["merge", tmp_path / "merged", *parts])
     assert_same_dataset(tmp_path / "merged", imported)
+
+
+def test_import_killed_mid_run_resumes_and_equals_an_uninterrupted_import(fake_r2n2, tmp_path):
+    """Ctrl-C (SIGINT) as soon as the import (9 models, one per shard, one worker) has written 2
+    shards: the shards written so far stay listed in the index. With one of them truncated, a
+    rerun keeps the intact ones (same files, not rewritten), imports the rest and equals an
+    import that was never interrupted, object by object."""
+    import signal
+    import time
+
+    from conftest import assert_same_dataset
+
+    renderings, voxels, _ = fake_r2n2
+    R, V = tmp_path / "R", tmp_path / "V"
+    shutil.copytree(renderings, R)
+    shutil.copytree(voxels, V)
+    src = f"{CHAIR}/chair2_blendswap"
+    for k in range(6):
+        shutil.copytree(R / src, R / CHAIR / f"copy{k}")
+        shutil.copytree(V / src, V / CHAIR / f"copy{k}")
+    args = ["import-r2n2", "--renderings", R, "--voxels", V, "--objects-per-shard", "1", "--workers", "1",
+            "--no-progress"]
+    out = tmp_path / "out"
+    env = dict(os.environ, PYTHONPATH=f"{REPO}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    proc = subprocess.Popen([sys.executable, "-c", "from sc3d_cli.data import main; main()",
+                             *[str(a) for a in args], "--out", str(out)], cwd=REPO, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not ((out / "index.json").is_file() and len(load_index(out)["shards"]) >= 2):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()[0]
+            time.sleep(0.005)
+        proc.send_signal(signal.SIGINT)
+        output = proc.communicate(timeout=60)[0]
+    finally:
+        proc.kill()
+    assert proc.returncode != 0 and "Traceback" not in output, output
+    index = load_index(out)
+    n = len(index["shards"])
+    assert not index["complete"] and 2 <= n < 9, n
+    assert [e["file"] for e in index["shards"]] == [f"shard-{i:05d}.h5" for i in range(n)]
+    kept = (out / "shard-00000.h5").stat()
+    broken = out / "shard-00001.h5"
+    broken.write_bytes(broken.read_bytes()[: broken.stat().st_size // 2])
+    res = cli([*args, "--out", out])
+    assert f"imported {9 - n + 1} of 9 models" in res.output and f"({n - 1} already there, 0 failed" in res.output
+    again = (out / "shard-00000.h5").stat()
+    assert (again.st_ino, again.st_mtime_ns) == (kept.st_ino, kept.st_mtime_ns)   # kept, not rewritten
+    cli([*args, "--out", tmp_path / "whole"])
+    assert_same_dataset(out, tmp_path / "whole")

@@ -1,5 +1,6 @@
 """Issue 13: partition (--part I/N), merge, and the Ray / SLURM (submitit local) executors, with
-the real renderer, real HDF5, a real local Ray cluster and submitit's real LocalExecutor.
+the real renderer, real HDF5, a real local Ray cluster and submitit's real LocalExecutor, for
+`render`, `voxelize --meshes` and `import-r2n2`.
 
 The reference of every equality test is an ordinary local run (`sc3d-data render`, local
 pool) of the same meshes with the same settings; "equal" means: the same object ids, each
@@ -229,7 +230,7 @@ def _kill_first_render_task(killed: list, stop: threading.Event) -> None:
     while not stop.is_set() and not killed:
         for proc in psutil.process_iter(["pid", "cmdline"]):
             cmd = " ".join(proc.info["cmdline"] or [])
-            if cmd.startswith("ray::render_task_split"):
+            if cmd.startswith("ray::job_task_split"):
                 try:
                     os.kill(proc.info["pid"], signal.SIGKILL)
                     killed.append(proc.info["pid"])
@@ -313,3 +314,73 @@ def test_voxelize_meshes_in_parts_share_one_folder(tmp_path):
         assert (tmp_path / "whole" / rel).read_bytes() == (tmp_path / "parts" / rel).read_bytes()
     assert sorted(p.name for p in (tmp_path / "parts").glob("failures*.json")) == [
         "failures.part-000-of-002.json", "failures.part-001-of-002.json"]
+
+
+# ----------------------------------------------------------------------------- voxelize --meshes, import-r2n2
+def _files(folder: Path) -> dict:
+    return {p.relative_to(folder): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+def test_voxelize_meshes_on_ray_equals_local_file_by_file(ray_cluster, tmp_path):
+    """6 sample meshes, an OBJ without triangles and a glTF whose loader blocks forever: Ray
+    writes the same .binvox bytes and the same failures.json (the hang timed out) as the local
+    pool; a rerun on Ray resumes (keeps the files there, redoes a deleted one and the failures)."""
+    meshes = tmp_path / "meshes"
+    for cat in ("chair", "car"):
+        shutil.copytree(SAMPLE_MESHES / cat, meshes / cat)
+    (meshes / "chair" / "broken.obj").write_text("v 0 0 0\nv 1 0 0\n")
+    write_hanging_gltf(meshes / "chair")
+    common = ["voxelize", "--meshes", meshes, "--resolution", "16", "--timeout", "2", "--workers", "2",
+              "--no-progress"]
+    for engine in ("local", "ray"):
+        res = run_cli(main, [*common, "--out", tmp_path / engine, "--executor", engine])
+        assert "wrote 6 .binvox files" in res.output and "(0 already there), 2 failed" in res.output
+    assert _files(tmp_path / "ray") == _files(tmp_path / "local") and len(_files(tmp_path / "local")) == 7
+    reasons = {Path(f["source"]).name: f["reason"] for f in json.loads((tmp_path / "ray" / "failures.json").read_text())}
+    assert reasons == {"broken.obj": f"MeshError: {meshes / 'chair' / 'broken.obj'}: empty mesh (no triangles)",
+                       "hang.gltf": f"{meshes / 'chair' / 'hang.gltf'}: timed out after 2 s (--timeout)"}
+    (meshes / "chair" / "hang.gltf").unlink()
+    (tmp_path / "ray" / "car" / "jeep_psionic.binvox").unlink()
+    res = run_cli(main, [*common, "--out", tmp_path / "ray", "--executor", "ray"])
+    assert "wrote 1 .binvox files" in res.output and "(5 already there), 1 failed" in res.output
+    assert _files(tmp_path / "ray").keys() == _files(tmp_path / "local").keys()
+    for rel, data in _files(tmp_path / "local").items():
+        assert rel.name == "failures.json" or _files(tmp_path / "ray")[rel] == data, rel
+
+
+@pytest.fixture(scope="module")
+def r2n2_local(tmp_path_factory):
+    """Fake 3D-R2N2 release (tests/r2n2_synth.py: 1 airplane, 2 chairs) plus a chair with a
+    rendering missing, and its local import (2 objects per shard): ``(args, local out)``."""
+    from test_import_r2n2 import CHAIR, synthesize
+
+    root = tmp_path_factory.mktemp("r2n2")
+    renderings, voxels, _ = synthesize(root, seed=3)
+    shutil.copytree(renderings / CHAIR / "chair2_blendswap", renderings / CHAIR / "nopng")
+    (renderings / CHAIR / "nopng" / "rendering" / "07.png").unlink()
+    shutil.copytree(voxels / CHAIR / "chair2_blendswap", voxels / CHAIR / "nopng")
+    args = ["import-r2n2", "--renderings", renderings, "--voxels", voxels, "--objects-per-shard", "2",
+            "--no-progress"]
+    res = run_cli(main, [*args, "--out", root / "local", "--workers", "2"])
+    assert "imported 3 of 4 models" in res.output and "1 failed" in res.output
+    return args, root / "local"
+
+
+def _failure_reasons(out: Path) -> dict:
+    return {f["model_id"]: f["reason"] for f in json.loads((out / "index.json").read_text())["failures"]}
+
+
+def test_import_r2n2_on_ray_and_slurm_equals_local_import(ray_cluster, r2n2_local, tmp_path):
+    args, local = r2n2_local
+    res = run_cli(main, [*args, "--out", tmp_path / "ray", "--executor", "ray"])
+    assert "imported 3 of 4 models" in res.output and "1 failed" in res.output
+    assert_same_dataset(tmp_path / "ray", local)
+    names = lambda d: sorted(p.name for p in d.glob("shard-*.h5"))  # noqa: E731
+    assert names(tmp_path / "ray") == names(local)                   # same chunks, plan order
+    res = run_cli(main, [*args, "--out", tmp_path / "slurm", "--executor", "slurm", "--slurm-cluster", "local",
+                         "--slurm-parts", "2", "--slurm-cpus-per-task", "1"])
+    assert "2/2 parts finished" in res.output and "imported 3 of 4 models" in res.output
+    assert_same_dataset(tmp_path / "slurm", local)
+    reasons = _failure_reasons(local)
+    assert list(reasons) == ["nopng"] and "07.png: missing rendering" in reasons["nopng"]
+    assert _failure_reasons(tmp_path / "ray") == reasons == _failure_reasons(tmp_path / "slurm")

@@ -1,10 +1,10 @@
-"""The default executor of ``sc3d-data render``: a pool of ``spawn``-ed worker processes on this
-machine (no extra dependency).
+"""The default executor of ``render``, ``voxelize --meshes`` and ``import-r2n2``: a pool of
+``spawn``-ed worker processes on this machine (no extra dependency).
 
 Workers are never forked after a GL context exists (the main process never creates one). Each
-keeps ONE ``MeshRenderer`` and handles one object at a time: the main process sends a
-:class:`~sc3d_data.pipeline.render_job.Task` down a pipe and gets the result of
-:func:`~sc3d_data.pipeline.render_job.render_task` back. Per-object time limit
+makes its per-worker state once (``Job.start``: for rendering ONE ``MeshRenderer``) and handles
+one object at a time: the main process sends a task down a pipe and gets the result of
+``job.run`` back (``executor.Job``; default :data:`executor.RENDER`). Per-object time limit
 (``config.timeout_s``): a worker that takes longer (a loader that hangs, a huge mesh) is killed
 and replaced and the object is recorded as a failure; a worker that crashes is handled the same
 way (the next run retries it, ``retry_failed``).
@@ -18,16 +18,17 @@ import os
 import time
 from multiprocessing.connection import wait
 
-from sc3d_data.pipeline.render_job import THREAD_ENV, RenderConfig, Task, cached_renderer, render_task
+from sc3d_data.pipeline.executor import RENDER, Job
+from sc3d_data.pipeline.render_job import THREAD_ENV, Task
 from sc3d_data.io.shards import write_shard
 
 
-def _worker_main(conn, config: RenderConfig, backend: str) -> None:
-    """Worker process: one renderer, then (task -> result) until ``None``."""
+def _worker_main(conn, job: Job, config, backend: str) -> None:
+    """Worker process: ``job.start`` (one renderer), then (task -> result) until ``None``."""
     for k, v in THREAD_ENV.items():
         os.environ.setdefault(k, v)
     try:
-        renderer, _ = cached_renderer(config, backend)
+        job.start(config, backend)
     except Exception as e:
         conn.send(("dead", None, f"{type(e).__name__}: {e}"))
         return
@@ -38,7 +39,7 @@ def _worker_main(conn, config: RenderConfig, backend: str) -> None:
             if task is None:
                 break
             try:
-                pos, status, payload = render_task(config, backend, task)
+                pos, status, payload = job.run(config, backend, task)
                 reply = (status, pos, payload)
                 del payload
             except KeyboardInterrupt:
@@ -47,7 +48,8 @@ def _worker_main(conn, config: RenderConfig, backend: str) -> None:
             del reply
     except (EOFError, OSError, KeyboardInterrupt):
         pass  # the main process is gone or stopping: nothing to report to
-    renderer.close()
+    if job.drop is not None:
+        job.drop()
 
 
 def _signal_name(signum: int) -> str:
@@ -61,9 +63,9 @@ def _signal_name(signum: int) -> str:
 
 
 class _Worker:
-    def __init__(self, ctx, config: RenderConfig, backend: str):
+    def __init__(self, ctx, job: Job, config, backend: str):
         self.conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_worker_main, args=(child, config, backend), daemon=True)
+        self.proc = ctx.Process(target=_worker_main, args=(child, job, config, backend), daemon=True)
         self.proc.start()
         child.close()
         self.ready = False
@@ -78,25 +80,25 @@ class _Worker:
 
 
 class WorkerPool:
-    """``n`` spawned render workers fed one task at a time; ``run(tasks)`` yields
+    """``n`` spawned workers of ``job`` fed one task at a time; ``run(tasks)`` yields
     ``(pos, status, payload)`` with status ``ok`` (payload: (record, warnings)) or ``fail``
     (payload: reason), enforcing the per-object time limit."""
 
-    def __init__(self, n: int, config: RenderConfig, backend: str):
+    def __init__(self, n: int, config, backend: str, job: Job = RENDER):
         for k, v in THREAD_ENV.items():
             os.environ.setdefault(k, v)
         self.ctx = mp.get_context("spawn")
-        self.config, self.backend = config, backend
-        self.workers = [_Worker(self.ctx, config, backend) for _ in range(n)]
+        self.config, self.backend, self.job = config, backend, job
+        self.workers = [_Worker(self.ctx, job, config, backend) for _ in range(n)]
 
     def wait_ready(self) -> str | None:
-        """Block until every worker has a renderer; return None, or the first start-up error
+        """Block until every worker is set up (has a renderer); return None, or the first start-up error
         (the pool is then closed)."""
         while not all(w.ready for w in self.workers):
             ready = wait([w.conn for w in self.workers if not w.ready], timeout=120)
             if not ready:
                 self.close()
-                return "render workers did not start within 120 s"
+                return f"{self.job.name} workers did not start within 120 s"
             for w in self.workers:
                 if w.conn in ready:
                     try:
@@ -112,7 +114,7 @@ class WorkerPool:
 
     def _replace(self, w: _Worker) -> _Worker:
         w.kill()
-        new = _Worker(self.ctx, self.config, self.backend)
+        new = _Worker(self.ctx, self.job, self.config, self.backend)
         self.workers[self.workers.index(w)] = new
         return new
 
@@ -144,7 +146,7 @@ class WorkerPool:
                         self.close()
                         from sc3d_data.render.gl_backend import BackendError
 
-                        raise BackendError(f"render worker could not start a renderer: {payload}")
+                        raise BackendError(f"{self.job.name} worker could not start: {payload}")
                     elif status in ("ok", "fail"):
                         w.task = None
                         yield pos, status, payload
@@ -154,12 +156,12 @@ class WorkerPool:
                         code = w.proc.exitcode
                         if not w.ready:
                             self.close()
-                            raise RuntimeError(f"a render worker died while starting (exit code {code})")
+                            raise RuntimeError(f"a {self.job.name} worker died while starting (exit code {code})")
                         self._replace(w)
                         if task is not None:
                             how = (f"killed by signal {-code} ({_signal_name(-code)})" if code and code < 0
                                    else f"exited with code {code}")
-                            yield task.pos, "fail", f"{task.path}: render worker {how} while rendering it"
+                            yield task.pos, "fail", f"{task.path}: {self.job.name} worker {how} while working on it"
                 elif w.task is not None and time.monotonic() - w.started > timeout:
                     task = w.task
                     self._replace(w)
@@ -181,18 +183,20 @@ class WorkerPool:
             w.kill()
 
 
-def start_pool(n: int, config: RenderConfig) -> WorkerPool:
-    """Start ``n`` workers with ``config.backend``; ``auto`` tries EGL, then OSMesa (the
-    workers themselves are the probe: the main process never creates a GL context). Raises
+def start_pool(n: int, config, job: Job = RENDER) -> WorkerPool:
+    """Start ``n`` workers of ``job`` with ``config.backend``; ``auto`` tries EGL, then OSMesa
+    (the workers themselves are the probe: the main process never creates a GL context). Raises
     ``BackendError`` naming the Debian packages when no backend works."""
-    from sc3d_data.render.gl_backend import BACKENDS, BackendError, install_hint
+    from sc3d_data.render.gl_backend import BackendError, install_hint
 
     errors = []
-    for backend in (BACKENDS if config.backend == "auto" else (config.backend,)):
-        pool = WorkerPool(n, config, backend)
+    for backend in job.backends(getattr(config, "backend", "auto")):
+        pool = WorkerPool(n, config, backend, job)
         err = pool.wait_ready()
         if err is None:
             pool.backend = backend
             return pool
+        if not job.gl:  # no GL to blame: the workers themselves could not start
+            raise RuntimeError(f"{job.name} workers could not start: {err}")
         errors.append(f"{backend}: {err}")
     raise BackendError("no headless OpenGL backend works:\n  " + "\n  ".join(errors) + "\n" + install_hint())

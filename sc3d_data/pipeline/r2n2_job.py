@@ -2,9 +2,19 @@
 shards without re-rendering, optionally one part ``I/N`` of the models (``--part``).
 
 The conventions (cameras, voxel placement, front axis, images) are ``sc3d_data.formats.r2n2``;
-this module plans the models, assigns splits, converts each model into an
-``sc3d_data.io.shards.ObjectRecord`` and writes shards and the index. A model that fails is
-recorded in the index's ``failures`` with the reason and the others are imported.
+this module plans the models (in (synset, model id) order, numbered 0..), assigns splits,
+converts each model into an ``sc3d_data.io.shards.ObjectRecord`` (job :data:`IMPORT`, run by
+an executor: the local pool or Ray, ``executor.py``; ``--executor slurm``: a job array of
+parts, ``slurm_executor``) and writes shards and the index as ``render`` does: chunk ``c`` of
+``objects_per_shard`` plan positions becomes ``shard-{c:05d}.h5`` (its failed models left
+out), in plan order whatever order the results come in. A model that fails (bad files, the
+per-model time limit ``--timeout``, a worker killed) is recorded in the index's ``failures``
+with the reason and the others are imported.
+
+Resume: the index is rewritten atomically after every shard. A rerun with the same settings
+and ``--part`` keeps the chunks whose shard is intact (size and SHA-256 as in the index:
+``resume.resume_state``, the code ``render`` resumes with) and imports the rest, so a crash or
+Ctrl-C loses no finished shard; other settings are refused (``--overwrite`` starts afresh).
 """
 from __future__ import annotations
 
@@ -13,13 +23,17 @@ from pathlib import Path
 from typing import Callable
 
 from sc3d_data.formats.r2n2 import (BLENDER_LENS_MM, BLENDER_SENSOR_MM, MASK_THRESHOLD, R2N2_FOV_DEG, R2N2_FRONT,
-                                    R2N2_NUM_VIEWS, R2N2_VOXEL_RESOLUTION, find_r2n2_models, load_r2n2_object)
+                                    R2N2_NUM_VIEWS, R2N2_VOXEL_RESOLUTION, R2N2Model, find_r2n2_models,
+                                    load_r2n2_object)
+from sc3d_data.pipeline.executor import ExecOptions, Job
 from sc3d_data.pipeline.partition import Part
+from sc3d_data.pipeline.render_job import Task
 
 
 @dataclass
-class ImportConfig:
-    """Every option of ``sc3d-data import-r2n2`` (see ``cli/data_import_r2n2.py``)."""
+class ImportConfig(ExecOptions):
+    """Every option of ``sc3d-data import-r2n2`` (see ``cli/data_import_r2n2.py``); where and how
+    long each model runs are the ``ExecOptions`` fields (not part of ``settings``)."""
 
     renderings: Path
     voxels: Path
@@ -35,6 +49,7 @@ class ImportConfig:
     objects_per_shard: int = 256
     overwrite: bool = False
     part: Part = Part(0, 1)  # --part I/N (sc3d_data.pipeline.partition); 0/1 = all models
+    progress: bool = False  # unused by import_r2n2 (it takes a callback); set for array tasks
 
     def settings(self) -> dict:
         """JSON-able record of every setting (stored in the shards and the index)."""
@@ -66,27 +81,34 @@ def _take_part(plan: list, part, problems: list, skipped: list):
     return mine, part_record(part, len(mine), len(plan), digest), problems, skipped
 
 
-def import_r2n2(config: ImportConfig, progress: Callable[[int], None] | None = None) -> dict:
-    """Import ``config.renderings`` + ``config.voxels`` into shards under ``config.out``.
+@dataclass(frozen=True)
+class R2N2Task(Task):
+    """One model of the plan (``path``: its ``ShapeNetRendering`` folder, named in failures)."""
 
-    Models that fail (bad metadata, missing PNGs, binvox of another resolution, ...) are recorded
-    in the index's ``failures`` with the reason; the others are imported. Returns the summary
-    ``{"done", "failed", "skipped", "problems", "seconds", "out"}``."""
-    import time
+    model: R2N2Model | None = None
 
-    from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index, write_index as write_index_file, \
-        write_shard
+
+def import_task(config: ImportConfig, backend: str, task: R2N2Task):
+    """The job of one model (``executor.Job``, run by a worker): ``(pos, "ok", (ObjectRecord,
+    []))`` or ``(pos, "fail", reason)`` naming the file and the problem."""
+    try:
+        record = load_r2n2_object(task.model, task.split, config.image_size, config.background,
+                                  config.voxel_frame, config.front)
+        return task.pos, "ok", (record, [])
+    except (ValueError, OSError) as e:  # the messages name the file
+        return task.pos, "fail", str(e)
+    except Exception as e:  # noqa: BLE001 - recorded per model, never aborts the run
+        return task.pos, "fail", f"{task.path}: {type(e).__name__}: {e}"
+
+
+IMPORT = Job("import", import_task)
+
+
+def plan_models(config: ImportConfig):
+    """``(tasks, split description, part record, problems, skipped)`` of ``config``: the models
+    with a split, in (synset, model id) order, this run's part of them numbered from 0."""
     from sc3d_data.formats.splits import assign_splits
 
-    t0 = time.monotonic()
-    out = Path(config.out)
-    out.mkdir(parents=True, exist_ok=True)
-    existing = list(out.glob("shard-*.h5")) + [p for p in [out / INDEX_NAME] if p.exists()]
-    if existing and not config.overwrite:
-        raise FileExistsError(f"{out}: already holds shards; use another --out or --overwrite")
-    for p in existing:
-        p.unlink()
-    settings = config.settings()
     models, problems = find_r2n2_models(config.renderings, config.voxels, config.categories)
     splits, split_desc, split_problems = assign_splits(models, spec=config.split, seed=config.seed,
                                                        split_file=config.split_file)
@@ -98,34 +120,109 @@ def import_r2n2(config: ImportConfig, progress: Callable[[int], None] | None = N
         else:
             skipped.append({"source": str(m.rendering_dir.parent), "reason": "not in any split (--split-file)"})
     plan, part, problems, skipped = _take_part(plan, config.part, problems, skipped)
-    failures = [dict(p, category="", model_id="") for p in problems]
-    shards, objects = [], []
+    tasks = [R2N2Task(i, str(m.rendering_dir.parent), m.category, m.model_id, s, m) for i, (m, s) in enumerate(plan)]
+    return tasks, split_desc, part, problems, skipped
+
+
+def import_r2n2(config: ImportConfig, progress: Callable[[int], None] | None = None) -> dict:
+    """Import ``config.renderings`` + ``config.voxels`` into shards under ``config.out`` (module
+    doc), holding the folder's write lock.
+
+    Returns the summary ``{"done", "resumed", "failed", "skipped", "planned", "seconds", "out",
+    "failures"}`` (``done``: imported by this run; ``failures``: those of this run and of
+    discovery). ``ValueError`` / ``FileNotFoundError`` / ``ShardError`` with one line naming
+    the folder or file (another ``--part`` or other settings in ``out``, missing input, ...)."""
+    from sc3d_data.io.outlock import exclusive_lock
+    from sc3d_data.pipeline.resume import check_out
+
+    out = Path(config.out)
+    check_out(out)
+    with exclusive_lock(out, "sc3d-data import-r2n2"):
+        return _import_locked(config, out, progress)
+
+
+def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
+    import os
+    import time
+
+    from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index, load_index
+    from sc3d_data.io.shards import write_index as write_index_file
+    from sc3d_data.pipeline.executor import start_executor
+    from sc3d_data.pipeline.resume import check_resume, clean_tmp, resume_state
+
+    t0 = time.monotonic()
+    if config.overwrite:
+        for p in list(out.glob("shard-*.h5")) + [out / INDEX_NAME]:
+            p.unlink(missing_ok=True)
+    clean_tmp(out)
+    settings = config.settings()
+    tasks, split_desc, part, problems, skipped = plan_models(config)
     K = max(1, int(config.objects_per_shard))
+    state = {"done_chunks": set(), "shards": [], "objects": [], "failures": [], "empty_chunks": []}
+    if (out / INDEX_NAME).is_file():
+        old = load_index(out)
+        check_resume(out, old, settings, {}, part)
+        state = resume_state(out, old, False, K, tasks)
+    shards, objects, failures, empty = state["shards"], state["objects"], state["failures"], state["empty_chunks"]
+    pos_of = {(t.category, t.model_id): t.pos for t in tasks}
+    if any(pos_of.get((o["category"], o["model_id"]), -K) // K != o["chunk"] for o in objects):
+        raise ValueError(f"{out}: its shards do not hold this plan's chunks (the collection changed, or an "
+                         "older sc3d made them); use another --out or --overwrite")
+    todo = [t for t in tasks if t.pos // K not in state["done_chunks"]]
+    kept_failed = {(f.get("category"), f.get("model_id")) for f in failures}
+    resumed = sum(1 for t in tasks if t.pos // K in state["done_chunks"] and (t.category, t.model_id) not in kept_failed)
+    problems = [dict(p, category="", model_id="") for p in problems]
+    new_failures: list[dict] = []
 
     def write_index(complete: bool) -> None:
         write_index_file(out, complete=complete, settings=settings, split=split_desc, shards=shards,
-                         objects=objects, failures=failures, skipped=skipped, warnings=[], extra={"part": part})
+                         objects=objects, failures=problems + sorted(failures, key=lambda f: f.get("pos", -1)),
+                         skipped=skipped, warnings=[], empty_chunks=empty, extra={"part": part})
 
-    write_index(False)
-    chunk = 0
-    for start in range(0, len(plan), K):
-        records = []
-        for m, split in plan[start:start + K]:
-            try:
-                records.append(load_r2n2_object(m, split, config.image_size, config.background,
-                                                 config.voxel_frame, config.front))
-            except (ValueError, OSError) as e:
-                failures.append({"source": str(m.rendering_dir.parent), "category": m.category,
-                                 "model_id": m.model_id, "reason": str(e)})
-            if progress is not None:
-                progress(1)
-        if records:
-            name = SHARD_PATTERN.format(chunk)
-            write_shard(out / name, records, settings)
-            add_shard_to_index(shards, objects, name, chunk, records)
-            chunk += 1
-            write_index(False)
-    write_index(True)
-    return {"done": len(objects), "failed": len(failures), "skipped": len(skipped),
-            "planned": len(plan), "seconds": time.monotonic() - t0, "out": str(out),
-            "failures": failures}
+    pool, n_done = None, 0
+    try:
+        write_index(not todo)
+        if todo:
+            n_workers = max(1, min(config.workers or os.cpu_count() or 1, len(todo)))
+            pool = start_executor(config, n_workers, IMPORT)
+            chunks = sorted({t.pos // K for t in todo})
+            results: dict[int, tuple] = {}
+            may = lambda p: not chunks or p < (chunks[0] + 2) * K + n_workers  # noqa: E731 - ~2 chunks held
+            for pos, status, payload in pool.run(todo, may_dispatch=may):
+                results[pos] = (status, payload)
+                if progress is not None:
+                    progress(1)
+                while chunks and all(p in results for p in range(chunks[0] * K, min(len(tasks), chunks[0] * K + K))):
+                    c = chunks.pop(0)
+                    records = _chunk_records(c, K, tasks, results, new_failures)
+                    n_done += len(records)
+                    if records:
+                        name = SHARD_PATTERN.format(c)
+                        add_shard_to_index(shards, objects, name, c, records,
+                                           sha256=pool.write_shard(out / name, records, settings))
+                    else:
+                        empty.append(c)
+                    failures.extend(f for f in new_failures if f["chunk"] == c)
+                    write_index(complete=not chunks)
+    finally:
+        if pool is not None:
+            pool.close()
+        clean_tmp(out)
+    return {"done": n_done,
+            "resumed": resumed, "failed": len(failures) + len(problems), "skipped": len(skipped),
+            "planned": len(tasks), "seconds": time.monotonic() - t0, "out": str(out),
+            "failures": problems + new_failures}
+
+
+def _chunk_records(c: int, K: int, tasks: list, results: dict, failures: list) -> list:
+    """The ``ObjectRecord`` s of chunk ``c`` in plan order (its results are popped from
+    ``results``); its failures are appended to ``failures``."""
+    records = []
+    for t in tasks[c * K:c * K + K]:
+        status, payload = results.pop(t.pos)
+        if status == "ok":
+            records.append(payload[0])
+        else:
+            failures.append({"source": t.path, "category": t.category, "model_id": t.model_id, "reason": payload,
+                             "chunk": c, "pos": t.pos})
+    return records

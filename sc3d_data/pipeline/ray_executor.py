@@ -1,10 +1,13 @@
-"""Ray executor of ``sc3d-data render --executor ray [--address auto|HOST:PORT]``.
+"""Ray executor of ``render``, ``voxelize --meshes`` and ``import-r2n2`` with ``--executor ray
+[--address auto|HOST:PORT]``.
 
-Each object is one Ray task running :func:`render_job.render_task` (1 CPU). Ray worker
-processes are reused between tasks, and each keeps one renderer (``cached_renderer``), so the
-per-object cost is the same as in the local pool plus Ray's scheduling. A task has two
-results: the object's index fields and status (small, fetched by the driver) and its arrays
-(left in the object store). When a chunk is complete the driver asks a Ray task to write its
+Each object is one Ray task running the job's ``run`` (``executor.Job``: for rendering
+:func:`render_job.render_task`, 1 CPU). Ray worker processes are reused between tasks, and
+each keeps its per-worker state (one renderer, ``Job.start``), so the per-object cost is the
+same as in the local pool plus Ray's scheduling. A task has two results: the object's index
+fields and status (small, fetched by the driver) and its arrays (left in the object store;
+a job whose result is not an ``ObjectRecord``, e.g. the path of a ``.binvox`` file the
+worker wrote, returns it as the first result and nothing as the second). When a chunk is complete the driver asks a Ray task to write its
 shard (``write_shard``): that task receives the arrays straight from the object store and
 writes the file into ``--out``, which must therefore be one shared folder, at the same path,
 for the driver and every node (on one machine: any folder). The arrays never pass through
@@ -15,9 +18,9 @@ the driver; it writes ``index.json``.
   installed on its nodes, ``--meshes`` readable at the same path). A Ray session the caller
   already started (``ray.init``) is used as it is.
 - Time limit: the task itself arms a ``SIGALRM`` timer of ``config.timeout_s`` once its
-  worker's renderer exists (so a worker's start-up does not count, as in the local pool); a
+  worker's state exists (so a worker's start-up does not count, as in the local pool); a
   loader that blocks (a FIFO, a stuck network file system) is interrupted and the object is
-  recorded as failed with the reason, and the worker drops its renderer. A hang the signal
+  recorded as failed with the reason, and the worker drops its state (``Job.drop``). A hang the signal
   cannot interrupt (inside a C call) is caught by the driver: a task still running
   ``2 * timeout_s + 60`` s after its submission is cancelled with ``force=True`` (its worker
   process is killed) and recorded the same way. The run goes on in both cases.
@@ -33,7 +36,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from sc3d_data.pipeline.render_job import CRASH_ENV, THREAD_ENV, RenderConfig, cached_renderer, render_task
+from sc3d_data.pipeline.executor import RENDER, Job
+from sc3d_data.pipeline.render_job import CRASH_ENV, THREAD_ENV
 
 MISSING = "the Ray executor needs Ray: pip install 'sc3d[ray]'"
 
@@ -71,14 +75,14 @@ class _TimedOut(BaseException):
     """Raised by the ``SIGALRM`` handler (a BaseException: ``render_task`` does not catch it)."""
 
 
-def timed_render_task(config: RenderConfig, backend: str, task):
-    """:func:`render_task` under a ``SIGALRM`` timer of ``config.timeout_s`` (module doc)."""
+def timed_task(job: Job, config, backend: str, task):
+    """``job.run`` under a ``SIGALRM`` timer of ``config.timeout_s`` (module doc)."""
     import signal
     import threading
 
-    cached_renderer(config, backend)  # start-up is not the object's time
+    job.start(config, backend)  # start-up is not the object's time
     if threading.current_thread() is not threading.main_thread():
-        return render_task(config, backend, task)
+        return job.run(config, backend, task)
 
     def on_alarm(signum, frame):
         raise _TimedOut()
@@ -86,25 +90,14 @@ def timed_render_task(config: RenderConfig, backend: str, task):
     old = signal.signal(signal.SIGALRM, on_alarm)
     signal.setitimer(signal.ITIMER_REAL, config.timeout_s)
     try:
-        return render_task(config, backend, task)
+        return job.run(config, backend, task)
     except _TimedOut:
-        drop_renderers()  # it may have been interrupted mid-draw
+        if job.drop is not None:
+            job.drop()  # it may have been interrupted mid-draw
         return task.pos, "fail", f"{task.path}: timed out after {config.timeout_s:g} s (--timeout)"
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
-
-
-def drop_renderers() -> None:
-    """Close and forget this process's cached renderers."""
-    from sc3d_data.pipeline import render_job
-
-    for renderer, _ in render_job._RENDERERS.values():
-        try:
-            renderer.close()
-        except Exception:  # noqa: BLE001 - it is being dropped
-            pass
-    render_job._RENDERERS.clear()
 
 
 @dataclass
@@ -120,11 +113,14 @@ class RecordRef:
     ref: object = None
 
 
-def render_task_split(config: RenderConfig, backend: str, task):
-    """:func:`timed_render_task` as two Ray results: ``(pos, status, payload)`` with the record
-    replaced by a :class:`RecordRef` (no ``ref`` yet), and the ``ObjectRecord`` (None on failure)."""
-    pos, status, payload = timed_render_task(config, backend, task)
-    if status != "ok":
+def job_task_split(job: Job, config, backend: str, task):
+    """:func:`timed_task` as two Ray results: ``(pos, status, payload)`` with the record
+    replaced by a :class:`RecordRef` (no ``ref`` yet), and the ``ObjectRecord`` (None on failure
+    or when the result is not an ``ObjectRecord``)."""
+    from sc3d_data.io.shards import ObjectRecord
+
+    pos, status, payload = timed_task(job, config, backend, task)
+    if status != "ok" or not isinstance(payload[0], ObjectRecord):
         return (pos, status, payload), None
     record, warnings = payload
     stub = RecordRef(record.model_id, record.category, record.split, record.source,
@@ -139,26 +135,26 @@ def _write_shard_task(path: str, settings: dict, *records) -> str:
     return write_shard(Path(path), list(records), settings)
 
 
-def _probe_backend(config: RenderConfig) -> str:
-    """Make this worker's renderer; the GL backend it got."""
-    return cached_renderer(config, config.backend)[1]
+def _probe_backend(job: Job, config) -> str:
+    """Make this worker's state (renderer); the GL backend it got."""
+    return job.start(config, config.backend if job.gl else "cpu")
 
 
 class RayExecutor:
     """See module doc; make one with :meth:`start`."""
 
-    def __init__(self, ray, config: RenderConfig, backend: str, slots: int, owns_cluster: bool):
-        self.ray, self.config, self.backend, self.slots = ray, config, backend, slots
+    def __init__(self, ray, config, backend: str, slots: int, owns_cluster: bool, job: Job = RENDER):
+        self.ray, self.config, self.backend, self.slots, self.job = ray, config, backend, slots, job
         self.owns_cluster = owns_cluster
-        self.remote = ray.remote(render_task_split).options(num_cpus=1, num_returns=2, max_retries=config.retries,
+        self.remote = ray.remote(job_task_split).options(num_cpus=1, num_returns=2, max_retries=config.retries,
                                                             retry_exceptions=False)
         # compressing a shard runs beside the renders, as the local pool's main process does
         self.writer = ray.remote(_write_shard_task).options(num_cpus=0, max_retries=config.retries)
 
     @classmethod
-    def start(cls, config: RenderConfig, n_workers: int) -> "RayExecutor":
-        """Join or start the cluster (module doc) and start one renderer per CPU slot (the first
-        error of the GL backend is raised here, naming the packages)."""
+    def start(cls, config, n_workers: int, job: Job = RENDER) -> "RayExecutor":
+        """Join or start the cluster (module doc) and set up one worker per CPU slot (one
+        renderer each; the first error of the GL backend is raised here, naming the packages)."""
         ray = require_ray()
         owns = False
         if not ray.is_initialized():
@@ -172,13 +168,13 @@ class RayExecutor:
         slots = max(1, slots)
         probe = ray.remote(_probe_backend).options(num_cpus=1, max_retries=0)
         try:
-            backends = ray.get([probe.remote(config) for _ in range(slots)])
+            backends = ray.get([probe.remote(job, config) for _ in range(slots)])
         except Exception as e:
             if owns:
                 ray.shutdown()
             cause = getattr(e, "cause", None) or e
-            raise RuntimeError(f"Ray workers could not start a renderer: {type(cause).__name__}: {cause}") from None
-        return cls(ray, config, backends[0], slots, owns)
+            raise RuntimeError(f"Ray {job.name} workers could not start: {type(cause).__name__}: {cause}") from None
+        return cls(ray, config, backends[0], slots, owns, job)
 
     def run(self, tasks, may_dispatch=lambda pos: True):
         ray, timeout = self.ray, self.config.timeout_s
@@ -188,7 +184,7 @@ class RayExecutor:
         while todo or inflight:
             while todo and len(inflight) < self.slots and may_dispatch(todo[-1].pos):
                 task = todo.pop()
-                status_ref, record_ref = self.remote.remote(self.config, self.backend, task)
+                status_ref, record_ref = self.remote.remote(self.job, self.config, self.backend, task)
                 inflight[status_ref] = (task, time.monotonic(), record_ref)
             now = time.monotonic()
             wait_s = min([s + backstop - now for _, s, _ in inflight.values()], default=1.0)
@@ -197,11 +193,11 @@ class RayExecutor:
                 task, _, record_ref = inflight.pop(ref)
                 try:
                     result = ray.get(ref)
-                    if result[1] == "ok":
+                    if result[1] == "ok" and isinstance(result[2][0], RecordRef):
                         result[2][0].ref = record_ref
                 except ray.exceptions.RayError as e:  # the worker died on every attempt
                     why = type(getattr(e, "cause", None) or e).__name__
-                    result = (task.pos, "fail", f"{task.path}: render worker died on all "
+                    result = (task.pos, "fail", f"{task.path}: {self.job.name} worker died on all "
                                                 f"{self.config.retries + 1} attempts ({why}; --retries)")
                 yield result
             now = time.monotonic()

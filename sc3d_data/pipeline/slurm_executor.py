@@ -1,9 +1,11 @@
-"""SLURM executor of ``sc3d-data render --executor slurm``: a job array through submitit.
+"""SLURM executor of ``render``, ``import-r2n2`` and ``voxelize --meshes`` with ``--executor
+slurm``: a job array through submitit.
 
-Array task ``i`` of ``N = --slurm-parts`` renders part ``i/N`` (``partition.py``) with the local
+Array task ``i`` of ``N = --slurm-parts`` runs part ``i/N`` (``partition.py``) with the local
 pool (``--slurm-cpus-per-task`` workers) into ``OUT/parts/part-00i-of-00N/``; the submitting
 process waits for the array (printing a line per finished part), then merges the parts into
-``OUT`` (``merge.py``). Every part is an ordinary resumable render folder, so a rerun of the
+``OUT`` (``merge.py``). ``voxelize --meshes`` writes one file per mesh, so its parts share
+``OUT`` and nothing is merged. Every part is an ordinary resumable output folder, so a rerun of the
 same command resubmits the array and finished parts return at once; a part that failed is
 named with its error and the merge is not attempted until every part is complete.
 
@@ -35,23 +37,40 @@ class SlurmOptions:
     cluster: str = "slurm"  # or "local": submitit's LocalExecutor
 
 
-def part_configs(config: RenderConfig, parts: int, cpus: int) -> list[RenderConfig]:
-    """One render config per array task: part ``i/parts`` into ``OUT/parts/<part dir>``."""
-    root = Path(config.out).resolve() / "parts"
-    return [dataclasses.replace(config, part=Part(i, parts), out=root / Part(i, parts).dirname(), workers=cpus,
-                                meshes=Path(config.meshes).resolve(),
-                                executor="local", progress=False) for i in range(parts)]
+def part_configs(config, parts: int, cpus: int, paths: tuple[str, ...] = ("meshes",),
+                 shared_out: bool = False) -> list:
+    """One config per array task: part ``i/parts`` into ``OUT/parts/<part dir>`` (``OUT`` itself
+    with ``shared_out``), run by the local pool of ``cpus`` workers, input folders ``paths``
+    (fields of ``config``) made absolute."""
+    root = Path(config.out).resolve()
+    return [dataclasses.replace(config, part=Part(i, parts), workers=cpus, executor="local", progress=False,
+                                out=root if shared_out else root / "parts" / Part(i, parts).dirname(),
+                                **{k: Path(getattr(config, k)).resolve() for k in paths}) for i in range(parts)]
 
 
-def render_part(config: RenderConfig) -> dict:
-    """What one array task runs (a plain function: submitit pickles it by reference)."""
+def render_part(config) -> dict:
+    """What one array task of ``render`` runs (a plain function: submitit pickles it by reference)."""
     from sc3d_data.pipeline.render_run import render_dataset
 
     return render_dataset(config)
 
 
-def submit(configs: list[RenderConfig], options: SlurmOptions, log_dir: Path):
-    """Submit the array; the submitit jobs, in part order."""
+def import_part(config) -> dict:
+    """What one array task of ``import-r2n2`` runs."""
+    from sc3d_data.pipeline.r2n2_job import import_r2n2
+
+    return import_r2n2(config)
+
+
+def voxelize_part(config) -> dict:
+    """What one array task of ``voxelize --meshes`` runs."""
+    from sc3d_data.pipeline.voxel_job import voxelize_meshes
+
+    return voxelize_meshes(config).as_dict()
+
+
+def submit(fn, configs: list, options: SlurmOptions, log_dir: Path, name: str):
+    """Submit the array of ``fn(config)``; the submitit jobs, in part order."""
     try:
         import submitit
     except ImportError:
@@ -61,29 +80,29 @@ def submit(configs: list[RenderConfig], options: SlurmOptions, log_dir: Path):
     except RuntimeError as e:  # no srun/sbatch here; never fall back to running locally unasked
         raise RuntimeError(f"--executor slurm: {e} (--slurm-cluster local runs the array on this machine)") from None
     params = {"timeout_min": options.time_min, "cpus_per_task": options.cpus_per_task, "nodes": 1,
-              "tasks_per_node": 1, "name": "sc3d-render"}
+              "tasks_per_node": 1, "name": f"sc3d-{name}"}
     if options.partition and options.cluster == "slurm":
         params["slurm_partition"] = options.partition
     if options.cluster == "slurm":
         params["slurm_array_parallelism"] = len(configs)
     executor.update_parameters(**params)
-    return executor.map_array(render_part, configs)
+    return executor.map_array(fn, configs)
 
 
-def render_on_slurm(config: RenderConfig, options: SlurmOptions) -> dict:
-    """Render ``config`` as a job array of ``options.parts`` parts, then merge into ``config.out``.
-    Returns the summary keys of ``render_dataset`` (summed over the parts)."""
-    from sc3d_data.pipeline.merge import merge_parts
-
-    t0 = time.monotonic()
+def run_array(fn, config, options: SlurmOptions, paths: tuple[str, ...] = ("meshes",),
+              shared_out: bool = False) -> tuple[list, list[dict]]:
+    """Run ``fn`` on every part of ``config`` as a job array (module doc) and wait for it,
+    printing a line per finished part. Returns the part configs and their summaries (dicts with
+    ``done``, ``resumed``, ``failed``); ``RuntimeError`` naming every part that failed."""
     if not config.part.whole:
         raise ValueError(f"--part {config.part} with --executor slurm: the array makes the parts "
                          "(--slurm-parts); give one or the other")
-    config.validate(options.cpus_per_task)
-    configs = part_configs(config, options.parts, options.cpus_per_task)
+    if hasattr(config, "validate"):
+        config.validate(options.cpus_per_task)
+    configs = part_configs(config, options.parts, options.cpus_per_task, paths, shared_out)
     for c in configs:
         Path(c.out).mkdir(parents=True, exist_ok=True)
-    jobs = submit(configs, options, Path(config.out) / "parts" / "slurm-logs")
+    jobs = submit(fn, configs, options, Path(config.out) / "parts" / "slurm-logs", fn.__name__.split("_")[0])
     summaries, errors = [None] * len(jobs), []
     pending = set(range(len(jobs)))
     while pending:
@@ -100,14 +119,48 @@ def render_on_slurm(config: RenderConfig, options: SlurmOptions) -> dict:
         time.sleep(0.5 if pending else 0)
     if errors:
         raise RuntimeError("; ".join(errors) + " -- rerun the same command (finished parts are kept)")
-    merged = merge_parts(Path(config.out), [c.out for c in configs])
-    seconds = time.monotonic() - t0
-    views = sum(s["views"] for s in summaries)
-    keys = ("done", "resumed", "skipped", "failed", "retried", "repaired")
+    return configs, summaries
+
+
+def _summed(summaries: list[dict], keys: tuple[str, ...], t0: float, config) -> dict:
     out = {k: sum(s[k] for s in summaries) for k in keys}
-    out.update(notes=[n for s in summaries for n in s["notes"]], seconds=seconds, views=views,
-               views_per_s=views / seconds if seconds > 0 else 0.0, out=str(config.out),
-               backend=",".join(sorted({str(s["backend"]) for s in summaries})),
-               workers=options.parts * options.cpus_per_task, part="0/1", executor="slurm",
-               merged_objects=merged.objects)
+    out.update(seconds=time.monotonic() - t0, out=str(config.out), part="0/1", executor="slurm")
     return out
+
+
+def render_on_slurm(config: RenderConfig, options: SlurmOptions) -> dict:
+    """Render ``config`` as a job array of ``options.parts`` parts, then merge into ``config.out``.
+    Returns the summary keys of ``render_dataset`` (summed over the parts)."""
+    from sc3d_data.pipeline.merge import merge_parts
+
+    t0 = time.monotonic()
+    configs, summaries = run_array(render_part, config, options)
+    merged = merge_parts(Path(config.out), [c.out for c in configs])
+    out = _summed(summaries, ("done", "resumed", "skipped", "failed", "retried", "repaired", "views"), t0, config)
+    out.update(notes=[n for s in summaries for n in s["notes"]],
+               views_per_s=out["views"] / out["seconds"] if out["seconds"] > 0 else 0.0,
+               backend=",".join(sorted({str(s["backend"]) for s in summaries})),
+               workers=options.parts * options.cpus_per_task, merged_objects=merged.objects)
+    return out
+
+
+def import_on_slurm(config, options: SlurmOptions) -> dict:
+    """``import-r2n2`` of ``config`` (``r2n2_job.ImportConfig``) as a job array, then merged into
+    ``config.out``; the summary keys of ``r2n2_job.import_r2n2`` (summed over the parts)."""
+    from sc3d_data.pipeline.merge import merge_parts
+
+    t0 = time.monotonic()
+    configs, summaries = run_array(import_part, config, options, paths=("renderings", "voxels"))
+    merge_parts(Path(config.out), [c.out for c in configs])
+    out = _summed(summaries, ("done", "resumed", "failed", "skipped", "planned"), t0, config)
+    out["failures"] = [f for s in summaries for f in s["failures"]]
+    return out
+
+
+def voxelize_on_slurm(config, options: SlurmOptions) -> dict:
+    """``voxelize --meshes`` of ``config`` (``voxel_job.VoxelMeshesConfig``) as a job array whose
+    parts share ``config.out`` (one ``.binvox`` per mesh; failures in
+    ``failures.part-00I-of-00N.json``); the summed ``VoxelizeSummary`` fields."""
+    t0 = time.monotonic()
+    _, summaries = run_array(voxelize_part, config, options, shared_out=True)
+    return _summed(summaries, ("done", "resumed", "failed"), t0, config)
