@@ -1,6 +1,7 @@
 """``sc3d-data voxelize``: solid voxels for existing shards, or one .binvox per mesh."""
 from __future__ import annotations
 
+import os
 import sys
 
 import click
@@ -20,8 +21,8 @@ from sc3d_cli.scale_options import executor_options, part_option, run_scaled, ti
 @click.option("--up", default="+Y", show_default=True, help="--meshes only: source up axis.")
 @click.option("--front", default="auto", show_default=True,
               help="--meshes only: source front axis (auto: as `render`, ShapeNetCore v1 +X, v2 -Z, else +Z).")
-@click.option("--workers", default=1, show_default=True, type=click.IntRange(1),
-              help="Processes (--meshes with --executor ray: Ray CPUs, 0 = the cluster's).")
+@click.option("--workers", default=1, show_default=True, type=click.IntRange(0),
+              help="Processes, 0 = number of CPU cores (--meshes --executor ray: CPU slots, 0 = the cluster's).")
 @click.option("--overwrite", is_flag=True, help="Redo shards/files that already have voxels.")
 @click.option("--progress/--no-progress", default=True, show_default=True)
 @part_option
@@ -35,7 +36,8 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
     (shards) or DIR2/failures.json (meshes). --meshes runs on the local pool, Ray or a SLURM job
     array (--executor), with a per-mesh --timeout."""
     from sc3d_data.pipeline.slurm_executor import voxelize_on_slurm
-    from sc3d_data.pipeline.voxel_job import VoxelMeshesConfig, voxelize_meshes, voxelize_shards
+    from sc3d_data.pipeline.voxel_job import voxelize_shards
+    from sc3d_data.pipeline.voxel_meshes import VoxelMeshesConfig, voxelize_meshes
 
     if (shards is None) == (meshes is None):
         raise click.UsageError("give either SHARDS or --meshes DIR --out DIR2")
@@ -48,7 +50,7 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
         raise click.UsageError("--executor is for --meshes; shards are voxelized by a local pool (--workers)")
     try:
         if shards is not None:
-            s = voxelize_shards(shards, resolution, workers, overwrite, progress)
+            s = voxelize_shards(shards, resolution, workers or os.cpu_count() or 1, overwrite, progress)
             click.echo(f"voxelized {s.objects} objects in {s.shards_done} shards ({s.shards_skipped} shards "
                        f"already done), {s.failed} failed, {s.seconds:.1f} s")
         else:

@@ -348,13 +348,11 @@ def test_import_in_parts_then_merge_equals_one_import(fake_r2n2, imported, tmp_p
 
 
 def test_import_killed_mid_run_resumes_and_equals_an_uninterrupted_import(fake_r2n2, tmp_path):
-    """Ctrl-C (SIGINT) as soon as the import (9 models, one per shard, one worker) has written 2
-    shards: the shards written so far stay listed in the index. With one of them truncated, a
-    rerun keeps the intact ones (same files, not rewritten), imports the rest and equals an
-    import that was never interrupted, object by object."""
-    import signal
-    import time
-
+    """The import process (9 models, one per shard, one worker) is SIGKILLed by its own progress
+    callback when the 5th result arrives, so at a known point mid-run: shards 0-3 are written
+    and listed. With one of them truncated, a rerun keeps the intact ones (same files, not
+    rewritten), imports the rest and equals an import that was never interrupted, object by
+    object."""
     from conftest import assert_same_dataset
 
     renderings, voxels, _ = fake_r2n2
@@ -365,32 +363,28 @@ def test_import_killed_mid_run_resumes_and_equals_an_uninterrupted_import(fake_r
     for k in range(6):
         shutil.copytree(R / src, R / CHAIR / f"copy{k}")
         shutil.copytree(V / src, V / CHAIR / f"copy{k}")
-    args = ["import-r2n2", "--renderings", R, "--voxels", V, "--objects-per-shard", "1", "--workers", "1",
-            "--no-progress"]
     out = tmp_path / "out"
+    script = ("import os, signal\n"
+              "from sc3d_data.pipeline.r2n2_job import ImportConfig, import_r2n2\n"
+              "seen = []\n"
+              "def progress(n):\n"
+              "    seen.append(n)\n"
+              "    if len(seen) == 5:\n"
+              "        os.kill(os.getpid(), signal.SIGKILL)\n"
+              f"import_r2n2(ImportConfig(renderings={str(R)!r}, voxels={str(V)!r}, out={str(out)!r}, "
+              "objects_per_shard=1, workers=1), progress=progress)\n")
     env = dict(os.environ, PYTHONPATH=f"{REPO}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
-    proc = subprocess.Popen([sys.executable, "-c", "from sc3d_cli.data import main; main()",
-                             *[str(a) for a in args], "--out", str(out)], cwd=REPO, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        deadline = time.monotonic() + 120
-        while not ((out / "index.json").is_file() and len(load_index(out)["shards"]) >= 2):
-            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()[0]
-            time.sleep(0.005)
-        proc.send_signal(signal.SIGINT)
-        output = proc.communicate(timeout=60)[0]
-    finally:
-        proc.kill()
-    assert proc.returncode != 0 and "Traceback" not in output, output
+    proc = subprocess.run([sys.executable, "-c", script], cwd=REPO, env=env, capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == -9, proc.stderr
     index = load_index(out)
-    n = len(index["shards"])
-    assert not index["complete"] and 2 <= n < 9, n
-    assert [e["file"] for e in index["shards"]] == [f"shard-{i:05d}.h5" for i in range(n)]
+    assert not index["complete"] and [e["file"] for e in index["shards"]] == [f"shard-0000{i}.h5" for i in range(4)]
     kept = (out / "shard-00000.h5").stat()
     broken = out / "shard-00001.h5"
     broken.write_bytes(broken.read_bytes()[: broken.stat().st_size // 2])
+    args = ["import-r2n2", "--renderings", R, "--voxels", V, "--objects-per-shard", "1", "--no-progress"]
     res = cli([*args, "--out", out])
-    assert f"imported {9 - n + 1} of 9 models" in res.output and f"({n - 1} already there, 0 failed" in res.output
+    assert "imported 6 of 9 models" in res.output and "(3 already there, 0 failed" in res.output
     again = (out / "shard-00000.h5").stat()
     assert (again.st_ino, again.st_mtime_ns) == (kept.st_ino, kept.st_mtime_ns)   # kept, not rewritten
     cli([*args, "--out", tmp_path / "whole"])

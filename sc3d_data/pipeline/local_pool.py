@@ -18,7 +18,7 @@ import os
 import time
 from multiprocessing.connection import wait
 
-from sc3d_data.pipeline.executor import RENDER, Job
+from sc3d_data.pipeline.job import RENDER, Job
 from sc3d_data.pipeline.render_job import THREAD_ENV, Task
 from sc3d_data.io.shards import write_shard
 

@@ -25,7 +25,7 @@ from typing import Callable
 from sc3d_data.formats.r2n2 import (BLENDER_LENS_MM, BLENDER_SENSOR_MM, MASK_THRESHOLD, R2N2_FOV_DEG, R2N2_FRONT,
                                     R2N2_NUM_VIEWS, R2N2_VOXEL_RESOLUTION, R2N2Model, find_r2n2_models,
                                     load_r2n2_object)
-from sc3d_data.pipeline.executor import ExecOptions, Job
+from sc3d_data.pipeline.job import ExecOptions, Job
 from sc3d_data.pipeline.partition import Part
 from sc3d_data.pipeline.render_job import Task
 

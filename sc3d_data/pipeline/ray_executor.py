@@ -36,7 +36,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from sc3d_data.pipeline.executor import RENDER, Job
+from sc3d_data.pipeline.job import RENDER, Job
 from sc3d_data.pipeline.render_job import CRASH_ENV, THREAD_ENV
 
 MISSING = "the Ray executor needs Ray: pip install 'sc3d[ray]'"

@@ -64,7 +64,7 @@ def import_part(config) -> dict:
 
 def voxelize_part(config) -> dict:
     """What one array task of ``voxelize --meshes`` runs."""
-    from sc3d_data.pipeline.voxel_job import voxelize_meshes
+    from sc3d_data.pipeline.voxel_meshes import voxelize_meshes
 
     return voxelize_meshes(config).as_dict()
 
@@ -158,7 +158,7 @@ def import_on_slurm(config, options: SlurmOptions) -> dict:
 
 
 def voxelize_on_slurm(config, options: SlurmOptions) -> dict:
-    """``voxelize --meshes`` of ``config`` (``voxel_job.VoxelMeshesConfig``) as a job array whose
+    """``voxelize --meshes`` of ``config`` (``voxel_meshes.VoxelMeshesConfig``) as a job array whose
     parts share ``config.out`` (one ``.binvox`` per mesh; failures in
     ``failures.part-00I-of-00N.json``); the summed ``VoxelizeSummary`` fields."""
     t0 = time.monotonic()
