@@ -56,18 +56,9 @@ def import_r2n2(renderings, voxels, out, image_size, background, categories, spl
     config = ImportConfig(renderings=renderings, voxels=voxels, out=out, image_size=image_size,
                           background=bg, categories=categories, split=split,
                           split_file=list(split_file) or None, seed=seed, voxel_frame=voxel_frame, front=front,
-                          objects_per_shard=objects_per_shard, overwrite=overwrite, part=part, **scale)
-    bar = None
-    try:
-        if progress and config.executor != "slurm":
-            from sc3d_data.pipeline.progress import progress_bar
-
-            bar = progress_bar(unit="obj", desc="import-r2n2")
-        summary = run_scaled(config, slurm, lambda c: run(c, progress=bar.update if bar is not None else None),
-                             import_on_slurm)
-    finally:
-        if bar is not None:
-            bar.close()
+                          objects_per_shard=objects_per_shard, overwrite=overwrite, part=part, progress=progress,
+                          **scale)
+    summary = run_scaled(config, slurm, run, import_on_slurm)
     for f in summary["failures"]:
         click.echo(f"failed: {f['source']}: {f['reason']}", err=True)
     click.echo(f"imported {summary['done']} of {summary['planned']} models into {summary['out']} "

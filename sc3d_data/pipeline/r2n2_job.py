@@ -49,7 +49,7 @@ class ImportConfig(ExecOptions):
     objects_per_shard: int = 256
     overwrite: bool = False
     part: Part = Part(0, 1)  # --part I/N (sc3d_data.pipeline.partition); 0/1 = all models
-    progress: bool = False  # unused by import_r2n2 (it takes a callback); set for array tasks
+    progress: bool = True  # a progress bar / log lines on stderr
 
     def settings(self) -> dict:
         """JSON-able record of every setting (stored in the shards and the index)."""
@@ -128,6 +128,7 @@ def import_r2n2(config: ImportConfig, progress: Callable[[int], None] | None = N
     """Import ``config.renderings`` + ``config.voxels`` into shards under ``config.out`` (module
     doc), holding the folder's write lock.
 
+    ``progress``: called with 1 per finished model instead of the bar of ``config.progress``.
     Returns the summary ``{"done", "resumed", "failed", "skipped", "planned", "seconds", "out",
     "failures"}`` (``done``: imported by this run; ``failures``: those of this run and of
     discovery). ``ValueError`` / ``FileNotFoundError`` / ``ShardError`` with one line naming
@@ -179,9 +180,14 @@ def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
                          objects=objects, failures=problems + sorted(failures, key=lambda f: f.get("pos", -1)),
                          skipped=skipped, warnings=[], empty_chunks=empty, extra={"part": part})
 
-    pool, n_done = None, 0
+    pool, n_done, bar = None, 0, None
     try:
         write_index(not todo)
+        if todo and progress is None and config.progress:
+            from sc3d_data.pipeline.progress import progress_bar
+
+            bar = progress_bar(total=len(todo), unit="obj", desc="import-r2n2")
+            progress = bar.update
         if todo:
             n_workers = max(1, min(config.workers or os.cpu_count() or 1, len(todo)))
             pool = start_executor(config, n_workers, IMPORT)
@@ -207,6 +213,8 @@ def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
     finally:
         if pool is not None:
             pool.close()
+        if bar is not None:
+            bar.close()
         clean_tmp(out)
     return {"done": n_done,
             "resumed": resumed, "failed": len(failures) + len(problems), "skipped": len(skipped),

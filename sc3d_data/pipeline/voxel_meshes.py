@@ -15,7 +15,7 @@ the meshes of that part (``sc3d_data.pipeline.partition``) are done and failures
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -39,8 +39,9 @@ class VoxelMeshesConfig(ExecOptions):
     up: str = "+Y"
     front: str = "auto"
     overwrite: bool = False
-    progress: bool = False
+    progress: bool = True  # a progress bar / log lines on stderr
     part: Part = Part(0, 1)
+    workers: int = field(default=1, kw_only=True)  # voxelize's --workers default (ExecOptions: 0)
 
 
 def binvox_target(config: VoxelMeshesConfig, path: str) -> Path:
