@@ -115,13 +115,13 @@ def time_train_steps(cfg, batch, device, variants, steps: int) -> list[float | N
     return [sorted(t)[len(t) // 2] if t else None for t in times]
 
 
-def per_item_loader(ds, batch_size: int, workers: int):
+def per_item_loader(ds, batch_size: int, workers: int, seed: int = 0):
     """The previous make_loader, kept as the baseline: per-sample ``__getitem__`` in the
     workers, ``default_collate`` into ~14 float tensors sent through shared memory."""
     from sc3d_train.loader import ViewSampler, _limit_worker_threads
 
     return torch.utils.data.DataLoader(
-        ds, batch_size=batch_size, sampler=ViewSampler(ds.num_objects, ds.num_views, 0),
+        ds, batch_size=batch_size, sampler=ViewSampler(ds.num_objects, ds.num_views, seed),
         num_workers=workers, drop_last=True, worker_init_fn=_limit_worker_threads if workers else None,
         prefetch_factor=4 if workers else None)
 
@@ -132,7 +132,8 @@ def time_loaders(datasets: dict[str, Path], batch_size: int, workers: tuple[int,
     the float expansion on the CPU) at each worker count, for each of ``datasets`` (label ->
     shard folder, e.g. the same meshes rendered with ``--chunks view`` and ``--chunks
     object``): the median over ``rounds`` rounds, each round running every variant once,
-    interleaved (a fresh loader each time). Not timed: the first ``2 + 4 * workers`` batches
+    interleaved (a fresh loader with its own seed each time, so that no run finds another's
+    samples in HDF5's chunk cache: at scale a view comes back once per epoch). Not timed: the first ``2 + 4 * workers`` batches
     (worker start-up, prefetch queue) and, with a cache, enough batches for each worker to have
     decoded every object (6 epochs per worker). ``cache_objects=0``: no cache, each batch reads
     its views from the files."""
@@ -145,16 +146,16 @@ def time_loaders(datasets: dict[str, Path], batch_size: int, workers: tuple[int,
         ds = ShardDataset(shards, "train", cache_objects=cache_objects)
         epoch = -(-6 * ds.num_objects // batch_size) if cache_objects else 0
         for w in workers:
-            makers[(label, "per-item", w)] = lambda ds=ds, w=w: per_item_loader(ds, batch_size, w)
-            makers[(label, "make_loader", w)] = lambda ds=ds, w=w: make_loader(ds, batch_size, seed=0, workers=w)
+            makers[(label, "per-item", w)] = lambda s, ds=ds, w=w: per_item_loader(ds, batch_size, w, s)
+            makers[(label, "make_loader", w)] = lambda s, ds=ds, w=w: make_loader(ds, batch_size, s, workers=w)
             makers[(label, "make_loader + float on CPU", w)] = \
-                lambda ds=ds, w=w: map(expand_batch, make_loader(ds, batch_size, seed=0, workers=w))
+                lambda s, ds=ds, w=w: map(expand_batch, make_loader(ds, batch_size, s, workers=w))
             for name in ("per-item", "make_loader", "make_loader + float on CPU"):
                 warm[(label, name, w)] = 2 + 4 * w + max(w, 1) * epoch
     rates: dict = {k: [] for k in makers}
-    for _ in range(rounds):
-        for key, make in makers.items():
-            it = iter(make())
+    for r in range(rounds):
+        for i, (key, make) in enumerate(makers.items()):
+            it = iter(make(1000 * r + i))  # a new seed each time: no run replays another's reads
             for _ in range(warm[key]):
                 next(it)
             t0 = time.perf_counter()
