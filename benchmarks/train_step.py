@@ -304,8 +304,7 @@ def main() -> None:
     # 2. loader
     if not args.skip_loader:
         for cache, regime, batches in ((10 ** 6, "every object cached once decoded", args.loader_batches),
-                                       (0, "no cache: every sample read from the file",
-                                        max(2, args.loader_batches // 5))):
+                                       (0, "no cache: every sample read from the file", args.loader_batches)):
             datasets = {"": shards} if args.compare_shards is None else \
                 {f"{shards.name}: ": shards, f"{args.compare_shards.name}: ": args.compare_shards}
             rates = time_loaders(datasets, args.batch_size, (0, 2, 4), batches, args.loader_rounds, cache)

@@ -2,6 +2,8 @@
 same with and without worker processes, and follow the seeded view stream (exact resume)."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import h5py
 import numpy as np
 import pytest
@@ -161,3 +163,32 @@ def test_sc_masks_equal_the_upsample_and_pool_reference():
     row = np.zeros((1, 64, 64), dtype=np.uint8)
     row[0, 1, :] = 1
     assert sc_masks(row, 48)[0, :, 0].tolist()[:3] == [0.0, 1.0, 0.0]  # 1/4 < 0.5 <= 1/2
+
+
+def test_a_corrupted_view_fails_naming_the_file_and_other_views_still_load(sample_shards, tmp_path):
+    """A flipped byte inside one view's image chunk: reading that view fails with the file named
+    (HDF5 Fletcher-32), through the reader and through the loader's per-batch reads; a view of
+    another chunk of the same object still reads."""
+    import shutil
+
+    from sc3d_data.io.shard_reader import ShardReader
+    from sc3d_data.io.shards import ShardError
+    from sc3d_train.data import DataError, ShardDataset
+
+    bad = tmp_path / "bad"
+    shutil.copytree(sample_shards, bad)
+    ds = ShardDataset(bad, "train", cache_objects=0)
+    path, row = Path(ds.objects[0].shard), ds.objects[0].row
+    with h5py.File(path) as f:
+        info = f["images"].id.get_chunk_info_by_coord((row, 5, 0, 0, 0))
+    with open(path, "r+b") as fh:
+        fh.seek(info.byte_offset + info.size // 2)
+        byte = fh.read(1)
+        fh.seek(info.byte_offset + info.size // 2)
+        fh.write(bytes([byte[0] ^ 0xFF]))
+    reader = ShardReader(bad)
+    with pytest.raises(ShardError, match=f"{path}: rows \\[{row}\\] cannot be read"):
+        reader.read_views(path, [row], [5], ("images",))
+    assert reader.read_views(path, [row], [6], ("images",))["images"].shape == (1, 64, 64, 3)
+    with pytest.raises(DataError, match=str(path)):
+        ds.compact_batch([5])  # object 0, view 5

@@ -2,8 +2,8 @@
 
 ``ShardReader(shard_dir)`` is what the training loader, ``check``, ``preview`` and ``voxelize`` use:
 it reads the index, summarises each shard from its string fields and shapes (``summaries``),
-reads one object's arrays (``read``) or chosen views of many objects at once (``read_views``, one
-HDF5 read per dataset) through HDF5 handles it keeps per process (a forked worker or a pickled
+reads one object's arrays (``read``) or chosen views of many objects at once (``read_views``:
+only the chunks holding them are decompressed) through HDF5 handles it keeps per process (a forked worker or a pickled
 copy opens its own, never the parent's). Errors are ``ShardError`` naming the
 file and pointing at ``sc3d-data info --verify``. The layout itself (dataset names, shapes, dtypes)
 is documented in ``sc3d_data.io.shards``.
@@ -105,8 +105,9 @@ class ShardReader:
         One read per pair: a single HDF5 read of the union of the pairs' hyperslabs was 20x
         slower per sample (HDF5 2.0.0, chunks not in the chunk cache)."""
         rows, views = np.asarray(rows, dtype=np.int64), np.asarray(views, dtype=np.int64)
-        keys, pair_of = np.unique(rows * (int(views.max(initial=0)) + 1) + views, return_inverse=True)
-        pairs = np.stack(np.divmod(keys, int(views.max(initial=0)) + 1), 1)
+        per_row = int(views.max(initial=0)) + 1
+        keys, pair_of = np.unique(rows * per_row + views, return_inverse=True)
+        pairs = np.stack(np.divmod(keys, per_row), 1)
         objects, object_of = np.unique(rows, return_inverse=True)
         try:
             f = self._handle(Path(path))
