@@ -1,6 +1,6 @@
 """Speed of training: one optimiser step, the shard loader, the self-consistency module.
 
-    python benchmarks/train_step.py [--shards DIR] [--batch-size 48] [--device auto] [--tiny]
+    python benchmarks/train_step.py [--shards DIR] [--compare-shards DIR] [--batch-size 48] [--device auto] [--tiny]
 
 Without ``--shards`` the bundled sample meshes are rendered + voxelized into a temporary
 directory first (a few seconds). Three tables, each with a straightforward baseline measured in
@@ -11,10 +11,12 @@ the same run, so improvements show as ratios:
    contiguous (NCHW) memory, against the trainer's settings for the device (CUDA: bf16/fp16
    autocast + channels_last; CPU: fp32, which is what ``fit`` uses there) and, on the CPU, the
    channels_last and bf16 variants for reference;
-2. loader samples/s with 0, 2 and 4 worker processes: the per-item DataLoader (the previous
-   ``make_loader``) against ``make_loader`` (whole batches per worker, packed transfer), with
-   the decoded-object cache and without (every sample decoded: large datasets), against the
-   training step's samples/s (the loader should outrun the step);
+2. loader samples/s with 0, 2 and 4 worker processes: the per-item DataLoader (the first
+   ``make_loader``) against ``make_loader`` (whole batches per worker, packed transfer,
+   compact batches) and ``make_loader`` followed by the float expansion on the CPU (what a CPU
+   training step adds; on a GPU it runs on the device), with every object of the split cached
+   once decoded and without a cache (each batch reads its views from the files: large
+   datasets), against the training step's samples/s (the loader should outrun the step);
 3. the self-consistency module (``benchmark_self_consistency`` below): ms per batch and memory,
    against the gather + loop baseline.
 """
@@ -113,35 +115,48 @@ def time_train_steps(cfg, batch, device, variants, steps: int) -> list[float | N
     return [sorted(t)[len(t) // 2] if t else None for t in times]
 
 
-def per_item_loader(ds, batch_size: int, workers: int):
+def per_item_loader(ds, batch_size: int, workers: int, seed: int = 0):
     """The previous make_loader, kept as the baseline: per-sample ``__getitem__`` in the
     workers, ``default_collate`` into ~14 float tensors sent through shared memory."""
     from sc3d_train.loader import ViewSampler, _limit_worker_threads
 
     return torch.utils.data.DataLoader(
-        ds, batch_size=batch_size, sampler=ViewSampler(ds.num_objects, ds.num_views, 0),
+        ds, batch_size=batch_size, sampler=ViewSampler(ds.num_objects, ds.num_views, seed),
         num_workers=workers, drop_last=True, worker_init_fn=_limit_worker_threads if workers else None,
         prefetch_factor=4 if workers else None)
 
 
-def time_loaders(shards: Path, batch_size: int, workers: tuple[int, ...], batches: int, rounds: int,
-                 cache_objects: int) -> dict:
-    """Samples/s of the per-item baseline and of ``make_loader`` at each worker count: the median
-    over ``rounds`` rounds, each round running every variant once, interleaved (a fresh loader
-    each time; the first ``2 + 4 * workers`` batches, worker start-up and the prefetch queue,
-    are not timed). ``cache_objects=0`` makes every sample decode its object from the file."""
+def time_loaders(datasets: dict[str, Path], batch_size: int, workers: tuple[int, ...], batches: int,
+                 rounds: int, cache_objects: int) -> dict:
+    """Samples/s of the per-item baseline and of ``make_loader`` (as it yields, and followed by
+    the float expansion on the CPU) at each worker count, for each of ``datasets`` (label ->
+    shard folder, e.g. the same meshes rendered with ``--chunks view`` and ``--chunks
+    object``): the median over ``rounds`` rounds, each round running every variant once,
+    interleaved (a fresh loader with its own seed each time, so that no run finds another's
+    samples in HDF5's chunk cache: at scale a view comes back once per epoch). Not timed: the first ``2 + 4 * workers`` batches
+    (worker start-up, prefetch queue) and, with a cache, enough batches for each worker to have
+    decoded every object (6 epochs per worker). ``cache_objects=0``: no cache, each batch reads
+    its views from the files."""
+    from sc3d_train.batch_format import expand_batch
     from sc3d_train.data import ShardDataset
     from sc3d_train.loader import make_loader
 
-    ds = ShardDataset(shards, "train", cache_objects=cache_objects)
-    makers = {("per-item", w): (lambda w=w: per_item_loader(ds, batch_size, w)) for w in workers}
-    makers.update({("make_loader", w): (lambda w=w: make_loader(ds, batch_size, seed=0, workers=w))
-                   for w in workers})
+    makers, warm = {}, {}
+    for label, shards in datasets.items():
+        ds = ShardDataset(shards, "train", cache_objects=cache_objects)
+        epoch = -(-6 * ds.num_objects // batch_size) if cache_objects else 0
+        for w in workers:
+            makers[(label, "per-item", w)] = lambda s, ds=ds, w=w: per_item_loader(ds, batch_size, w, s)
+            makers[(label, "make_loader", w)] = lambda s, ds=ds, w=w: make_loader(ds, batch_size, s, workers=w)
+            makers[(label, "make_loader + float on CPU", w)] = \
+                lambda s, ds=ds, w=w: map(expand_batch, make_loader(ds, batch_size, s, workers=w))
+            for name in ("per-item", "make_loader", "make_loader + float on CPU"):
+                warm[(label, name, w)] = 2 + 4 * w + max(w, 1) * epoch
     rates: dict = {k: [] for k in makers}
-    for _ in range(rounds):
-        for key, make in makers.items():
-            it = iter(make())
-            for _ in range(2 + 4 * key[1]):
+    for r in range(rounds):
+        for i, (key, make) in enumerate(makers.items()):
+            it = iter(make(1000 * r + i))  # a new seed each time: no run replays another's reads
+            for _ in range(warm[key]):
                 next(it)
             t0 = time.perf_counter()
             for _ in range(batches):
@@ -229,6 +244,8 @@ def benchmark_self_consistency(batch_size: int = 48, device: str | torch.device 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--shards", type=Path, default=None)
+    ap.add_argument("--compare-shards", type=Path, default=None,
+                    help="a second shard folder for table 2 (e.g. the same meshes rendered with --chunks object)")
     ap.add_argument("--batch-size", type=int, default=48)
     ap.add_argument("--steps", type=int, default=5, help="timed steps per variant (median)")
     ap.add_argument("--loader-batches", type=int, default=30)
@@ -241,7 +258,6 @@ def main() -> None:
 
     from sc3d_train.data import ShardDataset
     from sc3d_train.loader import make_loader
-    from sc3d_train.self_consistency import benchmark_self_consistency
     from sc3d_train.resolve import resolve_config
     from sc3d_train.runtime import DistInfo, resolve_device
 
@@ -287,13 +303,15 @@ def main() -> None:
 
     # 2. loader
     if not args.skip_loader:
-        for cache, regime, batches in ((128, "decoded objects cached", args.loader_batches),
-                                       (0, "every sample decoded from the file", max(2, args.loader_batches // 10))):
-            rates = time_loaders(shards, args.batch_size, (0, 2, 4), batches, args.loader_rounds, cache)
-            base = rates[("per-item", 0)]
-            rows = [(f"{name}, {w} workers", f"{r:.0f}", f"{r / base:.2f}x",
-                     f"{r / rates[(name, 0)]:.2f}x", f"{r / step_rate:.1f}x" if step_rate else "-")
-                    for (name, w), r in rates.items()]
+        for cache, regime, batches in ((10 ** 6, "every object cached once decoded", args.loader_batches),
+                                       (0, "no cache: every sample read from the file", args.loader_batches)):
+            datasets = {"": shards} if args.compare_shards is None else \
+                {f"{shards.name}: ": shards, f"{args.compare_shards.name}: ": args.compare_shards}
+            rates = time_loaders(datasets, args.batch_size, (0, 2, 4), batches, args.loader_rounds, cache)
+            base = {label: rates[(label, "per-item", 0)] for label in datasets}
+            rows = [(f"{label}{name}, {w} workers", f"{r:.0f}", f"{r / base[label]:.2f}x",
+                     f"{r / rates[(label, name, 0)]:.2f}x", f"{r / step_rate:.1f}x" if step_rate else "-")
+                    for (label, name, w), r in rates.items()]
             print()
             print(table(f"2. loader, batch {args.batch_size}, {regime} (samples/s, median of "
                         f"{args.loader_rounds} interleaved rounds of {batches} batches)",

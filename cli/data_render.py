@@ -53,6 +53,9 @@ def _rgb(text: str) -> tuple[int, int, int]:
 @click.option("--split-file", default=None, help=SPLIT_FILE_HELP)
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--objects-per-shard", type=click.IntRange(1), default=256, show_default=True)
+@click.option("--chunks", type=click.Choice(["view", "object"]), default="view", show_default=True,
+              help="HDF5 chunks of images and masks: one view each (cheap random-view reads for training) "
+                   "or one object each (~1/3 smaller files). Values are the same either way.")
 @click.option("--max-faces", type=click.IntRange(1), default=DEFAULT_MAX_FACES, show_default=True, help="Reject meshes with more triangles.")
 @click.option("--bad-texture", type=click.Choice(["fail", "fallback"]), default="fail", show_default=True,
               help="Unreadable texture: skip the object (fail) or render with material colours (fallback).")

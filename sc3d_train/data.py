@@ -1,21 +1,18 @@
-"""Training data from sc3d shards: a map-style torch Dataset over (object, view) pairs and a
-seeded, resumable, rank-aware sampler that draws a random view per object.
+"""Training data from sc3d shards: a map-style torch Dataset over (object, view) pairs.
 
 * File handles: reads go through ``sc3d_data.io.shard_reader.ShardReader``, which never keeps a
   handle across pickling or ``fork``: each process (main or DataLoader worker) opens its own
   lazily on first read, so ``num_workers > 0`` is safe with any start method.
-* Sampling and batching (seeded, resumable, rank-aware) are ``sc3d_train.loader``.
-* Masks for the self-consistency module (48x48 by default) are the exact area average of the
-  64x64 rendered mask (each output pixel covers 4/3 x 4/3 input pixels under the pixel-edge
-  convention of ``sc3d_data.geometry.camera``; ``self_consistency.area_downsample``), thresholded at >= 0.5; ``K`` is scaled with
-  ``sc3d_data.geometry.camera.scale_intrinsics``, which keeps the principal point at the image centre.
+* Sampling and batching (seeded, resumable, rank-aware) are ``sc3d_train.loader``; the batch
+  format (compact batches, 48 px masks, float expansion) is ``sc3d_train.batch_format``.
 
-Batch keys (B samples): ``images`` [B,3,S,S] float in [0,1]; ``voxels`` [B,G,G,G] float {0,1}
-(index order [x,y,z]); ``masks`` [B,S,S] float; ``masks_sc`` [B,M,M] float; ``K`` [B,3,3] and
-``K_sc`` [B,3,3] (pixels at S and M); ``R`` [B,3,3], ``t`` [B,3] (world->camera, OpenCV);
-``distance``, ``azimuth``, ``elevation`` [B] (world units, degrees; the ground-truth pose is for
-evaluation only); ``category``, ``model_id`` (lists of str); ``labeled`` [B] bool; ``index``
-[B] long (object index * V + view).
+Training batch keys (B samples; ``batch_format.expand_batch`` of a compact batch):
+``images`` [B,3,S,S] float in [0,1]; ``voxels`` [B,G,G,G] float {0,1} (index order [x,y,z]);
+``masks`` [B,S,S] float; ``masks_sc`` [B,M,M] float; ``K`` [B,3,3] and ``K_sc`` [B,3,3]
+(pixels at S and M); ``R`` [B,3,3], ``t`` [B,3] (world->camera, OpenCV); ``distance``,
+``azimuth``, ``elevation`` [B] (world units, degrees; the ground-truth pose is for evaluation
+only); ``category``, ``model_id`` (lists of str); ``labeled`` [B] bool; ``index`` [B] long
+(object index * V + view).
 """
 from __future__ import annotations
 
@@ -25,26 +22,23 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 from torch.utils.data import Dataset
 
 from sc3d_data.geometry.camera import scale_intrinsics
 from sc3d_data.io.shard_reader import ShardReader
 from sc3d_data.io.shards import ShardError
+from sc3d_train.batch_format import compact_tensors, expand_batch, sc_masks_bool
 from sc3d_train.config import MASK_SIZE
-from sc3d_train.self_consistency import area_downsample
+
+
+#: the per-view cameras and poses of a sample (small: read whole per shard for large splits)
+CAMERA_FIELDS = ("K", "R", "t", "distance", "azimuth", "elevation")
+#: the per-view datasets a sample reads (with ``voxels``, per object, when voxels are required)
+VIEW_FIELDS = ("images", "masks") + CAMERA_FIELDS
 
 
 class DataError(ValueError):
     """Bad training data (missing voxels, wrong image size, empty split, ...)."""
-
-
-def sc_masks(masks: np.ndarray, mask_size: int) -> torch.Tensor:
-    """Self-consistency masks ``[V, M, M]`` float {0, 1} of rendered masks ``[V, S, S]``: exact
-    area average (``sc3d_train.self_consistency.area_downsample``) thresholded at >= 0.5. Their
-    camera is ``scale_intrinsics(K, M, S)``."""
-    m = torch.from_numpy((np.asarray(masks) > 0).astype(np.float32))
-    return (area_downsample(m, mask_size) >= 0.5 - 1e-6).float()
 
 
 # ----------------------------------------------------------------------------- objects
@@ -127,6 +121,8 @@ class ShardDataset(Dataset):
     evaluation) fails before any work when a shard has no ``voxels``. ``image_size``, when
     given, must match the shards (e.g. the size a checkpoint was trained at).
     ``cache_objects``: decoded objects kept per process (LRU; ~0.45 MB each at 64 px, 24 views).
+    Batches use it only when the whole split fits (``num_objects <= cache_objects``); larger
+    splits read just the views a batch needs (:meth:`compact_batch`).
     """
 
     def __init__(self, shard_dir: Path, split: str = "train", subset: str = "all",
@@ -158,8 +154,13 @@ class ShardDataset(Dataset):
         self.mask_size, self.require_voxels = mask_size, require_voxels
         self.cache_objects = cache_objects
         self._reader = ShardReader(shard_dir)
+        self._shards = sorted({r.shard for r in self.objects})
+        number = {shard: i for i, shard in enumerate(self._shards)}
+        self._shard_index = np.array([number[r.shard] for r in self.objects], dtype=np.int64)
+        self._rows = np.array([r.row for r in self.objects], dtype=np.int64)
         self._cache: OrderedDict[int, dict] = OrderedDict()
         self._pid = None
+        self._cameras = None if self.cache_objects >= self.num_objects else self._read_cameras()
 
     def __len__(self) -> int:
         return len(self.objects) * self.num_views
@@ -192,8 +193,7 @@ class ShardDataset(Dataset):
             self._cache.move_to_end(obj_i)
             return arrays
         ref = self.objects[obj_i]
-        names = ("images", "masks", "K", "R", "t", "distance", "azimuth", "elevation") + \
-            (("voxels",) if self.require_voxels else ())
+        names = VIEW_FIELDS + (("voxels",) if self.require_voxels else ())
         try:
             arrays = self._reader.read(ref.shard, ref.row, names)
         except ShardError as e:  # checksum / gzip error: the reader names the file and row
@@ -215,70 +215,85 @@ class ShardDataset(Dataset):
     def get_batch(self, indices) -> dict:
         """The batch of dataset ``indices`` (length B): the keys of the module docstring, equal
         to ``default_collate`` of the single items."""
-        return expand_batch(*self.compact_batch(indices))
+        return expand_batch(compact_tensors(*self.compact_batch(indices)))
 
     def compact_batch(self, indices) -> tuple[dict[str, np.ndarray], dict]:
         """The batch of ``indices`` in stored dtypes, as ``(arrays, strings)``: ``images``
         [B,S,S,3] uint8 (HWC), ``masks`` [B,S,S] and ``masks_sc`` [B,M,M] bool, ``voxels``
         [B,G,G,G] uint8 (with ``require_voxels``), ``K``, ``K_sc``, ``R``, ``t``, ``distance``,
         ``azimuth``, ``elevation`` float32, ``labeled`` bool, ``index`` int64; strings:
-        ``category``, ``model_id``. Objects are decoded once (LRU cache) and the 48 px masks
-        computed once per (object, view)."""
+        ``category``, ``model_id``. When the split fits in ``cache_objects``, objects are decoded
+        whole once (LRU cache) and the 48 px masks computed once per (object, view); otherwise
+        (large datasets: an object comes back once per epoch, so a cache would only miss) only
+        the batch's views are read, grouped by shard (``ShardReader.read_views``)."""
         idx = np.asarray(indices, dtype=np.int64).reshape(-1)
         objs, views = np.divmod(idx, self.num_views)
-        arrays = [self._object(int(o)) for o in objs]
-
-        def gather(name: str) -> np.ndarray:
-            return np.stack([a[name][v] for a, v in zip(arrays, views)])
-
-        raw_masks = gather("masks")
-        K = gather("K").astype(np.float32)
-        out = {"images": gather("images"), "masks": raw_masks > 0,
-               "masks_sc": self._masks_sc(arrays, views, raw_masks), "K": K,
+        if self.cache_objects >= self.num_objects:
+            arrays = [self._object(int(o)) for o in objs]
+            got = {name: np.stack([a[name][v] for a, v in zip(arrays, views)]) for name in VIEW_FIELDS}
+            if self.require_voxels:
+                got["voxels"] = np.stack([a["voxels"] for a in arrays])
+            masks_sc = self._masks_sc(arrays, views, got["masks"])
+        else:
+            got = self._read_views(objs, views)
+            masks_sc = sc_masks_bool(got["masks"], self.mask_size)
+        K = got["K"].astype(np.float32)
+        out = {"images": got["images"], "masks": got["masks"] > 0, "masks_sc": masks_sc, "K": K,
                "K_sc": np.asarray(scale_intrinsics(K.astype(np.float64), self.mask_size,
                                                    self.image_size), dtype=np.float32)}
         for name in ("R", "t", "distance", "azimuth", "elevation"):
-            out[name] = gather(name).astype(np.float32)
+            out[name] = got[name].astype(np.float32)
         out["labeled"] = self.labeled[objs].astype(bool)
         out["index"] = idx
         if self.require_voxels:
-            out["voxels"] = np.stack([a["voxels"] for a in arrays])
+            out["voxels"] = got["voxels"]
         strings = {"category": [self.objects[o].category for o in objs],
                    "model_id": [self.objects[o].model_id for o in objs]}
         return out, strings
+
+    def _read_cameras(self) -> dict[str, np.ndarray]:
+        """``CAMERA_FIELDS`` of every object of the split, ``[num_objects, V, ...]`` as stored
+        (~2.3 KB per object at 24 views; read once here, in the process that makes the
+        dataset, and shared with forked loader workers)."""
+        out: dict[str, np.ndarray] = {}
+        for s, path in enumerate(self._shards):
+            mine = np.flatnonzero(self._shard_index == s)
+            try:
+                whole = self._reader.read_whole(path, CAMERA_FIELDS)
+            except ShardError as e:
+                raise DataError(str(e)) from e
+            for k, a in whole.items():
+                if k not in out:
+                    out[k] = np.empty((self.num_objects,) + a.shape[1:], dtype=a.dtype)
+                out[k][mine] = a[self._rows[mine]]
+        return out
+
+    def _read_views(self, objs: np.ndarray, views: np.ndarray) -> dict[str, np.ndarray]:
+        """``VIEW_FIELDS`` (+ ``voxels``) of the B (object, view) pairs, ``[B, ...]`` as stored:
+        images, masks and voxels read from the files (one ``read_views`` per shard the batch
+        touches), the cameras from :meth:`_read_cameras`."""
+        names = ("images", "masks") + (("voxels",) if self.require_voxels else ())
+        shard_of = self._shard_index[objs]
+        out: dict[str, np.ndarray] = {k: a[objs, views] for k, a in self._cameras.items()}
+        for s in np.unique(shard_of).tolist():
+            sel = np.flatnonzero(shard_of == s)
+            path = self._shards[s]
+            try:
+                got = self._reader.read_views(path, self._rows[objs[sel]], views[sel], names)
+            except ShardError as e:  # checksum / gzip error: the reader names the file and rows
+                raise DataError(str(e)) from e
+            for k, a in got.items():
+                if k not in out:
+                    out[k] = np.empty((len(objs),) + a.shape[1:], dtype=a.dtype)
+                out[k][sel] = a
+        return out
 
     def _masks_sc(self, arrays: list[dict], views: np.ndarray, masks: np.ndarray) -> np.ndarray:
         """``masks_sc [B, M, M]`` bool of the B views (stored ``masks [B, S, S]``), computed with
         :func:`sc_masks` for the views not yet in their object's cache entry, then cached."""
         todo = [i for i, (a, v) in enumerate(zip(arrays, views)) if not a["has_sc"][v]]
         if todo:
-            new = sc_masks(masks[todo], self.mask_size).bool().numpy()
+            new = sc_masks_bool(masks[todo], self.mask_size)
             for i, m in zip(todo, new):
                 arrays[i]["masks_sc"][views[i]], arrays[i]["has_sc"][views[i]] = m, True
         return np.stack([a["masks_sc"][v] for a, v in zip(arrays, views)])
-
-
-#: arrays of a compact batch that are 0/1 and travel bit-packed between processes
-BINARY_KEYS = ("masks", "masks_sc", "voxels")
-
-
-def expand_batch(arrays: dict[str, np.ndarray], strings: dict, pin: bool = False) -> dict:
-    """The training batch (module docstring) of a compact batch (``ShardDataset.compact_batch``):
-    images to float ``[B,3,S,S]`` / 255, masks and voxels to float, the rest as tensors. Done
-    with numpy (one thread: torch's intra-op threads only contend on a loaded CPU); ``pin``
-    puts the large tensors in page-locked memory (CUDA host-to-device copies)."""
-    def new(shape) -> torch.Tensor:
-        return torch.empty(shape, dtype=torch.float32, pin_memory=pin)
-
-    images = arrays["images"]
-    b, s = images.shape[:2]
-    batch = {"images": new((b, 3, s, s))}
-    np.divide(images.transpose(0, 3, 1, 2), np.float32(255.0), out=batch["images"].numpy(),
-              dtype=np.float32)
-    for name in ("masks", "masks_sc") + (("voxels",) if "voxels" in arrays else ()):
-        batch[name] = new(arrays[name].shape)
-        batch[name].numpy()[...] = arrays[name]
-    for name in ("K", "K_sc", "R", "t", "distance", "azimuth", "elevation", "labeled", "index"):
-        batch[name] = torch.from_numpy(np.array(arrays[name]))
-    batch.update({k: list(v) for k, v in strings.items()})
-    return batch

@@ -16,7 +16,8 @@ import torch
 from torch.utils.data import Dataset, Sampler
 
 from sc3d_train.batch_transfer import PackedBatch, pack, unpack
-from sc3d_train.data import BINARY_KEYS, ShardDataset, expand_batch
+from sc3d_train.batch_format import BINARY_KEYS, compact_tensors
+from sc3d_train.data import ShardDataset
 
 
 class ViewSampler(Sampler):
@@ -90,8 +91,9 @@ class _PackedBatches(Dataset):
 
 
 class BatchLoader(torch.utils.data.DataLoader):
-    """A DataLoader of packed batches whose iterator yields expanded training batches (the
-    expansion runs in the consuming process, :func:`expand_batch`)."""
+    """A DataLoader of packed batches whose iterator yields compact batches
+    (:func:`~sc3d_train.batch_format.compact_tensors`: uint8 images, bool masks, uint8 voxels); the
+    training step expands them on its device (:func:`~sc3d_train.batch_format.expand_batch`)."""
 
     def __init__(self, *args, pin: bool = False, **kwargs):
         super().__init__(*args, **kwargs)
@@ -101,7 +103,10 @@ class BatchLoader(torch.utils.data.DataLoader):
         for item in super().__iter__():
             if isinstance(item, PackedBatch):
                 item = unpack(item), item.other
-            yield expand_batch(*item, pin=self.pin)
+            batch = compact_tensors(*item)
+            if self.pin:
+                batch = {k: v.pin_memory() if torch.is_tensor(v) else v for k, v in batch.items()}
+            yield batch
 
 
 def make_loader(dataset: ShardDataset, batch_size: int, seed: int, start: int = 0,
@@ -110,9 +115,11 @@ def make_loader(dataset: ShardDataset, batch_size: int, seed: int, start: int = 
     """An endless loader of ``batch_size`` samples per step for this rank, starting at sample
     ``start`` of the rank's stream (batch ``k`` = samples ``k*B .. k*B+B-1``, whatever
     ``workers``). Each batch is assembled whole by one worker process (or in-process with
-    ``workers=0``) from its decoded-object cache, sent packed, and expanded to float here;
-    workers run one torch thread. ``pin_memory`` (CUDA) returns page-locked tensors. A
-    private generator keeps the global torch RNG untouched."""
+    ``workers=0``), sent packed, and yielded compact (uint8 images, bool masks, uint8
+    voxels: :func:`~sc3d_train.batch_format.compact_tensors`); ``sc3d_train.batch_format.expand_batch``
+    (called by the training step, on its device) makes the float training batch. Workers run
+    one torch thread. ``pin_memory`` (CUDA) returns page-locked tensors. A private generator
+    keeps the global torch RNG untouched."""
     sampler = BatchSampler(ViewSampler(dataset.num_objects, dataset.num_views, seed, rank,
                                        world_size, start), batch_size)
     return BatchLoader(

@@ -10,6 +10,7 @@ from contextlib import contextmanager
 import torch
 
 from sc3d_train.config import LossWeights
+from sc3d_train.batch_format import expand_batch
 from sc3d_train.losses import supervised_loss, true_pose_mask_loss, unsupervised_loss
 
 #: batch keys that carry the ground-truth pose: never given to the model or a loss
@@ -20,17 +21,14 @@ LABEL_KEYS = ("voxels", "masks", "masks_sc")
 
 def training_batch(batch: dict, phase: str, device: torch.device, channels_last: bool,
                    pose_targets: torch.Tensor | None = None) -> dict:
-    """Move a loader batch to ``device``, dropping the ground-truth pose (and, unsupervised,
-    the labels). ``pose_targets [num_objects * V]`` (searched from voxels and masks) adds
-    ``pose_target [B]`` for labelled batches."""
+    """Move a loader batch (compact: ``sc3d_train.loader.make_loader``) to ``device`` and
+    expand it there to the float training batch (``sc3d_train.batch_format.expand_batch``), dropping
+    the ground-truth pose (and, unsupervised, the labels). ``pose_targets [num_objects * V]``
+    (searched from voxels and masks) adds ``pose_target [B]`` for labelled batches."""
     drop = POSE_KEYS + (LABEL_KEYS if phase == "unsupervised" else ())
     if phase == "true-pose-masks":  # the ablation: masks and the true pose, no 3D labels
         drop = ("R", "t", "voxels")
-    out = {}
-    for k, v in batch.items():
-        if k in drop:
-            continue
-        out[k] = v.to(device, non_blocking=True) if torch.is_tensor(v) else v
+    out = expand_batch({k: v for k, v in batch.items() if k not in drop}, device, non_blocking=True)
     if pose_targets is not None and phase == "supervised" and "index" in batch:
         out["pose_target"] = pose_targets[batch["index"]].to(device)
     if channels_last:

@@ -2,8 +2,11 @@
 same with and without worker processes, and follow the seeded view stream (exact resume)."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import h5py
 import numpy as np
+import pytest
 import torch
 
 from sc3d_train.batch_transfer import pack, unpack
@@ -35,18 +38,24 @@ def _stored(ds, index):
         return {k: f[k][ref.row] for k in ("images", "masks", "K", "R", "voxels")}, view
 
 
-def test_loader_batches_are_the_stored_data_with_and_without_workers(sample_shards):
-    from sc3d_train.data import ShardDataset, sc_masks
+@pytest.mark.parametrize("cache_objects", [128, 0], ids=["decoded-objects-cached", "views-read-per-batch"])
+def test_loader_batches_are_the_stored_data_with_and_without_workers(sample_shards, cache_objects):
+    from sc3d_train.batch_format import expand_batch, sc_masks
+    from sc3d_train.data import ShardDataset
     from sc3d_train.loader import ViewSampler, make_loader
 
-    ds = ShardDataset(sample_shards, "train")
+    ds = ShardDataset(sample_shards, "train", cache_objects=cache_objects)
     B = 5
     first = iter(make_loader(ds, B, seed=3, workers=0))
-    in_process = [next(first) for _ in range(3)]
+    compact = [next(first) for _ in range(3)]
+    # the loader yields compact batches (1 byte per image value / mask / voxel)
+    assert compact[0]["images"].dtype == torch.uint8 and compact[0]["images"].shape == (B, 64, 64, 3)
+    assert compact[0]["masks"].dtype == torch.bool and compact[0]["voxels"].dtype == torch.uint8
+    in_process = [expand_batch(b) for b in compact]
     second = iter(make_loader(ds, B, seed=3, workers=2))
-    with_workers = [next(second) for _ in range(3)]
+    with_workers = [expand_batch(next(second)) for _ in range(3)]
     # resume at sample 2B: the third batch again
-    resumed = next(iter(make_loader(ds, B, seed=3, start=2 * B, workers=2)))
+    resumed = expand_batch(next(iter(make_loader(ds, B, seed=3, start=2 * B, workers=2))))
     stream = iter(ViewSampler(ds.num_objects, ds.num_views, seed=3))
     expected_index = [next(stream) for _ in range(3 * B)]
     for batches in (in_process, with_workers):
@@ -81,3 +90,105 @@ def test_loader_batches_are_the_stored_data_with_and_without_workers(sample_shar
     item = ds[int(batch["index"][2])]
     for k in ("images", "masks", "masks_sc", "voxels", "K_sc", "t", "azimuth", "labeled"):
         assert torch.equal(item[k], batch[k][2]), k
+
+
+def test_view_chunks_are_the_default_and_both_layouts_load_the_same_values(sample_shards, tmp_path):
+    """The writer's default layout stores one view per chunk (recorded as the "chunks" setting);
+    the same objects rewritten one object per chunk load to identical batches, with and
+    without the decoded-object cache (values do not depend on chunking)."""
+    import json
+    import shutil
+
+    from sc3d_data.io.shard_reader import read_records
+    from sc3d_data.io.shards import load_index, write_index, write_shard
+    from sc3d_train.batch_format import expand_batch
+    from sc3d_train.data import ShardDataset
+    from sc3d_train.loader import make_loader
+
+    index = load_index(sample_shards)
+    assert index["settings"]["chunks"] == "view"
+    old = tmp_path / "object_chunks"
+    shutil.copytree(sample_shards, old)
+    settings = {**index["settings"], "chunks": "object"}
+    for entry in index["shards"]:
+        path = old / entry["file"]
+        assert h5py.File(path)["images"].chunks == (1, 1, 64, 64, 3)
+        write_shard(path, read_records(path), settings)
+        with h5py.File(path) as f:
+            assert f["images"].chunks == (1, 24, 64, 64, 3) and f["masks"].chunks == (1, 24, 64, 64)
+            assert json.loads(f.attrs["settings"])["chunks"] == "object"
+        del entry["sha256"], entry["bytes"]
+    write_index(old, complete=True, settings=settings, split=index["split"], shards=index["shards"],
+                objects=index["objects"], failures=[], skipped=[], warnings=[])
+    for cache in (0, 128):
+        new_ds, old_ds = (ShardDataset(d, "train", cache_objects=cache) for d in (sample_shards, old))
+        for a, b in zip(make_loader(new_ds, 7, seed=1), make_loader(old_ds, 7, seed=1)):
+            a, b = expand_batch(a), expand_batch(b)
+            for k in a:
+                assert (torch.equal(a[k], b[k]) if torch.is_tensor(a[k]) else a[k] == b[k]), k
+            break
+    with pytest.raises(ValueError, match="chunks 'rows'"):
+        write_shard(tmp_path / "x.h5", read_records(old / index["shards"][0]["file"]), {"chunks": "rows"})
+
+
+def test_read_views_returns_the_requested_views_in_order(sample_shards):
+    """``ShardReader.read_views`` (repeated and unsorted pairs) equals plain h5py indexing."""
+    from sc3d_data.io.shard_reader import ShardReader
+
+    reader = ShardReader(sample_shards)
+    path = reader.files[0]
+    rows, views = [3, 0, 3, 5, 0, 3], [7, 23, 7, 0, 1, 2]
+    got = reader.read_views(path, rows, views, ("images", "masks", "K", "azimuth", "voxels"))
+    with h5py.File(path) as f:
+        for k, a in got.items():
+            expected = np.stack([f[k][r] if k == "voxels" else f[k][r, v] for r, v in zip(rows, views)])
+            assert a.dtype == expected.dtype and np.array_equal(a, expected), k
+        assert got["azimuth"].tolist() == [105.0, 345.0, 105.0, 0.0, 15.0, 30.0]  # 15 degrees per view
+
+
+def test_sc_masks_equal_the_upsample_and_pool_reference():
+    """The separable ``W m W^T`` form of the 48 px masks equals ``area_downsample`` (nearest
+    upsampling to the common multiple + average pooling) thresholded at 0.5, on masks where many
+    output pixels sit exactly at half coverage; hand case: a 64 px mask with only row 1 set
+    covers output row 0 by 1/4 and row 1 by 1/2 (its 4/3-pixel areas)."""
+    from sc3d_train.batch_format import sc_masks
+    from sc3d_train.self_consistency import area_downsample
+
+    rng = np.random.default_rng(0)
+    for size, m in ((64, 48), (64, 32), (48, 64), (50, 48)):
+        for p in (0.1, 0.5, 0.9):
+            masks = rng.random((6, size, size)) < p
+            reference = area_downsample(torch.from_numpy(masks).float(), m) >= 0.5 - 1e-6
+            assert torch.equal(sc_masks(masks, m), reference.float()), (size, m, p)
+    row = np.zeros((1, 64, 64), dtype=np.uint8)
+    row[0, 1, :] = 1
+    assert sc_masks(row, 48)[0, :, 0].tolist()[:3] == [0.0, 1.0, 0.0]  # 1/4 < 0.5 <= 1/2
+
+
+def test_a_corrupted_view_fails_naming_the_file_and_other_views_still_load(sample_shards, tmp_path):
+    """A flipped byte inside one view's image chunk: reading that view fails with the file named
+    (HDF5 Fletcher-32), through the reader and through the loader's per-batch reads; a view of
+    another chunk of the same object still reads."""
+    import shutil
+
+    from sc3d_data.io.shard_reader import ShardReader
+    from sc3d_data.io.shards import ShardError
+    from sc3d_train.data import DataError, ShardDataset
+
+    bad = tmp_path / "bad"
+    shutil.copytree(sample_shards, bad)
+    ds = ShardDataset(bad, "train", cache_objects=0)
+    path, row = Path(ds.objects[0].shard), ds.objects[0].row
+    with h5py.File(path) as f:
+        info = f["images"].id.get_chunk_info_by_coord((row, 5, 0, 0, 0))
+    with open(path, "r+b") as fh:
+        fh.seek(info.byte_offset + info.size // 2)
+        byte = fh.read(1)
+        fh.seek(info.byte_offset + info.size // 2)
+        fh.write(bytes([byte[0] ^ 0xFF]))
+    reader = ShardReader(bad)
+    with pytest.raises(ShardError, match=f"{path}: rows \\[{row}\\] cannot be read"):
+        reader.read_views(path, [row], [5], ("images",))
+    assert reader.read_views(path, [row], [6], ("images",))["images"].shape == (1, 64, 64, 3)
+    with pytest.raises(DataError, match=str(path)):
+        ds.compact_batch([5])  # object 0, view 5

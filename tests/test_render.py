@@ -38,7 +38,10 @@ def test_shapes_dtypes_and_nonempty_masks(sample_shards):
         np.testing.assert_allclose(obj["azimuth"], np.arange(24) * 15.0)
     assert n == 11
     with h5py.File(sample_shards / index["shards"][0]["file"]) as f:
-        assert f["images"].chunks == (1, 24, S, S, 3) and f["images"].compression == "gzip"
+        # one view per chunk (the default "chunks" setting, recorded; docs/benchmarks.md)
+        assert f["images"].chunks == (1, 1, S, S, 3) and f["images"].compression == "gzip"
+        assert f["masks"].chunks == (1, 1, S, S) and f["voxels"].chunks == (1, 32, 32, 32)
+        assert index["settings"]["chunks"] == "view"
         assert "settings" in f.attrs and "schema_version" in f.attrs
 
 

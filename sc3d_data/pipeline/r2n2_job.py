@@ -26,6 +26,7 @@ from sc3d_data.formats.r2n2 import (BLENDER_LENS_MM, BLENDER_SENSOR_MM, MASK_THR
                                     R2N2_NUM_VIEWS, R2N2_VOXEL_RESOLUTION, R2N2Model, find_r2n2_models,
                                     load_r2n2_object)
 from sc3d_data.pipeline.job import ExecOptions, Job
+from sc3d_data.io.shards import CHUNK_LAYOUTS
 from sc3d_data.pipeline.partition import Part
 from sc3d_data.pipeline.render_job import Task
 
@@ -65,6 +66,7 @@ class ImportConfig(ExecOptions):
                             "azimuth": "read from the canonical camera centre (front -> +Z)",
                             "roll": "-in_plane"},
             "mask": f"box-filtered alpha >= {MASK_THRESHOLD}",
+            "chunks": CHUNK_LAYOUTS[0],  # the shard writer's default layout, recorded as render does
         }
 
 

@@ -58,6 +58,7 @@ class RenderConfig:
     split_file: str | None = None
     seed: int = 0
     objects_per_shard: int = 256
+    chunks: str = "view"  # HDF5 chunk layout of the images (sc3d_data.io.shards.CHUNK_LAYOUTS)
     max_faces: int = DEFAULT_MAX_FACES
     bad_texture: str = "fail"
     outside_textures: str = "warn"
