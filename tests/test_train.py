@@ -213,7 +213,6 @@ def test_ddp_two_cpu_ranks_resume_exactly(sample_shards, tmp_path):
     under DDP was checked by hand: 2 steps + --resume to 4 logs the losses of 4 steps at once;
     one launch here keeps the suite's time budget.)"""
     import os
-    import socket
     import subprocess
     import sys
 
@@ -222,11 +221,10 @@ def test_ddp_two_cpu_ranks_resume_exactly(sample_shards, tmp_path):
         pytest.skip(f"{script} not installed")
 
     def torchrun(*args):
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            port = s.getsockname()[1]
-        cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2",
-               "--master_addr", "127.0.0.1", "--master_port", str(port), str(script), "fit",
+        # --standalone: torchrun binds a free port itself (picking one here and handing it over
+        # raced with other processes taking it in between)
+        cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+               str(script), "fit",
                "--batch-size", "4", *TINY, "--checkpoint-every", "2", *map(str, args)]
         env = {**os.environ, "OMP_NUM_THREADS": "1"}
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env,
