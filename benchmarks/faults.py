@@ -456,7 +456,7 @@ def main() -> None:
         print(f"corpus: {len(expected)} files from {meshes_src} ({kinds['good']} good, {kinds['fail']} bad, "
               f"{kinds['skip']} not files, {kinds['warn']} render with a warning), {args.views} views, "
               f"{args.workers} workers; {time.monotonic() - t0:.0f} s")
-        print(f"\n| scenario | bad inputs tried | faults injected | objects lost | notes |\n|---|---|---|---|---|")
+        print("\n| scenario | bad inputs tried | faults injected | objects lost | notes |\n|---|---|---|---|---|")
         for r in rows:
             print("| " + " | ".join(str(x) for x in r) + " |")
         print(f"\ntotals: bad inputs {sum(r[1] for r in rows)}, faults injected {sum(r[2] for r in rows)}, "

@@ -228,7 +228,7 @@ def main():
     if not a.pipeline_only:
         ours = _spawn(run_sc3d, paths, a.views, a.repeat, a.backend)
         base = _spawn(run_baseline, paths, a.views, a.backend)
-        print(f"\n| measure | sc3d (atlas renderer) | baseline (pyrender README usage) | ratio |")
+        print("\n| measure | sc3d (atlas renderer) | baseline (pyrender README usage) | ratio |")
         print("|---|---|---|---|")
         for key in ("all", "typical"):
             (w1, c1, n1), (w0, c0, n0) = ours["stats"][key], base["stats"][key]

@@ -13,7 +13,6 @@ from pathlib import Path
 
 import h5py
 import numpy as np
-import pytest
 
 from sc3d_cli.data import main
 from conftest import REPO, SAMPLE_MESHES, run_cli, write_hanging_gltf

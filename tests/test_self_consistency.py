@@ -146,7 +146,7 @@ def test_sc_loss_lowest_at_true_azimuth_synthetic():
 
 def test_gradients_reach_voxels_and_pose_and_point_to_the_truth():
     occ = asymmetric_object()[None]
-    el, d = torch.full((1,), 30.0), torch.full((1,), 2.0)
+    d = torch.full((1,), 2.0)
     target = exact_silhouette(occ[0], 60.0)[None]
     az = torch.tensor([70.0], requires_grad=True)
     elev = torch.tensor([30.0], requires_grad=True)

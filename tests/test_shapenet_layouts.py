@@ -59,10 +59,6 @@ def trees(tmp_path_factory):
 def render(args):
     from sc3d_cli.data import main
 
-    try:
-        import sc3d_cli.data_render  # noqa: F401  (helper A's command)
-    except ImportError:
-        pytest.skip("sc3d-data render is not available in this checkout")
 
     res = CliRunner().invoke(main, ["render", "--workers", "1", "--no-progress"] + [str(a) for a in args],
                              catch_exceptions=False)
