@@ -184,8 +184,8 @@ class ShardDataset(Dataset):
         return self._object(obj_i)
 
     def _object(self, obj_i: int) -> dict:
-        """All arrays of object ``obj_i`` (every view, as stored), from this process's LRU cache.
-        A chunk holds one whole object, so reading every view costs the same as reading one."""
+        """All arrays of object ``obj_i`` (every view, as stored), from this process's LRU cache
+        (used when the whole split fits in it: each object is then decoded once)."""
         if self._pid != os.getpid():  # new process (forked worker): its own cache
             self._cache, self._pid = OrderedDict(), os.getpid()
         arrays = self._cache.get(obj_i)

@@ -83,13 +83,21 @@ class ShardReader:
             self._handles[key] = open_shard(path).file
         return self._handles[key]
 
+    def _dataset(self, path: Path, name: str) -> h5py.Dataset:
+        """Dataset ``name`` of shard file ``path``, kept per process (h5py makes a new object,
+        ~0.2 ms, on every ``f[name]``)."""
+        f = self._handle(Path(path))
+        key = (str(path), name)
+        if key not in self._datasets:
+            self._datasets[key] = f[name]
+        return self._datasets[key]
+
     def read(self, path: Path, row: int, fields: tuple[str, ...]) -> dict[str, np.ndarray]:
         """Arrays ``fields`` of object ``row`` of shard file ``path`` (one of ``self.files``),
-        without the object axis. A chunk holds one object, so reading all its views costs the
-        same as reading one. ``ShardError`` naming the file when a checksum or gzip check fails."""
+        without the object axis: every view of the object. ``ShardError`` naming the file when a
+        checksum or gzip check fails."""
         try:
-            f = self._handle(Path(path))
-            return {k: f[k][row] for k in fields}
+            return {k: self._dataset(path, k)[row] for k in fields}
         except (OSError, KeyError, RuntimeError) as e:
             raise ShardError(f"{path}: row {row} cannot be read ({io_reason(e)}); "
                              "see `sc3d-data info --verify`") from e
@@ -110,12 +118,9 @@ class ShardReader:
         pairs = np.stack(np.divmod(keys, per_row), 1)
         objects, object_of = np.unique(rows, return_inverse=True)
         try:
-            f = self._handle(Path(path))
             out = {}
             for k in fields:
-                ds = self._datasets.get((str(path), k))
-                if ds is None:  # h5py makes a new object (~0.2 ms) on every f[k]
-                    ds = self._datasets[(str(path), k)] = f[k]
+                ds = self._dataset(path, k)
                 if k in OBJECT_ARRAYS:
                     out[k] = np.stack([ds[r] for r in objects.tolist()])[object_of.reshape(-1)]
                 else:
@@ -129,14 +134,9 @@ class ShardReader:
         """Datasets ``fields`` of shard file ``path`` whole (``[N, ...]``: meant for the small
         per-view cameras and poses, ~2.3 KB per object). ``ShardError`` as :meth:`read`."""
         try:
-            f = self._handle(Path(path))
-            return {k: f[k][()] for k in fields}
+            return {k: self._dataset(path, k)[()] for k in fields}
         except (OSError, KeyError, RuntimeError) as e:
             raise ShardError(f"{path}: cannot be read ({io_reason(e)}); see `sc3d-data info --verify`") from e
-
-    def iter_objects(self, fields: tuple[str, ...] | None = None) -> Iterator[dict]:
-        """See :func:`iter_objects`."""
-        return iter_objects(self.shard_dir, fields)
 
     def close(self) -> None:
         for f in self._handles.values():
