@@ -16,6 +16,7 @@ part with the local pool, and ``merge`` joins them.
 """
 from __future__ import annotations
 
+from collections import defaultdict
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Protocol
 
@@ -59,3 +60,29 @@ def start_executor(config, n_workers: int, job: Job = RENDER) -> Executor:
     from sc3d_data.pipeline.local_pool import start_pool
 
     return start_pool(n_workers, config, job)
+
+
+def finished_chunks(pool: Executor, todo: list, chunk_size: int, n_workers: int,
+                    progress: Callable[[int], None] | None = None) -> Iterator[tuple[int, list, bool]]:
+    """Run ``todo`` (tasks in plan order, each with its plan position ``pos``) on ``pool`` and
+    yield ``(chunk, [(task, status, payload), ...], last)`` for each chunk ``pos // chunk_size``
+    as soon as all of its tasks in ``todo`` have a result, in chunk order, so the drivers write
+    shards in plan order whatever order results arrive in; ``last`` is True for the final chunk.
+    A task is dispatched only below the first unfinished chunk's start + 2 chunks + ``n_workers``,
+    which bounds the results held in memory. ``progress(1)`` is called per result."""
+    chunk_tasks: dict[int, list] = defaultdict(list)
+    for t in todo:
+        chunk_tasks[t.pos // chunk_size].append(t)
+    pending = sorted(chunk_tasks)
+    results: dict[int, tuple] = {}
+
+    def may_dispatch(pos: int) -> bool:
+        return pos < (pending[0] * chunk_size if pending else 0) + 2 * chunk_size + n_workers
+
+    for pos, status, payload in pool.run(todo, may_dispatch=may_dispatch):
+        results[pos] = (status, payload)
+        if progress is not None:
+            progress(1)
+        while pending and all(t.pos in results for t in chunk_tasks[pending[0]]):
+            c = pending.pop(0)
+            yield c, [(t, *results.pop(t.pos)) for t in chunk_tasks[c]], not pending

@@ -150,7 +150,7 @@ def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
 
     from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index, load_index
     from sc3d_data.io.shards import write_index as write_index_file
-    from sc3d_data.pipeline.executor import start_executor
+    from sc3d_data.pipeline.executor import finished_chunks, start_executor
     from sc3d_data.pipeline.resume import check_resume, clean_tmp, resume_state
 
     t0 = time.monotonic()
@@ -193,25 +193,17 @@ def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
         if todo:
             n_workers = max(1, min(config.workers or os.cpu_count() or 1, len(todo)))
             pool = start_executor(config, n_workers, IMPORT)
-            chunks = sorted({t.pos // K for t in todo})
-            results: dict[int, tuple] = {}
-            may = lambda p: not chunks or p < (chunks[0] + 2) * K + n_workers  # noqa: E731 - ~2 chunks held
-            for pos, status, payload in pool.run(todo, may_dispatch=may):
-                results[pos] = (status, payload)
-                if progress is not None:
-                    progress(1)
-                while chunks and all(p in results for p in range(chunks[0] * K, min(len(tasks), chunks[0] * K + K))):
-                    c = chunks.pop(0)
-                    records = _chunk_records(c, K, tasks, results, new_failures)
-                    n_done += len(records)
-                    if records:
-                        name = SHARD_PATTERN.format(c)
-                        add_shard_to_index(shards, objects, name, c, records,
-                                           sha256=pool.write_shard(out / name, records, settings))
-                    else:
-                        empty.append(c)
-                    failures.extend(f for f in new_failures if f["chunk"] == c)
-                    write_index(complete=not chunks)
+            for c, results, last in finished_chunks(pool, todo, K, n_workers, progress):
+                records = _chunk_records(c, results, new_failures)
+                n_done += len(records)
+                if records:
+                    name = SHARD_PATTERN.format(c)
+                    add_shard_to_index(shards, objects, name, c, records,
+                                       sha256=pool.write_shard(out / name, records, settings))
+                else:
+                    empty.append(c)
+                failures.extend(f for f in new_failures if f["chunk"] == c)
+                write_index(complete=last)
     finally:
         if pool is not None:
             pool.close()
@@ -224,12 +216,11 @@ def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
             "failures": problems + new_failures}
 
 
-def _chunk_records(c: int, K: int, tasks: list, results: dict, failures: list) -> list:
-    """The ``ObjectRecord`` s of chunk ``c`` in plan order (its results are popped from
-    ``results``); its failures are appended to ``failures``."""
+def _chunk_records(c: int, results: list, failures: list) -> list:
+    """The ``ObjectRecord`` s of chunk ``c`` in plan order from its ``(task, status, payload)``
+    results (``executor.finished_chunks``); its failures are appended to ``failures``."""
     records = []
-    for t in tasks[c * K:c * K + K]:
-        status, payload = results.pop(t.pos)
+    for t, status, payload in results:
         if status == "ok":
             records.append(payload[0])
         else:

@@ -26,11 +26,10 @@ from __future__ import annotations
 
 import os
 import time
-from collections import defaultdict
 from pathlib import Path
 
 from sc3d_data.io.meshes import MESH_SUFFIXES
-from sc3d_data.pipeline.executor import start_executor
+from sc3d_data.pipeline.executor import finished_chunks, start_executor
 from sc3d_data.pipeline.render_job import RenderConfig
 from sc3d_data.pipeline.resume import check_out, check_resume, clean_tmp, empty_state, resume_state
 from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index
@@ -111,51 +110,43 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
                          extra={"part": plan.part})
 
     # ---- render
-    chunk_tasks = defaultdict(list)
-    for t in todo:
-        chunk_tasks[t.pos // K].append(t)
-    pending_chunks = sorted(chunk_tasks)
-    results: dict[int, tuple] = {}
     n_done = 0
     bar = None
 
-    def flush_ready_chunks() -> None:
+    def write_chunk(c: int, results: list, last: bool) -> None:
         nonlocal n_done
-        while pending_chunks and all(t.pos in results for t in chunk_tasks[pending_chunks[0]]):
-            c = pending_chunks.pop(0)
-            records, n_new = [], 0
-            for t in chunk_tasks[c]:
-                status, payload = results.pop(t.pos)
-                if status == "ok":
-                    record, warns = payload
-                    records.append((t.pos, record))
-                    n_new += 1
-                    warnings.extend({"source": t.path, "warning": w, "chunk": c} for w in warns)
-                else:
-                    failures.append({"source": t.path, "category": t.category, "model_id": t.model_id,
-                                     "reason": payload, "chunk": c, "pos": t.pos,
-                                     "attempts": attempts.get(t.pos, 0) + 1})
-            n_done += n_new
-            kept = [sh for sh in shards if sh["chunk"] == c]
-            if kept and not n_new:  # re-tried objects failed again: the shard stays as it is
-                write_index(complete=not pending_chunks)
-                continue
-            if kept:  # a re-tried chunk: its shard's objects plus the new ones, in plan order
-                pos_of = {(t.category, t.model_id): t.pos for t in tasks}
-                records += [(pos_of[(r.category, r.model_id)], r)
-                            for r in read_records(shard_path(out, kept[0]["file"]))]
-                shards.remove(kept[0])
-                objects[:] = [o for o in objects if o.get("chunk") != c]
-            if c in empty_chunks:
-                empty_chunks.remove(c)
-            records = [r for _, r in sorted(records, key=lambda pr: pr[0])]
-            if records:
-                name = SHARD_PATTERN.format(c)
-                digest = pool.write_shard(out / name, records, settings)
-                add_shard_to_index(shards, objects, name, c, records, sha256=digest)
+        records, n_new = [], 0
+        for t, status, payload in results:
+            if status == "ok":
+                record, warns = payload
+                records.append((t.pos, record))
+                n_new += 1
+                warnings.extend({"source": t.path, "warning": w, "chunk": c} for w in warns)
             else:
-                empty_chunks.append(c)
-            write_index(complete=not pending_chunks)
+                failures.append({"source": t.path, "category": t.category, "model_id": t.model_id,
+                                 "reason": payload, "chunk": c, "pos": t.pos,
+                                 "attempts": attempts.get(t.pos, 0) + 1})
+        n_done += n_new
+        kept = [sh for sh in shards if sh["chunk"] == c]
+        if kept and not n_new:  # re-tried objects failed again: the shard stays as it is
+            write_index(complete=last)
+            return
+        if kept:  # a re-tried chunk: its shard's objects plus the new ones, in plan order
+            pos_of = {(t.category, t.model_id): t.pos for t in tasks}
+            records += [(pos_of[(r.category, r.model_id)], r)
+                        for r in read_records(shard_path(out, kept[0]["file"]))]
+            shards.remove(kept[0])
+            objects[:] = [o for o in objects if o.get("chunk") != c]
+        if c in empty_chunks:
+            empty_chunks.remove(c)
+        records = [r for _, r in sorted(records, key=lambda pr: pr[0])]
+        if records:
+            name = SHARD_PATTERN.format(c)
+            digest = pool.write_shard(out / name, records, settings)
+            add_shard_to_index(shards, objects, name, c, records, sha256=digest)
+        else:
+            empty_chunks.append(c)
+        write_index(complete=last)
 
     try:
         write_index(not todo)
@@ -164,12 +155,8 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
                 from sc3d_data.pipeline.progress import progress_bar
 
                 bar = progress_bar(total=len(todo), unit="obj", desc="render")
-            first_open = lambda: pending_chunks[0] * K if pending_chunks else 0  # noqa: E731
-            for pos, status, payload in pool.run(todo, may_dispatch=lambda p: p < first_open() + 2 * K + n_workers):
-                results[pos] = (status, payload)
-                if bar is not None:
-                    bar.update(1)
-                flush_ready_chunks()
+            for chunk in finished_chunks(pool, todo, K, n_workers, bar.update if bar is not None else None):
+                write_chunk(*chunk)
     except OSError as e:  # the index could not be written (disk full, ...): one line naming it
         from sc3d_data.io.shards import io_reason
 
