@@ -2,6 +2,7 @@
 few collective operations the loop needs (no-ops on one process)."""
 from __future__ import annotations
 
+import atexit
 import os
 import random
 from dataclasses import dataclass
@@ -34,7 +35,18 @@ def setup_distributed(device_name: str) -> DistInfo:
     if not dist.is_initialized():
         use_cuda = torch.cuda.is_available() and device_name != "cpu"
         dist.init_process_group("nccl" if use_cuda else "gloo")
+        atexit.register(teardown_distributed)  # once, when this process exits (several fits may share the group)
     return info
+
+
+def teardown_distributed() -> None:
+    """Leave the process group :func:`setup_distributed` joined, if any (registered with
+    ``atexit`` there). A rank that exits with its gloo group still alive can abort in the
+    group's threads at interpreter exit ("terminate called without an active exception")."""
+    import torch.distributed as dist
+
+    if dist.is_available() and dist.is_initialized():
+        dist.destroy_process_group()
 
 
 def resolve_device(name: str, dist: DistInfo) -> torch.device:
