@@ -85,7 +85,9 @@ def validate_triangles(vertices: np.ndarray, faces: np.ndarray, source: str = "m
         raise MeshError(f"{source}: empty mesh (no triangles)")
     if max_faces and len(faces) > max_faces:
         raise MeshError(f"{source}: {len(faces):,} triangles, more than the limit of {max_faces:,} (--max-faces)")
-    used = vertices[np.unique(faces)]
+    is_used = np.zeros(len(vertices), dtype=bool)
+    is_used[faces.ravel()] = True  # the vertices some triangle names (np.unique's set, ~10x cheaper)
+    used = vertices[is_used]
     bad = ~np.isfinite(used).all(axis=1)
     if bad.any():
         raise MeshError(f"{source}: {int(bad.sum())} vertices with NaN/inf coordinates")
