@@ -101,3 +101,51 @@ def test_resolve_backend_probes_the_renderer_in_a_subprocess():
     assert resolve_backend("auto") in ("egl", "osmesa")
     with pytest.raises(ValueError):
         resolve_backend("vulkan")
+
+
+def _facing_square(**visual):
+    """A unit square in the plane z = 0 (normal +z), as a one-part ``trimesh.Scene``."""
+    import trimesh
+
+    v = np.array([[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.5, 0.5, 0.0], [-0.5, 0.5, 0.0]])
+    return trimesh.Scene(trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3]], process=False, **visual))
+
+
+def test_shading_of_grey_vertex_colour_and_texture_matches_the_hand_derived_model():
+    """The centre pixel of a square seen face-on (|n.z| = 1) by a camera on the +z axis, against
+    the module doc's model worked out by hand: c = base x (ambient + intensity / pi), then
+    c^(1/2.2) x 255 rounded. Ambient 0.2, intensity 1.5: 0.2 + 1.5 / pi = 0.67746.
+    - no material: base 0.3 -> 0.20324 -> 0.48468 -> 123.59 -> 124
+    - red vertex colours (255, 0, 0): base (1, 0, 0) -> 0.67746 -> 0.83778 -> 213.63 -> 214
+    - a uniform sRGB 128 texture (PBR, colour factor 1): linear ((128/255 + 0.055) / 1.055)^2.4
+      = 0.21586 -> 0.14624 -> 0.41733 -> 106.42 -> 106 (the texture path also covers uv upload)
+    Each case is drawn by its own shader variant (renderer._VARIANT_DEFINES)."""
+    import trimesh
+    from PIL import Image
+
+    from sc3d_data.geometry.camera import ViewSettings
+    from sc3d_data.render.renderer import MeshRenderer
+
+    views = ViewSettings(num_views=4)
+    r = MeshRenderer(views)
+    try:
+        # OpenCV world->camera: camera at (0, 0, 2) looking down -z, image y = -world y
+        R = np.repeat(np.diag([1.0, -1.0, -1.0])[None], 4, axis=0)
+        t = np.repeat(np.array([[0.0, 0.0, 2.0]]), 4, axis=0)
+        S = views.image_size
+        uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+        grey_tex = trimesh.visual.TextureVisuals(uv=uv, material=trimesh.visual.material.PBRMaterial(
+            baseColorTexture=Image.new("RGB", (4, 4), (128, 128, 128)), baseColorFactor=[255, 255, 255, 255]))
+        cases = {"no material": (_facing_square(), [124, 124, 124]),
+                 "vertex colours": (_facing_square(vertex_colors=np.tile([255, 0, 0, 255], (4, 1))), [214, 0, 0]),
+                 "texture": (_facing_square(visual=grey_tex), [106, 106, 106])}
+        for name, (scene, expected) in cases.items():
+            out = r.render(scene, np.eye(4), R=R, t=t)
+            centre = out["images"][:, S // 2, S // 2]
+            assert (centre == expected).all(), (name, centre[0], expected)
+            assert out["masks"][:, S // 2, S // 2].all() and not out["masks"][:, 0, 0].any()
+        # the default cameras are back after a call with explicit ones: view 0 is not face-on
+        plain = r.render(cases["no material"][0], np.eye(4))["images"][0]
+        assert not (plain == 124).all(axis=-1).any()
+    finally:
+        r.close()

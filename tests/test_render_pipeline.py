@@ -107,6 +107,44 @@ def test_parallel_equals_serial(sample_shards, tmp_path):
             np.testing.assert_array_equal(a[k], b[k], err_msg=k)
 
 
+def test_workers_get_the_environment_the_main_process_has_when_they_start(tmp_path):
+    """Workers are forked from a forkserver started earlier (by this session's first render),
+    yet they see a variable set afterwards, as spawned workers would: here the test-only crash
+    hook, set between two runs of this process, kills the worker of one object."""
+    from sc3d_data.pipeline import local_pool
+    from sc3d_data.pipeline.render_job import CRASH_ENV
+
+    meshes = tmp_path / "meshes" / "thing"
+    meshes.mkdir(parents=True)
+    _write_obj(meshes / "box_a.obj", *_cube())
+    _write_obj(meshes / "box_b.obj", *_cube())
+    run_cli(main, ["render", "--meshes", tmp_path / "meshes", "--out", tmp_path / "first", "--workers", "1", *FAST])
+    assert local_pool._context("egl").get_start_method() == "forkserver"
+    os.environ[CRASH_ENV] = "box_b"
+    try:
+        res = run_cli(main, ["render", "--meshes", tmp_path / "meshes", "--out", tmp_path / "second",
+                             "--workers", "1", *FAST])
+    finally:
+        del os.environ[CRASH_ENV]
+    assert "done 1" in res.output and "failed 1" in res.output
+    index = json.loads((tmp_path / "second" / "index.json").read_text())
+    assert [f["model_id"] for f in index["failures"]] == ["box_b"]
+    assert "killed by signal 9 (SIGKILL" in index["failures"][0]["reason"]
+
+
+def test_osmesa_run_after_an_egl_run_in_one_process(tmp_path):
+    """The forkserver imported PyOpenGL for EGL; an OSMesa run in the same process gets spawned
+    workers instead (PyOpenGL's platform cannot change) and renders the same pixels."""
+    args = ["render", "--meshes", SAMPLE_MESHES / "chair", "--workers", "1", *FAST]
+    run_cli(main, [*args, "--out", tmp_path / "egl", "--backend", "egl"])
+    res = run_cli(main, [*args, "--out", tmp_path / "osmesa", "--backend", "osmesa"])
+    assert "backend osmesa" in res.output
+    a, b = _shard_arrays(tmp_path / "egl"), _shard_arrays(tmp_path / "osmesa")
+    for k in ("images", "masks"):
+        key = next(n for n in a if n.endswith("/" + k))
+        np.testing.assert_array_equal(a[key], b[key], err_msg=k)
+
+
 def test_resume_after_kill_keeps_finished_shards(tmp_path):
     out = tmp_path / "out"
     cmd = [sys.executable, "-c", "from sc3d_cli.data import main; main()", "render", "--out", str(out),

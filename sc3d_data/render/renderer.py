@@ -75,8 +75,13 @@ def gl_projection(K: np.ndarray, size: int, znear: float, zfar: float) -> np.nda
     return P
 
 
+#: prepended to both shaders: which optional varyings a program has (``_program``). A part
+#: without vertex colours or without a texture gets a program without that varying: every
+#: varying costs llvmpipe per-triangle set-up work (~10% of the draw call), and a constant
+#: white colour or an unused uv changes no pixel.
+_VARIANT_DEFINES = {"color": "#define HAS_COLOR\n", "texture": "#define HAS_TEXTURE\n"}
+
 _VERTEX = """
-#version 330 core
 layout(location = 0) in vec3 position;
 layout(location = 1) in vec4 color;
 layout(location = 2) in vec2 texcoord;
@@ -85,8 +90,12 @@ uniform mat4 view[NVIEWS];
 uniform mat4 proj;
 uniform vec2 grid;  // cols, rows
 out vec3 v_position;
+#ifdef HAS_COLOR
 out vec4 v_color;
+#endif
+#ifdef HAS_TEXTURE
 out vec2 v_uv;
+#endif
 void main() {
     int i = gl_InstanceID;
     vec4 p = view[i] * (model * vec4(position, 1.0));
@@ -101,19 +110,25 @@ void main() {
     c.y = (c.y + c.w * (1.0 + 2.0 * row)) / grid.y - c.w;
     gl_Position = c;
     v_position = p.xyz;
+#ifdef HAS_COLOR
     v_color = color;
+#endif
+#ifdef HAS_TEXTURE
     v_uv = texcoord;
+#endif
 }
 """
 
 _FRAGMENT = """
-#version 330 core
 in vec3 v_position;
+#ifdef HAS_COLOR
 in vec4 v_color;
+#endif
+#ifdef HAS_TEXTURE
 in vec2 v_uv;
-uniform vec4 base_color;
-uniform bool has_texture;
 uniform sampler2D base_texture;
+#endif
+uniform vec4 base_color;
 uniform float ambient;
 uniform float diffuse;
 out vec4 frag_color;
@@ -122,9 +137,14 @@ vec3 srgb_to_linear(vec3 c) {
 }
 void main() {
     vec3 base = base_color.rgb;
-    if (has_texture) base *= srgb_to_linear(texture(base_texture, v_uv).rgb);
+#ifdef HAS_TEXTURE
+    base *= srgb_to_linear(texture(base_texture, v_uv).rgb);
+#endif
     vec3 n = normalize(cross(dFdx(v_position), dFdy(v_position)));
-    vec3 c = base * (ambient + diffuse * abs(n.z)) * v_color.rgb;
+    vec3 c = base * (ambient + diffuse * abs(n.z));
+#ifdef HAS_COLOR
+    c *= v_color.rgb;
+#endif
     frag_color = vec4(pow(clamp(c, 0.0, 1.0), vec3(1.0 / 2.2)), 1.0);
 }
 """
@@ -231,22 +251,9 @@ class MeshRenderer:
 
     def _init_gl(self) -> None:
         GL = self.gl
-        from OpenGL.GL import shaders
-
-        src = _VERTEX.replace("NVIEWS", str(self.V))
-        self.program = shaders.compileProgram(shaders.compileShader(src, GL.GL_VERTEX_SHADER),
-                                              shaders.compileShader(_FRAGMENT, GL.GL_FRAGMENT_SHADER),
-                                              validate=False)
-        GL.glUseProgram(self.program)
-        self.loc = {n: GL.glGetUniformLocation(self.program, n) for n in
-                    ("model", "view", "proj", "grid", "base_color", "has_texture", "base_texture",
-                     "ambient", "diffuse")}
-        GL.glUniformMatrix4fv(self.loc["proj"], 1, GL.GL_TRUE, self.proj.astype(np.float32))
-        GL.glUniform2f(self.loc["grid"], self.cols, self.rows)
-        GL.glUniform1i(self.loc["base_texture"], 0)
-        GL.glUniform1f(self.loc["ambient"], self.settings.ambient)
-        GL.glUniform1f(self.loc["diffuse"], self.settings.light_intensity / math.pi)
-        self._set_views(self.views_gl)
+        self.programs: dict[tuple[bool, bool], tuple[int, dict]] = {}
+        self._views_now, self._views_serial = self.views_gl, 0  # the view matrices draws use
+        self._views_of: dict[int, int] = {}  # program -> serial of the views it holds
         W, H = self.S * self.cols, self.S * self.rows
         self.fbo = GL.glGenFramebuffers(1)
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self.fbo)
@@ -271,9 +278,40 @@ class MeshRenderer:
         self.vao = GL.glGenVertexArrays(1)
         GL.glBindVertexArray(self.vao)
 
-    def _set_views(self, views_gl: np.ndarray) -> None:
-        self.gl.glUniformMatrix4fv(self.loc["view"], self.V, self.gl.GL_TRUE,
-                                   np.ascontiguousarray(views_gl, dtype=np.float32))
+    def _program(self, color: bool, texture: bool) -> dict:
+        """Use (compile on first use) the program variant with the optional ``color`` and
+        ``texture`` varyings (``_VARIANT_DEFINES``); its uniform locations, views up to date."""
+        GL = self.gl
+        key = (color, texture)
+        if key not in self.programs:
+            from OpenGL.GL import shaders
+
+            head = "#version 330 core\n" + "".join(d for k, d in _VARIANT_DEFINES.items()
+                                                   if {"color": color, "texture": texture}[k])
+            program = shaders.compileProgram(
+                shaders.compileShader(head + _VERTEX.replace("NVIEWS", str(self.V)), GL.GL_VERTEX_SHADER),
+                shaders.compileShader(head + _FRAGMENT, GL.GL_FRAGMENT_SHADER), validate=False)
+            GL.glUseProgram(program)
+            loc = {n: GL.glGetUniformLocation(program, n) for n in
+                   ("model", "view", "proj", "grid", "base_color", "base_texture", "ambient", "diffuse")}
+            GL.glUniformMatrix4fv(loc["proj"], 1, GL.GL_TRUE, self.proj.astype(np.float32))
+            GL.glUniform2f(loc["grid"], self.cols, self.rows)
+            if texture:
+                GL.glUniform1i(loc["base_texture"], 0)
+            GL.glUniform1f(loc["ambient"], self.settings.ambient)
+            GL.glUniform1f(loc["diffuse"], self.settings.light_intensity / math.pi)
+            self.programs[key] = (program, loc)
+        program, loc = self.programs[key]
+        GL.glUseProgram(program)
+        if self._views_of.get(program) != self._views_serial:
+            GL.glUniformMatrix4fv(loc["view"], self.V, GL.GL_TRUE,
+                                  np.ascontiguousarray(self._views_now, dtype=np.float32))
+            self._views_of[program] = self._views_serial
+        return loc
+
+    def _use_views(self, views_gl: np.ndarray) -> None:
+        """Draw with the world -> OpenGL camera matrices ``views_gl [V,4,4]`` from now on."""
+        self._views_now, self._views_serial = views_gl, self._views_serial + 1
 
     def _texture(self, image):
         GL = self.gl
@@ -294,11 +332,13 @@ class MeshRenderer:
         return tex
 
     def _draw_part(self, model, pos, faces, colors, uv, base, image) -> tuple[list, list]:
-        GL, loc = self.gl, self.loc
+        GL = self.gl
+        has_tex = image is not None and uv is not None
+        loc = self._program(colors is not None, has_tex)
         buffers, textures = list(GL.glGenBuffers(4)), []
         for attr, data, size, dtype, norm in ((0, pos, 3, GL.GL_FLOAT, False),
                                               (1, colors, 4, GL.GL_UNSIGNED_BYTE, True),
-                                              (2, uv, 2, GL.GL_FLOAT, False)):
+                                              (2, uv if has_tex else None, 2, GL.GL_FLOAT, False)):
             if data is None:
                 GL.glDisableVertexAttribArray(attr)
                 continue
@@ -306,16 +346,10 @@ class MeshRenderer:
             GL.glBufferData(GL.GL_ARRAY_BUFFER, data.nbytes, data, GL.GL_STATIC_DRAW)
             GL.glVertexAttribPointer(attr, size, dtype, norm, 0, None)
             GL.glEnableVertexAttribArray(attr)
-        if colors is None:
-            GL.glVertexAttrib4f(1, 1.0, 1.0, 1.0, 1.0)
-        if uv is None:
-            GL.glVertexAttrib2f(2, 0.0, 0.0)
         GL.glBindBuffer(GL.GL_ELEMENT_ARRAY_BUFFER, buffers[3])
         GL.glBufferData(GL.GL_ELEMENT_ARRAY_BUFFER, faces.nbytes, faces, GL.GL_STATIC_DRAW)
-        has_tex = image is not None and uv is not None
         if has_tex:
             textures.append(self._texture(image))
-        GL.glUniform1i(loc["has_texture"], int(has_tex))
         GL.glUniform4f(loc["base_color"], *[float(x) for x in base])
         GL.glUniformMatrix4fv(loc["model"], 1, GL.GL_TRUE, model.astype(np.float32))
         GL.glDrawElementsInstanced(GL.GL_TRIANGLES, faces.size, GL.GL_UNSIGNED_INT, None, self.V)
@@ -335,7 +369,7 @@ class MeshRenderer:
         if R is not None:
             if len(R) != self.V:
                 raise ValueError(f"expected {self.V} cameras, got {len(R)}")
-            self._set_views(gl_view_matrices(np.asarray(R, np.float64), np.asarray(t, np.float64)))
+            self._use_views(gl_view_matrices(np.asarray(R, np.float64), np.asarray(t, np.float64)))
         GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)
         buffers, textures = [], []
         try:
@@ -362,7 +396,7 @@ class MeshRenderer:
             if textures:
                 GL.glDeleteTextures(textures)
             if R is not None:
-                self._set_views(self.views_gl)
+                self._use_views(self.views_gl)
         return out
 
     def close(self) -> None:

@@ -1,0 +1,5 @@
+"""``worker_preload`` plus PyOpenGL with pyrender's EGL platform, for a forkserver whose workers
+render with EGL (see ``worker_preload`` and ``local_pool._context``)."""
+from sc3d_data.pipeline.worker_preload import import_gl
+
+import_gl("egl")
