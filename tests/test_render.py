@@ -149,3 +149,13 @@ def test_shading_of_grey_vertex_colour_and_texture_matches_the_hand_derived_mode
         assert not (plain == 124).all(axis=-1).any()
     finally:
         r.close()
+
+
+def test_used_vertices_are_the_rows_np_unique_names_in_index_order():
+    from sc3d_data.geometry.normalize import used_vertices
+
+    rng = np.random.default_rng(3)
+    vertices = rng.normal(size=(50, 3))
+    faces = rng.integers(5, 40, size=(30, 3))  # vertices 0-4 and 40-49 are not used
+    np.testing.assert_array_equal(used_vertices(vertices, faces), vertices[np.unique(faces)])
+    assert len(used_vertices(vertices, [[2, 2, 7]])) == 2

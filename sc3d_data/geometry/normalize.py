@@ -48,6 +48,14 @@ def apply_transform(vertices: np.ndarray, transform: np.ndarray) -> np.ndarray:
     return vertices @ T[:3, :3].T + T[:3, 3]
 
 
+def used_vertices(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The rows of ``vertices [n,3]`` that some triangle of ``faces [m,3]`` names, in index order
+    (``vertices[np.unique(faces)]``, by a boolean mark: ~10x cheaper than the sort/hash)."""
+    is_used = np.zeros(len(vertices), dtype=bool)
+    is_used[np.asarray(faces).ravel()] = True
+    return vertices[is_used]
+
+
 def to_canonical_transform(vertices: np.ndarray, faces: np.ndarray | None = None,
                            mode: str = "fit", up: str = "+Y", front: str = "+Z") -> np.ndarray:
     """4x4 source -> canonical matrix for a mesh (``vertices [n,3]`` in the source frame; only
@@ -57,7 +65,7 @@ def to_canonical_transform(vertices: np.ndarray, faces: np.ndarray | None = None
         raise ValueError(f"normalize must be one of {NORMALIZE_MODES}, not {mode!r}")
     v = np.asarray(vertices, dtype=np.float64)
     if faces is not None and len(faces):
-        v = v[np.unique(faces)]
+        v = used_vertices(v, faces)
     rot = canonical_rotation(up, front)
     vr = v @ rot.T
     lo, hi = vr.min(axis=0), vr.max(axis=0)
