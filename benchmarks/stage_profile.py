@@ -27,8 +27,9 @@ from pathlib import Path
 
 ENV = "SC3D_STAGE_LOG"
 WORKER_STAGES = ("load", "normalise", "prepare parts", "texture upload + mipmaps",
-                 "buffer upload + draw call", "draw + readback", "voxelize", "send to main")
-MAIN_STAGES = ("recv in main", "compress + write shard", "write index")
+                 "buffer upload + draw call", "draw + readback", "voxelize", "compress chunks",
+                 "send to main")
+MAIN_STAGES = ("recv in main", "write shard", "write index")
 
 _current: dict[str, float] = {}
 
@@ -68,6 +69,7 @@ def install_worker_hooks() -> None:
     _wrap(normalize, "to_canonical_transform", "normalise")
     _wrap(normalize, "apply_transform", "normalise")
     _wrap(voxelize, "voxelize_triangles", "voxelize")
+    _wrap(job, "encode_arrays", "compress chunks")
     _wrap(render.MeshRenderer, "_draw_part", "upload + draw call")
     _wrap(render.MeshRenderer, "_texture", "texture upload + mipmaps")
     parts = render.mesh_parts
@@ -121,8 +123,17 @@ def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = Tr
     from sc3d_data.pipeline.render_run import RenderConfig, render_dataset
 
     main_acc: dict[str, float] = {}
-    saved = (pool.write_shard, rp.write_index_file, connection.Connection.recv)
-    _wrap(pool, "write_shard", "compress + write shard", main_acc)
+    saved = (pool.write_shard, rp.write_index_file, connection.Connection.recv, pool._context)
+    _wrap(pool, "write_shard", "write shard", main_acc)
+    context = pool._context
+
+    def context_with_hooks(gl_backend):  # the forkserver imports this module (the hooks) too
+        ctx = context(gl_backend)
+        if ctx.get_start_method() == "forkserver":
+            ctx.set_forkserver_preload([pool.PRELOAD_EGL if pool._server_gl[0] else pool.PRELOAD, __name__])
+        return ctx
+
+    pool._context = context_with_hooks
     _wrap(rp, "write_index_file", "write index", main_acc)
     recv = connection.Connection.recv
 
@@ -145,7 +156,7 @@ def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = Tr
             rows = [json.loads(line) for p in Path(tmp).glob("worker-*.jsonl") for line in open(p)]
     finally:
         os.environ.pop(ENV, None)
-        pool.write_shard, rp.write_index_file, connection.Connection.recv = saved
+        pool.write_shard, rp.write_index_file, connection.Connection.recv, pool._context = saved
     ok = [r for r in rows if r.get("status") == "ok"]
     worker = {s + c: 0.0 for s in WORKER_STAGES for c in ("", " cpu")}
     for r in ok:

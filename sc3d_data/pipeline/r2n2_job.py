@@ -26,7 +26,7 @@ from sc3d_data.formats.r2n2 import (BLENDER_LENS_MM, BLENDER_SENSOR_MM, MASK_THR
                                     R2N2_NUM_VIEWS, R2N2_VOXEL_RESOLUTION, R2N2Model, find_r2n2_models,
                                     load_r2n2_object)
 from sc3d_data.pipeline.job import ExecOptions, Job
-from sc3d_data.io.shards import CHUNK_LAYOUTS
+from sc3d_data.io.shards import CHUNK_LAYOUTS, encode_arrays
 from sc3d_data.pipeline.partition import Part
 from sc3d_data.pipeline.render_job import Task
 
@@ -96,7 +96,7 @@ def import_task(config: ImportConfig, backend: str, task: R2N2Task):
     try:
         record = load_r2n2_object(task.model, task.split, config.image_size, config.background,
                                   config.voxel_frame, config.front)
-        return task.pos, "ok", (record, [])
+        return task.pos, "ok", (encode_arrays(record, CHUNK_LAYOUTS[0]), [])
     except (ValueError, OSError) as e:  # the messages name the file
         return task.pos, "fail", str(e)
     except Exception as e:  # noqa: BLE001 - recorded per model, never aborts the run

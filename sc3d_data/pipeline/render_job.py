@@ -19,7 +19,7 @@ import numpy as np
 from sc3d_data.geometry.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS, ViewSettings
 from sc3d_data.io.meshes import DEFAULT_MAX_FACES
 from sc3d_data.pipeline.partition import Part
-from sc3d_data.io.shards import ObjectRecord, border_clipped
+from sc3d_data.io.shards import ObjectRecord, border_clipped, encode_arrays
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 SAMPLE_MESHES = REPO_ROOT / "assets" / "sample_meshes"
@@ -253,7 +253,9 @@ def failure_reason(task: Task, e: BaseException) -> str:
 
 def render_task(config: RenderConfig, backend: str, task: Task) -> tuple[int, str, object]:
     """The unit of work of every executor: ``(pos, "ok", (record, warnings))`` or
-    ``(pos, "fail", reason)``. Bad input never raises; a crash or hang of this process is the
+    ``(pos, "fail", reason)``; the record's bulk arrays come compressed as the shard stores
+    them (``shards.encode_arrays``: compression runs in the workers, not in the writer). Bad
+    input never raises; a crash or hang of this process is the
     executor's to catch (it kills and replaces the worker)."""
     renderer, _ = cached_renderer(config, backend)
     if task.model_id in os.environ.get(CRASH_ENV, "").split(","):
@@ -262,7 +264,7 @@ def render_task(config: RenderConfig, backend: str, task: Task) -> tuple[int, st
         os.kill(os.getpid(), signal.SIGKILL)
     try:
         record, warnings = render_one(renderer, task, config)
-        return task.pos, "ok", (record, warnings)
+        return task.pos, "ok", (encode_arrays(record, config.chunks), warnings)
     except Exception as e:  # noqa: BLE001 - recorded per object, never aborts the run
         return task.pos, "fail", failure_reason(task, e)
     finally:
