@@ -110,26 +110,28 @@ def test_parallel_equals_serial(sample_shards, tmp_path):
 def test_workers_get_the_environment_the_main_process_has_when_they_start(tmp_path):
     """Workers are forked from a forkserver started earlier (by this session's first render),
     yet they see a variable set afterwards, as spawned workers would: here the test-only crash
-    hook, set between two runs of this process, kills the worker of one object."""
+    hook, set between two runs of this process, kills the worker of the first object. The
+    object queued behind it in that worker's pipe is sent again and rendered."""
     from sc3d_data.pipeline import local_pool
     from sc3d_data.pipeline.render_job import CRASH_ENV
 
     meshes = tmp_path / "meshes" / "thing"
     meshes.mkdir(parents=True)
-    _write_obj(meshes / "box_a.obj", *_cube())
-    _write_obj(meshes / "box_b.obj", *_cube())
+    for name in ("box_a", "box_b", "box_c"):
+        _write_obj(meshes / f"{name}.obj", *_cube())
     run_cli(main, ["render", "--meshes", tmp_path / "meshes", "--out", tmp_path / "first", "--workers", "1", *FAST])
-    assert local_pool._context("egl").get_start_method() == "forkserver"
-    os.environ[CRASH_ENV] = "box_b"
+    assert local_pool._context("egl").get_start_method() == "forkserver" and local_pool.QUEUED == 2
+    os.environ[CRASH_ENV] = "box_a"
     try:
         res = run_cli(main, ["render", "--meshes", tmp_path / "meshes", "--out", tmp_path / "second",
                              "--workers", "1", *FAST])
     finally:
         del os.environ[CRASH_ENV]
-    assert "done 1" in res.output and "failed 1" in res.output
+    assert "done 2" in res.output and "failed 1" in res.output
     index = json.loads((tmp_path / "second" / "index.json").read_text())
-    assert [f["model_id"] for f in index["failures"]] == ["box_b"]
+    assert [f["model_id"] for f in index["failures"]] == ["box_a"]
     assert "killed by signal 9 (SIGKILL" in index["failures"][0]["reason"]
+    assert sorted(o["model_id"] for o in index["objects"]) == ["box_b", "box_c"]
 
 
 def test_osmesa_run_after_an_egl_run_in_one_process(tmp_path):

@@ -6,12 +6,14 @@ Workers are forked from multiprocessing's ``forkserver``, a clean process that i
 ~0.3 CPU-s instead of ~1.2 (``spawn``, the fallback where there is no forkserver). Neither the
 server nor the main process ever creates a GL context, so none is inherited through a fork; a
 worker gets the main process's environment as it is when the worker starts (``_worker_main``),
-as a spawned one would. Each makes its per-worker state once (``Job.start``: for rendering ONE ``MeshRenderer``) and handles
-one object at a time: the main process sends a task down a pipe and gets the result of
-``job.run`` back (``executor.Job``; default :data:`executor.RENDER`). Per-object time limit
-(``config.timeout_s``): a worker that takes longer (a loader that hangs, a huge mesh) is killed
-and replaced and the object is recorded as a failure; a worker that crashes is handled the same
-way (the next run retries it, ``retry_failed``).
+as a spawned one would. Each makes its per-worker state once (``Job.start``: for rendering ONE
+``MeshRenderer``) and handles one object at a time: the main process sends tasks down a pipe,
+keeping the next one queued behind the current (``QUEUED``), and gets the result of ``job.run``
+back (``executor.Job``; default :data:`executor.RENDER`). Per-object time limit
+(``config.timeout_s``, counted from when the worker starts the object): a worker that takes
+longer (a loader that hangs, a huge mesh) is killed and replaced and the object is recorded as
+a failure; a worker that crashes is handled the same way (the next run retries it,
+``retry_failed``); the task queued behind it goes to another worker.
 
 Implements ``sc3d_data.pipeline.executor.Executor`` (as ``ray_executor.RayExecutor`` does).
 """
@@ -27,6 +29,8 @@ from sc3d_data.pipeline.render_job import THREAD_ENV, Task
 from sc3d_data.io.shards import write_shard
 
 
+#: tasks a worker holds at a time: the one it works on and the next, already in its pipe
+QUEUED = 2
 #: imported once by the forkserver (see module doc); ``PRELOAD_EGL`` when EGL workers come first
 PRELOAD = "sc3d_data.pipeline.worker_preload"
 PRELOAD_EGL = "sc3d_data.pipeline.worker_preload_egl"
@@ -106,8 +110,8 @@ class _Worker:
         self.proc.start()
         child.close()
         self.ready = False
-        self.task: Task | None = None
-        self.started = 0.0
+        self.tasks: list[Task] = []  # sent, no result yet; the first is the one being worked on
+        self.started = 0.0  # when the first of ``tasks`` started (its time limit runs from here)
 
     def kill(self) -> None:
         if self.proc.is_alive():
@@ -117,7 +121,7 @@ class _Worker:
 
 
 class WorkerPool:
-    """``n`` workers of ``job`` fed one task at a time; ``run(tasks)`` yields
+    """``n`` workers of ``job``, each holding up to ``QUEUED`` tasks; ``run(tasks)`` yields
     ``(pos, status, payload)`` with status ``ok`` (payload: (record, warnings)) or ``fail``
     (payload: reason), enforcing the per-object time limit."""
 
@@ -149,25 +153,33 @@ class WorkerPool:
                     w.ready = True
         return None
 
-    def _replace(self, w: _Worker) -> _Worker:
+    def _replace(self, w: _Worker) -> list[Task]:
+        """Kill ``w`` and start a worker in its place; the tasks it had queued behind the one it
+        was working on (to be sent again)."""
         w.kill()
         new = _Worker(self.ctx, self.job, self.config, self.backend)
         self.workers[self.workers.index(w)] = new
-        return new
+        return w.tasks[1:]
 
     def run(self, tasks, may_dispatch=lambda pos: True):
+        """Yield ``(pos, status, payload)`` per task. Each worker has up to ``QUEUED`` tasks
+        sent ahead, so it starts the next object the moment it sends a result (no round trip
+        through this process in between); the time limit of a task runs from then."""
         todo = list(tasks)[::-1]  # pop() from the end = plan order
         timeout = self.config.timeout_s
-        while todo or any(w.task for w in self.workers):
+        while todo or any(w.tasks for w in self.workers):
             for w in self.workers:
-                if w.ready and w.task is None and todo and may_dispatch(todo[-1].pos):
-                    w.task, w.started = todo.pop(), time.monotonic()
+                while w.ready and len(w.tasks) < QUEUED and todo and may_dispatch(todo[-1].pos):
+                    task = todo.pop()
+                    if not w.tasks:
+                        w.started = time.monotonic()
+                    w.tasks.append(task)
                     try:
-                        w.conn.send(w.task)
+                        w.conn.send(task)
                     except OSError:
-                        pass  # the worker died: its pipe reads EOF below and the task is failed
+                        break  # the worker died: its pipe reads EOF below and the task is failed
 
-            busy = [w for w in self.workers if w.task is not None]
+            busy = [w for w in self.workers if w.tasks]
             now = time.monotonic()
             wait_s = min([w.started + timeout - now for w in busy], default=1.0)
             ready = wait([w.conn for w in self.workers], timeout=max(0.0, min(wait_s, 1.0)))
@@ -185,23 +197,24 @@ class WorkerPool:
 
                         raise BackendError(f"{self.job.name} worker could not start: {payload}")
                     elif status in ("ok", "fail"):
-                        w.task = None
+                        w.tasks.pop(0)
+                        w.started = time.monotonic()
                         yield pos, status, payload
                     else:  # crashed
-                        task = w.task
+                        task = w.tasks[0] if w.tasks else None
                         w.proc.join(5)
                         code = w.proc.exitcode
                         if not w.ready:
                             self.close()
                             raise RuntimeError(f"a {self.job.name} worker died while starting (exit code {code})")
-                        self._replace(w)
+                        todo.extend(self._replace(w)[::-1])
                         if task is not None:
                             how = (f"killed by signal {-code} ({_signal_name(-code)})" if code and code < 0
                                    else f"exited with code {code}")
                             yield task.pos, "fail", f"{task.path}: {self.job.name} worker {how} while working on it"
-                elif w.task is not None and time.monotonic() - w.started > timeout:
-                    task = w.task
-                    self._replace(w)
+                elif w.tasks and time.monotonic() - w.started > timeout:
+                    task = w.tasks[0]
+                    todo.extend(self._replace(w)[::-1])
                     yield task.pos, "fail", f"{task.path}: timed out after {timeout:g} s (--timeout)"
 
     def write_shard(self, path, records, settings: dict) -> str:
@@ -211,7 +224,7 @@ class WorkerPool:
     def close(self) -> None:
         for w in self.workers:
             try:
-                if w.proc.is_alive() and w.task is None:
+                if w.proc.is_alive() and not w.tasks:
                     w.conn.send(None)
             except OSError:
                 pass
