@@ -19,6 +19,7 @@ from __future__ import annotations
 import zlib
 
 import numpy as np
+from numba import njit
 
 DEFLATE_LEVEL = 4
 
@@ -26,20 +27,34 @@ DEFLATE_LEVEL = 4
 def fletcher32(data: bytes) -> int:
     """HDF5's Fletcher-32 (``H5_checksum_fletcher32``) of ``data``: 16-bit big-endian words
     (an odd last byte is the high byte of a last word), ``sum1`` = sum of the words and
-    ``sum2`` = sum of the running ``sum1``, both reduced by end-around carry, i.e. mod 65535
-    with a nonzero sum ending up in 1..65535 (never 0); ``(sum2 << 16) | sum1``."""
-    b = np.frombuffer(data, dtype=np.uint8)
+    ``sum2`` = sum of the running ``sum1``, both folded by end-around carry (mod 65535, a
+    nonzero sum ending up in 1..65535); ``(sum2 << 16) | sum1``."""
+    return int(_fletcher32(np.frombuffer(data, dtype=np.uint8)))
+
+
+@njit(cache=True, nogil=True)
+def _fletcher32(b):  # pragma: no cover - compiled; the loop of H5checksum.c, block by block
+    n_words = len(b) // 2
+    sum1 = np.uint32(0)
+    sum2 = np.uint32(0)
+    i = 0
+    while n_words > 0:
+        block = min(n_words, 360)  # at most 360 words between folds: no 32-bit overflow
+        n_words -= block
+        for _ in range(block):
+            sum1 += (np.uint32(b[i]) << np.uint32(8)) | np.uint32(b[i + 1])
+            sum2 += sum1
+            i += 2
+        sum1 = (sum1 & np.uint32(0xFFFF)) + (sum1 >> np.uint32(16))
+        sum2 = (sum2 & np.uint32(0xFFFF)) + (sum2 >> np.uint32(16))
     if len(b) % 2:
-        b = np.append(b, np.uint8(0))
-    words = (b[0::2].astype(np.uint64) << np.uint64(8)) | b[1::2]
-    if not words.any():
-        return 0
-    n = len(words)
-    # word i is in the running sum of the n - i prefixes that end at or after it
-    weights = (n - np.arange(n, dtype=np.uint64)) % np.uint64(65535)
-    sum1 = int(words.sum()) % 65535 or 65535
-    sum2 = int((words * weights).sum() % np.uint64(65535)) or 65535
-    return (sum2 << 16) | sum1
+        sum1 += np.uint32(b[i]) << np.uint32(8)
+        sum2 += sum1
+        sum1 = (sum1 & np.uint32(0xFFFF)) + (sum1 >> np.uint32(16))
+        sum2 = (sum2 & np.uint32(0xFFFF)) + (sum2 >> np.uint32(16))
+    sum1 = (sum1 & np.uint32(0xFFFF)) + (sum1 >> np.uint32(16))
+    sum2 = (sum2 & np.uint32(0xFFFF)) + (sum2 >> np.uint32(16))
+    return (sum2 << np.uint32(16)) | sum1
 
 
 def encode_chunk(block: np.ndarray) -> bytes:

@@ -6,9 +6,9 @@ compiled numba kernels (~0.3 CPU-s) by itself; with two workers on two cores tha
 ~12 CPU-seconds of rendering 195 meshes. Forked from a server that did it once, a worker starts
 with both in memory (copy-on-write) and only makes its GL context.
 
-Importing this module has that side effect on purpose: it imports ``trimesh`` and
-voxelizes an open unit box at ``8^3`` so that every kernel ``voxelize_triangles`` calls is
-compiled or read from numba's cache. ``worker_preload_egl`` adds PyOpenGL and pyrender's EGL
+Importing this module has that side effect on purpose: it imports ``trimesh``, voxelizes an
+open unit box at ``8^3`` so that every kernel ``voxelize_triangles`` calls is compiled or read
+from numba's cache, and encodes one chunk (``chunk_codec``'s checksum kernel). ``worker_preload_egl`` adds PyOpenGL and pyrender's EGL
 platform module (~0.25 s per worker): imported only, no display or context is made, so no GL
 state is ever inherited through a fork; a server that has it serves EGL workers only
 (``local_pool._context``), since ``PYOPENGL_PLATFORM`` is fixed at PyOpenGL's import.
@@ -19,6 +19,7 @@ from importlib import import_module
 
 import numpy as np
 
+from sc3d_data.io.chunk_codec import encode_chunk
 from sc3d_data.voxel.voxelize import voxelize_triangles
 
 
@@ -41,3 +42,4 @@ def import_gl(backend: str) -> None:
 
 import_module("trimesh")  # the import is the point: workers inherit it
 warm_voxelizer()
+encode_chunk(np.arange(3, dtype=np.uint8))
