@@ -1,0 +1,102 @@
+"""The render pipeline of an older source tree against the current one, end to end, in one run:
+views/s of ``render --voxelize --workers N`` (the figure ``sc3d-data render`` prints) and
+whether the two datasets hold the same values.
+
+    git archive <OLD_COMMIT> | tar -x -C /tmp/old
+    python benchmarks/pipeline_compare.py /tmp/old [MESH_FOLDER] [--workers 2] [--repeat 3]
+
+Each run is a fresh Python process calling ``render_dataset`` of its tree (``sys.path`` puts the
+tree first) on the same meshes into a temporary folder; one uncounted run per tree first (numba
+compiles a tree's kernels into its own cache, the OS caches the files), then the trees
+alternate, ``--repeat`` runs each, so a change in the machine's load hits both. Prints every run and the median per tree
+with the ratio, then compares the last two datasets array by array (values, not file bytes).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+RUN_ONE = """
+import json, sys
+sys.path.insert(0, {tree!r})
+from pathlib import Path
+from sc3d_data.pipeline.render_run import RenderConfig, render_dataset
+s = render_dataset(RenderConfig(out=Path({out!r}), meshes=Path({meshes!r}), voxelize=True,
+                                workers={workers}, progress=False, bad_texture="fallback"))
+print(json.dumps({{k: s[k] for k in ("done", "failed", "seconds", "views_per_s")}}))
+"""
+
+
+def run_once(tree: Path, meshes: Path, out: Path, workers: int) -> dict:
+    code = RUN_ONE.format(tree=str(tree.resolve()), out=str(out), meshes=str(meshes.resolve()), workers=workers)
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    if res.returncode:
+        raise SystemExit(f"{tree}: render failed:\n{res.stderr[-2000:]}")
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def differing_values(a: Path, b: Path) -> dict[str, int]:
+    """Per dataset name: how many values differ between the datasets in folders ``a`` and ``b``
+    (objects matched by id)."""
+    import h5py
+    import numpy as np
+
+    def load(folder):
+        out = {}
+        for p in sorted(folder.glob("shard-*.h5")):
+            with h5py.File(p) as f:
+                ids = [x.decode() if isinstance(x, bytes) else x for x in f["model_id"][()]]
+                for name in f:
+                    if f[name].dtype.kind != "O":
+                        for i, mid in enumerate(ids):
+                            out[(name, mid)] = f[name][i]
+        return out
+
+    x, y = load(a), load(b)
+    if x.keys() != y.keys():
+        raise SystemExit(f"the datasets hold different objects or arrays: {sorted(set(x) ^ set(y))[:5]}")
+    diff: dict[str, int] = {}
+    for key in x:
+        diff[key[0]] = diff.get(key[0], 0) + int(np.count_nonzero(x[key] != y[key]))
+    return diff
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("old_tree", type=Path, help="source tree of the old version (holds sc3d_data/)")
+    ap.add_argument("meshes", nargs="?", type=Path, default=REPO.parent / "shared" / "meshes")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    trees = {"old": args.old_tree, "new": REPO}
+    runs: dict[str, list[dict]] = {k: [] for k in trees}
+    with tempfile.TemporaryDirectory(prefix="sc3d-pipeline-") as tmp:
+        for name, tree in trees.items():
+            run_once(tree, args.meshes, Path(tmp) / f"warm-{name}", args.workers)
+        for i in range(args.repeat):
+            for name, tree in trees.items():
+                r = run_once(tree, args.meshes, Path(tmp) / f"{name}{i}", args.workers)
+                runs[name].append(r)
+                print(f"run {i + 1} {name}: {r['done']} objects, {r['failed']} failed, {r['seconds']:.2f} s, "
+                      f"{r['views_per_s']:.0f} views/s", flush=True)
+        diff = differing_values(Path(tmp) / f"old{args.repeat - 1}", Path(tmp) / f"new{args.repeat - 1}")
+    med = {k: statistics.median(r["views_per_s"] for r in v) for k, v in runs.items()}
+    print(f"\n| render --voxelize --workers {args.workers} | median views/s | median s |")
+    print("|---|---|---|")
+    for k in trees:
+        print(f"| {k} ({trees[k]}) | {med[k]:.0f} | {statistics.median(r['seconds'] for r in runs[k]):.2f} |")
+    print(f"| ratio new / old | {med['new'] / med['old']:.2f}x | |")
+    changed = {k: v for k, v in diff.items() if v}
+    print("\nvalues differing between old and new: " + (", ".join(f"{k}: {v}" for k, v in changed.items())
+                                                       if changed else "none"))
+
+
+if __name__ == "__main__":
+    main()
