@@ -202,6 +202,35 @@ def mean_scalars(t: Training, losses: dict) -> dict:
     return dict(zip(scalars, all_mean(torch.stack(list(scalars.values())), t.dist).tolist()))
 
 
+class WaitedBatches:
+    """A batch iterator that adds the wall-clock seconds its ``next`` blocks (the training loop
+    waiting for the loader) to ``seconds``: the ``data_wait`` share logged by ``fit``."""
+
+    def __init__(self, batches):
+        self.batches, self.seconds = batches, 0.0
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        t0 = time.perf_counter()
+        try:
+            return next(self.batches)
+        finally:
+            self.seconds += time.perf_counter() - t0
+
+
+def gpu_utilisation(device: torch.device) -> float | None:
+    """The device's utilisation over the driver's last sample period (0-1; NVML via
+    ``torch.cuda.utilization``), None off CUDA or without NVML."""
+    if device.type != "cuda":
+        return None
+    try:
+        return torch.cuda.utilization(device) / 100.0
+    except Exception:  # noqa: BLE001 - pynvml missing or the driver does not report it
+        return None
+
+
 def fit(cfg: RunConfig, resume: bool = False) -> dict:
     """Train according to ``cfg`` (see module doc). Returns a summary dict: ``step``,
     ``last_losses``, ``samples_per_s``, ``checkpoint`` (path of last.pt).
@@ -231,11 +260,13 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
         progress = progress_bar(total=cfg.steps, initial=start_step, unit="step", desc="train")
 
     phase, loaders, last_losses = None, {}, {}
-    t_log, n_log, rate = time.perf_counter(), 0, 0.0
+    t_log, n_log, rate, waited = time.perf_counter(), 0, 0.0, 0.0
     try:
         for step in range(start_step, cfg.steps):
             if phase_at(cfg, step) != phase:
-                phase, loaders = phase_at(cfg, step), phase_loaders(t, step)
+                waited += sum(it.seconds for it in loaders.values())
+                phase = phase_at(cfg, step)
+                loaders = {p: WaitedBatches(it) for p, it in phase_loaders(t, step).items()}
             losses = train_step(t, loaders, step, last_good)
             n_log += cfg.batch_size
             done = step + 1
@@ -243,13 +274,19 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
                 if t.device.type == "cuda":
                     torch.cuda.synchronize()
                 now = time.perf_counter()
-                rate, t_log, n_log = n_log / max(now - t_log, 1e-9), now, 0
+                waited += sum(it.seconds for it in loaders.values())
+                wait_share = waited / max(now - t_log, 1e-9)
+                rate, t_log, n_log, waited = n_log / max(now - t_log, 1e-9), now, 0, 0.0
+                for it in loaders.values():
+                    it.seconds = 0.0
                 last_losses = mean_scalars(t, losses)
+                gpu = gpu_utilisation(t.device)
                 log.log(step, {"phase": phase, **last_losses, "lr": lr_at(cfg, step),
-                               "samples_per_s": round(rate, 2)})
+                               "samples_per_s": round(rate, 2), "data_wait": round(wait_share, 4),
+                               **({"gpu_util": gpu} if gpu is not None else {})})
                 if progress is not None:
                     progress.set_postfix(loss=f"{last_losses['total']:.4f}", phase=phase,
-                                         samples_s=f"{rate:.1f}")
+                                         samples_s=f"{rate:.1f}", data_wait=f"{100 * wait_share:.0f}%")
             if progress is not None:
                 progress.update(1)
             boundary = cfg.mode == "semi" and done == cfg.pretrain_steps

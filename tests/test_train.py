@@ -43,6 +43,7 @@ def test_fit_writes_the_run_and_learns(trained_run, sample_shards):
     assert np.isfinite(total).all()
     assert total[-20:].mean() < 0.85 * total[:10].mean(), (total[:10].mean(), total[-20:].mean())
     assert float(rows[0]["samples_per_s"]) > 0
+    assert all(0.0 < float(r["data_wait"]) < 1.0 for r in rows)  # the loop waited for data, not only
 
     # train-set voxel IoU: trained model vs the same network untrained (eval mode both)
     model, cfg, _ = load_model(trained_run / "checkpoints" / "last.pt")
@@ -278,3 +279,21 @@ def test_unlabelled_pass_leaves_batchnorm_running_statistics_alone():
     model(x)  # outside the context the running statistics move
     assert not torch.equal(bn.running_mean, before[0])
     assert out.voxel_logits.shape == (4, 32, 32, 32)
+
+
+def test_waited_batches_counts_the_time_next_blocks():
+    """A loader that takes 30 ms per batch, consumed by a loop that spends 20 ms per step: the
+    clock must show 3 x 30 ms of waiting (and nothing of the loop's own time)."""
+    import time
+
+    from sc3d_train.trainer import WaitedBatches
+
+    def slow():
+        for i in range(3):
+            time.sleep(0.03)
+            yield i
+
+    batches = WaitedBatches(slow())
+    for _ in batches:
+        time.sleep(0.02)
+    assert batches.seconds == pytest.approx(0.09, abs=0.015)
