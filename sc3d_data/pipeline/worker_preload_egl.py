@@ -1,5 +1,8 @@
 """``worker_preload`` plus PyOpenGL with pyrender's EGL platform, for a forkserver whose workers
 render with EGL (see ``worker_preload`` and ``local_pool._context``)."""
+import gc
+
 from sc3d_data.pipeline.worker_preload import import_gl
 
 import_gl("egl")
+gc.freeze()
