@@ -1,9 +1,11 @@
 """The training log of a run: ``metrics.csv`` (one row per logged step), TensorBoard scalars
-(``tb/``) and the ``curves.png`` plot."""
+(``tb/``) and the ``curves.png`` plot; and two of the measures it logs: the time the loop waits
+for data (:class:`WaitedBatches`) and the GPU's utilisation (:func:`gpu_utilisation`)."""
 from __future__ import annotations
 
 import csv
 import math
+import time
 from pathlib import Path
 
 CSV_NAME = "metrics.csv"
@@ -60,6 +62,37 @@ class MetricsLog:
     def close(self):
         if self.enabled:
             self.tb.close()
+
+
+class WaitedBatches:
+    """A batch iterator that adds the wall-clock seconds its ``next`` blocks (the training loop
+    waiting for the loader) to ``seconds``: the ``data_wait`` share logged by ``fit``."""
+
+    def __init__(self, batches):
+        self.batches, self.seconds = batches, 0.0
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        t0 = time.perf_counter()
+        try:
+            return next(self.batches)
+        finally:
+            self.seconds += time.perf_counter() - t0
+
+
+def gpu_utilisation(device) -> float | None:
+    """The device's utilisation over the driver's last sample period (0-1; NVML via
+    ``torch.cuda.utilization``), None off CUDA or without NVML."""
+    if device.type != "cuda":
+        return None
+    import torch
+
+    try:
+        return torch.cuda.utilization(device) / 100.0
+    except Exception:  # noqa: BLE001 - pynvml missing or the driver does not report it
+        return None
 
 
 def plot_curves(csv_path: Path, png_path: Path) -> None:

@@ -49,7 +49,7 @@ from sc3d_train.checkpoint import (CheckpointError, build_model, checkpoint_conf
                                    state_dict_mismatch)
 from sc3d_train.config import CONFIG_NAME, RunConfig
 from sc3d_train.data import ShardDataset
-from sc3d_train.metrics_log import MetricsLog, plot_curves
+from sc3d_train.metrics_log import MetricsLog, WaitedBatches, gpu_utilisation, plot_curves
 from sc3d_train.phase_step import optimizer_step, step_losses, training_batch
 from sc3d_train.runtime import (DistInfo, all_gather, all_mean, all_min, channels_last_on, resolve_amp,
                                 resolve_device, seed_everything, setup_distributed)
@@ -200,35 +200,6 @@ def mean_scalars(t: Training, losses: dict) -> dict:
     """The scalar losses as floats, averaged over the ranks."""
     scalars = {k: v.detach().float() for k, v in losses.items() if torch.is_tensor(v) and v.ndim == 0}
     return dict(zip(scalars, all_mean(torch.stack(list(scalars.values())), t.dist).tolist()))
-
-
-class WaitedBatches:
-    """A batch iterator that adds the wall-clock seconds its ``next`` blocks (the training loop
-    waiting for the loader) to ``seconds``: the ``data_wait`` share logged by ``fit``."""
-
-    def __init__(self, batches):
-        self.batches, self.seconds = batches, 0.0
-
-    def __iter__(self):
-        return self
-
-    def __next__(self):
-        t0 = time.perf_counter()
-        try:
-            return next(self.batches)
-        finally:
-            self.seconds += time.perf_counter() - t0
-
-
-def gpu_utilisation(device: torch.device) -> float | None:
-    """The device's utilisation over the driver's last sample period (0-1; NVML via
-    ``torch.cuda.utilization``), None off CUDA or without NVML."""
-    if device.type != "cuda":
-        return None
-    try:
-        return torch.cuda.utilization(device) / 100.0
-    except Exception:  # noqa: BLE001 - pynvml missing or the driver does not report it
-        return None
 
 
 def fit(cfg: RunConfig, resume: bool = False) -> dict:

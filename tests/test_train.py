@@ -286,7 +286,7 @@ def test_waited_batches_counts_the_time_next_blocks():
     clock must show 3 x 30 ms of waiting (and nothing of the loop's own time)."""
     import time
 
-    from sc3d_train.trainer import WaitedBatches
+    from sc3d_train.metrics_log import WaitedBatches
 
     def slow():
         for i in range(3):
