@@ -58,10 +58,21 @@ def _rss_mb(pid="self") -> float:
     return float("nan")
 
 
-def _children() -> list[int]:
-    pid = os.getpid()
-    with open(f"/proc/{pid}/task/{pid}/children") as f:
-        return [int(x) for x in f.read().split()]
+def _children(pid: int | None = None) -> list[int]:
+    """The processes below ``pid`` (default: this one), children and their children: the render
+    workers are children of multiprocessing's forkserver, itself a child of this process. The
+    forkserver (it has children) is left out: it is not a worker."""
+    pid = os.getpid() if pid is None else pid
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as f:
+            kids = [int(x) for x in f.read().split()]
+    except OSError:
+        return []
+    out = []
+    for k in kids:
+        grand = _children(k)
+        out += grand if grand else [k]
+    return out
 
 
 def run_pipeline_memory(paths, root: Path, repeat: int, workers: int, views: int) -> dict:
