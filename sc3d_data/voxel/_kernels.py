@@ -174,6 +174,18 @@ def _solid_angle(tri, t, px, py, pz):
     return 2.0 * math.atan2(det, div)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _centroid_area(tri, t):
+    """Centroid (c0, c1, c2) and vector area (n0, n1, n2: half the cross product of two edges)
+    of triangle ``t``."""
+    c0 = (tri[t, 0, 0] + tri[t, 1, 0] + tri[t, 2, 0]) / 3.0
+    c1 = (tri[t, 0, 1] + tri[t, 1, 1] + tri[t, 2, 1]) / 3.0
+    c2 = (tri[t, 0, 2] + tri[t, 1, 2] + tri[t, 2, 2]) / 3.0
+    ux, uy, uz = tri[t, 1, 0] - tri[t, 0, 0], tri[t, 1, 1] - tri[t, 0, 1], tri[t, 1, 2] - tri[t, 0, 2]
+    vx, vy, vz = tri[t, 2, 0] - tri[t, 0, 0], tri[t, 2, 1] - tri[t, 0, 1], tri[t, 2, 2] - tri[t, 0, 2]
+    return c0, c1, c2, 0.5 * (uy * vz - uz * vy), 0.5 * (uz * vx - ux * vz), 0.5 * (ux * vy - uy * vx)
+
+
 @njit(cache=True, nogil=True, fastmath=True)
 def winding_kernel(tri, pts, G, beta):
     """Generalized winding numbers of the triangle soup ``tri [m, 3, 3]`` at ``pts [P, 3]``
@@ -181,6 +193,19 @@ def winding_kernel(tri, pts, G, beta):
     2018 (as libigl's): exact solid angles of the triangles near a point; clusters of a loose
     octree farther than ``beta`` times their radius by the Taylor expansion of their field to
     second order."""
+    start, child, node, order = _winding_tree(tri, G)
+    return _winding_queries(tri, pts, beta, start, child, node, order)
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def _winding_tree(tri, G):
+    """The loose octree of ``winding_kernel`` and the expansions of its clusters.
+
+    Returns ``start [n + 1]`` (cluster c owns the triangles ``order[start[c]:start[c + 1]]``),
+    ``child [n, 8]`` (-1: none), ``node [n, 44]`` (one packed row per cluster, see below) and
+    ``order [m]``. Per-triangle quantities (centroid, vector area) are recomputed in each pass
+    over the triangles rather than stored: the passes read ``tri`` in order and write only
+    per-cluster sums, so a large mesh touches little fresh memory."""
     m = tri.shape[0]
     # dense ids of the octree cells of all levels: level l has (2^l)^3 cells from off[l]
     off = np.zeros(TREE_DEPTH + 2, dtype=np.int64)
@@ -188,21 +213,13 @@ def winding_kernel(tri, pts, G, beta):
         s = 1 << lv
         off[lv + 1] = off[lv] + s * s * s
     n_dense = off[TREE_DEPTH + 1]
-    tc = np.empty((m, 3))
-    varea = np.empty((m, 3))
-    dense_of_tri = np.empty(m, dtype=np.int64)
+    node_of_tri = np.empty(m, dtype=np.int64)  # dense cell ids first, compact ids below
     compact = np.full(n_dense, -1, dtype=np.int64)
     for t in range(m):
-        for d in range(3):
-            tc[t, d] = (tri[t, 0, d] + tri[t, 1, d] + tri[t, 2, d]) / 3.0
-        ux, uy, uz = tri[t, 1, 0] - tri[t, 0, 0], tri[t, 1, 1] - tri[t, 0, 1], tri[t, 1, 2] - tri[t, 0, 2]
-        vx, vy, vz = tri[t, 2, 0] - tri[t, 0, 0], tri[t, 2, 1] - tri[t, 0, 1], tri[t, 2, 2] - tri[t, 0, 2]
-        varea[t, 0] = 0.5 * (uy * vz - uz * vy)
-        varea[t, 1] = 0.5 * (uz * vx - ux * vz)
-        varea[t, 2] = 0.5 * (ux * vy - uy * vx)
+        tc0, tc1, tc2, _, _, _ = _centroid_area(tri, t)
         rt = 0.0
         for q in range(3):
-            dx, dy, dz = tri[t, q, 0] - tc[t, 0], tri[t, q, 1] - tc[t, 1], tri[t, q, 2] - tc[t, 2]
+            dx, dy, dz = tri[t, q, 0] - tc0, tri[t, q, 1] - tc1, tri[t, q, 2] - tc2
             rt = max(rt, math.sqrt(dx * dx + dy * dy + dz * dz))
         # loose octree: the deepest level whose cells are at least twice the triangle's radius,
         # so one large triangle does not make a cluster of small ones look near
@@ -210,10 +227,10 @@ def winding_kernel(tri, pts, G, beta):
         while lv > 0 and rt > 0.5 * G / (1 << lv):
             lv -= 1
         s = 1 << lv
-        i = min(max(int(math.floor(tc[t, 0] / G * s)), 0), s - 1)
-        j = min(max(int(math.floor(tc[t, 1] / G * s)), 0), s - 1)
-        k = min(max(int(math.floor(tc[t, 2] / G * s)), 0), s - 1)
-        dense_of_tri[t] = off[lv] + (i * s + j) * s + k
+        i = min(max(int(math.floor(tc0 / G * s)), 0), s - 1)
+        j = min(max(int(math.floor(tc1 / G * s)), 0), s - 1)
+        k = min(max(int(math.floor(tc2 / G * s)), 0), s - 1)
+        node_of_tri[t] = off[lv] + (i * s + j) * s + k
         while True:  # mark the cell and its ancestors as used
             dn = off[lv] + (i * s + j) * s + k
             if compact[dn] == 0:
@@ -232,27 +249,23 @@ def winding_kernel(tri, pts, G, beta):
         if compact[dn] == 0:
             compact[dn] = n
             n += 1
-    level = np.empty(n, dtype=np.int64)
     parent = np.full(n, -1, dtype=np.int64)
     child = np.full((n, 8), -1, dtype=np.int64)
-    for lv in range(TREE_DEPTH + 1):
+    for lv in range(1, TREE_DEPTH + 1):
         s = 1 << lv
         for dn in range(off[lv], off[lv + 1]):
             c = compact[dn]
             if c < 0:
                 continue
-            level[c] = lv
-            if lv > 0:
-                loc = dn - off[lv]
-                i, j, k = loc // (s * s), (loc // s) % s, loc % s
-                h = s >> 1
-                pc = compact[off[lv - 1] + ((i >> 1) * h + (j >> 1)) * h + (k >> 1)]
-                parent[c] = pc
-                child[pc, (i & 1) * 4 + (j & 1) * 2 + (k & 1)] = c
-    node_of_tri = np.empty(m, dtype=np.int64)
+            loc = dn - off[lv]
+            i, j, k = loc // (s * s), (loc // s) % s, loc % s
+            h = s >> 1
+            pc = compact[off[lv - 1] + ((i >> 1) * h + (j >> 1)) * h + (k >> 1)]
+            parent[c] = pc
+            child[pc, (i & 1) * 4 + (j & 1) * 2 + (k & 1)] = c
     start = np.zeros(n + 1, dtype=np.int64)
     for t in range(m):
-        node_of_tri[t] = compact[dense_of_tri[t]]
+        node_of_tri[t] = compact[node_of_tri[t]]
         start[node_of_tri[t] + 1] += 1
     for c in range(n):
         start[c + 1] += start[c]
@@ -269,13 +282,19 @@ def winding_kernel(tri, pts, G, beta):
     nrm = np.zeros((n, 3))
     for t in range(m):
         c = node_of_tri[t]
-        a = math.sqrt(varea[t, 0] ** 2 + varea[t, 1] ** 2 + varea[t, 2] ** 2)
+        tc0, tc1, tc2, n0, n1, n2 = _centroid_area(tri, t)
+        a = math.sqrt(n0 ** 2 + n1 ** 2 + n2 ** 2)
         area[c] += a
         cnt[c] += 1
-        for d in range(3):
-            cen[c, d] += a * tc[t, d]
-            plain[c, d] += tc[t, d]
-            nrm[c, d] += varea[t, d]
+        cen[c, 0] += a * tc0
+        cen[c, 1] += a * tc1
+        cen[c, 2] += a * tc2
+        plain[c, 0] += tc0
+        plain[c, 1] += tc1
+        plain[c, 2] += tc2
+        nrm[c, 0] += n0
+        nrm[c, 1] += n1
+        nrm[c, 2] += n2
     for c in range(n - 1, 0, -1):  # children have larger ids than their parents
         pc = parent[c]
         area[pc] += area[c]
@@ -293,20 +312,23 @@ def winding_kernel(tri, pts, G, beta):
     cub = np.zeros((n, 3, 6))    # second moments: integral of n_i s_j s_k dA, (j, k) in _JJ, _KK
     for t in range(m):
         c = node_of_tri[t]
+        tc0, tc1, tc2, n0, n1, n2 = _centroid_area(tri, t)
+        tc = (tc0, tc1, tc2)
+        varea = (n0, n1, n2)
         for q in range(3):
             dx, dy, dz = tri[t, q, 0] - cen[c, 0], tri[t, q, 1] - cen[c, 1], tri[t, q, 2] - cen[c, 2]
             rad[c] = max(rad[c], math.sqrt(dx * dx + dy * dy + dz * dz))
         for d in range(3):
             for e in range(3):
-                quad[c, d, e] += varea[t, d] * (tc[t, e] - cen[c, e])
+                quad[c, d, e] += varea[d] * (tc[e] - cen[c, e])
         # integral over the triangle of s s^T = area / 12 (sum_v s_v s_v^T + 9 s_c s_c^T)
         for q in range(6):
             jj, kk = _JJ[q], _KK[q]
-            mom = 9.0 * (tc[t, jj] - cen[c, jj]) * (tc[t, kk] - cen[c, kk])
+            mom = 9.0 * (tc[jj] - cen[c, jj]) * (tc[kk] - cen[c, kk])
             for v in range(3):
                 mom += (tri[t, v, jj] - cen[c, jj]) * (tri[t, v, kk] - cen[c, kk])
             for d in range(3):
-                cub[c, d, q] += varea[t, d] * mom / 12.0
+                cub[c, d, q] += varea[d] * mom / 12.0
     for c in range(n - 1, 0, -1):  # then the children's, shifted: s_parent = s_child + delta
         pc = parent[c]
         dl0, dl1, dl2 = cen[c, 0] - cen[pc, 0], cen[c, 1] - cen[pc, 1], cen[c, 2] - cen[pc, 2]
@@ -344,18 +366,24 @@ def winding_kernel(tri, pts, G, beta):
         for d in range(3):
             for e in range(3):
                 node[c, 14 + 3 * d + e] = quad[c, d, e]
-    tri_s = np.empty((m, 3, 3))  # triangles in cluster order, for locality
-    # per triangle (cluster order): centroid, radius, vector area N, M N, tr M, M (xx yy zz xy
-    # xz yz) with M = 1/12 sum_v s_v s_v^T about the centroid: its own second-order expansion
-    tdat = np.empty((m, 17))
-    for q in range(m):
+    return start, child, node, order
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def _fill_cluster(tri, order, lo, hi, beta, tdat, tri_s):
+    """Rows ``lo:hi`` (one cluster's own triangles, cluster order) of ``tri_s [m, 3, 3]`` (the
+    triangles) and ``tdat [m, 17]``: centroid, (beta * radius)^2, vector area N, M N, tr M, M
+    (xx yy zz xy xz yz) with M = 1/12 sum_v s_v s_v^T about the centroid: the triangle's own
+    second-order expansion."""
+    for q in range(lo, hi):
         t = order[q]
-        m0 = m1 = m2 = m3 = m4 = m5 = 0.0  # scalars: no array allocated per triangle
+        tc0, tc1, tc2, n0, n1, n2 = _centroid_area(tri, t)
+        m0 = m1 = m2 = m3 = m4 = m5 = 0.0
         rt = 0.0
         for v in range(3):
             for d in range(3):
                 tri_s[q, v, d] = tri[t, v, d]
-            s0, s1, s2 = tri[t, v, 0] - tc[t, 0], tri[t, v, 1] - tc[t, 1], tri[t, v, 2] - tc[t, 2]
+            s0, s1, s2 = tri[t, v, 0] - tc0, tri[t, v, 1] - tc1, tri[t, v, 2] - tc2
             rt = max(rt, math.sqrt(s0 * s0 + s1 * s1 + s2 * s2))
             m0 += s0 * s0 / 12.0
             m1 += s1 * s1 / 12.0
@@ -363,8 +391,8 @@ def winding_kernel(tri, pts, G, beta):
             m3 += s0 * s1 / 12.0
             m4 += s0 * s2 / 12.0
             m5 += s1 * s2 / 12.0
-        n0, n1, n2 = varea[t, 0], varea[t, 1], varea[t, 2]
-        tdat[q, 0], tdat[q, 1], tdat[q, 2], tdat[q, 3] = tc[t, 0], tc[t, 1], tc[t, 2], rt
+        br = beta * rt
+        tdat[q, 0], tdat[q, 1], tdat[q, 2], tdat[q, 3] = tc0, tc1, tc2, br * br
         tdat[q, 4], tdat[q, 5], tdat[q, 6] = n0, n1, n2
         tdat[q, 7] = m0 * n0 + m3 * n1 + m4 * n2
         tdat[q, 8] = m3 * n0 + m1 * n1 + m5 * n2
@@ -372,11 +400,37 @@ def winding_kernel(tri, pts, G, beta):
         tdat[q, 10] = m0 + m1 + m2
         tdat[q, 11], tdat[q, 12], tdat[q, 13] = m0, m1, m2
         tdat[q, 14], tdat[q, 15], tdat[q, 16] = m3, m4, m5
+
+
+#: 2^-600 and 2^600: exact rescalings of the running product of ``_winding_queries``
+_TINY = 2.0 ** -600
+_HUGE = 2.0 ** 600
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def _winding_queries(tri, pts, beta, start, child, node, order):
+    """Winding numbers ``[P]`` at ``pts [P, 3]`` from the tree of ``_winding_tree``.
+
+    The per-triangle data of a cluster (``_fill_cluster``) is computed the first time some
+    query point comes near it, so few queries on a large mesh touch few triangles.
+    The exact solid angles 2 atan2(y_t, x_t) of the near triangles (Van Oosterom & Strackee)
+    are summed as the argument of the product of the complex numbers x_t + i y_t: each factor
+    is first turned by whole quarter turns into the first quadrant (exact: swaps and sign
+    changes, counted in ``turns``), and so is the running product after each multiplication,
+    so the sum is ``turns * pi / 2`` plus one atan2 at the end, with no 2 pi ambiguity. This
+    equals the sum of the atan2 terms up to round-off (a few 1e-16 per term) and costs a
+    complex multiplication instead of an atan2 per triangle."""
+    m = tri.shape[0]
+    tdat = np.empty((m, 17))
+    tri_s = np.empty((m, 3, 3))
+    ready = np.zeros(node.shape[0], dtype=np.bool_)
     out = np.zeros(pts.shape[0])
     stack = np.empty(8 * (TREE_DEPTH + 2), dtype=np.int64)
     for p in range(pts.shape[0]):
         px, py, pz = pts[p, 0], pts[p, 1], pts[p, 2]
         w = 0.0
+        pr, pim = 1.0, 0.0  # running product, kept in the first quadrant
+        turns = 0
         stack[0] = 0
         top = 1
         while top > 0:
@@ -409,25 +463,59 @@ def winding_kernel(tri, pts, G, beta):
                 rv = r0 * row[11] + r1 * row[12] + r2 * row[13]
                 w += (row[4] * r0 + row[5] * r1 + row[6] * r2 + row[7]) / d3 \
                     - (3.0 * rtr + 1.5 * (2.0 * ru + rv)) / d5 + 7.5 * rrr / (d5 * d2)
-            else:
-                for q in range(start[c], start[c + 1]):
-                    td = tdat[q]
-                    r0, r1, r2 = td[0] - px, td[1] - py, td[2] - pz
-                    d2 = r0 * r0 + r1 * r1 + r2 * r2
-                    br = beta * td[3]
-                    if d2 > br * br:  # the triangle alone is far: its own expansion (T = 0)
-                        d5 = d2 * d2 * math.sqrt(d2)
-                        nr = td[4] * r0 + td[5] * r1 + td[6] * r2
-                        rmr = td[11] * r0 * r0 + td[12] * r1 * r1 + td[13] * r2 * r2 \
-                            + 2.0 * (td[14] * r0 * r1 + td[15] * r0 * r2 + td[16] * r1 * r2)
-                        ru = td[7] * r0 + td[8] * r1 + td[9] * r2
-                        w += nr * d2 / d5 - 1.5 * (2.0 * ru + nr * td[10]) / d5 + 7.5 * nr * rmr / (d5 * d2)
-                    else:
-                        w += _solid_angle(tri_s, q, px, py, pz)
-                for q in range(8):
-                    if child[c, q] >= 0:
-                        stack[top] = child[c, q]
-                        top += 1
+                continue
+            if not ready[c]:
+                _fill_cluster(tri, order, start[c], start[c + 1], beta, tdat, tri_s)
+                ready[c] = True
+            for q in range(start[c], start[c + 1]):
+                td = tdat[q]
+                r0, r1, r2 = td[0] - px, td[1] - py, td[2] - pz
+                d2 = r0 * r0 + r1 * r1 + r2 * r2
+                if d2 > td[3]:  # the triangle alone is far: its own expansion (T = 0)
+                    d5 = d2 * d2 * math.sqrt(d2)
+                    nr = td[4] * r0 + td[5] * r1 + td[6] * r2
+                    rmr = td[11] * r0 * r0 + td[12] * r1 * r1 + td[13] * r2 * r2 \
+                        + 2.0 * (td[14] * r0 * r1 + td[15] * r0 * r2 + td[16] * r1 * r2)
+                    ru = td[7] * r0 + td[8] * r1 + td[9] * r2
+                    w += nr * d2 / d5 - 1.5 * (2.0 * ru + nr * td[10]) / d5 + 7.5 * nr * rmr / (d5 * d2)
+                    continue
+                ax, ay, az = tri_s[q, 0, 0] - px, tri_s[q, 0, 1] - py, tri_s[q, 0, 2] - pz
+                bx, by, bz = tri_s[q, 1, 0] - px, tri_s[q, 1, 1] - py, tri_s[q, 1, 2] - pz
+                cx, cy, cz = tri_s[q, 2, 0] - px, tri_s[q, 2, 1] - py, tri_s[q, 2, 2] - pz
+                la = math.sqrt(ax * ax + ay * ay + az * az)
+                lb = math.sqrt(bx * bx + by * by + bz * bz)
+                lc = math.sqrt(cx * cx + cy * cy + cz * cz)
+                y = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
+                x = la * lb * lc + (ax * bx + ay * by + az * bz) * lc \
+                    + (bx * cx + by * cy + bz * cz) * la + (cx * ax + cy * ay + cz * az) * lb
+                if y >= 0.0:  # quarter turns: x + iy into the first quadrant
+                    if x <= 0.0:
+                        if x == 0.0 and y == 0.0:
+                            continue  # the point is a vertex: atan2(0, 0) = 0
+                        x, y = y, -x
+                        turns += 1
+                elif x >= 0.0:
+                    x, y = -y, x
+                    turns -= 1
+                else:
+                    x, y = -x, -y
+                    turns -= 2
+                pr, pim = pr * x - pim * y, pr * y + pim * x
+                if pr < 0.0:  # the product left the first quadrant
+                    pr, pim = pim, -pr
+                    turns += 1
+                size = abs(pr) + abs(pim)
+                if size > _HUGE:
+                    pr *= _TINY
+                    pim *= _TINY
+                elif size < _TINY:
+                    pr *= _HUGE
+                    pim *= _HUGE
+            for q in range(8):
+                if child[c, q] >= 0:
+                    stack[top] = child[c, q]
+                    top += 1
+        w += 2.0 * (turns * (0.5 * math.pi) + math.atan2(pim, pr))
         out[p] = w / (4.0 * math.pi)
     return out
 
