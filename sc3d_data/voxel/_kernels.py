@@ -186,7 +186,7 @@ def _centroid_area(tri, t):
     return c0, c1, c2, 0.5 * (uy * vz - uz * vy), 0.5 * (uz * vx - ux * vz), 0.5 * (ux * vy - uy * vx)
 
 
-@njit(cache=True, nogil=True, fastmath=True)
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def winding_kernel(tri, pts, G, beta):
     """Generalized winding numbers of the triangle soup ``tri [m, 3, 3]`` at ``pts [P, 3]``
     (both in the units of a grid spanning [0, G]^3): the fast winding number of Barill et al.
@@ -194,10 +194,10 @@ def winding_kernel(tri, pts, G, beta):
     octree farther than ``beta`` times their radius by the Taylor expansion of their field to
     second order."""
     start, child, node, order = _winding_tree(tri, G)
-    return _winding_queries(tri, pts, beta, start, child, node, order)
+    return _winding_queries(tri, pts, beta, start, child, node, order, G / 8.0)
 
 
-@njit(cache=True, nogil=True, fastmath=True)
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _winding_tree(tri, G):
     """The loose octree of ``winding_kernel`` and the expansions of its clusters.
 
@@ -369,7 +369,7 @@ def _winding_tree(tri, G):
     return start, child, node, order
 
 
-@njit(cache=True, nogil=True, fastmath=True)
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _fill_cluster(tri, order, lo, hi, beta, tdat, tri_s):
     """Rows ``lo:hi`` (one cluster's own triangles, cluster order) of ``tri_s [m, 3, 3]`` (the
     triangles) and ``tdat [m, 17]``: centroid, (beta * radius)^2, vector area N, M N, tr M, M
@@ -407,116 +407,247 @@ _TINY = 2.0 ** -600
 _HUGE = 2.0 ** 600
 
 
-@njit(cache=True, nogil=True, fastmath=True)
-def _winding_queries(tri, pts, beta, start, child, node, order):
+@njit(cache=True, nogil=True, inline="always")
+def _cluster_term(node, c, px, py, pz):
+    """Second-order Taylor expansion of cluster ``c``'s field at (px, py, pz), times 4 pi.
+
+    The terms libigl's fast winding number uses. With R = centre - point, D = |R|,
+    g(r) = r / |r|^3, s = x - centre:
+    w = N.g(R) + sum_ij T_ij d_j g_i(R) + 1/2 sum_ijk C_ijk d_j d_k g_i(R),
+    T_ij = int n_i s_j dA, C_ijk = int n_i s_j s_k dA, which gives
+    (N.R + tr T) / D^3 - 3 R.T.R / D^5 - 3/2 (2 R.u + R.v) / D^5 + 15/2 C(R,R,R) / D^7."""
+    r0, r1, r2 = node[c, 0] - px, node[c, 1] - py, node[c, 2] - pz
+    d2 = r0 * r0 + r1 * r1 + r2 * r2
+    dist = math.sqrt(d2)
+    d3 = d2 * dist
+    d5 = d3 * d2
+    q0, q1, q2 = r0 * r0, r1 * r1, r2 * r2
+    q3, q4, q5 = r0 * r1, r0 * r2, r1 * r2
+    rc0 = node[c, 26] * q0 + node[c, 27] * q1 + node[c, 28] * q2 + node[c, 29] * q3 + node[c, 30] * q4 + node[c, 31] * q5
+    rc1 = node[c, 32] * q0 + node[c, 33] * q1 + node[c, 34] * q2 + node[c, 35] * q3 + node[c, 36] * q4 + node[c, 37] * q5
+    rc2 = node[c, 38] * q0 + node[c, 39] * q1 + node[c, 40] * q2 + node[c, 41] * q3 + node[c, 42] * q4 + node[c, 43] * q5
+    rrr = r0 * rc0 + r1 * rc1 + r2 * rc2
+    rtr = r0 * (node[c, 14] * r0 + node[c, 15] * r1 + node[c, 16] * r2) \
+        + r1 * (node[c, 17] * r0 + node[c, 18] * r1 + node[c, 19] * r2) \
+        + r2 * (node[c, 20] * r0 + node[c, 21] * r1 + node[c, 22] * r2)
+    ru = r0 * node[c, 8] + r1 * node[c, 9] + r2 * node[c, 10]
+    rv = r0 * node[c, 11] + r1 * node[c, 12] + r2 * node[c, 13]
+    return (node[c, 4] * r0 + node[c, 5] * r1 + node[c, 6] * r2 + node[c, 7]) / d3 \
+        - (3.0 * rtr + 1.5 * (2.0 * ru + rv)) / d5 + 7.5 * rrr / (d5 * d2)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _triangle_term(tdat, q, px, py, pz):
+    """Triangle ``q``'s own second-order expansion at (px, py, pz) (T = 0), times 4 pi."""
+    r0, r1, r2 = tdat[q, 0] - px, tdat[q, 1] - py, tdat[q, 2] - pz
+    d2 = r0 * r0 + r1 * r1 + r2 * r2
+    d5 = d2 * d2 * math.sqrt(d2)
+    nr = tdat[q, 4] * r0 + tdat[q, 5] * r1 + tdat[q, 6] * r2
+    rmr = tdat[q, 11] * r0 * r0 + tdat[q, 12] * r1 * r1 + tdat[q, 13] * r2 * r2 \
+        + 2.0 * (tdat[q, 14] * r0 * r1 + tdat[q, 15] * r0 * r2 + tdat[q, 16] * r1 * r2)
+    ru = tdat[q, 7] * r0 + tdat[q, 8] * r1 + tdat[q, 9] * r2
+    return nr * d2 / d5 - 1.5 * (2.0 * ru + nr * tdat[q, 10]) / d5 + 7.5 * nr * rmr / (d5 * d2)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _angle_factor(tri_s, q, px, py, pz):
+    """x + iy with triangle ``q``'s solid angle at (px, py, pz) = 2 atan2(y, x) (Van Oosterom
+    & Strackee), turned by whole quarter turns (exact: swaps and sign changes) into the first
+    quadrant: returns the turned x, y and the number of quarter turns (a float). A point on a
+    vertex (x = y = 0, atan2 0) gives 1 + 0i."""
+    ax, ay, az = tri_s[q, 0, 0] - px, tri_s[q, 0, 1] - py, tri_s[q, 0, 2] - pz
+    bx, by, bz = tri_s[q, 1, 0] - px, tri_s[q, 1, 1] - py, tri_s[q, 1, 2] - pz
+    cx, cy, cz = tri_s[q, 2, 0] - px, tri_s[q, 2, 1] - py, tri_s[q, 2, 2] - pz
+    la = math.sqrt(ax * ax + ay * ay + az * az)
+    lb = math.sqrt(bx * bx + by * by + bz * bz)
+    lc = math.sqrt(cx * cx + cy * cy + cz * cz)
+    y = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
+    x = la * lb * lc + (ax * bx + ay * by + az * bz) * lc \
+        + (bx * cx + by * cy + bz * cz) * la + (cx * ax + cy * ay + cz * az) * lb
+    if y >= 0.0:
+        if x > 0.0:
+            return x, y, 0.0
+        if x == 0.0 and y == 0.0:
+            return 1.0, 0.0, 0.0
+        return y, -x, 1.0
+    if x >= 0.0:
+        return -y, x, -1.0
+    return -x, -y, -2.0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _multiply_turned(acc, j, x, y, turns):
+    """Multiplies the running product ``acc[j] = (re, im, quarter turns)`` of
+    ``_winding_queries`` by a factor of ``_angle_factor``, and turns the product back into the
+    first quadrant (it stays within a factor 2^600 of 1)."""
+    pr, pim = acc[j, 0], acc[j, 1]
+    pr, pim = pr * x - pim * y, pr * y + pim * x
+    if pr < 0.0:  # the product left the first quadrant
+        pr, pim = pim, -pr
+        turns += 1.0
+    size = abs(pr) + abs(pim)
+    if size > _HUGE:
+        pr *= _TINY
+        pim *= _TINY
+    elif size < _TINY:
+        pr *= _HUGE
+        pim *= _HUGE
+    acc[j, 0], acc[j, 1] = pr, pim
+    acc[j, 2] += turns
+
+
+#: most query points evaluated together (one block)
+_BLOCK = 64
+#: relative margin by which a box distance must clear a cluster's radius to decide for a block
+_MARGIN = 1e-9
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _box_distances(lo, hi, x, y, z):
+    """Squared distances from (x, y, z) to the nearest and the farthest point of box lo..hi."""
+    near = 0.0
+    far = 0.0
+    for d in range(3):
+        v = x if d == 0 else (y if d == 1 else z)
+        a, b = lo[d] - v, v - hi[d]
+        g = max(a, b, 0.0)
+        near += g * g
+        f = max(abs(a), abs(b))
+        far += f * f
+    return near, far
+
+
+@njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _winding_queries(tri, pts, beta, start, child, node, order, cell):
     """Winding numbers ``[P]`` at ``pts [P, 3]`` from the tree of ``_winding_tree``.
+
+    Query points are taken in blocks of at most ``_BLOCK`` that share a cube of side ``cell``,
+    and the block walks the tree once: a cluster (or a near cluster's triangle) farther than
+    its radius times ``beta`` from the whole box of the block (with a relative margin far
+    above round-off) is expanded for every point, one nearer than that from the whole box is
+    opened for every point, and only the others are decided point by point. Each point thus
+    gets exactly the terms, in the same order, that its own walk would give.
 
     The per-triangle data of a cluster (``_fill_cluster``) is computed the first time some
     query point comes near it, so few queries on a large mesh touch few triangles.
     The exact solid angles 2 atan2(y_t, x_t) of the near triangles (Van Oosterom & Strackee)
     are summed as the argument of the product of the complex numbers x_t + i y_t: each factor
     is first turned by whole quarter turns into the first quadrant (exact: swaps and sign
-    changes, counted in ``turns``), and so is the running product after each multiplication,
-    so the sum is ``turns * pi / 2`` plus one atan2 at the end, with no 2 pi ambiguity. This
+    changes, counted), and so is the running product after each multiplication, so the sum is
+    the quarter turns times pi / 2 plus one atan2 at the end, with no 2 pi ambiguity. This
     equals the sum of the atan2 terms up to round-off (a few 1e-16 per term) and costs a
     complex multiplication instead of an atan2 per triangle."""
     m = tri.shape[0]
+    P = pts.shape[0]
     tdat = np.empty((m, 17))
     tri_s = np.empty((m, 3, 3))
     ready = np.zeros(node.shape[0], dtype=np.bool_)
-    out = np.zeros(pts.shape[0])
-    stack = np.empty(8 * (TREE_DEPTH + 2), dtype=np.int64)
-    for p in range(pts.shape[0]):
-        px, py, pz = pts[p, 0], pts[p, 1], pts[p, 2]
-        w = 0.0
-        pr, pim = 1.0, 0.0  # running product, kept in the first quadrant
-        turns = 0
-        stack[0] = 0
+    out = np.zeros(P)
+    # blocks: points sorted by their cube of side ``cell``
+    lo = np.empty(3)
+    hi = np.empty(3)
+    for d in range(3):
+        lo[d] = pts[:, d].min()
+        hi[d] = pts[:, d].max()
+    nc = np.empty(3, dtype=np.int64)
+    for d in range(3):
+        nc[d] = int((hi[d] - lo[d]) / cell) + 1
+    key = np.empty(P, dtype=np.int64)
+    for p in range(P):
+        i = int((pts[p, 0] - lo[0]) / cell)
+        j = int((pts[p, 1] - lo[1]) / cell)
+        k = int((pts[p, 2] - lo[2]) / cell)
+        key[p] = (i * nc[1] + j) * nc[2] + k
+    perm = np.argsort(key, kind="mergesort")
+    w = np.empty(_BLOCK)
+    acc = np.empty((_BLOCK, 3))  # running product (re, im) and quarter turns per point
+    # the active points of the open clusters: stacked segments of point ids and their
+    # coordinates (contiguous, so that the loops over a segment vectorise), and scratch
+    L = _BLOCK * (TREE_DEPTH + 2)
+    ids = np.empty(L, dtype=np.int64)
+    X = np.empty(L)
+    Y = np.empty(L)
+    Z = np.empty(L)
+    tmp = np.empty(L)
+    tmp_y = np.empty(L)
+    tmp_t = np.empty(L)
+    stack = np.empty((8 * (TREE_DEPTH + 2), 3), dtype=np.int64)  # cluster, its segment
+    b0 = 0
+    while b0 < P:
+        b1 = b0 + 1
+        while b1 < P and b1 - b0 < _BLOCK and key[perm[b1]] == key[perm[b0]]:
+            b1 += 1
+        nb = b1 - b0
+        for d in range(3):
+            lo[d] = np.inf
+            hi[d] = -np.inf
+        for j in range(nb):
+            p = perm[b0 + j]
+            X[j], Y[j], Z[j] = pts[p, 0], pts[p, 1], pts[p, 2]
+            w[j] = 0.0
+            acc[j, 0], acc[j, 1], acc[j, 2] = 1.0, 0.0, 0.0
+            ids[j] = j
+            lo[0], hi[0] = min(lo[0], X[j]), max(hi[0], X[j])
+            lo[1], hi[1] = min(lo[1], Y[j]), max(hi[1], Y[j])
+            lo[2], hi[2] = min(lo[2], Z[j]), max(hi[2], Z[j])
+        stack[0, 0], stack[0, 1], stack[0, 2] = 0, 0, nb
         top = 1
         while top > 0:
             top -= 1
-            c = stack[top]
-            r0, r1, r2 = node[c, 0] - px, node[c, 1] - py, node[c, 2] - pz
-            d2 = r0 * r0 + r1 * r1 + r2 * r2
+            c, s0, s1 = stack[top, 0], stack[top, 1], stack[top, 2]
+            free = s1  # segments above s1 belonged to clusters already done
             br = beta * node[c, 3]
-            if d2 > br * br:
-                # Taylor expansion of the cluster's field about its centre to second order
-                # (the terms libigl's fast winding number uses). With R = centre - point,
-                # D = |R|, g(r) = r / |r|^3, s = x - centre:
-                # w = N.g(R) + sum_ij T_ij d_j g_i(R) + 1/2 sum_ijk C_ijk d_j d_k g_i(R),
-                # T_ij = int n_i s_j dA, C_ijk = int n_i s_j s_k dA, which gives
-                # (N.R + tr T) / D^3 - 3 R.T.R / D^5 - 3/2 (2 R.u + R.v) / D^5 + 15/2 C(R,R,R) / D^7
-                row = node[c]
-                dist = math.sqrt(d2)
-                d3 = d2 * dist
-                d5 = d3 * d2
-                q0, q1, q2 = r0 * r0, r1 * r1, r2 * r2
-                q3, q4, q5 = r0 * r1, r0 * r2, r1 * r2
-                rc0 = row[26] * q0 + row[27] * q1 + row[28] * q2 + row[29] * q3 + row[30] * q4 + row[31] * q5
-                rc1 = row[32] * q0 + row[33] * q1 + row[34] * q2 + row[35] * q3 + row[36] * q4 + row[37] * q5
-                rc2 = row[38] * q0 + row[39] * q1 + row[40] * q2 + row[41] * q3 + row[42] * q4 + row[43] * q5
-                rrr = r0 * rc0 + r1 * rc1 + r2 * rc2
-                rtr = r0 * (row[14] * r0 + row[15] * r1 + row[16] * r2) \
-                    + r1 * (row[17] * r0 + row[18] * r1 + row[19] * r2) \
-                    + r2 * (row[20] * r0 + row[21] * r1 + row[22] * r2)
-                ru = r0 * row[8] + r1 * row[9] + r2 * row[10]
-                rv = r0 * row[11] + r1 * row[12] + r2 * row[13]
-                w += (row[4] * r0 + row[5] * r1 + row[6] * r2 + row[7]) / d3 \
-                    - (3.0 * rtr + 1.5 * (2.0 * ru + rv)) / d5 + 7.5 * rrr / (d5 * d2)
+            br2 = br * br
+            near2, far2 = _box_distances(lo, hi, node[c, 0], node[c, 1], node[c, 2])
+            if near2 > br2 * (1.0 + _MARGIN):  # far from every point
+                for i in range(s0, s1):
+                    tmp[i] = _cluster_term(node, c, X[i], Y[i], Z[i])
+                for i in range(s0, s1):
+                    w[ids[i]] += tmp[i]
                 continue
-            if not ready[c]:
-                _fill_cluster(tri, order, start[c], start[c + 1], beta, tdat, tri_s)
-                ready[c] = True
-            for q in range(start[c], start[c + 1]):
-                td = tdat[q]
-                r0, r1, r2 = td[0] - px, td[1] - py, td[2] - pz
-                d2 = r0 * r0 + r1 * r1 + r2 * r2
-                if d2 > td[3]:  # the triangle alone is far: its own expansion (T = 0)
-                    d5 = d2 * d2 * math.sqrt(d2)
-                    nr = td[4] * r0 + td[5] * r1 + td[6] * r2
-                    rmr = td[11] * r0 * r0 + td[12] * r1 * r1 + td[13] * r2 * r2 \
-                        + 2.0 * (td[14] * r0 * r1 + td[15] * r0 * r2 + td[16] * r1 * r2)
-                    ru = td[7] * r0 + td[8] * r1 + td[9] * r2
-                    w += nr * d2 / d5 - 1.5 * (2.0 * ru + nr * td[10]) / d5 + 7.5 * nr * rmr / (d5 * d2)
+            if far2 >= br2 * (1.0 - _MARGIN):  # point by point; the near ones go on
+                for i in range(s0, s1):
+                    r0, r1, r2 = node[c, 0] - X[i], node[c, 1] - Y[i], node[c, 2] - Z[i]
+                    if r0 * r0 + r1 * r1 + r2 * r2 > br2:
+                        w[ids[i]] += _cluster_term(node, c, X[i], Y[i], Z[i])
+                    else:
+                        ids[free], X[free], Y[free], Z[free] = ids[i], X[i], Y[i], Z[i]
+                        free += 1
+                if free == s1:
                     continue
-                ax, ay, az = tri_s[q, 0, 0] - px, tri_s[q, 0, 1] - py, tri_s[q, 0, 2] - pz
-                bx, by, bz = tri_s[q, 1, 0] - px, tri_s[q, 1, 1] - py, tri_s[q, 1, 2] - pz
-                cx, cy, cz = tri_s[q, 2, 0] - px, tri_s[q, 2, 1] - py, tri_s[q, 2, 2] - pz
-                la = math.sqrt(ax * ax + ay * ay + az * az)
-                lb = math.sqrt(bx * bx + by * by + bz * bz)
-                lc = math.sqrt(cx * cx + cy * cy + cz * cz)
-                y = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
-                x = la * lb * lc + (ax * bx + ay * by + az * bz) * lc \
-                    + (bx * cx + by * cy + bz * cz) * la + (cx * ax + cy * ay + cz * az) * lb
-                if y >= 0.0:  # quarter turns: x + iy into the first quadrant
-                    if x <= 0.0:
-                        if x == 0.0 and y == 0.0:
-                            continue  # the point is a vertex: atan2(0, 0) = 0
-                        x, y = y, -x
-                        turns += 1
-                elif x >= 0.0:
-                    x, y = -y, x
-                    turns -= 1
-                else:
-                    x, y = -x, -y
-                    turns -= 2
-                pr, pim = pr * x - pim * y, pr * y + pim * x
-                if pr < 0.0:  # the product left the first quadrant
-                    pr, pim = pim, -pr
-                    turns += 1
-                size = abs(pr) + abs(pim)
-                if size > _HUGE:
-                    pr *= _TINY
-                    pim *= _TINY
-                elif size < _TINY:
-                    pr *= _HUGE
-                    pim *= _HUGE
+                s0, s1 = s1, free
+            if start[c] < start[c + 1]:
+                if not ready[c]:
+                    _fill_cluster(tri, order, start[c], start[c + 1], beta, tdat, tri_s)
+                    ready[c] = True
+                for q in range(start[c], start[c + 1]):
+                    near2, far2 = _box_distances(lo, hi, tdat[q, 0], tdat[q, 1], tdat[q, 2])
+                    if near2 > tdat[q, 3] * (1.0 + _MARGIN):
+                        for i in range(s0, s1):
+                            tmp[i] = _triangle_term(tdat, q, X[i], Y[i], Z[i])
+                        for i in range(s0, s1):
+                            w[ids[i]] += tmp[i]
+                    elif far2 < tdat[q, 3] * (1.0 - _MARGIN):
+                        for i in range(s0, s1):
+                            tmp[i], tmp_y[i], tmp_t[i] = _angle_factor(tri_s, q, X[i], Y[i], Z[i])
+                        for i in range(s0, s1):
+                            _multiply_turned(acc, ids[i], tmp[i], tmp_y[i], tmp_t[i])
+                    else:
+                        for i in range(s0, s1):
+                            r0, r1, r2 = tdat[q, 0] - X[i], tdat[q, 1] - Y[i], tdat[q, 2] - Z[i]
+                            if r0 * r0 + r1 * r1 + r2 * r2 > tdat[q, 3]:
+                                w[ids[i]] += _triangle_term(tdat, q, X[i], Y[i], Z[i])
+                            else:
+                                x, y, t = _angle_factor(tri_s, q, X[i], Y[i], Z[i])
+                                _multiply_turned(acc, ids[i], x, y, t)
             for q in range(8):
                 if child[c, q] >= 0:
-                    stack[top] = child[c, q]
+                    stack[top, 0], stack[top, 1], stack[top, 2] = child[c, q], s0, s1
                     top += 1
-        w += 2.0 * (turns * (0.5 * math.pi) + math.atan2(pim, pr))
-        out[p] = w / (4.0 * math.pi)
+        for j in range(nb):
+            ang = 2.0 * (acc[j, 2] * (0.5 * math.pi) + math.atan2(acc[j, 1], acc[j, 0]))
+            out[perm[b0 + j]] = (w[j] + ang) / (4.0 * math.pi)
+        b0 = b1
     return out
 
 
