@@ -92,43 +92,53 @@ def surface_kernel(tri, G, grid):
 
 
 @njit(cache=True, nogil=True)
+def _axis_histogram(tri, G, a, hist):
+    """Rasterises the triangles ``tri [m, 3, 3]`` along axis ``a`` (0 x, 1 y, 2 z): for the
+    ray line through voxel centres (ib + 0.5, ic + 0.5) of the other two axes b = a + 1,
+    c = a + 2 (mod 3), ``hist [G, G, G + 1]`` (zeroed here) gets at [ib, ic, n] the signed
+    crossings (+1 where the triangle's normal points along +a) that lie between the centres
+    n - 1 and n along a (n = 0: below the first centre, n = G: above the last)."""
+    b = (a + 1) % 3
+    c = (a + 2) % 3
+    hist[:] = 0
+    for t in range(tri.shape[0]):
+        b0, b1, b2 = tri[t, 0, b], tri[t, 1, b], tri[t, 2, b]
+        c0, c1, c2 = tri[t, 0, c], tri[t, 1, c], tri[t, 2, c]
+        area = (b1 - b0) * (c2 - c0) - (c1 - c0) * (b2 - b0)
+        if abs(area) <= 1e-12:
+            continue
+        lb = min(max(int(math.ceil(min(b0, b1, b2) - 0.5)), 0), G)
+        lc = min(max(int(math.ceil(min(c0, c1, c2) - 0.5)), 0), G)
+        hb = min(max(int(math.floor(max(b0, b1, b2) - 0.5)), -1), G - 1)
+        hc = min(max(int(math.floor(max(c0, c1, c2) - 0.5)), -1), G - 1)
+        if hb < lb or hc < lc:
+            continue
+        sgn = 1 if area > 0 else -1
+        d0, d1, d2 = tri[t, 0, a], tri[t, 1, a], tri[t, 2, a]
+        for ib in range(lb, hb + 1):
+            qb = ib + 0.5
+            for ic in range(lc, hc + 1):
+                qc = ic + 0.5
+                w0 = (b2 - b1) * (qc - c1) - (c2 - c1) * (qb - b1)
+                w1 = (b0 - b2) * (qc - c2) - (c0 - c2) * (qb - b2)
+                w2 = (b1 - b0) * (qc - c0) - (c1 - c0) * (qb - b0)
+                if sgn > 0:
+                    if w0 < 0 or w1 < 0 or w2 < 0:
+                        continue
+                elif w0 > 0 or w1 > 0 or w2 > 0:
+                    continue
+                d = (w0 * d0 + w1 * d1 + w2 * d2) / area
+                below = min(max(int(math.ceil(d - 0.5)), 0), G)
+                hist[ib, ic, below] += sgn
+
+
+@njit(cache=True, nogil=True)
 def crossings_kernel(tri, G, out):
     """Signed crossing counts of the six axis rays from every voxel centre, ``out [6, G, G, G]``
     int32 (see ``axis_ray_crossings``)."""
-    hist = np.zeros((G, G, G + 1), dtype=np.int32)
+    hist = np.empty((G, G, G + 1), dtype=np.int32)
     for a in range(3):
-        b = (a + 1) % 3
-        c = (a + 2) % 3
-        hist[:] = 0
-        for t in range(tri.shape[0]):
-            b0, b1, b2 = tri[t, 0, b], tri[t, 1, b], tri[t, 2, b]
-            c0, c1, c2 = tri[t, 0, c], tri[t, 1, c], tri[t, 2, c]
-            area = (b1 - b0) * (c2 - c0) - (c1 - c0) * (b2 - b0)
-            if abs(area) <= 1e-12:
-                continue
-            lb = min(max(int(math.ceil(min(b0, b1, b2) - 0.5)), 0), G)
-            lc = min(max(int(math.ceil(min(c0, c1, c2) - 0.5)), 0), G)
-            hb = min(max(int(math.floor(max(b0, b1, b2) - 0.5)), -1), G - 1)
-            hc = min(max(int(math.floor(max(c0, c1, c2) - 0.5)), -1), G - 1)
-            if hb < lb or hc < lc:
-                continue
-            sgn = 1 if area > 0 else -1
-            d0, d1, d2 = tri[t, 0, a], tri[t, 1, a], tri[t, 2, a]
-            for ib in range(lb, hb + 1):
-                qb = ib + 0.5
-                for ic in range(lc, hc + 1):
-                    qc = ic + 0.5
-                    w0 = (b2 - b1) * (qc - c1) - (c2 - c1) * (qb - b1)
-                    w1 = (b0 - b2) * (qc - c2) - (c0 - c2) * (qb - b2)
-                    w2 = (b1 - b0) * (qc - c0) - (c1 - c0) * (qb - b0)
-                    if sgn > 0:
-                        if w0 < 0 or w1 < 0 or w2 < 0:
-                            continue
-                    elif w0 > 0 or w1 > 0 or w2 > 0:
-                        continue
-                    d = (w0 * d0 + w1 * d1 + w2 * d2) / area
-                    below = min(max(int(math.ceil(d - 0.5)), 0), G)
-                    hist[ib, ic, below] += sgn
+        _axis_histogram(tri, G, a, hist)
         for ib in range(G):
             for ic in range(G):
                 total = 0
@@ -146,6 +156,33 @@ def crossings_kernel(tri, G, out):
                     else:
                         out[4, ib, ic, ia] = total - prefix
                         out[5, ib, ic, ia] = -prefix
+
+
+@njit(cache=True, nogil=True)
+def nonzero_rays_kernel(tri, G):
+    """How many of the six axis rays from each voxel centre have a non-zero signed crossing
+    count: ``(crossings_kernel(...) != 0).sum(0)`` as uint8 ``[G, G, G]``, without the
+    ``[6, G, G, G]`` array."""
+    hist = np.empty((G, G, G + 1), dtype=np.int32)
+    out = np.zeros((G, G, G), dtype=np.uint8)
+    for a in range(3):
+        _axis_histogram(tri, G, a, hist)
+        for ib in range(G):
+            for ic in range(G):
+                total = 0
+                for ia in range(G + 1):
+                    total += hist[ib, ic, ia]
+                prefix = 0
+                for ia in range(G):
+                    prefix += hist[ib, ic, ia]
+                    n = (total != prefix) + (prefix != 0)
+                    if a == 0:
+                        out[ia, ib, ic] += n
+                    elif a == 1:
+                        out[ic, ia, ib] += n
+                    else:
+                        out[ib, ic, ia] += n
+    return out
 
 
 #: octree depth of the winding-number tree: leaves are 1/32 of the grid cube per axis

@@ -147,9 +147,7 @@ def voxelize_triangles(vertices: np.ndarray, faces: np.ndarray, resolution: int 
     surface = np.zeros((G, G, G), dtype=bool)
     _k.surface_kernel(tri, G, surface)
     lap("surface")
-    crossings = np.zeros((6, G, G, G), dtype=np.int32)
-    _k.crossings_kernel(tri, G, crossings)
-    nonzero = (crossings != 0).sum(0)
+    nonzero = _k.nonzero_rays_kernel(tri, G)  # rays with a non-zero crossing count, 0..6
     lap("rays")
     # rule 3 applied early: voxels enclosed by surface and six-ray-inside voxels end up occupied
     # whatever the winding numbers say (filling is monotone), so they need no query
