@@ -254,10 +254,11 @@ def _winding_tree(tri, G):
     compact = np.full(n_dense, -1, dtype=np.int64)
     for t in range(m):
         tc0, tc1, tc2, _, _, _ = _centroid_area(tri, t)
-        rt = 0.0
+        rt2 = 0.0
         for q in range(3):
             dx, dy, dz = tri[t, q, 0] - tc0, tri[t, q, 1] - tc1, tri[t, q, 2] - tc2
-            rt = max(rt, math.sqrt(dx * dx + dy * dy + dz * dz))
+            rt2 = max(rt2, dx * dx + dy * dy + dz * dz)
+        rt = math.sqrt(rt2)  # sqrt is monotonic: the largest of the three square roots
         # loose octree: the deepest level whose cells are at least twice the triangle's radius,
         # so one large triangle does not make a cluster of small ones look near
         lv = TREE_DEPTH
@@ -350,22 +351,33 @@ def _winding_tree(tri, G):
     for t in range(m):
         c = node_of_tri[t]
         tc0, tc1, tc2, n0, n1, n2 = _centroid_area(tri, t)
-        tc = (tc0, tc1, tc2)
-        varea = (n0, n1, n2)
-        for q in range(3):
-            dx, dy, dz = tri[t, q, 0] - cen[c, 0], tri[t, q, 1] - cen[c, 1], tri[t, q, 2] - cen[c, 2]
-            rad[c] = max(rad[c], math.sqrt(dx * dx + dy * dy + dz * dz))
-        for d in range(3):
-            for e in range(3):
-                quad[c, d, e] += varea[d] * (tc[e] - cen[c, e])
+        e0, e1, e2 = cen[c, 0], cen[c, 1], cen[c, 2]
+        g0, g1, g2 = tc0 - e0, tc1 - e1, tc2 - e2  # the centroid about the cluster's centre
         # integral over the triangle of s s^T = area / 12 (sum_v s_v s_v^T + 9 s_c s_c^T)
-        for q in range(6):
-            jj, kk = _JJ[q], _KK[q]
-            mom = 9.0 * (tc[jj] - cen[c, jj]) * (tc[kk] - cen[c, kk])
-            for v in range(3):
-                mom += (tri[t, v, jj] - cen[c, jj]) * (tri[t, v, kk] - cen[c, kk])
-            for d in range(3):
-                cub[c, d, q] += varea[d] * mom / 12.0
+        m00, m11, m22 = 9.0 * g0 * g0, 9.0 * g1 * g1, 9.0 * g2 * g2
+        m01, m02, m12 = 9.0 * g0 * g1, 9.0 * g0 * g2, 9.0 * g1 * g2
+        far2 = 0.0
+        for v in range(3):
+            s0, s1, s2 = tri[t, v, 0] - e0, tri[t, v, 1] - e1, tri[t, v, 2] - e2
+            far2 = max(far2, s0 * s0 + s1 * s1 + s2 * s2)
+            m00 += s0 * s0
+            m11 += s1 * s1
+            m22 += s2 * s2
+            m01 += s0 * s1
+            m02 += s0 * s2
+            m12 += s1 * s2
+        rad[c] = max(rad[c], math.sqrt(far2))
+        for d in range(3):
+            nd = n0 if d == 0 else (n1 if d == 1 else n2)
+            quad[c, d, 0] += nd * g0
+            quad[c, d, 1] += nd * g1
+            quad[c, d, 2] += nd * g2
+            cub[c, d, 0] += nd * m00 / 12.0  # (j, k) in the order of _JJ, _KK
+            cub[c, d, 1] += nd * m11 / 12.0
+            cub[c, d, 2] += nd * m22 / 12.0
+            cub[c, d, 3] += nd * m01 / 12.0
+            cub[c, d, 4] += nd * m02 / 12.0
+            cub[c, d, 5] += nd * m12 / 12.0
     for c in range(n - 1, 0, -1):  # then the children's, shifted: s_parent = s_child + delta
         pc = parent[c]
         dl0, dl1, dl2 = cen[c, 0] - cen[pc, 0], cen[c, 1] - cen[pc, 1], cen[c, 2] - cen[pc, 2]
@@ -416,19 +428,19 @@ def _fill_cluster(tri, order, lo, hi, beta, tdat, tri_s):
         t = order[q]
         tc0, tc1, tc2, n0, n1, n2 = _centroid_area(tri, t)
         m0 = m1 = m2 = m3 = m4 = m5 = 0.0
-        rt = 0.0
+        rt2 = 0.0
         for v in range(3):
             for d in range(3):
                 tri_s[q, v, d] = tri[t, v, d]
             s0, s1, s2 = tri[t, v, 0] - tc0, tri[t, v, 1] - tc1, tri[t, v, 2] - tc2
-            rt = max(rt, math.sqrt(s0 * s0 + s1 * s1 + s2 * s2))
+            rt2 = max(rt2, s0 * s0 + s1 * s1 + s2 * s2)
             m0 += s0 * s0 / 12.0
             m1 += s1 * s1 / 12.0
             m2 += s2 * s2 / 12.0
             m3 += s0 * s1 / 12.0
             m4 += s0 * s2 / 12.0
             m5 += s1 * s2 / 12.0
-        br = beta * rt
+        br = beta * math.sqrt(rt2)
         tdat[q, 0], tdat[q, 1], tdat[q, 2], tdat[q, 3] = tc0, tc1, tc2, br * br
         tdat[q, 4], tdat[q, 5], tdat[q, 6] = n0, n1, n2
         tdat[q, 7] = m0 * n0 + m3 * n1 + m4 * n2
