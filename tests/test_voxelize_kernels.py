@@ -33,17 +33,25 @@ def test_fill_holes_kernel_equals_scipy():
             np.testing.assert_array_equal(K.fill_holes_kernel(occ), ndimage.binary_fill_holes(occ))
 
 
-def test_nonzero_rays_kernel_counts_the_nonzero_crossings():
+def test_rays_kernel_counts_the_nonzero_crossings():
     m = trimesh.creation.box(extents=(0.5, 0.3, 0.4))
     m.apply_translation([0.02, -0.03, 0.05])
     for faces in (m.faces, m.faces[2:]):  # closed, and open (two faces gone)
         tri = np.ascontiguousarray((m.vertices[faces] + 0.5) * 16)
         crossings = np.zeros((6, 16, 16, 16), dtype=np.int32)
-        K.crossings_kernel(tri, 16, crossings)
-        nonzero = K.nonzero_rays_kernel(tri, 16)
+        nonzero = np.zeros((16, 16, 16), dtype=np.uint8)
+        K.rays_kernel(tri, 16, crossings, nonzero)
         np.testing.assert_array_equal(nonzero, (crossings != 0).sum(0))
+        alone = np.zeros((16, 16, 16), dtype=np.uint8)  # without the crossing counts
+        K.rays_kernel(tri, 16, np.zeros((6, 0, 0, 0), dtype=np.int32), alone)
+        np.testing.assert_array_equal(alone, nonzero)
         if len(faces) == 12:  # closed box: all six rays from inside, none from outside
             assert set(np.unique(nonzero)) == {0, 6}
+            inside = np.zeros((16, 16, 16), bool)
+            lo = np.ceil((m.bounds[0] + 0.5) * 16 - 0.5).astype(int)
+            hi = np.floor((m.bounds[1] + 0.5) * 16 - 0.5).astype(int)
+            inside[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1, lo[2]:hi[2] + 1] = True
+            np.testing.assert_array_equal(nonzero == 6, inside)
 
 
 def test_winding_without_expansions_equals_the_sum_of_solid_angles():

@@ -132,57 +132,51 @@ def _axis_histogram(tri, G, a, hist):
                 hist[ib, ic, below] += sgn
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _column_counts(hist, ib, ic, G, col):
+    """Signed crossing counts of the rays along +a and -a from the G voxel centres of the
+    column (ib, ic) of ``hist`` (``_axis_histogram``): ``col[0, ia]`` (+a) and ``col[1, ia]``
+    (-a), with ``col [2, G]`` int32."""
+    total = 0
+    for ia in range(G + 1):
+        total += hist[ib, ic, ia]
+    prefix = 0
+    for ia in range(G):
+        prefix += hist[ib, ic, ia]  # crossings at or below this centre
+        col[0, ia] = total - prefix
+        col[1, ia] = -prefix
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _voxel_of(a, ia, ib, ic):
+    """Grid index (x, y, z) of the voxel at ``ia`` along axis ``a`` in column (ib, ic)."""
+    if a == 0:
+        return ia, ib, ic
+    if a == 1:
+        return ic, ia, ib
+    return ib, ic, ia
+
+
 @njit(cache=True, nogil=True)
-def crossings_kernel(tri, G, out):
-    """Signed crossing counts of the six axis rays from every voxel centre, ``out [6, G, G, G]``
-    int32 (see ``axis_ray_crossings``)."""
+def rays_kernel(tri, G, crossings, nonzero):
+    """Signed crossing counts of the six axis rays (+x, -x, +y, -y, +z, -z) from every voxel
+    centre (see ``axis_ray_crossings``): written into ``crossings [6, G, G, G]`` int32 if it
+    has that shape (pass ``[6, 0, 0, 0]`` to skip them), and the number of rays with a non-zero
+    count added into ``nonzero [G, G, G]`` uint8 (zeroed by the caller)."""
+    full = crossings.shape[1] == G
     hist = np.empty((G, G, G + 1), dtype=np.int32)
+    col = np.empty((2, G), dtype=np.int32)
     for a in range(3):
         _axis_histogram(tri, G, a, hist)
         for ib in range(G):
             for ic in range(G):
-                total = 0
-                for ia in range(G + 1):
-                    total += hist[ib, ic, ia]
-                prefix = 0
+                _column_counts(hist, ib, ic, G, col)
                 for ia in range(G):
-                    prefix += hist[ib, ic, ia]  # crossings at or below this centre
-                    if a == 0:
-                        out[0, ia, ib, ic] = total - prefix
-                        out[1, ia, ib, ic] = -prefix
-                    elif a == 1:
-                        out[2, ic, ia, ib] = total - prefix
-                        out[3, ic, ia, ib] = -prefix
-                    else:
-                        out[4, ib, ic, ia] = total - prefix
-                        out[5, ib, ic, ia] = -prefix
-
-
-@njit(cache=True, nogil=True)
-def nonzero_rays_kernel(tri, G):
-    """How many of the six axis rays from each voxel centre have a non-zero signed crossing
-    count: ``(crossings_kernel(...) != 0).sum(0)`` as uint8 ``[G, G, G]``, without the
-    ``[6, G, G, G]`` array."""
-    hist = np.empty((G, G, G + 1), dtype=np.int32)
-    out = np.zeros((G, G, G), dtype=np.uint8)
-    for a in range(3):
-        _axis_histogram(tri, G, a, hist)
-        for ib in range(G):
-            for ic in range(G):
-                total = 0
-                for ia in range(G + 1):
-                    total += hist[ib, ic, ia]
-                prefix = 0
-                for ia in range(G):
-                    prefix += hist[ib, ic, ia]
-                    n = (total != prefix) + (prefix != 0)
-                    if a == 0:
-                        out[ia, ib, ic] += n
-                    elif a == 1:
-                        out[ic, ia, ib] += n
-                    else:
-                        out[ib, ic, ia] += n
-    return out
+                    x, y, z = _voxel_of(a, ia, ib, ic)
+                    if full:
+                        crossings[2 * a, x, y, z] = col[0, ia]
+                        crossings[2 * a + 1, x, y, z] = col[1, ia]
+                    nonzero[x, y, z] += (col[0, ia] != 0) + (col[1, ia] != 0)
 
 
 #: octree depth of the winding-number tree: leaves are 1/32 of the grid cube per axis
@@ -197,8 +191,9 @@ BETA = 2.0
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _solid_angle(tri, t, px, py, pz):
-    """Signed solid angle of triangle ``t`` seen from (px, py, pz) (Van Oosterom & Strackee)."""
+def _solid_angle_args(tri, t, px, py, pz):
+    """(y, x) with the signed solid angle of triangle ``t`` seen from (px, py, pz) equal to
+    2 atan2(y, x) (Van Oosterom & Strackee)."""
     ax, ay, az = tri[t, 0, 0] - px, tri[t, 0, 1] - py, tri[t, 0, 2] - pz
     bx, by, bz = tri[t, 1, 0] - px, tri[t, 1, 1] - py, tri[t, 1, 2] - pz
     cx, cy, cz = tri[t, 2, 0] - px, tri[t, 2, 1] - py, tri[t, 2, 2] - pz
@@ -208,6 +203,13 @@ def _solid_angle(tri, t, px, py, pz):
     det = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
     div = la * lb * lc + (ax * bx + ay * by + az * bz) * lc \
         + (bx * cx + by * cy + bz * cz) * la + (cx * ax + cy * ay + cz * az) * lb
+    return det, div
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _solid_angle(tri, t, px, py, pz):
+    """Signed solid angle of triangle ``t`` seen from (px, py, pz)."""
+    det, div = _solid_angle_args(tri, t, px, py, pz)
     return 2.0 * math.atan2(det, div)
 
 
@@ -500,19 +502,11 @@ def _triangle_term(tdat, q, px, py, pz):
 
 @njit(cache=True, nogil=True, inline="always")
 def _angle_factor(tri_s, q, px, py, pz):
-    """x + iy with triangle ``q``'s solid angle at (px, py, pz) = 2 atan2(y, x) (Van Oosterom
-    & Strackee), turned by whole quarter turns (exact: swaps and sign changes) into the first
-    quadrant: returns the turned x, y and the number of quarter turns (a float). A point on a
-    vertex (x = y = 0, atan2 0) gives 1 + 0i."""
-    ax, ay, az = tri_s[q, 0, 0] - px, tri_s[q, 0, 1] - py, tri_s[q, 0, 2] - pz
-    bx, by, bz = tri_s[q, 1, 0] - px, tri_s[q, 1, 1] - py, tri_s[q, 1, 2] - pz
-    cx, cy, cz = tri_s[q, 2, 0] - px, tri_s[q, 2, 1] - py, tri_s[q, 2, 2] - pz
-    la = math.sqrt(ax * ax + ay * ay + az * az)
-    lb = math.sqrt(bx * bx + by * by + bz * bz)
-    lc = math.sqrt(cx * cx + cy * cy + cz * cz)
-    y = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
-    x = la * lb * lc + (ax * bx + ay * by + az * bz) * lc \
-        + (bx * cx + by * cy + bz * cz) * la + (cx * ax + cy * ay + cz * az) * lb
+    """x + iy with triangle ``q``'s solid angle at (px, py, pz) = 2 atan2(y, x), turned by
+    whole quarter turns (exact: swaps and sign changes) into the first quadrant: returns the
+    turned x, y and the number of quarter turns (a float). A point on a vertex (x = y = 0,
+    atan2 0) gives 1 + 0i."""
+    y, x = _solid_angle_args(tri_s, q, px, py, pz)
     if y >= 0.0:
         if x > 0.0:
             return x, y, 0.0

@@ -118,7 +118,7 @@ def axis_ray_crossings(vertices: np.ndarray, faces: np.ndarray, resolution: int 
     v, f = _check_triangles(vertices, faces)
     G = int(resolution)
     out = np.zeros((6, G, G, G), dtype=np.int32)
-    _k.crossings_kernel(_voxel_triangles(v, f, G), G, out)
+    _k.rays_kernel(_voxel_triangles(v, f, G), G, out, np.zeros((G, G, G), dtype=np.uint8))
     return out
 
 
@@ -147,7 +147,8 @@ def voxelize_triangles(vertices: np.ndarray, faces: np.ndarray, resolution: int 
     surface = np.zeros((G, G, G), dtype=bool)
     _k.surface_kernel(tri, G, surface)
     lap("surface")
-    nonzero = _k.nonzero_rays_kernel(tri, G)  # rays with a non-zero crossing count, 0..6
+    nonzero = np.zeros((G, G, G), dtype=np.uint8)  # rays with a non-zero crossing count, 0..6
+    _k.rays_kernel(tri, G, np.zeros((6, 0, 0, 0), dtype=np.int32), nonzero)
     lap("rays")
     # rule 3 applied early: voxels enclosed by surface and six-ray-inside voxels end up occupied
     # whatever the winding numbers say (filling is monotone), so they need no query
