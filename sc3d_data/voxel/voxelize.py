@@ -31,8 +31,12 @@ rasterisation of the triangles per axis) decide rule 2 where all six agree (all 
 inside; all zero: outside); winding numbers are evaluated only at the remaining voxel centres
 that are not enclosed by the surface and six-ray-inside voxels (those are occupied by rule 3
 whatever their winding number). Geometry outside [-0.5, 0.5]^3 is ignored (clipped by
-the grid) except that all triangles count for winding numbers. The kernels live in
-``_voxel_kernels.py`` (numba, compiled on first use and cached in ``__pycache__``).
+the grid) except that all triangles count for winding numbers. The winding-number queries
+walk the octree in blocks of nearby voxel centres, deciding a cluster once for the whole
+block where it is clearly near or far and point by point otherwise, and sum the exact solid
+angles as the argument of a complex product; both give every point the same value as the
+plain per-point evaluation up to round-off (``_kernels._winding_queries``). The kernels live
+in ``_kernels.py`` (numba, compiled on first use and cached in ``__pycache__``).
 """
 from __future__ import annotations
 
@@ -93,8 +97,8 @@ def winding_numbers(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
                     exact: bool = False) -> np.ndarray:
     """Generalized winding number ``[P]`` of a triangle soup at ``points [P, 3]`` (about 1 inside
     a closed outward-oriented mesh, 0 outside). Fast winding number (Barill et al. 2018: exact
-    solid angles of triangles near a point, dipoles of octree clusters farther than
-    ``_voxel_kernels.BETA`` times their radius); ``exact=True`` sums all solid angles."""
+    solid angles of triangles near a point, second-order expansions of octree clusters farther
+    than ``_kernels.BETA`` times their radius); ``exact=True`` sums all solid angles."""
     v, f = _check_triangles(vertices, faces)
     q = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     if len(q) == 0:
