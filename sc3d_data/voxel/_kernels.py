@@ -2,6 +2,10 @@
 
 Length: one module because numba compiles these kernels together and they call each other
 (winding-number tree build, traversal, surface rasterisation, flood fill).
+
+Meshes come as vertices ``vi [n, 3]`` float64 in voxel units (the grid spans [0, G]^3) and
+faces ``f [m, 3]`` int64, read in place: no ``[m, 3, 3]`` array of corners is built, which
+on a large mesh would be a fresh allocation of megabytes per call.
 """
 from __future__ import annotations
 
@@ -15,13 +19,13 @@ HALF = 0.5 + 1e-6
 
 
 @njit(cache=True, nogil=True)
-def surface_kernel(tri, G, grid):
+def surface_kernel(vi, f, G, grid):
     """Marks in ``grid [G, G, G]`` every voxel whose closed cube (half-size HALF) overlaps a
-    triangle of ``tri [m, 3, 3]`` (voxel units): the separating-axis test of Akenine-Moeller."""
-    for t in range(tri.shape[0]):
-        x0, y0, z0 = tri[t, 0, 0], tri[t, 0, 1], tri[t, 0, 2]
-        x1, y1, z1 = tri[t, 1, 0], tri[t, 1, 1], tri[t, 1, 2]
-        x2, y2, z2 = tri[t, 2, 0], tri[t, 2, 1], tri[t, 2, 2]
+    triangle (``vi [n, 3]``, ``f [m, 3]``): the separating-axis test of Akenine-Moeller."""
+    for t in range(f.shape[0]):
+        x0, y0, z0 = vi[f[t, 0], 0], vi[f[t, 0], 1], vi[f[t, 0], 2]
+        x1, y1, z1 = vi[f[t, 1], 0], vi[f[t, 1], 1], vi[f[t, 1], 2]
+        x2, y2, z2 = vi[f[t, 2], 0], vi[f[t, 2], 1], vi[f[t, 2], 2]
         mnx, mny, mnz = min(x0, x1, x2), min(y0, y1, y2), min(z0, z1, z2)
         mxx, mxy, mxz = max(x0, x1, x2), max(y0, y1, y2), max(z0, z1, z2)
         if mxx < -1e-6 or mxy < -1e-6 or mxz < -1e-6 or mnx > G + 1e-6 or mny > G + 1e-6 or mnz > G + 1e-6:
@@ -92,8 +96,8 @@ def surface_kernel(tri, G, grid):
 
 
 @njit(cache=True, nogil=True)
-def _axis_histogram(tri, G, a, hist):
-    """Rasterises the triangles ``tri [m, 3, 3]`` along axis ``a`` (0 x, 1 y, 2 z): for the
+def _axis_histogram(vi, f, G, a, hist):
+    """Rasterises the triangles (``vi``, ``f``) along axis ``a`` (0 x, 1 y, 2 z): for the
     ray line through voxel centres (ib + 0.5, ic + 0.5) of the other two axes b = a + 1,
     c = a + 2 (mod 3), ``hist [G, G, G + 1]`` (zeroed here) gets at [ib, ic, n] the signed
     crossings (+1 where the triangle's normal points along +a) that lie between the centres
@@ -101,9 +105,9 @@ def _axis_histogram(tri, G, a, hist):
     b = (a + 1) % 3
     c = (a + 2) % 3
     hist[:] = 0
-    for t in range(tri.shape[0]):
-        b0, b1, b2 = tri[t, 0, b], tri[t, 1, b], tri[t, 2, b]
-        c0, c1, c2 = tri[t, 0, c], tri[t, 1, c], tri[t, 2, c]
+    for t in range(f.shape[0]):
+        b0, b1, b2 = vi[f[t, 0], b], vi[f[t, 1], b], vi[f[t, 2], b]
+        c0, c1, c2 = vi[f[t, 0], c], vi[f[t, 1], c], vi[f[t, 2], c]
         area = (b1 - b0) * (c2 - c0) - (c1 - c0) * (b2 - b0)
         if abs(area) <= 1e-12:
             continue
@@ -114,7 +118,7 @@ def _axis_histogram(tri, G, a, hist):
         if hb < lb or hc < lc:
             continue
         sgn = 1 if area > 0 else -1
-        d0, d1, d2 = tri[t, 0, a], tri[t, 1, a], tri[t, 2, a]
+        d0, d1, d2 = vi[f[t, 0], a], vi[f[t, 1], a], vi[f[t, 2], a]
         for ib in range(lb, hb + 1):
             qb = ib + 0.5
             for ic in range(lc, hc + 1):
@@ -158,7 +162,7 @@ def _voxel_of(a, ia, ib, ic):
 
 
 @njit(cache=True, nogil=True)
-def rays_kernel(tri, G, crossings, nonzero):
+def rays_kernel(vi, f, G, crossings, nonzero):
     """Signed crossing counts of the six axis rays (+x, -x, +y, -y, +z, -z) from every voxel
     centre (see ``axis_ray_crossings``): written into ``crossings [6, G, G, G]`` int32 if it
     has that shape (pass ``[6, 0, 0, 0]`` to skip them), and the number of rays with a non-zero
@@ -167,7 +171,7 @@ def rays_kernel(tri, G, crossings, nonzero):
     hist = np.empty((G, G, G + 1), dtype=np.int32)
     col = np.empty((2, G), dtype=np.int32)
     for a in range(3):
-        _axis_histogram(tri, G, a, hist)
+        _axis_histogram(vi, f, G, a, hist)
         for ib in range(G):
             for ic in range(G):
                 _column_counts(hist, ib, ic, G, col)
@@ -214,38 +218,38 @@ def _solid_angle(tri, t, px, py, pz):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _centroid_area(tri, t):
+def _centroid_area(vi, f, t):
     """Centroid (c0, c1, c2) and vector area (n0, n1, n2: half the cross product of two edges)
     of triangle ``t``."""
-    c0 = (tri[t, 0, 0] + tri[t, 1, 0] + tri[t, 2, 0]) / 3.0
-    c1 = (tri[t, 0, 1] + tri[t, 1, 1] + tri[t, 2, 1]) / 3.0
-    c2 = (tri[t, 0, 2] + tri[t, 1, 2] + tri[t, 2, 2]) / 3.0
-    ux, uy, uz = tri[t, 1, 0] - tri[t, 0, 0], tri[t, 1, 1] - tri[t, 0, 1], tri[t, 1, 2] - tri[t, 0, 2]
-    vx, vy, vz = tri[t, 2, 0] - tri[t, 0, 0], tri[t, 2, 1] - tri[t, 0, 1], tri[t, 2, 2] - tri[t, 0, 2]
+    c0 = (vi[f[t, 0], 0] + vi[f[t, 1], 0] + vi[f[t, 2], 0]) / 3.0
+    c1 = (vi[f[t, 0], 1] + vi[f[t, 1], 1] + vi[f[t, 2], 1]) / 3.0
+    c2 = (vi[f[t, 0], 2] + vi[f[t, 1], 2] + vi[f[t, 2], 2]) / 3.0
+    ux, uy, uz = vi[f[t, 1], 0] - vi[f[t, 0], 0], vi[f[t, 1], 1] - vi[f[t, 0], 1], vi[f[t, 1], 2] - vi[f[t, 0], 2]
+    vx, vy, vz = vi[f[t, 2], 0] - vi[f[t, 0], 0], vi[f[t, 2], 1] - vi[f[t, 0], 1], vi[f[t, 2], 2] - vi[f[t, 0], 2]
     return c0, c1, c2, 0.5 * (uy * vz - uz * vy), 0.5 * (uz * vx - ux * vz), 0.5 * (ux * vy - uy * vx)
 
 
 @njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
-def winding_kernel(tri, pts, G, beta):
-    """Generalized winding numbers of the triangle soup ``tri [m, 3, 3]`` at ``pts [P, 3]``
+def winding_kernel(vi, f, pts, G, beta):
+    """Generalized winding numbers of the triangle soup (``vi``, ``f``) at ``pts [P, 3]``
     (both in the units of a grid spanning [0, G]^3): the fast winding number of Barill et al.
     2018 (as libigl's): exact solid angles of the triangles near a point; clusters of a loose
     octree farther than ``beta`` times their radius by the Taylor expansion of their field to
     second order."""
-    start, child, node, order = _winding_tree(tri, G)
-    return _winding_queries(tri, pts, beta, start, child, node, order, G / 8.0)
+    start, child, node, order = _winding_tree(vi, f, G)
+    return _winding_queries(vi, f, pts, beta, start, child, node, order, G / 8.0)
 
 
 @njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
-def _winding_tree(tri, G):
+def _winding_tree(vi, f, G):
     """The loose octree of ``winding_kernel`` and the expansions of its clusters.
 
     Returns ``start [n + 1]`` (cluster c owns the triangles ``order[start[c]:start[c + 1]]``),
     ``child [n, 8]`` (-1: none), ``node [n, 44]`` (one packed row per cluster, see below) and
     ``order [m]``. Per-triangle quantities (centroid, vector area) are recomputed in each pass
-    over the triangles rather than stored: the passes read ``tri`` in order and write only
+    over the triangles rather than stored: the passes read the triangles in order and write only
     per-cluster sums, so a large mesh touches little fresh memory."""
-    m = tri.shape[0]
+    m = f.shape[0]
     # dense ids of the octree cells of all levels: level l has (2^l)^3 cells from off[l]
     off = np.zeros(TREE_DEPTH + 2, dtype=np.int64)
     for lv in range(TREE_DEPTH + 1):
@@ -255,10 +259,10 @@ def _winding_tree(tri, G):
     node_of_tri = np.empty(m, dtype=np.int64)  # dense cell ids first, compact ids below
     compact = np.full(n_dense, -1, dtype=np.int64)
     for t in range(m):
-        tc0, tc1, tc2, _, _, _ = _centroid_area(tri, t)
+        tc0, tc1, tc2, _, _, _ = _centroid_area(vi, f, t)
         rt2 = 0.0
         for q in range(3):
-            dx, dy, dz = tri[t, q, 0] - tc0, tri[t, q, 1] - tc1, tri[t, q, 2] - tc2
+            dx, dy, dz = vi[f[t, q], 0] - tc0, vi[f[t, q], 1] - tc1, vi[f[t, q], 2] - tc2
             rt2 = max(rt2, dx * dx + dy * dy + dz * dz)
         rt = math.sqrt(rt2)  # sqrt is monotonic: the largest of the three square roots
         # loose octree: the deepest level whose cells are at least twice the triangle's radius,
@@ -322,7 +326,7 @@ def _winding_tree(tri, G):
     nrm = np.zeros((n, 3))
     for t in range(m):
         c = node_of_tri[t]
-        tc0, tc1, tc2, n0, n1, n2 = _centroid_area(tri, t)
+        tc0, tc1, tc2, n0, n1, n2 = _centroid_area(vi, f, t)
         a = math.sqrt(n0 ** 2 + n1 ** 2 + n2 ** 2)
         area[c] += a
         cnt[c] += 1
@@ -352,7 +356,7 @@ def _winding_tree(tri, G):
     cub = np.zeros((n, 3, 6))    # second moments: integral of n_i s_j s_k dA, (j, k) in _JJ, _KK
     for t in range(m):
         c = node_of_tri[t]
-        tc0, tc1, tc2, n0, n1, n2 = _centroid_area(tri, t)
+        tc0, tc1, tc2, n0, n1, n2 = _centroid_area(vi, f, t)
         e0, e1, e2 = cen[c, 0], cen[c, 1], cen[c, 2]
         g0, g1, g2 = tc0 - e0, tc1 - e1, tc2 - e2  # the centroid about the cluster's centre
         # integral over the triangle of s s^T = area / 12 (sum_v s_v s_v^T + 9 s_c s_c^T)
@@ -360,7 +364,7 @@ def _winding_tree(tri, G):
         m01, m02, m12 = 9.0 * g0 * g1, 9.0 * g0 * g2, 9.0 * g1 * g2
         far2 = 0.0
         for v in range(3):
-            s0, s1, s2 = tri[t, v, 0] - e0, tri[t, v, 1] - e1, tri[t, v, 2] - e2
+            s0, s1, s2 = vi[f[t, v], 0] - e0, vi[f[t, v], 1] - e1, vi[f[t, v], 2] - e2
             far2 = max(far2, s0 * s0 + s1 * s1 + s2 * s2)
             m00 += s0 * s0
             m11 += s1 * s1
@@ -421,20 +425,20 @@ def _winding_tree(tri, G):
 
 
 @njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
-def _fill_cluster(tri, order, lo, hi, beta, tdat, tri_s):
+def _fill_cluster(vi, f, order, lo, hi, beta, tdat, tri_s):
     """Rows ``lo:hi`` (one cluster's own triangles, cluster order) of ``tri_s [m, 3, 3]`` (the
     triangles) and ``tdat [m, 17]``: centroid, (beta * radius)^2, vector area N, M N, tr M, M
     (xx yy zz xy xz yz) with M = 1/12 sum_v s_v s_v^T about the centroid: the triangle's own
     second-order expansion."""
     for q in range(lo, hi):
         t = order[q]
-        tc0, tc1, tc2, n0, n1, n2 = _centroid_area(tri, t)
+        tc0, tc1, tc2, n0, n1, n2 = _centroid_area(vi, f, t)
         m0 = m1 = m2 = m3 = m4 = m5 = 0.0
         rt2 = 0.0
         for v in range(3):
             for d in range(3):
-                tri_s[q, v, d] = tri[t, v, d]
-            s0, s1, s2 = tri[t, v, 0] - tc0, tri[t, v, 1] - tc1, tri[t, v, 2] - tc2
+                tri_s[q, v, d] = vi[f[t, v], d]
+            s0, s1, s2 = vi[f[t, v], 0] - tc0, vi[f[t, v], 1] - tc1, vi[f[t, v], 2] - tc2
             rt2 = max(rt2, s0 * s0 + s1 * s1 + s2 * s2)
             m0 += s0 * s0 / 12.0
             m1 += s1 * s1 / 12.0
@@ -561,7 +565,7 @@ def _box_distances(lo, hi, x, y, z):
 
 
 @njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
-def _winding_queries(tri, pts, beta, start, child, node, order, cell):
+def _winding_queries(vi, f, pts, beta, start, child, node, order, cell):
     """Winding numbers ``[P]`` at ``pts [P, 3]`` from the tree of ``_winding_tree``.
 
     Query points are taken in blocks of at most ``_BLOCK`` that share a cube of side ``cell``,
@@ -580,7 +584,7 @@ def _winding_queries(tri, pts, beta, start, child, node, order, cell):
     the quarter turns times pi / 2 plus one atan2 at the end, with no 2 pi ambiguity. This
     equals the sum of the atan2 terms up to round-off (a few 1e-16 per term) and costs a
     complex multiplication instead of an atan2 per triangle."""
-    m = tri.shape[0]
+    m = f.shape[0]
     P = pts.shape[0]
     tdat = np.empty((m, 17))
     tri_s = np.empty((m, 3, 3))
@@ -661,7 +665,7 @@ def _winding_queries(tri, pts, beta, start, child, node, order, cell):
                 s0, s1 = s1, free
             if start[c] < start[c + 1]:
                 if not ready[c]:
-                    _fill_cluster(tri, order, start[c], start[c + 1], beta, tdat, tri_s)
+                    _fill_cluster(vi, f, order, start[c], start[c + 1], beta, tdat, tri_s)
                     ready[c] = True
                 for q in range(start[c], start[c + 1]):
                     near2, far2 = _box_distances(lo, hi, tdat[q, 0], tdat[q, 1], tdat[q, 2])

@@ -54,7 +54,7 @@ WINDING_THRESHOLD = 0.5
 
 def _check_triangles(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
     if v.ndim != 2 or v.shape[1] != 3:
         raise ValueError(f"vertices must have shape [n, 3], got {v.shape}")
     if f.ndim != 2 or f.shape[1] != 3:
@@ -77,15 +77,14 @@ def surface_voxels(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32
     v, f = _check_triangles(vertices, faces)
     G = int(resolution)
     grid = np.zeros((G, G, G), dtype=bool)
-    _k.surface_kernel(_voxel_triangles(v, f, G), G, grid)
+    _k.surface_kernel(_voxel_vertices(v, G), f, G, grid)
     return grid
 
 
-def _voxel_triangles(v: np.ndarray, f: np.ndarray, G: int) -> np.ndarray:
-    """Triangles ``[m, 3 vertices, 3 coords]`` in voxel units (the grid spans [0, G]).
-    The vertices are converted before they are gathered: the same values as converting the
-    gathered corners, in a quarter of the time on large meshes."""
-    return np.take(world_to_index(v, G), f, axis=0)
+def _voxel_vertices(v: np.ndarray, G: int) -> np.ndarray:
+    """Vertices ``[n, 3]`` in voxel units (the grid spans [0, G]^3); the kernels read the
+    triangles' corners through the faces."""
+    return np.ascontiguousarray(world_to_index(v, G))
 
 
 def voxel_centers(resolution: int = 32) -> np.ndarray:
@@ -103,10 +102,10 @@ def winding_numbers(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
     q = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     if len(q) == 0:
         return np.zeros(0)
-    tri = _voxel_triangles(v, f, 1)
+    vi = _voxel_vertices(v, 1)
     if exact:
-        return _k.winding_exact_kernel(tri, q + 0.5)
-    return _k.winding_kernel(tri, q + 0.5, 1.0, _k.BETA)
+        return _k.winding_exact_kernel(vi[f], q + 0.5)
+    return _k.winding_kernel(vi, f, q + 0.5, 1.0, _k.BETA)
 
 
 def axis_ray_crossings(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32) -> np.ndarray:
@@ -122,7 +121,7 @@ def axis_ray_crossings(vertices: np.ndarray, faces: np.ndarray, resolution: int 
     v, f = _check_triangles(vertices, faces)
     G = int(resolution)
     out = np.zeros((6, G, G, G), dtype=np.int32)
-    _k.rays_kernel(_voxel_triangles(v, f, G), G, out, np.zeros((G, G, G), dtype=np.uint8))
+    _k.rays_kernel(_voxel_vertices(v, G), f, G, out, np.zeros((G, G, G), dtype=np.uint8))
     return out
 
 
@@ -147,12 +146,12 @@ def voxelize_triangles(vertices: np.ndarray, faces: np.ndarray, resolution: int 
         if timings is not None:
             timings[name] = timings.get(name, 0.0) + (clock[-1] - clock[-2]) * 1e3
 
-    tri = _voxel_triangles(v, f, G)
+    vi = _voxel_vertices(v, G)
     surface = np.zeros((G, G, G), dtype=bool)
-    _k.surface_kernel(tri, G, surface)
+    _k.surface_kernel(vi, f, G, surface)
     lap("surface")
     nonzero = np.zeros((G, G, G), dtype=np.uint8)  # rays with a non-zero crossing count, 0..6
-    _k.rays_kernel(tri, G, np.zeros((6, 0, 0, 0), dtype=np.int32), nonzero)
+    _k.rays_kernel(vi, f, G, np.zeros((6, 0, 0, 0), dtype=np.int32), nonzero)
     lap("rays")
     # rule 3 applied early: voxels enclosed by surface and six-ray-inside voxels end up occupied
     # whatever the winding numbers say (filling is monotone), so they need no query
@@ -162,7 +161,7 @@ def voxelize_triangles(vertices: np.ndarray, faces: np.ndarray, resolution: int 
     pts = np.argwhere(ambiguous).astype(np.float64) + 0.5  # voxel centres, voxel units
     added = False
     if len(pts):
-        inside = np.abs(_k.winding_kernel(tri, pts, float(G), _k.BETA)) >= WINDING_THRESHOLD
+        inside = np.abs(_k.winding_kernel(vi, f, pts, float(G), _k.BETA)) >= WINDING_THRESHOLD
         occupied[ambiguous] = inside
         added = bool(inside.any())
     lap("winding")
