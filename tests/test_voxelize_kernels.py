@@ -101,3 +101,4 @@ def test_block_walk_decides_each_point_as_alone():
     together = K.winding_kernel(vi, f, cloud, 32.0, 2.0)
     alone = np.array([K.winding_kernel(vi, f, p[None], 32.0, 2.0)[0] for p in cloud])
     np.testing.assert_allclose(together, alone, rtol=0, atol=1e-13)
+    assert K.winding_kernel(vi, f, np.zeros((0, 3)), 32.0, 2.0).shape == (0,)

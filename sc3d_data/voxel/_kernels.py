@@ -590,6 +590,8 @@ def _winding_queries(vi, f, pts, beta, start, child, node, order, cell):
     tri_s = np.empty((m, 3, 3))
     ready = np.zeros(node.shape[0], dtype=np.bool_)
     out = np.zeros(P)
+    if P == 0:
+        return out
     # blocks: points sorted by their cube of side ``cell``
     lo = np.empty(3)
     hi = np.empty(3)
