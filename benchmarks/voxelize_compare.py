@@ -32,14 +32,16 @@ from sc3d_data.geometry.normalize import apply_transform, to_canonical_transform
 
 
 def import_old(tree: Path):
-    """``sc3d_data.voxel.voxelize`` of another source tree, as ``sc3d_data_old.voxelize``."""
+    """The voxelize module of another source tree, imported as ``sc3d_data_old...``:
+    ``sc3d_data/voxel/voxelize.py`` (since the layering of issue 12) or ``sc3d_data/voxelize.py``."""
     pkg = tree / "sc3d_data"
     spec = importlib.util.spec_from_file_location("sc3d_data_old", pkg / "__init__.py",
                                                   submodule_search_locations=[str(pkg)])
     module = importlib.util.module_from_spec(spec)
     sys.modules["sc3d_data_old"] = module
     spec.loader.exec_module(module)
-    return importlib.import_module("sc3d_data_old.voxelize")
+    name = "voxel.voxelize" if (pkg / "voxel" / "voxelize.py").is_file() else "voxelize"
+    return importlib.import_module(f"sc3d_data_old.{name}")
 
 
 def main() -> None:

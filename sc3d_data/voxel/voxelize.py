@@ -31,8 +31,12 @@ rasterisation of the triangles per axis) decide rule 2 where all six agree (all 
 inside; all zero: outside); winding numbers are evaluated only at the remaining voxel centres
 that are not enclosed by the surface and six-ray-inside voxels (those are occupied by rule 3
 whatever their winding number). Geometry outside [-0.5, 0.5]^3 is ignored (clipped by
-the grid) except that all triangles count for winding numbers. The kernels live in
-``_voxel_kernels.py`` (numba, compiled on first use and cached in ``__pycache__``).
+the grid) except that all triangles count for winding numbers. The winding-number queries
+walk the octree in blocks of nearby voxel centres, deciding a cluster once for the whole
+block where it is clearly near or far and point by point otherwise, and sum the exact solid
+angles as the argument of a complex product; both give every point the same value as the
+plain per-point evaluation up to round-off (``_kernels._winding_queries``). The kernels live
+in ``_kernels.py`` (numba, compiled on first use and cached in ``__pycache__``).
 """
 from __future__ import annotations
 
@@ -50,7 +54,7 @@ WINDING_THRESHOLD = 0.5
 
 def _check_triangles(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
     if v.ndim != 2 or v.shape[1] != 3:
         raise ValueError(f"vertices must have shape [n, 3], got {v.shape}")
     if f.ndim != 2 or f.shape[1] != 3:
@@ -73,13 +77,14 @@ def surface_voxels(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32
     v, f = _check_triangles(vertices, faces)
     G = int(resolution)
     grid = np.zeros((G, G, G), dtype=bool)
-    _k.surface_kernel(_voxel_triangles(v, f, G), G, grid)
+    _k.surface_kernel(_voxel_vertices(v, G), f, G, grid)
     return grid
 
 
-def _voxel_triangles(v: np.ndarray, f: np.ndarray, G: int) -> np.ndarray:
-    """Triangles ``[m, 3 vertices, 3 coords]`` in voxel units (the grid spans [0, G])."""
-    return np.ascontiguousarray(world_to_index(v[f], G))
+def _voxel_vertices(v: np.ndarray, G: int) -> np.ndarray:
+    """Vertices ``[n, 3]`` in voxel units (the grid spans [0, G]^3); the kernels read the
+    triangles' corners through the faces."""
+    return np.ascontiguousarray(world_to_index(v, G))
 
 
 def voxel_centers(resolution: int = 32) -> np.ndarray:
@@ -91,16 +96,16 @@ def winding_numbers(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
                     exact: bool = False) -> np.ndarray:
     """Generalized winding number ``[P]`` of a triangle soup at ``points [P, 3]`` (about 1 inside
     a closed outward-oriented mesh, 0 outside). Fast winding number (Barill et al. 2018: exact
-    solid angles of triangles near a point, dipoles of octree clusters farther than
-    ``_voxel_kernels.BETA`` times their radius); ``exact=True`` sums all solid angles."""
+    solid angles of triangles near a point, second-order expansions of octree clusters farther
+    than ``_kernels.BETA`` times their radius); ``exact=True`` sums all solid angles."""
     v, f = _check_triangles(vertices, faces)
     q = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     if len(q) == 0:
         return np.zeros(0)
-    tri = _voxel_triangles(v, f, 1)
+    vi = _voxel_vertices(v, 1)
     if exact:
-        return _k.winding_exact_kernel(tri, q + 0.5)
-    return _k.winding_kernel(tri, q + 0.5, 1.0, _k.BETA)
+        return _k.winding_exact_kernel(vi[f], q + 0.5)
+    return _k.winding_kernel(vi, f, q + 0.5, 1.0, _k.BETA)
 
 
 def axis_ray_crossings(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32) -> np.ndarray:
@@ -116,7 +121,7 @@ def axis_ray_crossings(vertices: np.ndarray, faces: np.ndarray, resolution: int 
     v, f = _check_triangles(vertices, faces)
     G = int(resolution)
     out = np.zeros((6, G, G, G), dtype=np.int32)
-    _k.crossings_kernel(_voxel_triangles(v, f, G), G, out)
+    _k.rays_kernel(_voxel_vertices(v, G), f, G, out, np.zeros((G, G, G), dtype=np.uint8))
     return out
 
 
@@ -141,13 +146,12 @@ def voxelize_triangles(vertices: np.ndarray, faces: np.ndarray, resolution: int 
         if timings is not None:
             timings[name] = timings.get(name, 0.0) + (clock[-1] - clock[-2]) * 1e3
 
-    tri = _voxel_triangles(v, f, G)
+    vi = _voxel_vertices(v, G)
     surface = np.zeros((G, G, G), dtype=bool)
-    _k.surface_kernel(tri, G, surface)
+    _k.surface_kernel(vi, f, G, surface)
     lap("surface")
-    crossings = np.zeros((6, G, G, G), dtype=np.int32)
-    _k.crossings_kernel(tri, G, crossings)
-    nonzero = (crossings != 0).sum(0)
+    nonzero = np.zeros((G, G, G), dtype=np.uint8)  # rays with a non-zero crossing count, 0..6
+    _k.rays_kernel(vi, f, G, np.zeros((6, 0, 0, 0), dtype=np.int32), nonzero)
     lap("rays")
     # rule 3 applied early: voxels enclosed by surface and six-ray-inside voxels end up occupied
     # whatever the winding numbers say (filling is monotone), so they need no query
@@ -157,7 +161,7 @@ def voxelize_triangles(vertices: np.ndarray, faces: np.ndarray, resolution: int 
     pts = np.argwhere(ambiguous).astype(np.float64) + 0.5  # voxel centres, voxel units
     added = False
     if len(pts):
-        inside = np.abs(_k.winding_kernel(tri, pts, float(G), _k.BETA)) >= WINDING_THRESHOLD
+        inside = np.abs(_k.winding_kernel(vi, f, pts, float(G), _k.BETA)) >= WINDING_THRESHOLD
         occupied[ambiguous] = inside
         added = bool(inside.any())
     lap("winding")
