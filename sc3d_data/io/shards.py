@@ -163,13 +163,13 @@ ENCODED_BY_WORKER = ("images", "masks", "depth", "voxels")
 def encode_array(name: str, array, layout: str) -> EncodedArray:
     """``array`` (one object's ``name`` dataset, no N axis) cut into the chunks of ``layout``
     and encoded (``chunk_codec.encode_chunk``)."""
-    from sc3d_data.io.chunk_codec import encode_chunk
+    from sc3d_data.io.chunk_codec import encode_chunks
 
     a = np.ascontiguousarray(np.asarray(array, dtype=ARRAY_DTYPES.get(name)))
     per = chunk_shape(name, (1,) + a.shape, layout)[1:]
     grid = [n // c for n, c in zip(a.shape, per)]
-    blocks = (a[tuple(slice(g * c, (g + 1) * c) for g, c in zip(idx, per))] for idx in np.ndindex(*grid))
-    return EncodedArray(a.shape, a.dtype.str, layout, tuple(encode_chunk(b[None]) for b in blocks))
+    blocks = [a[tuple(slice(g * c, (g + 1) * c) for g, c in zip(idx, per))] for idx in np.ndindex(*grid)]
+    return EncodedArray(a.shape, a.dtype.str, layout, tuple(encode_chunks(blocks)))
 
 
 def encode_arrays(record: ObjectRecord, layout: str, names=ENCODED_BY_WORKER) -> ObjectRecord:

@@ -8,7 +8,7 @@ with both in memory (copy-on-write) and only makes its GL context.
 
 Importing this module has that side effect on purpose: it imports ``trimesh``, voxelizes an
 open unit box at ``8^3`` so that every kernel ``voxelize_triangles`` calls is compiled or read
-from numba's cache, and encodes one chunk (``chunk_codec``'s checksum kernel). Then it moves
+from numba's cache. Then it moves
 every object made so far into the garbage collector's permanent generation (``gc.freeze``):
 collections in a worker no longer walk the ~240,000 objects of the imported modules (half of
 its ~0.8 ms of collection per object), nor write to their pages (shared with the server). ``worker_preload_egl`` adds PyOpenGL and pyrender's EGL
@@ -23,7 +23,6 @@ from importlib import import_module
 
 import numpy as np
 
-from sc3d_data.io.chunk_codec import encode_chunk
 from sc3d_data.voxel.voxelize import voxelize_triangles
 
 
@@ -46,5 +45,4 @@ def import_gl(backend: str) -> None:
 
 import_module("trimesh")  # the import is the point: workers inherit it
 warm_voxelizer()
-encode_chunk(np.arange(3, dtype=np.uint8))
 gc.freeze()
