@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from sc3d_train.batch_transfer import pack, unpack
+from sc3d_train.batch_transfer import PackedBatch, RingBatch, SharedRing, pack, unpack
 
 
 def test_pack_round_trip_is_exact_and_packs_only_binary_arrays():
@@ -28,6 +28,56 @@ def test_pack_round_trip_is_exact_and_packs_only_binary_arrays():
         np.testing.assert_array_equal(out[k], a)
     assert out["labels"][2] == 2  # a value of 2 would be lost by bit packing
     assert p.other == {"model_id": ["a", "b", "c"]}
+
+
+def test_shared_ring_round_trip_fallback_and_overwrite_check():
+    """A batch written into its slot comes back exactly and as a copy (the slot can be reused);
+    one too big for a slot travels as a PackedBatch; a slot overwritten by a later batch before
+    it was taken is an error, not wrong data (negative control of the slot check)."""
+    rng = np.random.default_rng(1)
+    arrays = {"images": rng.integers(0, 256, (4, 8, 8, 3), dtype=np.uint8),
+              "voxels": (rng.random((4, 5, 5, 5)) > 0.5).astype(np.uint8),
+              "K": rng.normal(size=(4, 3, 3)).astype(np.float32)}
+    ring = SharedRing(3, 1024)  # 768 + 63 (500 bits) + 144 bytes fit in 1024
+    item = ring.put(4, arrays, {"model_id": list("abcd")}, bits=("voxels",))
+    assert isinstance(item, RingBatch) and item.seq == 4
+    out = ring.take(item)
+    assert ring.data[4 % 3].numpy()[:768].tobytes() == arrays["images"].tobytes()  # slot 1 holds it
+    for k, a in arrays.items():
+        assert out[k].dtype == a.dtype and np.array_equal(out[k], a), k
+    ring.data[1].zero_()
+    assert out["images"].any()  # a copy: clearing the slot leaves the batch intact
+    big = {"images": np.zeros((4, 16, 16, 3), dtype=np.uint8)}  # 3072 bytes > 1024
+    assert isinstance(ring.put(5, big, {}), PackedBatch)
+    first = ring.put(7, arrays, {}, bits=("voxels",))
+    ring.put(10, arrays, {}, bits=("voxels",))  # 10 % 3 == 7 % 3: the same slot
+    with pytest.raises(RuntimeError, match="slot 1 holds batch 10, expected 7"):
+        ring.take(first)
+
+
+def test_workers_send_every_batch_through_the_ring(sample_shards, monkeypatch):
+    """With workers, no batch takes the per-batch tensor path (``pack`` raising in the forked
+    workers would surface here), and batches kept while the loader wraps its ring 3 times stay
+    equal to the in-process ones (each is copied out of its slot before it is yielded)."""
+    import sc3d_train.batch_transfer as transfer
+    from sc3d_train.data import ShardDataset
+    from sc3d_train.loader import make_loader
+
+    ds = ShardDataset(sample_shards, "train", cache_objects=0)
+    expected = iter(make_loader(ds, 3, seed=5, workers=0))
+    expected = [next(expected) for _ in range(27)]
+    loader = make_loader(ds, 3, seed=5, workers=2)  # 2 * 4 + 1 = 9 slots
+
+    def no_pack(*args, **kwargs):
+        raise AssertionError("a batch did not fit its ring slot")
+
+    monkeypatch.setattr(transfer, "pack", no_pack)
+    it = iter(loader)
+    kept = [next(it) for _ in range(27)]
+    del it
+    for a, b in zip(expected, kept):
+        for k in a:
+            assert (torch.equal(a[k], b[k]) if torch.is_tensor(a[k]) else a[k] == b[k]), k
 
 
 def _stored(ds, index):
