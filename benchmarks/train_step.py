@@ -142,7 +142,7 @@ class _QueuedBatches(torch.utils.data.Dataset):
         from sc3d_train.batch_format import BINARY_KEYS
         from sc3d_train.batch_transfer import pack
 
-        arrays, strings = self.ds.compact_batch(key[1])
+        arrays, strings = self.ds.compact_batch(key[1][0])
         return pack(arrays, strings, bits=BINARY_KEYS) if torch.utils.data.get_worker_info() else (arrays, strings)
 
 
@@ -160,16 +160,35 @@ def queued_loader(ds, batch_size: int, workers: int, seed: int = 0):
     return (compact_tensors(*((unpack(b), b.other) if isinstance(b, PackedBatch) else b)) for b in loader)
 
 
+def children_cpu_seconds() -> float:
+    """User + system CPU seconds of this process's live child processes (the loader's workers),
+    from /proc (Linux; 0 elsewhere)."""
+    total, tick = 0.0, os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    for task in Path(f"/proc/{os.getpid()}/task").glob("*"):
+        try:
+            pids = (task / "children").read_text().split()
+        except OSError:
+            continue
+        for pid in pids:
+            try:
+                fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:  # exited meanwhile
+                continue
+            total += (int(fields[11]) + int(fields[12])) / tick
+    return total
+
+
 def time_loaders(datasets: dict[str, Path], batch_size: int, workers: tuple[int, ...], batches: int,
                  rounds: int, cache_objects: int) -> dict:
-    """Samples/s and main-process CPU ms per batch (``time.process_time``, all its threads) of
+    """Samples/s, main-process CPU ms per batch (``time.process_time``, all its threads) and
+    worker-process CPU ms per batch (:func:`children_cpu_seconds`) of
     the per-item baseline, the previous packed-tensor loader and ``make_loader`` (as it yields,
     and followed by the float expansion on the CPU) at each worker count, for each of ``datasets`` (label ->
     shard folder, e.g. the same meshes rendered with ``--chunks view`` and ``--chunks
     object``): the median over ``rounds`` rounds, each round running every variant once,
     interleaved (a fresh loader with its own seed each time, so that no run finds another's
-    samples in HDF5's chunk cache: at scale a view comes back once per epoch). Not timed: the first ``2 + 4 * workers`` batches
-    (worker start-up, prefetch queue) and, with a cache, enough batches for each worker to have
+    samples in HDF5's chunk cache: at scale a view comes back once per epoch). Not timed: the first batches
+    (worker start-up, prefetch queue: ``2 + 8 * workers``) and, with a cache, enough batches for each worker to have
     decoded every object (6 epochs per worker). ``cache_objects=0``: no cache, each batch reads
     its views from the files."""
     from sc3d_train.batch_format import expand_batch
@@ -189,21 +208,24 @@ def time_loaders(datasets: dict[str, Path], batch_size: int, workers: tuple[int,
                 lambda s, ds=ds, w=w: map(expand_batch, make_loader(ds, batch_size, s, workers=w))
             for name in ("per-item", "packed tensor per batch (previous)", "make_loader",
                          "make_loader + float on CPU"):
-                warm[(label, name, w)] = 2 + 4 * w + max(w, 1) * epoch
+                warm[(label, name, w)] = 2 + 8 * w + max(w, 1) * epoch
     rates: dict = {k: [] for k in makers}
     cpu: dict = {k: [] for k in makers}
+    worker_cpu: dict = {k: [] for k in makers}
     for r in range(rounds):
         for i, (key, make) in enumerate(makers.items()):
             it = iter(make(1000 * r + i))  # a new seed each time: no run replays another's reads
             for _ in range(warm[key]):
                 next(it)
-            t0, c0 = time.perf_counter(), time.process_time()
+            t0, c0, w0 = time.perf_counter(), time.process_time(), children_cpu_seconds()
             for _ in range(batches):
                 next(it)
             rates[key].append(batches * batch_size / (time.perf_counter() - t0))
             cpu[key].append(1000 * (time.process_time() - c0) / batches)
+            worker_cpu[key].append(1000 * (children_cpu_seconds() - w0) / batches)
             del it
-    return {k: (sorted(v)[len(v) // 2], sorted(cpu[k])[len(v) // 2]) for k, v in rates.items()}
+    med = lambda v: sorted(v)[len(v) // 2]  # noqa: E731
+    return {k: (med(v), med(cpu[k]), med(worker_cpu[k])) for k, v in rates.items()}
 
 
 def table(title: str, header: tuple[str, ...], rows: list[tuple]) -> str:
@@ -350,17 +372,18 @@ def main() -> None:
             datasets = {"": shards} if args.compare_shards is None else \
                 {f"{shards.name}: ": shards, f"{args.compare_shards.name}: ": args.compare_shards}
             timed = time_loaders(datasets, args.batch_size, workers, batches, args.loader_rounds, cache)
-            rates = {k: r for k, (r, _) in timed.items()}
+            rates = {k: r for k, (r, _, _) in timed.items()}
             base = {label: rates[(label, "per-item", 0)] for label in datasets}
             rows = [(f"{label}{name}, {w} workers", f"{r:.0f}", f"{r / base[label]:.2f}x",
                      f"{r / rates[(label, name, 0)]:.2f}x" if (label, name, 0) in rates else "-",
-                     f"{timed[(label, name, w)][1]:.2f}", f"{r / step_rate:.1f}x" if step_rate else "-")
+                     f"{timed[(label, name, w)][1]:.2f}", f"{timed[(label, name, w)][2]:.2f}",
+                     f"{r / step_rate:.1f}x" if step_rate else "-")
                     for (label, name, w), r in rates.items()]
             print()
             print(table(f"2. loader, batch {args.batch_size}, {regime} (samples/s, median of "
                         f"{args.loader_rounds} interleaved rounds of {batches} batches)",
                         ("loader", "samples/s", "vs per-item 0 workers", "vs same, 0 workers",
-                         "main CPU ms/batch", "vs fit step"), rows))
+                         "main CPU ms/batch", "workers CPU ms/batch", "vs fit step"), rows))
 
     if args.loader_only:
         return

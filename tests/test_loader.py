@@ -65,15 +65,15 @@ def test_workers_send_every_batch_through_the_ring(sample_shards, monkeypatch):
 
     ds = ShardDataset(sample_shards, "train", cache_objects=0)
     expected = iter(make_loader(ds, 3, seed=5, workers=0))
-    expected = [next(expected) for _ in range(27)]
-    loader = make_loader(ds, 3, seed=5, workers=2)  # 2 * 4 + 1 = 9 slots
+    expected = [next(expected) for _ in range(60)]
+    loader = make_loader(ds, 3, seed=5, workers=2)  # (2 * 2 + 1) * 4 = 20 slots
 
     def no_pack(*args, **kwargs):
         raise AssertionError("a batch did not fit its ring slot")
 
     monkeypatch.setattr(transfer, "pack", no_pack)
     it = iter(loader)
-    kept = [next(it) for _ in range(27)]
+    kept = [next(it) for _ in range(60)]
     del it
     for a, b in zip(expected, kept):
         for k in a:
