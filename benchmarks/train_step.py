@@ -17,8 +17,9 @@ the same run, so improvements show as ratios:
    a new tensor sent through the DataLoader's queue) against ``make_loader`` (whole batches per
    worker written into a shared-memory ring made once, compact batches) and ``make_loader`` followed by the float expansion on the CPU (what a CPU
    training step adds; on a GPU it runs on the device), with every object of the split cached
-   once decoded and without a cache (each batch reads its views from the files: large
-   datasets), against the training step's samples/s (the loader should outrun the step);
+   once decoded, without a cache (each batch reads its views from the files: large
+   datasets) and from a decoded cache folder (``--decoded-cache``, built in a temporary
+   folder first), against the training step's samples/s (the loader should outrun the step);
 3. the self-consistency module (``benchmark_self_consistency`` below): ms per batch and memory,
    against the gather + loop baseline.
 """
@@ -27,6 +28,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import shutil
 import sys
 import tempfile
 import time
@@ -179,7 +181,7 @@ def children_cpu_seconds() -> float:
 
 
 def time_loaders(datasets: dict[str, Path], batch_size: int, workers: tuple[int, ...], batches: int,
-                 rounds: int, cache_objects: int) -> dict:
+                 rounds: int, cache_objects: int, decoded_cache: Path | None = None) -> dict:
     """Samples/s, main-process CPU ms per batch (``time.process_time``, all its threads) and
     worker-process CPU ms per batch (:func:`children_cpu_seconds`) of
     the per-item baseline, the previous packed-tensor loader and ``make_loader`` (as it yields,
@@ -190,14 +192,16 @@ def time_loaders(datasets: dict[str, Path], batch_size: int, workers: tuple[int,
     samples in HDF5's chunk cache: at scale a view comes back once per epoch). Not timed: the first batches
     (worker start-up, prefetch queue: ``2 + 8 * workers``) and, with a cache, enough batches for each worker to have
     decoded every object (6 epochs per worker). ``cache_objects=0``: no cache, each batch reads
-    its views from the files."""
+    its views from the files; ``decoded_cache``: a folder for the decoded copy
+    (``sc3d_train.decoded_cache``, built before timing), gathered from instead."""
     from sc3d_train.batch_format import expand_batch
     from sc3d_train.data import ShardDataset
     from sc3d_train.loader import make_loader
 
     makers, warm = {}, {}
     for label, shards in datasets.items():
-        ds = ShardDataset(shards, "train", cache_objects=cache_objects)
+        ds = ShardDataset(shards, "train", cache_objects=cache_objects,
+                          decoded_cache=decoded_cache / label.strip(": ") if decoded_cache else None)
         epoch = -(-6 * ds.num_objects // batch_size) if cache_objects else 0
         for w in workers:
             makers[(label, "per-item", w)] = lambda s, ds=ds, w=w: per_item_loader(ds, batch_size, w, s)
@@ -367,11 +371,14 @@ def main() -> None:
     # 2. loader
     workers = tuple(int(w) for w in args.workers.split(","))
     if not args.skip_loader:
-        for cache, regime, batches in ((10 ** 6, "every object cached once decoded", args.loader_batches),
-                                       (0, "no cache: every sample read from the file", args.loader_batches)):
+        decoded = Path(tempfile.mkdtemp(prefix="sc3d-decoded-"))
+        for cache, regime, folder in ((10 ** 6, "every object cached once decoded", None),
+                                      (0, "no cache: every sample read from the file", None),
+                                      (0, "decoded cache folder (opt-in --decoded-cache)", decoded)):
+            batches = args.loader_batches
             datasets = {"": shards} if args.compare_shards is None else \
                 {f"{shards.name}: ": shards, f"{args.compare_shards.name}: ": args.compare_shards}
-            timed = time_loaders(datasets, args.batch_size, workers, batches, args.loader_rounds, cache)
+            timed = time_loaders(datasets, args.batch_size, workers, batches, args.loader_rounds, cache, folder)
             rates = {k: r for k, (r, _, _) in timed.items()}
             base = {label: rates[(label, "per-item", 0)] for label in datasets}
             rows = [(f"{label}{name}, {w} workers", f"{r:.0f}", f"{r / base[label]:.2f}x",
@@ -384,6 +391,7 @@ def main() -> None:
                         f"{args.loader_rounds} interleaved rounds of {batches} batches)",
                         ("loader", "samples/s", "vs per-item 0 workers", "vs same, 0 workers",
                          "main CPU ms/batch", "workers CPU ms/batch", "vs fit step"), rows))
+        shutil.rmtree(decoded, ignore_errors=True)
 
     if args.loader_only:
         return

@@ -88,13 +88,16 @@ def _stored(ds, index):
         return {k: f[k][ref.row] for k in ("images", "masks", "K", "R", "voxels")}, view
 
 
-@pytest.mark.parametrize("cache_objects", [128, 0], ids=["decoded-objects-cached", "views-read-per-batch"])
-def test_loader_batches_are_the_stored_data_with_and_without_workers(sample_shards, cache_objects):
+@pytest.mark.parametrize("cache_objects,decoded", [(128, False), (0, False), (0, True)],
+                         ids=["decoded-objects-cached", "views-read-per-batch", "decoded-cache-folder"])
+def test_loader_batches_are_the_stored_data_with_and_without_workers(sample_shards, cache_objects, decoded,
+                                                                      tmp_path):
     from sc3d_train.batch_format import expand_batch, sc_masks
     from sc3d_train.data import ShardDataset
     from sc3d_train.loader import ViewSampler, make_loader
 
-    ds = ShardDataset(sample_shards, "train", cache_objects=cache_objects)
+    ds = ShardDataset(sample_shards, "train", cache_objects=cache_objects,
+                      decoded_cache=tmp_path / "decoded" if decoded else None)
     B = 5
     first = iter(make_loader(ds, B, seed=3, workers=0))
     compact = [next(first) for _ in range(3)]
@@ -242,3 +245,89 @@ def test_a_corrupted_view_fails_naming_the_file_and_other_views_still_load(sampl
     assert reader.read_views(path, [row], [6], ("images",))["images"].shape == (1, 64, 64, 3)
     with pytest.raises(DataError, match=str(path)):
         ds.compact_batch([5])  # object 0, view 5
+
+
+def _index_sha(shard_dir, name):
+    import hashlib
+    import json
+
+    entry = [e for e in json.loads((Path(shard_dir) / "index.json").read_text())["shards"] if e["file"] == name][0]
+    assert entry["sha256"] == hashlib.sha256((Path(shard_dir) / name).read_bytes()).hexdigest()
+    return entry["sha256"]
+
+
+def test_decoded_cache_is_keyed_by_the_shard_sha256_and_rebuilt_for_a_changed_shard(sample_shards, tmp_path):
+    """The decoded copy lies in CACHE/<SHA-256 of the shard>/ and holds what h5py reads; a second
+    dataset reuses it (not rewritten); a shard rewritten with one changed pixel (its index
+    updated) gets a new folder with the new value, and the old folder still holds the old one
+    (a stale copy is never read). An unusable folder fails in one line naming it."""
+    import json
+    import shutil
+
+    from sc3d_train.data import DataError, ShardDataset
+
+    data = tmp_path / "data"
+    shutil.copytree(sample_shards, data)
+    cache = tmp_path / "cache"
+    ds = ShardDataset(data, "train", decoded_cache=cache)
+    name = Path(ds.objects[0].shard).name
+    folder = cache / _index_sha(data, name)
+    with h5py.File(data / name) as f:
+        stored_images, stored_voxels = f["images"][()], f["voxels"][()]
+    assert np.array_equal(np.load(folder / "images.npy"), stored_images)
+    assert np.array_equal(np.load(folder / "voxels.npy"), stored_voxels)
+    assert sorted(p.name for p in cache.iterdir()) == sorted([folder.name, folder.name + ".lock"])
+    built = (folder / "images.npy").stat().st_mtime_ns
+    ShardDataset(data, "train", decoded_cache=cache).close()
+    assert (folder / "images.npy").stat().st_mtime_ns == built
+
+    ds.close()  # its HDF5 handles: the shard is rewritten below
+    row = ds.objects[0].row
+    with h5py.File(data / name, "r+") as f:
+        old = int(f["images"][row, 0, 0, 0, 0])
+        f["images"][row, 0, 0, 0, 0] = 255 - old
+    index = json.loads((data / "index.json").read_text())
+    from sc3d_data.io.shards import file_sha256
+
+    for e in index["shards"]:
+        if e["file"] == name:
+            e["sha256"], e["bytes"] = file_sha256(data / name), (data / name).stat().st_size
+    (data / "index.json").write_text(json.dumps(index))
+    new = ShardDataset(data, "train", decoded_cache=cache)
+    assert new.compact_batch([0])[0]["images"][0, 0, 0, 0] == 255 - old  # object 0, view 0
+    assert ds.compact_batch([0])[0]["images"][0, 0, 0, 0] == old          # the old copy, untouched
+    assert (cache / _index_sha(data, name)).is_dir() and folder.is_dir()
+
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    with pytest.raises(DataError, match=f"{blocker / 'cache'}: cannot write the decoded cache"):
+        ShardDataset(data, "train", decoded_cache=blocker / "cache")
+
+
+def test_decoded_cache_build_waits_for_the_lock(sample_shards, tmp_path):
+    """A process that needs a missing entry waits while another process holds the entry's lock,
+    then builds it; no temporary folder is left behind."""
+    import subprocess
+    import sys
+    import threading
+
+    from sc3d_train.data import ShardDataset
+
+    ds = ShardDataset(sample_shards, "train")
+    key = _index_sha(sample_shards, Path(ds.objects[0].shard).name)
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import fcntl, os, sys; fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT); "
+         "fcntl.flock(fd, fcntl.LOCK_EX); print('locked', flush=True); sys.stdin.read()", str(cache / f"{key}.lock")],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    assert holder.stdout.readline().strip() == "locked"
+    built = []
+    waiter = threading.Thread(target=lambda: built.append(ShardDataset(sample_shards, "train", decoded_cache=cache)))
+    waiter.start()
+    waiter.join(1.5)
+    assert waiter.is_alive() and not (cache / key).exists()  # waiting for the lock
+    holder.communicate("", timeout=10)  # the holder exits: its lock goes
+    waiter.join(60)
+    assert built and (cache / key / "images.npy").is_file()
+    assert sorted(p.name for p in cache.iterdir()) == sorted([key, f"{key}.lock"])
