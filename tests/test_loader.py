@@ -331,3 +331,25 @@ def test_decoded_cache_build_waits_for_the_lock(sample_shards, tmp_path):
     waiter.join(60)
     assert built and (cache / key / "images.npy").is_file()
     assert sorted(p.name for p in cache.iterdir()) == sorted([key, f"{key}.lock"])
+
+
+def test_fit_option_decoded_cache_reaches_the_run_datasets(sample_shards, tmp_path, monkeypatch):
+    """``fit --decoded-cache DIR`` (relative) is stored absolute in the run's config, may change
+    on resume, and the run's datasets build the folder and gather from it."""
+    from click.testing import CliRunner
+
+    from sc3d_cli.train import main
+    from sc3d_train.config import RESUMABLE_FIELDS, RunConfig
+    from sc3d_train.streams import run_datasets
+
+    assert "decoded_cache" in RESUMABLE_FIELDS
+    monkeypatch.chdir(tmp_path)
+    res = CliRunner().invoke(main, ["fit", "--shards", str(sample_shards), "--out", "run", "--tiny", "--steps", "1",
+                                    "--batch-size", "4", "--no-progress", "--decoded-cache", "cache"])
+    assert res.exit_code == 0, res.output
+    cfg = RunConfig.load(tmp_path / "run" / "config.yaml")
+    cache = tmp_path / "cache"
+    assert cfg.decoded_cache == str(cache.resolve())
+    ds = run_datasets(cfg)["all"]
+    key = _index_sha(sample_shards, Path(ds.objects[0].shard).name)
+    assert (cache / key / "images.npy").is_file() and ds._decoded.folders[0] == cache / key
