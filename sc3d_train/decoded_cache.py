@@ -15,7 +15,8 @@ deleted (remove ``DIR`` to reclaim the space).
 
 Concurrency: a missing entry is built under an exclusive ``flock`` on ``DIR/<key>.lock`` (other
 ranks or runs wait for it, then find it built), into a temporary folder renamed into place when
-complete, so a crash leaves no half-written entry.
+complete, so a crash leaves no half-written entry (its temporary folder is removed by the next
+build of that entry).
 """
 from __future__ import annotations
 
@@ -111,10 +112,11 @@ class DecodedCache:
             with _locked(self.cache_dir / f"{folder.name}.lock"):
                 if self._complete(folder):  # another process built it meanwhile
                     return
+                for stale in self.cache_dir.glob(f"{folder.name}.tmp-*"):  # left by a crash
+                    shutil.rmtree(stale, ignore_errors=True)
                 tmp = self.cache_dir / f"{folder.name}.tmp-{os.getpid()}"
-                shutil.rmtree(tmp, ignore_errors=True)
                 tmp.mkdir()
-                have = [p for p in folder.glob("*.npy")] if folder.is_dir() else []
+                have = list(folder.glob("*.npy")) if folder.is_dir() else []
                 _build(reader, path, tmp, self.mask_size, self.voxels)
                 for p in have:  # an entry built for another mask size or without voxels
                     if not (tmp / p.name).exists():

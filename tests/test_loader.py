@@ -306,7 +306,7 @@ def test_decoded_cache_is_keyed_by_the_shard_sha256_and_rebuilt_for_a_changed_sh
 
 def test_decoded_cache_build_waits_for_the_lock(sample_shards, tmp_path):
     """A process that needs a missing entry waits while another process holds the entry's lock,
-    then builds it; no temporary folder is left behind."""
+    then builds it; no temporary folder is left behind (one of a killed build included)."""
     import subprocess
     import sys
     import threading
@@ -316,7 +316,7 @@ def test_decoded_cache_build_waits_for_the_lock(sample_shards, tmp_path):
     ds = ShardDataset(sample_shards, "train")
     key = _index_sha(sample_shards, Path(ds.objects[0].shard).name)
     cache = tmp_path / "cache"
-    cache.mkdir()
+    (cache / f"{key}.tmp-99999999").mkdir(parents=True)  # what a build killed half-way leaves
     holder = subprocess.Popen(
         [sys.executable, "-c", "import fcntl, os, sys; fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT); "
          "fcntl.flock(fd, fcntl.LOCK_EX); print('locked', flush=True); sys.stdin.read()", str(cache / f"{key}.lock")],
