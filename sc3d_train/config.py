@@ -36,7 +36,8 @@ VOXEL_DECODERS = ("3tube", "1tube")
 MODES = ("supervised", "semi", "labeled-only", "true-pose-masks")
 #: fields that ``--resume`` may change (they do not alter the optimisation trajectory up to the
 #: checkpoint); every other field must match the checkpoint's config.
-RESUMABLE_FIELDS = ("steps", "checkpoint_every", "workers", "log_every", "device", "progress", "out")
+RESUMABLE_FIELDS = ("steps", "checkpoint_every", "workers", "decoded_cache", "log_every", "device", "progress",
+                    "out")
 #: the one "tiny" preset (``fit --tiny``, ``ModelConfig.tiny()``): a small network for CPU demos
 #: and tests
 TINY_MODEL = {"base_channels": 8, "shape_dim": 32, "pose_dim": 8}
@@ -163,6 +164,9 @@ class RunConfig(_Plain):
                                         "images alone).")
     # loader, device, logging
     workers: int = setting(0, "DataLoader worker processes per rank.")
+    decoded_cache: str | None = setting(None, "Folder for a decoded, uncompressed, memory-mapped copy of "
+                                        "the training arrays (opt-in: ~22x the shards' disk space; "
+                                        "built once, keyed by each shard's SHA-256).")
     device: str = setting("auto", DEVICE_HELP)
     amp: str = setting("auto", "Mixed precision; auto = bf16/fp16 on CUDA, off on CPU.",
                        choices=("auto", "off", "bf16", "fp16"))

@@ -13,6 +13,9 @@ Training batch keys (B samples; ``batch_format.expand_batch`` of a compact batch
 ``azimuth``, ``elevation`` [B] (world units, degrees; the ground-truth pose is for evaluation
 only); ``category``, ``model_id`` (lists of str); ``labeled`` [B] bool; ``index`` [B] long
 (object index * V + view).
+
+Length: one module because the three ways a batch is gathered (decoded objects kept per process,
+views read per batch, a decoded cache folder) must give the same batch from the same fields.
 """
 from __future__ import annotations
 
@@ -29,6 +32,7 @@ from sc3d_data.io.shard_reader import ShardReader
 from sc3d_data.io.shards import ShardError
 from sc3d_train.batch_format import compact_tensors, expand_batch, sc_masks_bool
 from sc3d_train.config import MASK_SIZE
+from sc3d_train.decoded_cache import DecodedCache
 
 
 #: the per-view cameras and poses of a sample (small: read whole per shard for large splits)
@@ -122,13 +126,15 @@ class ShardDataset(Dataset):
     given, must match the shards (e.g. the size a checkpoint was trained at).
     ``cache_objects``: decoded objects kept per process (LRU; ~0.45 MB each at 64 px, 24 views).
     Batches use it only when the whole split fits (``num_objects <= cache_objects``); larger
-    splits read just the views a batch needs (:meth:`compact_batch`).
+    splits read just the views a batch needs (:meth:`compact_batch`). ``decoded_cache``: a
+    folder for a decoded, memory-mapped copy of the arrays (:mod:`sc3d_train.decoded_cache`;
+    opt-in, ~22x the shards' disk space), built here where missing; batches then gather from it.
     """
 
     def __init__(self, shard_dir: Path, split: str = "train", subset: str = "all",
                  labeled_fraction: float = 1.0, seed: int = 0, mask_size: int = MASK_SIZE,
                  require_voxels: bool = True, image_size: int | None = None,
-                 cache_objects: int = 128):
+                 cache_objects: int = 128, decoded_cache: Path | str | None = None):
         refs, info = scan_objects(shard_dir)
         self.shard_dir, self.split, self.subset = str(shard_dir), split, subset
         if require_voxels and info["files_without_voxels"]:
@@ -160,7 +166,13 @@ class ShardDataset(Dataset):
         self._rows = np.array([r.row for r in self.objects], dtype=np.int64)
         self._cache: OrderedDict[int, dict] = OrderedDict()
         self._pid = None
-        self._cameras = None if self.cache_objects >= self.num_objects else self._read_cameras()
+        try:
+            self._decoded = DecodedCache(Path(decoded_cache), Path(shard_dir), self._shards, mask_size,
+                                         require_voxels) if decoded_cache else None
+        except ShardError as e:
+            raise DataError(str(e)) from e
+        self._cameras = None if self._decoded is None and self.cache_objects >= self.num_objects \
+            else self._read_cameras()
 
     def __len__(self) -> int:
         return len(self.objects) * self.num_views
@@ -222,13 +234,18 @@ class ShardDataset(Dataset):
         [B,S,S,3] uint8 (HWC), ``masks`` [B,S,S] and ``masks_sc`` [B,M,M] bool, ``voxels``
         [B,G,G,G] uint8 (with ``require_voxels``), ``K``, ``K_sc``, ``R``, ``t``, ``distance``,
         ``azimuth``, ``elevation`` float32, ``labeled`` bool, ``index`` int64; strings:
-        ``category``, ``model_id``. When the split fits in ``cache_objects``, objects are decoded
+        ``category``, ``model_id``. With a ``decoded_cache`` the arrays are gathered from it. When the
+        split fits in ``cache_objects``, objects are decoded
         whole once (LRU cache) and the 48 px masks computed once per (object, view); otherwise
         (large datasets: an object comes back once per epoch, so a cache would only miss) only
         the batch's views are read, grouped by shard (``ShardReader.read_views``)."""
         idx = np.asarray(indices, dtype=np.int64).reshape(-1)
         objs, views = np.divmod(idx, self.num_views)
-        if self.cache_objects >= self.num_objects:
+        if self._decoded is not None:
+            got = self._decoded.views(self._shard_index[objs], self._rows[objs], views)
+            got.update({k: a[objs, views] for k, a in self._cameras.items()})
+            masks_sc = got["masks_sc"]
+        elif self.cache_objects >= self.num_objects:
             arrays = [self._object(int(o)) for o in objs]
             got = {name: np.stack([a[name][v] for a, v in zip(arrays, views)]) for name in VIEW_FIELDS}
             if self.require_voxels:

@@ -18,7 +18,8 @@ def phase_dataset(cfg: RunConfig, subset: str) -> ShardDataset:
     fraction = cfg.labeled_fraction if cfg.mode in ("semi", "labeled-only") else 1.0
     return ShardDataset(cfg.shards, cfg.split, subset=subset, labeled_fraction=fraction,
                         seed=cfg.seed, mask_size=cfg.model.mask_size,
-                        require_voxels=subset != "unlabeled", image_size=cfg.image_size)
+                        require_voxels=subset != "unlabeled", image_size=cfg.image_size,
+                        decoded_cache=cfg.decoded_cache)
 
 
 def run_datasets(cfg: RunConfig) -> dict:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from sc3d_train.batch_transfer import pack, unpack
+from sc3d_train.batch_transfer import PackedBatch, RingBatch, SharedRing, pack, unpack
 
 
 def test_pack_round_trip_is_exact_and_packs_only_binary_arrays():
@@ -30,6 +30,56 @@ def test_pack_round_trip_is_exact_and_packs_only_binary_arrays():
     assert p.other == {"model_id": ["a", "b", "c"]}
 
 
+def test_shared_ring_round_trip_fallback_and_overwrite_check():
+    """A batch written into its slot comes back exactly and as a copy (the slot can be reused);
+    one too big for a slot travels as a PackedBatch; a slot overwritten by a later batch before
+    it was taken is an error, not wrong data (negative control of the slot check)."""
+    rng = np.random.default_rng(1)
+    arrays = {"images": rng.integers(0, 256, (4, 8, 8, 3), dtype=np.uint8),
+              "voxels": (rng.random((4, 5, 5, 5)) > 0.5).astype(np.uint8),
+              "K": rng.normal(size=(4, 3, 3)).astype(np.float32)}
+    ring = SharedRing(3, 1024)  # 768 + 63 (500 bits) + 144 bytes fit in 1024
+    item = ring.put(4, arrays, {"model_id": list("abcd")}, bits=("voxels",))
+    assert isinstance(item, RingBatch) and item.seq == 4
+    out = ring.take(item)
+    assert ring.data[4 % 3].numpy()[:768].tobytes() == arrays["images"].tobytes()  # slot 1 holds it
+    for k, a in arrays.items():
+        assert out[k].dtype == a.dtype and np.array_equal(out[k], a), k
+    ring.data[1].zero_()
+    assert out["images"].any()  # a copy: clearing the slot leaves the batch intact
+    big = {"images": np.zeros((4, 16, 16, 3), dtype=np.uint8)}  # 3072 bytes > 1024
+    assert isinstance(ring.put(5, big, {}), PackedBatch)
+    first = ring.put(7, arrays, {}, bits=("voxels",))
+    ring.put(10, arrays, {}, bits=("voxels",))  # 10 % 3 == 7 % 3: the same slot
+    with pytest.raises(RuntimeError, match="slot 1 holds batch 10, expected 7"):
+        ring.take(first)
+
+
+def test_workers_send_every_batch_through_the_ring(sample_shards, monkeypatch):
+    """With workers, no batch takes the per-batch tensor path (``pack`` raising in the forked
+    workers would surface here), and batches kept while the loader wraps its ring 3 times stay
+    equal to the in-process ones (each is copied out of its slot before it is yielded)."""
+    import sc3d_train.batch_transfer as transfer
+    from sc3d_train.data import ShardDataset
+    from sc3d_train.loader import make_loader
+
+    ds = ShardDataset(sample_shards, "train", cache_objects=0)
+    expected = iter(make_loader(ds, 3, seed=5, workers=0))
+    expected = [next(expected) for _ in range(60)]
+    loader = make_loader(ds, 3, seed=5, workers=2)  # (2 * 2 + 1) * 4 = 20 slots
+
+    def no_pack(*args, **kwargs):
+        raise AssertionError("a batch did not fit its ring slot")
+
+    monkeypatch.setattr(transfer, "pack", no_pack)
+    it = iter(loader)
+    kept = [next(it) for _ in range(60)]
+    del it
+    for a, b in zip(expected, kept):
+        for k in a:
+            assert (torch.equal(a[k], b[k]) if torch.is_tensor(a[k]) else a[k] == b[k]), k
+
+
 def _stored(ds, index):
     """One sample straight from the HDF5 file (SPEC layout), without the loader's code."""
     obj, view = divmod(index, ds.num_views)
@@ -38,13 +88,16 @@ def _stored(ds, index):
         return {k: f[k][ref.row] for k in ("images", "masks", "K", "R", "voxels")}, view
 
 
-@pytest.mark.parametrize("cache_objects", [128, 0], ids=["decoded-objects-cached", "views-read-per-batch"])
-def test_loader_batches_are_the_stored_data_with_and_without_workers(sample_shards, cache_objects):
+@pytest.mark.parametrize("cache_objects,decoded", [(128, False), (0, False), (0, True)],
+                         ids=["decoded-objects-cached", "views-read-per-batch", "decoded-cache-folder"])
+def test_loader_batches_are_the_stored_data_with_and_without_workers(sample_shards, cache_objects, decoded,
+                                                                      tmp_path):
     from sc3d_train.batch_format import expand_batch, sc_masks
     from sc3d_train.data import ShardDataset
     from sc3d_train.loader import ViewSampler, make_loader
 
-    ds = ShardDataset(sample_shards, "train", cache_objects=cache_objects)
+    ds = ShardDataset(sample_shards, "train", cache_objects=cache_objects,
+                      decoded_cache=tmp_path / "decoded" if decoded else None)
     B = 5
     first = iter(make_loader(ds, B, seed=3, workers=0))
     compact = [next(first) for _ in range(3)]
@@ -192,3 +245,111 @@ def test_a_corrupted_view_fails_naming_the_file_and_other_views_still_load(sampl
     assert reader.read_views(path, [row], [6], ("images",))["images"].shape == (1, 64, 64, 3)
     with pytest.raises(DataError, match=str(path)):
         ds.compact_batch([5])  # object 0, view 5
+
+
+def _index_sha(shard_dir, name):
+    import hashlib
+    import json
+
+    entry = [e for e in json.loads((Path(shard_dir) / "index.json").read_text())["shards"] if e["file"] == name][0]
+    assert entry["sha256"] == hashlib.sha256((Path(shard_dir) / name).read_bytes()).hexdigest()
+    return entry["sha256"]
+
+
+def test_decoded_cache_is_keyed_by_the_shard_sha256_and_rebuilt_for_a_changed_shard(sample_shards, tmp_path):
+    """The decoded copy lies in CACHE/<SHA-256 of the shard>/ and holds what h5py reads; a second
+    dataset reuses it (not rewritten); a shard rewritten with one changed pixel (its index
+    updated) gets a new folder with the new value, and the old folder still holds the old one
+    (a stale copy is never read). An unusable folder fails in one line naming it."""
+    import json
+    import shutil
+
+    from sc3d_train.data import DataError, ShardDataset
+
+    data = tmp_path / "data"
+    shutil.copytree(sample_shards, data)
+    cache = tmp_path / "cache"
+    ds = ShardDataset(data, "train", decoded_cache=cache)
+    name = Path(ds.objects[0].shard).name
+    folder = cache / _index_sha(data, name)
+    with h5py.File(data / name) as f:
+        stored_images, stored_voxels = f["images"][()], f["voxels"][()]
+    assert np.array_equal(np.load(folder / "images.npy"), stored_images)
+    assert np.array_equal(np.load(folder / "voxels.npy"), stored_voxels)
+    assert sorted(p.name for p in cache.iterdir()) == sorted([folder.name, folder.name + ".lock"])
+    built = (folder / "images.npy").stat().st_mtime_ns
+    ShardDataset(data, "train", decoded_cache=cache).close()
+    assert (folder / "images.npy").stat().st_mtime_ns == built
+
+    ds.close()  # its HDF5 handles: the shard is rewritten below
+    row = ds.objects[0].row
+    with h5py.File(data / name, "r+") as f:
+        old = int(f["images"][row, 0, 0, 0, 0])
+        f["images"][row, 0, 0, 0, 0] = 255 - old
+    index = json.loads((data / "index.json").read_text())
+    from sc3d_data.io.shards import file_sha256
+
+    for e in index["shards"]:
+        if e["file"] == name:
+            e["sha256"], e["bytes"] = file_sha256(data / name), (data / name).stat().st_size
+    (data / "index.json").write_text(json.dumps(index))
+    new = ShardDataset(data, "train", decoded_cache=cache)
+    assert new.compact_batch([0])[0]["images"][0, 0, 0, 0] == 255 - old  # object 0, view 0
+    assert ds.compact_batch([0])[0]["images"][0, 0, 0, 0] == old          # the old copy, untouched
+    assert (cache / _index_sha(data, name)).is_dir() and folder.is_dir()
+
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    with pytest.raises(DataError, match=f"{blocker / 'cache'}: cannot write the decoded cache"):
+        ShardDataset(data, "train", decoded_cache=blocker / "cache")
+
+
+def test_decoded_cache_build_waits_for_the_lock(sample_shards, tmp_path):
+    """A process that needs a missing entry waits while another process holds the entry's lock,
+    then builds it; no temporary folder is left behind (one of a killed build included)."""
+    import subprocess
+    import sys
+    import threading
+
+    from sc3d_train.data import ShardDataset
+
+    ds = ShardDataset(sample_shards, "train")
+    key = _index_sha(sample_shards, Path(ds.objects[0].shard).name)
+    cache = tmp_path / "cache"
+    (cache / f"{key}.tmp-99999999").mkdir(parents=True)  # what a build killed half-way leaves
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import fcntl, os, sys; fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT); "
+         "fcntl.flock(fd, fcntl.LOCK_EX); print('locked', flush=True); sys.stdin.read()", str(cache / f"{key}.lock")],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    assert holder.stdout.readline().strip() == "locked"
+    built = []
+    waiter = threading.Thread(target=lambda: built.append(ShardDataset(sample_shards, "train", decoded_cache=cache)))
+    waiter.start()
+    waiter.join(1.5)
+    assert waiter.is_alive() and not (cache / key).exists()  # waiting for the lock
+    holder.communicate("", timeout=10)  # the holder exits: its lock goes
+    waiter.join(60)
+    assert built and (cache / key / "images.npy").is_file()
+    assert sorted(p.name for p in cache.iterdir()) == sorted([key, f"{key}.lock"])
+
+
+def test_fit_option_decoded_cache_reaches_the_run_datasets(sample_shards, tmp_path, monkeypatch):
+    """``fit --decoded-cache DIR`` (relative) is stored absolute in the run's config, may change
+    on resume, and the run's datasets build the folder and gather from it."""
+    from click.testing import CliRunner
+
+    from sc3d_cli.train import main
+    from sc3d_train.config import RESUMABLE_FIELDS, RunConfig
+    from sc3d_train.streams import run_datasets
+
+    assert "decoded_cache" in RESUMABLE_FIELDS
+    monkeypatch.chdir(tmp_path)
+    res = CliRunner().invoke(main, ["fit", "--shards", str(sample_shards), "--out", "run", "--tiny", "--steps", "1",
+                                    "--batch-size", "4", "--no-progress", "--decoded-cache", "cache"])
+    assert res.exit_code == 0, res.output
+    cfg = RunConfig.load(tmp_path / "run" / "config.yaml")
+    cache = tmp_path / "cache"
+    assert cfg.decoded_cache == str(cache.resolve())
+    ds = run_datasets(cfg)["all"]
+    key = _index_sha(sample_shards, Path(ds.objects[0].shard).name)
+    assert (cache / key / "images.npy").is_file() and ds._decoded.folders[0] == cache / key

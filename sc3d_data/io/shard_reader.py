@@ -92,6 +92,13 @@ class ShardReader:
             self._datasets[key] = f[name]
         return self._datasets[key]
 
+    def num_rows(self, path: Path) -> int:
+        """Objects in shard file ``path`` (rows of its ``images``)."""
+        try:
+            return int(self._dataset(path, "images").shape[0])
+        except (OSError, KeyError, RuntimeError) as e:
+            raise ShardError(f"{path}: cannot be read ({io_reason(e)}); see `sc3d-data info --verify`") from e
+
     def read(self, path: Path, row: int, fields: tuple[str, ...]) -> dict[str, np.ndarray]:
         """Arrays ``fields`` of object ``row`` of shard file ``path`` (one of ``self.files``),
         without the object axis: every view of the object. ``ShardError`` naming the file when a
