@@ -130,7 +130,7 @@ def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = Tr
     def context_with_hooks(gl_backend):  # the forkserver imports this module (the hooks) too
         ctx = context(gl_backend)
         if ctx.get_start_method() == "forkserver":
-            ctx.set_forkserver_preload([pool.PRELOAD_EGL if pool._server_gl[0] else pool.PRELOAD, __name__])
+            ctx.set_forkserver_preload(["__main__", pool.PRELOAD_EGL if pool._server_gl[0] else pool.PRELOAD, __name__])
         return ctx
 
     pool._context = context_with_hooks

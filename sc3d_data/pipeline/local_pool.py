@@ -49,7 +49,9 @@ def _context(gl_backend: str | None):
     ctx = mp.get_context("forkserver")
     if _server_gl[0] is None:
         _server_gl[0] = "egl" if gl_backend == "egl" else ""
-        ctx.set_forkserver_preload([PRELOAD_EGL if _server_gl[0] else PRELOAD])
+        # "__main__" first, as multiprocessing's default does: the server imports the main
+        # module once (e.g. the sc3d-data script) and the workers it forks skip re-importing it
+        ctx.set_forkserver_preload(["__main__", PRELOAD_EGL if _server_gl[0] else PRELOAD])
     if gl_backend is not None and _server_gl[0] not in ("", gl_backend):
         return mp.get_context("spawn")
     return ctx
