@@ -13,13 +13,14 @@ with the ratio, then compares the last two datasets array by array (values, not 
 """
 from __future__ import annotations
 
-import argparse
 import json
 import statistics
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from old_tree import old_tree_parser  # benchmarks/old_tree.py (this script's folder is on sys.path)
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -69,11 +70,8 @@ def differing_values(a: Path, b: Path) -> dict[str, int]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("old_tree", type=Path, help="source tree of the old version (holds sc3d_data/)")
-    ap.add_argument("meshes", nargs="?", type=Path, default=REPO.parent / "shared" / "meshes")
+    ap = old_tree_parser(__doc__)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     trees = {"old": args.old_tree, "new": REPO}
     runs: dict[str, list[dict]] = {k: [] for k in trees}

@@ -12,7 +12,6 @@ whose grids differ.
 """
 from __future__ import annotations
 
-import argparse
 import importlib.util
 import os
 import sys
@@ -29,6 +28,7 @@ from sc3d_data.voxel import voxelize as new  # noqa: E402
 from sc3d_data.formats.discover import discover_meshes  # noqa: E402
 from sc3d_data.io.meshes import load_mesh_triangles  # noqa: E402
 from sc3d_data.geometry.normalize import apply_transform, to_canonical_transform  # noqa: E402
+from old_tree import old_tree_parser  # noqa: E402  (benchmarks/old_tree.py)
 
 
 def import_old(tree: Path):
@@ -45,11 +45,8 @@ def import_old(tree: Path):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("old_tree", type=Path, help="source tree of the old version (holds sc3d_data/)")
-    ap.add_argument("meshes", nargs="?", type=Path, default=REPO.parent / "shared" / "meshes")
+    ap = old_tree_parser(__doc__)
     ap.add_argument("--resolution", type=int, default=32)
-    ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     old = import_old(args.old_tree)
     meshes = []
