@@ -120,7 +120,7 @@ def test_workers_get_the_environment_the_main_process_has_when_they_start(tmp_pa
     for name in ("box_a", "box_b", "box_c"):
         _write_obj(meshes / f"{name}.obj", *_cube())
     run_cli(main, ["render", "--meshes", tmp_path / "meshes", "--out", tmp_path / "first", "--workers", "1", *FAST])
-    assert local_pool._context("egl").get_start_method() == "forkserver" and local_pool.QUEUED == 2
+    assert local_pool.worker_context("egl").get_start_method() == "forkserver" and local_pool.QUEUED == 2
     os.environ[CRASH_ENV] = "box_a"
     try:
         res = run_cli(main, ["render", "--meshes", tmp_path / "meshes", "--out", tmp_path / "second",

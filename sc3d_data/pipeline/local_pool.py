@@ -39,7 +39,7 @@ PRELOAD_EGL = "sc3d_data.pipeline.worker_preload_egl"
 _server_gl: list[str | None] = [None]
 
 
-def _context(gl_backend: str | None):
+def worker_context(gl_backend: str | None):
     """The multiprocessing context of a pool whose workers use ``gl_backend`` (None: no GL):
     ``forkserver`` where the platform has one, preloaded by the first pool of this process
     (with EGL when that pool renders with EGL); ``spawn`` where there is no forkserver or the
@@ -130,7 +130,7 @@ class WorkerPool:
     def __init__(self, n: int, config, backend: str, job: Job = RENDER):
         for k, v in THREAD_ENV.items():
             os.environ.setdefault(k, v)
-        self.ctx = _context(backend if job.gl else None)
+        self.ctx = worker_context(backend if job.gl else None)
         self.config, self.backend, self.job = config, backend, job
         self.workers = [_Worker(self.ctx, job, config, backend) for _ in range(n)]
 

@@ -22,7 +22,6 @@ from __future__ import annotations
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -73,7 +72,9 @@ def _job(args):
 def _map(jobs, workers: int):
     if workers <= 1 or len(jobs) <= 1:
         return [_job(j) for j in jobs]
-    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
+    from sc3d_data.pipeline.local_pool import worker_context
+
+    with ProcessPoolExecutor(max_workers=workers, mp_context=worker_context(None),
                              initializer=limit_threads) as ex:
         return list(ex.map(_job, jobs, chunksize=1))
 

@@ -14,7 +14,7 @@ collections in a worker no longer walk the ~240,000 objects of the imported modu
 its ~0.8 ms of collection per object), nor write to their pages (shared with the server). ``worker_preload_egl`` adds PyOpenGL and pyrender's EGL
 platform module (~0.25 s per worker): imported only, no display or context is made, so no GL
 state is ever inherited through a fork; a server that has it serves EGL workers only
-(``local_pool._context``), since ``PYOPENGL_PLATFORM`` is fixed at PyOpenGL's import.
+(``local_pool.worker_context``), since ``PYOPENGL_PLATFORM`` is fixed at PyOpenGL's import.
 """
 from __future__ import annotations
 

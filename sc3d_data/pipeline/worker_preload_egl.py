@@ -1,5 +1,5 @@
 """``worker_preload`` plus PyOpenGL with pyrender's EGL platform, for a forkserver whose workers
-render with EGL (see ``worker_preload`` and ``local_pool._context``)."""
+render with EGL (see ``worker_preload`` and ``local_pool.worker_context``)."""
 import gc
 
 from sc3d_data.pipeline.worker_preload import import_gl
