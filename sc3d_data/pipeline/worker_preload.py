@@ -35,6 +35,16 @@ def warm_voxelizer() -> None:
     voxelize_triangles(corners, faces, resolution=8)
 
 
+def best_effort(step, *args) -> None:
+    """Run ``step(*args)``; an error is dropped. The forkserver only swallows ImportError, and a
+    server that dies at start-up fails every worker of the run; a worker that needs what
+    failed here does it again itself and reports the error with its object."""
+    try:
+        step(*args)
+    except Exception:  # noqa: BLE001 - see above
+        pass
+
+
 def import_gl(backend: str) -> None:
     """Import PyOpenGL and pyrender's platform module for ``backend`` (no context is made)."""
     from sc3d_data.render.gl_backend import activate
@@ -43,6 +53,6 @@ def import_gl(backend: str) -> None:
     import_module(f"pyrender.platforms.{backend}")
 
 
-import_module("trimesh")  # the import is the point: workers inherit it
-warm_voxelizer()
+best_effort(import_module, "trimesh")  # the import is the point: workers inherit it
+best_effort(warm_voxelizer)
 gc.freeze()
