@@ -47,12 +47,12 @@ def fletcher32_many(chunks: list[bytes]) -> list[int]:
     ends = np.cumsum(counts)
     starts = ends - counts
     in_running_sums = (np.repeat(ends, counts) - np.arange(len(words), dtype=np.int64)) % 65535
-    sum1 = np.add.reduceat(words, starts) % 65535
+    total = np.add.reduceat(words, starts)
+    sum1 = total % 65535
     sum2 = np.add.reduceat(words * in_running_sums, starts) % 65535
-    nonzero = np.add.reduceat(words, starts) > 0
     sum1 = np.where(sum1 == 0, 65535, sum1)  # a positive total folds into 1..65535
     sum2 = np.where(sum2 == 0, 65535, sum2)
-    return [int((c2 << 16) | c1) if nz else 0 for c1, c2, nz in zip(sum1, sum2, nonzero)]
+    return [int((c2 << 16) | c1) if t else 0 for c1, c2, t in zip(sum1, sum2, total)]
 
 
 def encode_chunk(block: np.ndarray) -> bytes:

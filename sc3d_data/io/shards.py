@@ -167,9 +167,14 @@ def encode_array(name: str, array, layout: str) -> EncodedArray:
 
     a = np.ascontiguousarray(np.asarray(array, dtype=ARRAY_DTYPES.get(name)))
     per = chunk_shape(name, (1,) + a.shape, layout)[1:]
-    grid = [n // c for n, c in zip(a.shape, per)]
-    blocks = [a[tuple(slice(g * c, (g + 1) * c) for g, c in zip(idx, per))] for idx in np.ndindex(*grid)]
+    blocks = [a[tuple(slice(o, o + c) for o, c in zip(offset, per))] for offset in _chunk_offsets(a.shape, per)]
     return EncodedArray(a.shape, a.dtype.str, layout, tuple(encode_chunks(blocks)))
+
+
+def _chunk_offsets(shape: tuple[int, ...], per: tuple[int, ...]) -> list[tuple[int, ...]]:
+    """The first index of each chunk of shape ``per`` tiling one object's array of ``shape``,
+    in C order of the chunk grid (the order of ``EncodedArray.chunks``)."""
+    return [tuple(g * c for g, c in zip(idx, per)) for idx in np.ndindex(*[n // c for n, c in zip(shape, per)])]
 
 
 def encode_arrays(record: ObjectRecord, layout: str, names=ENCODED_BY_WORKER) -> ObjectRecord:
@@ -288,8 +293,7 @@ def _write_encoded(f: h5py.File, name: str, arrays: list[EncodedArray]) -> None:
     shape = (len(arrays),) + tuple(first.shape)
     per = chunk_shape(name, shape, first.layout)
     dset = f.create_dataset(name, shape=shape, dtype=np.dtype(first.dtype), chunks=per, **COMPRESSION)
-    grid = [n // c for n, c in zip(first.shape, per[1:])]
-    offsets = [tuple(g * c for g, c in zip(idx, per[1:])) for idx in np.ndindex(*grid)]
+    offsets = _chunk_offsets(first.shape, per[1:])
     for row, a in enumerate(arrays):
         for offset, chunk in zip(offsets, a.chunks):
             dset.id.write_direct_chunk((row,) + offset, chunk)

@@ -6,12 +6,12 @@ compiled numba kernels (~0.3 CPU-s) by itself; with two workers on two cores tha
 ~12 CPU-seconds of rendering 195 meshes. Forked from a server that did it once, a worker starts
 with both in memory (copy-on-write) and only makes its GL context.
 
-Importing this module has that side effect on purpose: it imports ``trimesh``, voxelizes an
+Importing this module has that side effect on purpose: it imports ``trimesh`` and voxelizes an
 open unit box at ``8^3`` so that every kernel ``voxelize_triangles`` calls is compiled or read
-from numba's cache. Then it moves
-every object made so far into the garbage collector's permanent generation (``gc.freeze``):
-collections in a worker no longer walk the ~240,000 objects of the imported modules (half of
-its ~0.8 ms of collection per object), nor write to their pages (shared with the server). ``worker_preload_egl`` adds PyOpenGL and pyrender's EGL
+from numba's cache. Then it moves every object made so far into the garbage collector's
+permanent generation (``gc.freeze``): collections in a worker no longer walk the ~240,000
+objects of the imported modules (half of its ~0.8 ms of collection per object), nor write to
+their pages (shared with the server). ``worker_preload_egl`` adds PyOpenGL and pyrender's EGL
 platform module (~0.25 s per worker): imported only, no display or context is made, so no GL
 state is ever inherited through a fork; a server that has it serves EGL workers only
 (``local_pool.worker_context``), since ``PYOPENGL_PLATFORM`` is fixed at PyOpenGL's import.

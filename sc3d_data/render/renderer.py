@@ -286,8 +286,8 @@ class MeshRenderer:
         if key not in self.programs:
             from OpenGL.GL import shaders
 
-            head = "#version 330 core\n" + "".join(d for k, d in _VARIANT_DEFINES.items()
-                                                   if {"color": color, "texture": texture}[k])
+            head = ("#version 330 core\n" + (_VARIANT_DEFINES["color"] if color else "")
+                    + (_VARIANT_DEFINES["texture"] if texture else ""))
             program = shaders.compileProgram(
                 shaders.compileShader(head + _VERTEX.replace("NVIEWS", str(self.V)), GL.GL_VERTEX_SHADER),
                 shaders.compileShader(head + _FRAGMENT, GL.GL_FRAGMENT_SHADER), validate=False)
