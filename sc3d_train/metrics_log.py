@@ -1,6 +1,6 @@
 """The training log of a run: ``metrics.csv`` (one row per logged step), TensorBoard scalars
 (``tb/``) and the ``curves.png`` plot; and two of the measures it logs: the time the loop waits
-for data (:class:`WaitedBatches`) and the GPU's utilisation (:func:`gpu_utilisation`)."""
+for data (:class:`DataWaitClock`) and the GPU's utilisation (:func:`gpu_utilisation`)."""
 from __future__ import annotations
 
 import csv
@@ -64,22 +64,24 @@ class MetricsLog:
             self.tb.close()
 
 
-class WaitedBatches:
-    """A batch iterator that adds the wall-clock seconds its ``next`` blocks (the training loop
-    waiting for the loader) to ``seconds``: the ``data_wait`` share logged by ``fit``."""
+class DataWaitClock:
+    """Wall-clock ``seconds`` the training loop spent blocked in ``next`` on the batch
+    iterators it wrapped (:meth:`wrap`): the ``data_wait`` share logged by ``fit``."""
 
-    def __init__(self, batches):
-        self.batches, self.seconds = batches, 0.0
+    def __init__(self):
+        self.seconds = 0.0
 
-    def __iter__(self):
-        return self
-
-    def __next__(self):
-        t0 = time.perf_counter()
-        try:
-            return next(self.batches)
-        finally:
-            self.seconds += time.perf_counter() - t0
+    def wrap(self, batches):
+        """``batches``, each ``next`` timed into :attr:`seconds`."""
+        while True:
+            t0 = time.perf_counter()
+            try:
+                batch = next(batches)
+            except StopIteration:
+                return
+            finally:
+                self.seconds += time.perf_counter() - t0
+            yield batch
 
 
 def gpu_utilisation(device) -> float | None:

@@ -49,7 +49,7 @@ from sc3d_train.checkpoint import (CheckpointError, build_model, checkpoint_conf
                                    state_dict_mismatch)
 from sc3d_train.config import CONFIG_NAME, RunConfig
 from sc3d_train.data import ShardDataset
-from sc3d_train.metrics_log import MetricsLog, WaitedBatches, gpu_utilisation, plot_curves
+from sc3d_train.metrics_log import DataWaitClock, MetricsLog, gpu_utilisation, plot_curves
 from sc3d_train.phase_step import optimizer_step, step_losses, training_batch
 from sc3d_train.runtime import (DistInfo, all_gather, all_mean, all_min, channels_last_on, resolve_amp,
                                 resolve_device, seed_everything, setup_distributed)
@@ -231,13 +231,12 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
         progress = progress_bar(total=cfg.steps, initial=start_step, unit="step", desc="train")
 
     phase, loaders, last_losses = None, {}, {}
-    t_log, n_log, rate, waited = time.perf_counter(), 0, 0.0, 0.0
+    t_log, n_log, rate, wait = time.perf_counter(), 0, 0.0, DataWaitClock()
     try:
         for step in range(start_step, cfg.steps):
             if phase_at(cfg, step) != phase:
-                waited += sum(it.seconds for it in loaders.values())
                 phase = phase_at(cfg, step)
-                loaders = {p: WaitedBatches(it) for p, it in phase_loaders(t, step).items()}
+                loaders = {p: wait.wrap(it) for p, it in phase_loaders(t, step).items()}
             losses = train_step(t, loaders, step, last_good)
             n_log += cfg.batch_size
             done = step + 1
@@ -245,11 +244,8 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
                 if t.device.type == "cuda":
                     torch.cuda.synchronize()
                 now = time.perf_counter()
-                waited += sum(it.seconds for it in loaders.values())
-                wait_share = waited / max(now - t_log, 1e-9)
-                rate, t_log, n_log, waited = n_log / max(now - t_log, 1e-9), now, 0, 0.0
-                for it in loaders.values():
-                    it.seconds = 0.0
+                wait_share = wait.seconds / max(now - t_log, 1e-9)
+                rate, t_log, n_log, wait.seconds = n_log / max(now - t_log, 1e-9), now, 0, 0.0
                 last_losses = mean_scalars(t, losses)
                 gpu = gpu_utilisation(t.device)
                 log.log(step, {"phase": phase, **last_losses, "lr": lr_at(cfg, step),

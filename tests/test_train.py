@@ -281,19 +281,19 @@ def test_unlabelled_pass_leaves_batchnorm_running_statistics_alone():
     assert out.voxel_logits.shape == (4, 32, 32, 32)
 
 
-def test_waited_batches_counts_the_time_next_blocks():
+def test_data_wait_clock_counts_the_time_next_blocks():
     """A loader that takes 30 ms per batch, consumed by a loop that spends 20 ms per step: the
     clock must show 3 x 30 ms of waiting (and nothing of the loop's own time)."""
     import time
 
-    from sc3d_train.metrics_log import WaitedBatches
+    from sc3d_train.metrics_log import DataWaitClock
 
     def slow():
         for i in range(3):
             time.sleep(0.03)
             yield i
 
-    batches = WaitedBatches(slow())
-    for _ in batches:
+    clock = DataWaitClock()
+    for _ in clock.wrap(slow()):
         time.sleep(0.02)
-    assert batches.seconds == pytest.approx(0.09, abs=0.015)
+    assert clock.seconds == pytest.approx(0.09, abs=0.015)
