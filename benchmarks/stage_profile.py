@@ -123,17 +123,9 @@ def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = Tr
     from sc3d_data.pipeline.render_run import RenderConfig, render_dataset
 
     main_acc: dict[str, float] = {}
-    saved = (pool.write_shard, rp.write_index_file, connection.Connection.recv, pool.worker_context)
+    saved = (pool.write_shard, rp.write_index_file, connection.Connection.recv)
     _wrap(pool, "write_shard", "write shard", main_acc)
-    context = pool.worker_context
-
-    def context_with_hooks(gl_backend):  # the forkserver imports this module (the hooks) too
-        ctx = context(gl_backend)
-        if ctx.get_start_method() == "forkserver":
-            ctx.set_forkserver_preload(["__main__", pool.PRELOAD_EGL if pool._server_gl[0] else pool.PRELOAD, __name__])
-        return ctx
-
-    pool.worker_context = context_with_hooks
+    pool.PRELOAD_EXTRA.append(__name__)  # the forkserver imports this module (the hooks) too
     _wrap(rp, "write_index_file", "write index", main_acc)
     recv = connection.Connection.recv
 
@@ -156,7 +148,8 @@ def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = Tr
             rows = [json.loads(line) for p in Path(tmp).glob("worker-*.jsonl") for line in open(p)]
     finally:
         os.environ.pop(ENV, None)
-        pool.write_shard, rp.write_index_file, connection.Connection.recv, pool.worker_context = saved
+        pool.write_shard, rp.write_index_file, connection.Connection.recv = saved
+        pool.PRELOAD_EXTRA.remove(__name__)
     ok = [r for r in rows if r.get("status") == "ok"]
     worker = {s + c: 0.0 for s in WORKER_STAGES for c in ("", " cpu")}
     for r in ok:

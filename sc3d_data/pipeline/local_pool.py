@@ -34,6 +34,9 @@ QUEUED = 2
 #: imported once by the forkserver (see module doc); ``PRELOAD_EGL`` when EGL workers come first
 PRELOAD = "sc3d_data.pipeline.worker_preload"
 PRELOAD_EGL = "sc3d_data.pipeline.worker_preload_egl"
+#: more modules for the forkserver to import after the preload (before the first pool starts;
+#: ``benchmarks/stage_profile.py`` adds its timing hooks so that the workers inherit them)
+PRELOAD_EXTRA: list[str] = []
 #: what this process asked its forkserver to preload: None until the first pool, then the GL
 #: backend it imported ("egl") or "" (none). The server is started once per process.
 _server_gl: list[str | None] = [None]
@@ -51,7 +54,7 @@ def worker_context(gl_backend: str | None):
         _server_gl[0] = "egl" if gl_backend == "egl" else ""
         # "__main__" first, as multiprocessing's default does: the server imports the main
         # module once (e.g. the sc3d-data script) and the workers it forks skip re-importing it
-        ctx.set_forkserver_preload(["__main__", PRELOAD_EGL if _server_gl[0] else PRELOAD])
+        ctx.set_forkserver_preload(["__main__", PRELOAD_EGL if _server_gl[0] else PRELOAD, *PRELOAD_EXTRA])
     if gl_backend is not None and _server_gl[0] not in ("", gl_backend):
         return mp.get_context("spawn")
     return ctx
