@@ -179,23 +179,15 @@ TRIM_GROWTH = 64 * 2**20
 _trim_state = {"libc": None, "rss_after_trim": 0}
 
 
-def _resident_bytes() -> int:
-    """This process's resident set size in bytes (``/proc/self/statm``; 0 where there is none)."""
-    try:
-        with open("/proc/self/statm", "rb") as f:
-            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-    except (OSError, ValueError, IndexError):
-        return 0
-
-
 def _release_memory() -> None:
     """Give freed heap pages back to the OS (glibc ``malloc_trim``) when the resident set has
     grown by ``TRIM_GROWTH`` since the last trim, so that one big mesh or texture does not keep a
     worker's RSS high for the rest of the run; no-op where there is no glibc."""
     import ctypes
 
-    rss = _resident_bytes()
-    if rss and rss < _trim_state["rss_after_trim"] + TRIM_GROWTH:
+    import psutil
+
+    if psutil.Process().memory_info().rss < _trim_state["rss_after_trim"] + TRIM_GROWTH:
         return
     try:
         if _trim_state["libc"] is None:
@@ -203,7 +195,7 @@ def _release_memory() -> None:
         _trim_state["libc"].malloc_trim(0)
     except (OSError, AttributeError):
         return
-    _trim_state["rss_after_trim"] = _resident_bytes()
+    _trim_state["rss_after_trim"] = psutil.Process().memory_info().rss
 
 
 def _backend_order(backend: str) -> tuple[str, ...]:
