@@ -151,7 +151,7 @@ def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
     from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index, load_index
     from sc3d_data.io.shards import write_index as write_index_file
     from sc3d_data.pipeline.executor import finished_chunks, start_executor
-    from sc3d_data.pipeline.resume import check_resume, clean_tmp, resume_state
+    from sc3d_data.pipeline.resume import check_resume, clean_tmp, empty_state, remaining, resume_state
 
     t0 = time.monotonic()
     if config.overwrite:
@@ -161,7 +161,7 @@ def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
     settings = config.settings()
     tasks, split_desc, part, problems, skipped = plan_models(config)
     K = max(1, int(config.objects_per_shard))
-    state = {"done_chunks": set(), "shards": [], "objects": [], "failures": [], "empty_chunks": []}
+    state = empty_state()
     if (out / INDEX_NAME).is_file():
         old = load_index(out)
         check_resume(out, old, settings, {}, part)
@@ -171,9 +171,7 @@ def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
     if any(pos_of.get((o["category"], o["model_id"]), -K) // K != o["chunk"] for o in objects):
         raise ValueError(f"{out}: its shards do not hold this plan's chunks (the collection changed, or an "
                          "older sc3d made them); use another --out or --overwrite")
-    todo = [t for t in tasks if t.pos // K not in state["done_chunks"]]
-    kept_failed = {(f.get("category"), f.get("model_id")) for f in failures}
-    resumed = sum(1 for t in tasks if t.pos // K in state["done_chunks"] and (t.category, t.model_id) not in kept_failed)
+    todo, resumed = remaining(tasks, state, K)
     problems = [dict(p, category="", model_id="") for p in problems]
     new_failures: list[dict] = []
 

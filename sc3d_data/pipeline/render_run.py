@@ -31,7 +31,7 @@ from pathlib import Path
 from sc3d_data.io.meshes import MESH_SUFFIXES
 from sc3d_data.pipeline.executor import finished_chunks, start_executor
 from sc3d_data.pipeline.render_job import RenderConfig
-from sc3d_data.pipeline.resume import check_out, check_resume, clean_tmp, empty_state, resume_state
+from sc3d_data.pipeline.resume import check_out, check_resume, clean_tmp, empty_state, remaining, resume_state
 from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index
 from sc3d_data.io.shards import write_index as write_index_file
 
@@ -90,13 +90,10 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
         defaults = {k: getattr(RenderConfig, k) for k in RenderConfig.__dataclass_fields__ if hasattr(RenderConfig, k)}
         check_resume(out, old, settings, defaults, plan.part)
         state = resume_state(out, old, config.retry_failed, K, tasks)
-    done_chunks, retry = state["done_chunks"], state["retry"]
+    retry = state["retry"]
     shards, objects, failures = state["shards"], state["objects"], state["failures"]
     warnings, empty_chunks, attempts = state["warnings"], state["empty_chunks"], state["attempts"]
-    todo = [t for t in tasks if t.pos // K not in done_chunks or t.pos in retry]
-    kept_failed = {(f.get("category"), f.get("model_id")) for f in failures}
-    resumed = sum(1 for t in tasks if t.pos // K in done_chunks and t.pos not in retry
-                  and (t.category, t.model_id) not in kept_failed)
+    todo, resumed = remaining(tasks, state, K)
     n_workers = max(1, min(config.workers or os.cpu_count() or 1, max(1, len(todo))))
     if executor is not None and executor.config.settings(None) != settings:
         raise ValueError("the executor given was started with other render settings than this run")

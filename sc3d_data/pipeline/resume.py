@@ -80,6 +80,18 @@ def empty_state() -> dict:
             "retry": set(), "attempts": {}, "broken": [], "empty_chunks": []}
 
 
+def remaining(tasks: list[Task], state: dict, K: int) -> tuple[list[Task], int]:
+    """``(todo, resumed)`` of a run with resume ``state`` over ``tasks`` in chunks of ``K``: the
+    tasks of chunks not kept plus the failures it retries, and how many objects the kept chunks
+    hold (their recorded failures left out)."""
+    done, retry = state["done_chunks"], state["retry"]
+    todo = [t for t in tasks if t.pos // K not in done or t.pos in retry]
+    kept_failed = {(f.get("category"), f.get("model_id")) for f in state["failures"]}
+    resumed = sum(1 for t in tasks if t.pos // K in done and t.pos not in retry
+                  and (t.category, t.model_id) not in kept_failed)
+    return todo, resumed
+
+
 def check_resume(out: Path, old: dict, settings: dict, defaults: dict, part: dict) -> None:
     """``ValueError`` when ``out``'s index cannot be resumed by this run: other settings, another
     ``--part`` or a merged dataset."""
