@@ -67,7 +67,7 @@ BINARY_KEYS = ("masks", "masks_sc", "voxels")
 
 def _to_float(v: torch.Tensor, scale: float | None = None) -> torch.Tensor:
     """``v`` as a new contiguous float32 tensor on its device, divided by ``scale`` (IEEE
-    division, correctly rounded). On the CPU with numpy (one thread: torch's intra-op threads
+    division, correctly rounded; the divisor is made on the device, not copied from the host). On the CPU with numpy (one thread: torch's intra-op threads
     made this 10x slower on a loaded 2-core machine); elsewhere with torch, dividing by a 0-dim
     device tensor (CUDA computes ``x / python_scalar`` as ``x * (1 / scalar)``)."""
     out = torch.empty(tuple(v.shape), dtype=torch.float32, device=v.device)
@@ -78,7 +78,7 @@ def _to_float(v: torch.Tensor, scale: float | None = None) -> torch.Tensor:
             np.divide(v.numpy(), np.float32(scale), out=out.numpy(), dtype=np.float32)
         return out
     out.copy_(v)
-    return out if scale is None else out.div_(torch.tensor(scale, dtype=torch.float32, device=v.device))
+    return out if scale is None else out.div_(torch.full((), scale, dtype=torch.float32, device=v.device))
 
 
 def compact_tensors(arrays: dict[str, np.ndarray], strings: dict) -> dict:

@@ -37,7 +37,7 @@ MODES = ("supervised", "semi", "labeled-only", "true-pose-masks")
 #: fields that ``--resume`` may change (they do not alter the optimisation trajectory up to the
 #: checkpoint); every other field must match the checkpoint's config.
 RESUMABLE_FIELDS = ("steps", "checkpoint_every", "workers", "decoded_cache", "log_every", "device", "progress",
-                    "out")
+                    "out", "compile", "compile_backend")
 #: the one "tiny" preset (``fit --tiny``, ``ModelConfig.tiny()``): a small network for CPU demos
 #: and tests
 TINY_MODEL = {"base_channels": 8, "shape_dim": 32, "pose_dim": 8}
@@ -172,6 +172,12 @@ class RunConfig(_Plain):
                        choices=("auto", "off", "bf16", "fp16"))
     channels_last: str = setting("auto", "Channels-last memory format (auto: on for CUDA).",
                                  choices=("auto", "on", "off"))
+    compile: str = setting("auto", "torch.compile the training step (auto: on for one CUDA device, "
+                           "with CUDA graphs; off on the CPU and under torchrun).", choices=("auto", "on", "off"))
+    compile_backend: str = setting("inductor", "torch.compile backend: inductor (generates kernels); "
+                                   "aot_eager traces and differentiates the step the same way but runs "
+                                   "it with eager kernels (tests, debugging).", cli=False,
+                                   choices=("inductor", "aot_eager"))
     checkpoint_every: int = setting(500, "Write a checkpoint every N steps (and at the end).")
     log_every: int = setting(10, "Log the losses every N steps.")
     progress: bool = setting(True, "Show a progress bar.")

@@ -47,7 +47,7 @@ def voxel_loss(voxel_logits: Tensor, voxels: Tensor, pos_weight: float = 3.0) ->
     """L_3D of ``voxel_logits [B, G, G, G]`` vs ``voxels [B, G, G, G]`` in {0, 1}."""
     logits = voxel_logits.float()
     target = voxels.float()
-    pw = torch.tensor(pos_weight, dtype=logits.dtype, device=logits.device)
+    pw = torch.full((), pos_weight, dtype=logits.dtype, device=logits.device)  # made on the device: no host copy
     pce = F.binary_cross_entropy_with_logits(logits, target, pos_weight=pw)
     return pce + iou_loss(torch.sigmoid(logits), target)
 
@@ -128,8 +128,8 @@ def unsupervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None
                                           out.pose_logits, grid, w)
         pose = pose_classification_loss(out.pose_logits, target, grid, elevation=False)
         if w.unlabeled_sc_at_search:
-            cand_az, _ = grid.candidates()
-            at = replace(out, azimuth=cand_az.to(target.device, torch.float32)[target],
+            cand_az, _ = grid.candidates(target.device)
+            at = replace(out, azimuth=cand_az.to(torch.float32)[target],
                          elevation=out.elevation.detach())
     sc = _sc(at, occupancy, masks_pred, batch, w)
     total = w.wsc_unlabeled * sc["lsc"] + w.wkl_unlabeled * kl + w.wpose_unlabeled * pose

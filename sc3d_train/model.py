@@ -196,14 +196,18 @@ class SelfConsistencyNet(nn.Module):
         self.voxel_decoder = VoxelDecoder(config)
         self.mask_decoder = MaskDecoder(config, self.encoder.channels)
 
-    def forward(self, images: Tensor) -> ModelOutput:
+    def forward(self, images: Tensor, noise: Tensor | None = None) -> ModelOutput:
+        """``noise [B, shape_dim]`` float: the reparameterisation's standard normal draw in
+        training (drawn here with ``randn_like`` when None). The training step draws it outside
+        the network, so the compiled and the eager step consume the same random numbers."""
         s = self.config.image_size
         if images.ndim != 4 or images.shape[1] != 3 or images.shape[2] != s or images.shape[3] != s:
             raise ValueError(f"images must be [B, 3, {s}, {s}] (model image_size {s}), got {tuple(images.shape)}")
         feat, skips = self.encoder(images)
         z_mean, z_logvar = self.fc_mean(feat), self.fc_logvar(feat)
         if self.training:
-            z_s = z_mean + torch.exp(0.5 * z_logvar) * torch.randn_like(z_mean)
+            eps = torch.randn_like(z_mean) if noise is None else noise
+            z_s = z_mean + torch.exp(0.5 * z_logvar) * eps
         else:
             z_s = z_mean
         z_p = self.fc_pose_code(feat)

@@ -63,19 +63,24 @@ class PoseGrid:
     def azimuth_step(self) -> float:
         return 360.0 / self.azimuth_bins
 
-    def azimuths(self) -> Tensor:
-        """``[A]`` degrees: ``0, 360/A, ...`` (float64)."""
-        return torch.arange(self.azimuth_bins, dtype=torch.float64) * self.azimuth_step
+    # ``device``: where to build the tensor (default CPU); made there, not copied from the host,
+    # so a training step on CUDA neither waits for a copy nor puts a CPU op in its graph
 
-    def elevations(self) -> Tensor:
+    def azimuths(self, device=None) -> Tensor:
+        """``[A]`` degrees: ``0, 360/A, ...`` (float64)."""
+        return torch.arange(self.azimuth_bins, dtype=torch.float64, device=device) * self.azimuth_step
+
+    def elevations(self, device=None) -> Tensor:
         """``[E]`` degrees, evenly spaced over ``[elevation_min, elevation_max]`` (float64)."""
         if self.elevation_bins == 1:
-            return torch.tensor([(self.elevation_min + self.elevation_max) / 2], dtype=torch.float64)
-        return torch.linspace(self.elevation_min, self.elevation_max, self.elevation_bins, dtype=torch.float64)
+            return torch.full((1,), (self.elevation_min + self.elevation_max) / 2, dtype=torch.float64,
+                              device=device)
+        return torch.linspace(self.elevation_min, self.elevation_max, self.elevation_bins, dtype=torch.float64,
+                              device=device)
 
-    def candidates(self) -> tuple[Tensor, Tensor]:
+    def candidates(self, device=None) -> tuple[Tensor, Tensor]:
         """``(azimuth [P], elevation [P])`` degrees of every candidate, azimuth-major."""
-        az, el = torch.meshgrid(self.azimuths(), self.elevations(), indexing="ij")
+        az, el = torch.meshgrid(self.azimuths(device), self.elevations(device), indexing="ij")
         return az.reshape(-1), el.reshape(-1)
 
     def split(self, index: Tensor) -> tuple[Tensor, Tensor]:
@@ -96,7 +101,7 @@ def pose_from_logits(pose_logits: Tensor, grid: PoseGrid) -> tuple[Tensor, Tenso
     w = torch.softmax(torch.gather(az_logits, -1, window), -1)
     offset = (w[..., 2] - w[..., 0]) * grid.azimuth_step
     azimuth = torch.remainder(k[..., 0].to(offset.dtype) * grid.azimuth_step + offset, 360.0)
-    elevation = (torch.softmax(el_logits, -1) * grid.elevations().to(el_logits)).sum(-1)
+    elevation = (torch.softmax(el_logits, -1) * grid.elevations(el_logits.device).to(el_logits.dtype)).sum(-1)
     return azimuth, elevation
 
 
@@ -104,17 +109,18 @@ def pose_classification_loss(pose_logits: Tensor, target: Tensor, grid: PoseGrid
                              elevation: bool = True) -> Tensor:
     """Cross-entropy of the azimuth and elevation logits against candidate indices ``target [B]``
     (long, ``a * E + e``), summed over the two factors (``elevation=False``: the azimuth term only)
-    and averaged over the batch. Samples with a negative target are ignored (no candidate)."""
-    ta, te = grid.split(target.long())
-    ignore = target < 0
-    ta, te = ta.masked_fill(ignore, -100), te.masked_fill(ignore, -100)
+    and averaged over the batch. Samples with a negative target are ignored (no candidate); with
+    none left the loss is 0 (gradient 0). Branch-free: no host sync, one graph under
+    ``torch.compile`` (a ``mean`` over the kept samples, not ``ignore_index``, whose mean over
+    zero samples is NaN)."""
+    keep = target >= 0
+    ta, te = grid.split(target.long().clamp_min(0))
     a = grid.azimuth_bins
-    if bool(ignore.all()):
-        return pose_logits.sum() * 0.0
-    loss = F.cross_entropy(pose_logits[..., :a].float(), ta, ignore_index=-100)
+    per_sample = F.cross_entropy(pose_logits[..., :a].float(), ta, reduction="none")
     if elevation:
-        loss = loss + F.cross_entropy(pose_logits[..., a:].float(), te, ignore_index=-100)
-    return loss
+        per_sample = per_sample + F.cross_entropy(pose_logits[..., a:].float(), te, reduction="none")
+    kept = keep.to(per_sample.dtype)
+    return (per_sample * kept).sum() / kept.sum().clamp_min(1.0)
 
 
 def wrap_degrees(angle_deg):

@@ -55,8 +55,8 @@ def _search_inputs(masks: Tensor, K: Tensor, size: int) -> tuple[Tensor, Tensor]
 
     s = masks.shape[-1]
     size = min(size, s)
-    K_s = scale_intrinsics(K.detach().double().cpu().numpy(), size, s)
-    return area_downsample(masks.float(), size), torch.as_tensor(K_s, dtype=torch.float32, device=masks.device)
+    K_s = scale_intrinsics(K.detach().double(), size, s).float()  # on K's device: no host sync
+    return area_downsample(masks.float(), size), K_s.to(masks.device)
 
 
 @torch.no_grad()
@@ -75,7 +75,7 @@ def search_losses(occupancy: Tensor, masks: Tensor, distance: Tensor, K: Tensor,
     c = candidates.shape[1]
     m, K_s = _search_inputs(masks, K, search_mask_size)
     size = m.shape[-1]
-    cand_az, cand_el = (x.to(dev, torch.float32) for x in grid.candidates())
+    cand_az, cand_el = (x.to(torch.float32) for x in grid.candidates(dev))
     sample_of = torch.arange(b, device=dev).repeat_interleave(c)
     cand_of = candidates.reshape(-1).to(dev)
     out = torch.empty(b * c, dtype=torch.float32, device=dev)
@@ -98,7 +98,7 @@ def search_losses_per_object(voxels: Tensor, masks: Tensor, distance: float, K: 
     p = grid.size
     m, K_s = _search_inputs(masks, K, search_mask_size)
     size, v, dev = m.shape[-1], m.shape[0], voxels.device
-    cand_az, cand_el = (c.to(dev, torch.float32) for c in grid.candidates())
+    cand_az, cand_el = (c.to(torch.float32) for c in grid.candidates(dev))
     proj = _projections(voxels.float()[None].expand(p, *voxels.shape), cand_az, cand_el,
                         torch.full((p,), float(distance), device=dev), K_s.to(dev).expand(p, 3, 3),
                         size, num_samples)  # [P, s, s]
@@ -183,4 +183,4 @@ def self_consistent_pose(out, K: Tensor, distance: Tensor, grid: PoseGrid, weigh
     ``out.mask_logits``; ``distance [B]``. No label is read."""
     best = search_at_head_elevation(torch.sigmoid(out.voxel_logits.float()), torch.sigmoid(out.mask_logits.float()),
                                     distance, K, out.pose_logits, grid, weights, prior_weight)
-    return grid.azimuths().to(best.device, torch.float32)[grid.split(best)[0]], out.elevation.float()
+    return grid.azimuths(best.device).to(torch.float32)[grid.split(best)[0]], out.elevation.float()

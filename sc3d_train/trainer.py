@@ -38,7 +38,6 @@ this one holds the loop.
 from __future__ import annotations
 
 import time
-from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,12 +48,15 @@ from sc3d_train.checkpoint import (CheckpointError, build_model, checkpoint_conf
                                    state_dict_mismatch)
 from sc3d_train.config import CONFIG_NAME, RunConfig
 from sc3d_train.data import ShardDataset
+from sc3d_train.device_prefetch import DevicePrefetcher
+from sc3d_train.loss_window import LossWindow
 from sc3d_train.metrics_log import DataWaitClock, MetricsLog, gpu_utilisation, plot_curves
-from sc3d_train.phase_step import optimizer_step, step_losses, training_batch
+from sc3d_train.phase_step import training_batch
 from sc3d_train.runtime import (DistInfo, all_gather, all_mean, all_min, channels_last_on, resolve_amp,
                                 resolve_device, seed_everything, setup_distributed)
 from sc3d_train.schedule import batch_split, data_position, lr_at, phase_at
 from sc3d_train.streams import labeled_dataset, phase_loaders, run_datasets, write_labeled_objects
+from sc3d_train.train_step import TrainStep, compile_plan
 
 
 class TrainingDiverged(RuntimeError):
@@ -108,7 +110,7 @@ def prepare(cfg: RunConfig) -> Training:
     if weights.wpose and cfg.mode != "true-pose-masks" and (cfg.mode != "semi" or cfg.pretrain_steps > 0 or mixed):
         pose_targets = dataset_pose_targets(labeled_dataset(datasets), grid, weights.ray, weights.proj,
                                             weights.search_mask_size, weights.search_samples,
-                                            device).reshape(-1)
+                                            device).reshape(-1).to(device)
 
     seed_everything(cfg.seed)
     model = build_model(cfg).to(device)
@@ -116,7 +118,7 @@ def prepare(cfg: RunConfig) -> Training:
     channels_last = channels_last_on(cfg, device)
     if channels_last:
         model = model.to(memory_format=torch.channels_last)
-    optimizer = torch.optim.Adam(model.parameters(), lr=lr_at(cfg, 0))
+    optimizer = torch.optim.Adam(model.parameters(), lr=lr_at(cfg, 0), fused=device.type == "cuda")
     scaler = torch.amp.GradScaler("cuda") if amp_dtype == torch.float16 else None
     return Training(cfg, dist_info, device, local_batch, model, model, optimizer, scaler, amp_dtype,
                     channels_last, datasets, pose_targets)
@@ -173,27 +175,37 @@ def save(t: Training, step_done: int, log: MetricsLog) -> Path | None:
     return path
 
 
-def train_step(t: Training, loaders: dict, step: int, last_good: str | None) -> dict:
-    """One optimiser step: batches, losses, non-finite check (over all ranks), backward, Adam.
-    Returns the losses."""
-    cfg = t.cfg
+def device_batches(t: Training, loaders: dict, wait: DataWaitClock) -> dict:
+    """The phase's loaders (``phase_loaders``) as iterators over device training batches, each
+    next batch prefetched on a side CUDA stream (:class:`DevicePrefetcher`), waits timed by
+    ``wait``."""
+    def to_device(batch, phase):
+        phase = t.cfg.mode if t.cfg.mode == "true-pose-masks" else phase
+        return training_batch(batch, phase, t.device, t.channels_last, t.pose_targets)
+
+    return {p: DevicePrefetcher(wait.wrap(it), lambda b, p=p: to_device(b, p), t.device) for p, it in loaders.items()}
+
+
+def train_step(t: Training, step_fn: TrainStep, batches: dict, step: int, window: LossWindow) -> dict:
+    """One optimiser step at ``step``'s learning rate on the next batch of each of ``batches``
+    (:func:`device_batches`); its total loss goes to ``window`` (no host sync). Returns the
+    losses (tensors on the device)."""
     for group in t.optimizer.param_groups:
-        group["lr"] = lr_at(cfg, step)
-    batches = {p: training_batch(next(it), cfg.mode if cfg.mode == "true-pose-masks" else p,
-                                 t.device, t.channels_last, t.pose_targets)
-               for p, it in loaders.items()}
-    t.train_model.train()
-    t.optimizer.zero_grad(set_to_none=True)
-    with torch.autocast(t.device.type, dtype=t.amp_dtype) if t.amp_dtype else nullcontext():
-        losses = step_losses(batches, t.model, t.train_model, cfg.mode, cfg.loss_weights,
-                             t.model.pose_grid)
-    loss = losses["total"]
-    if all_min(torch.isfinite(loss.detach()).float(), t.dist).item() < 1:
-        raise TrainingDiverged(
-            f"loss is {loss.item()} at step {step} (phase {phase_at(cfg, step)}); "
-            f"last good checkpoint: {last_good or 'none (no checkpoint written yet)'}")
-    optimizer_step(loss, t.optimizer, t.scaler)
+        group["lr"] = lr_at(t.cfg, step)
+    losses = step_fn({p: next(it) for p, it in batches.items()})
+    window.record(step, losses["total"])
     return losses
+
+
+def check_finite(t: Training, window: LossWindow, last_good: str | None) -> None:
+    """:class:`TrainingDiverged` naming the first step of ``window`` whose loss was not finite
+    (on any rank) and the last good checkpoint (every checkpoint is written after a check)."""
+    bad = window.check(t.dist)
+    if bad is not None:
+        step, value = bad
+        raise TrainingDiverged(
+            f"loss is {value} at step {step} (phase {phase_at(t.cfg, step)}); "
+            f"last good checkpoint: {last_good or 'none (no checkpoint written yet)'}")
 
 
 def mean_scalars(t: Training, losses: dict) -> dict:
@@ -218,6 +230,9 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
     else:
         torch.manual_seed(cfg.seed + 1000003 * t.dist.rank)  # per-rank noise (reparameterisation)
     wrap_ddp(t)
+    step_fn = TrainStep(t.model, t.train_model, t.optimizer, t.scaler, t.amp_dtype, cfg,
+                        compile_plan(cfg, t.device, t.dist.world_size), say=print if t.dist.is_main else lambda _: None)
+    window = LossWindow(cfg.log_every, t.device)
     if t.dist.is_main:
         t.run_dir.mkdir(parents=True, exist_ok=True)
         cfg.save(t.run_dir / CONFIG_NAME)
@@ -236,11 +251,16 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
         for step in range(start_step, cfg.steps):
             if phase_at(cfg, step) != phase:
                 phase = phase_at(cfg, step)
-                loaders = {p: wait.wrap(it) for p, it in phase_loaders(t, step).items()}
-            losses = train_step(t, loaders, step, last_good)
+                loaders = device_batches(t, phase_loaders(t, step), wait)
+            losses = train_step(t, step_fn, loaders, step, window)
             n_log += cfg.batch_size
             done = step + 1
-            if done % cfg.log_every == 0 or done == cfg.steps:
+            log_now = done % cfg.log_every == 0 or done == cfg.steps
+            boundary = cfg.mode == "semi" and done == cfg.pretrain_steps
+            save_now = done % cfg.checkpoint_every == 0 or done == cfg.steps or boundary
+            if log_now or save_now:  # the only host syncs of the loop: every log_every steps at most
+                check_finite(t, window, last_good)
+            if log_now:
                 if t.device.type == "cuda":
                     torch.cuda.synchronize()
                 now = time.perf_counter()
@@ -256,8 +276,7 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
                                          samples_s=f"{rate:.1f}", data_wait=f"{100 * wait_share:.0f}%")
             if progress is not None:
                 progress.update(1)
-            boundary = cfg.mode == "semi" and done == cfg.pretrain_steps
-            if done % cfg.checkpoint_every == 0 or done == cfg.steps or boundary:
+            if save_now:
                 path = save(t, done, log)
                 last_good = str(path) if path else last_good
     except KeyboardInterrupt:

@@ -141,8 +141,11 @@ def scale_intrinsics(K, new_size: int, old_size: int):
     point scale by ``new_size / old_size`` (pixel-edge convention keeps the centre at W/2)."""
     s = new_size / old_size
     xp = _xp(K)
-    S = _asarray([[s, 0, 0], [0, s, 0], [0, 0, 1]], K) if xp is not np else np.diag([s, s, 1.0])
-    return S @ K
+    if xp is np:
+        return np.diag([s, s, 1.0]) @ K
+    S = K.new_ones(3, 1)  # diag(s, s, 1) @ K as a row scaling, built on K's device (no host copy)
+    S[:2] = s
+    return S * K
 
 
 def fov_from_focal(focal_px: float, image_size: int) -> float:
@@ -167,6 +170,22 @@ def project_points(points, K, R, t):
     return uv, z
 
 
+def _upper_triangular_inverse(K):
+    """The inverse of pinhole intrinsics ``K [..., 3, 3]`` (torch; upper triangular: focal
+    lengths, skew, principal point, last row ``0 0 1`` as every K here), in closed form:
+    elementwise ops only, so on CUDA no host sync (``torch.linalg.inv`` checks its result on the
+    host) and one fused kernel under ``torch.compile``."""
+    import torch
+
+    a, b, c = K[..., 0, 0], K[..., 0, 1], K[..., 0, 2]
+    d, e, g = K[..., 1, 1], K[..., 1, 2], K[..., 2, 2]
+    zero = torch.zeros_like(a)
+    rows = [torch.stack([1 / a, -b / (a * d), (b * e - c * d) / (a * d * g)], -1),
+            torch.stack([zero, 1 / d, -e / (d * g)], -1),
+            torch.stack([zero, zero, 1 / g], -1)]
+    return torch.stack(rows, -2)
+
+
 def pixel_rays(K, R, t, image_size: int):
     """Rays through the centres of all pixels of a square ``image_size`` image.
 
@@ -184,7 +203,7 @@ def pixel_rays(K, R, t, image_size: int):
         grid = xp.arange(n, dtype=R.dtype, device=R.device) + 0.5
         v, u = xp.meshgrid(grid, grid, indexing="ij")
         pix = xp.stack([u.reshape(-1), v.reshape(-1), xp.ones_like(u.reshape(-1))], -1)
-        Kinv = xp.linalg.inv(K.to(R.dtype))
+        Kinv = _upper_triangular_inverse(K.to(R.dtype))
     d_cam = pix @ _mT(Kinv)
     d_world = d_cam @ R  # (R^T d)^T for row vectors: camera -> world directions
     d_world = d_world / ((d_world ** 2).sum(-1, keepdims=True) ** 0.5)
