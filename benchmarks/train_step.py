@@ -1,17 +1,23 @@
 """Speed of training: one optimiser step, the shard loader, the self-consistency module.
 
     python benchmarks/train_step.py [--shards DIR] [--compare-shards DIR] [--batch-size 48] [--device auto] [--tiny]
-                                    [--loader-only] [--workers 0,2,4]
+                                    [--loader-only] [--workers 0,2,4] [--skip-loader] [--skip-semi] [--skip-sc]
+                                    [--profile [--profile-steps 3]]
 
 Without ``--shards`` the bundled sample meshes are rendered + voxelized into a temporary
 directory first (a few seconds). Three tables, each with a straightforward baseline measured in
 the same run, so improvements show as ratios:
 
-1. training step (forward + losses + backward + Adam) at the given batch, variants interleaved
-   step by step (the median of ``--steps`` per variant): baseline fp32,
-   contiguous (NCHW) memory, against the trainer's settings for the device (CUDA: bf16/fp16
-   autocast + channels_last; CPU: fp32, which is what ``fit`` uses there) and, on the CPU, the
-   channels_last and bf16 variants for reference;
+1. training step (forward + losses + backward + Adam: ``fit``'s own ``TrainStep``) at the given
+   batch, variants interleaved step by step (the median of ``--steps`` per variant, after two
+   warm-up steps that compile), all from the same weights, batch and noise: the baseline (plain
+   fp32 eager, NCHW, default Adam) against ``fit``'s default for the device (CUDA: compiled with
+   CUDA graphs, bf16/fp16 autocast, channels_last, fused Adam; CPU: fp32 eager) and, for
+   reference, ``--compile off`` on CUDA, the compiled step on the CPU and bf16 variants; the last
+   column is the largest relative difference of the first step's loss terms from the baseline's;
+   1b. the same for the mixed step of ``--semi`` (half the batch labelled, half unlabelled, with
+   the pose search on the predictions); ``--profile``: torch.profiler's top kernels and the
+   kernel launches per step of ``fit``'s default (``step_variants.py``);
 2. loader samples/s with 0, 2 and 4 worker processes (``--workers``): the per-item DataLoader
    (the first ``make_loader``) and the previous one (whole batches per worker, each packed into
    a new tensor sent through the DataLoader's queue) against ``make_loader`` (whole batches per
@@ -33,13 +39,13 @@ import sys
 import tempfile
 import time
 import warnings
-from contextlib import nullcontext
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))  # drc_reference: the plain baseline the tests also use
+sys.path.insert(0, str(REPO / "benchmarks"))  # step_variants
 
 import torch  # noqa: E402
 
@@ -56,67 +62,6 @@ def render_samples(out: Path) -> Path:
     if res.exit_code:
         raise SystemExit(f"rendering the sample meshes failed:\n{res.output}")
     return out
-
-
-class StepRunner:
-    """One variant of the training step (model, Adam, optional GradScaler, batch on device)."""
-
-    def __init__(self, cfg, batch, device, amp_dtype, channels_last: bool):
-        from sc3d_train.checkpoint import build_model
-        from sc3d_train.phase_step import training_batch
-
-        torch.manual_seed(0)
-        self.device, self.amp_dtype = device, amp_dtype
-        self.model = build_model(cfg).to(device)
-        if channels_last:
-            self.model = self.model.to(memory_format=torch.channels_last)
-        self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr)
-        self.scaler = torch.amp.GradScaler("cuda") if amp_dtype == torch.float16 else None
-        self.batch = training_batch(batch, "supervised", device, channels_last)
-        self.weights = cfg.loss_weights
-
-    def step(self) -> float:
-        """Seconds of one optimiser step (forward, losses, backward, Adam)."""
-        from sc3d_train.losses import supervised_loss
-
-        if self.device.type == "cuda":
-            torch.cuda.synchronize()
-        t0 = time.perf_counter()
-        self.opt.zero_grad(set_to_none=True)
-        ctx = torch.autocast(self.device.type, dtype=self.amp_dtype) if self.amp_dtype else nullcontext()
-        with ctx:
-            loss = supervised_loss(self.model(self.batch["images"]), self.batch, self.weights)["total"]
-        if self.scaler:
-            self.scaler.scale(loss).backward()
-            self.scaler.step(self.opt)
-            self.scaler.update()
-        else:
-            loss.backward()
-            self.opt.step()
-        if self.device.type == "cuda":
-            torch.cuda.synchronize()
-        return time.perf_counter() - t0
-
-
-def time_train_steps(cfg, batch, device, variants, steps: int) -> list[float | None]:
-    """Median seconds per step of each variant. Variants run interleaved (one step each per
-    round, after one warm-up round) so that load from other processes hits all of them alike.
-    A variant the device cannot run gives None."""
-    runners = []
-    for _, amp_dtype, cl in variants:
-        try:
-            r = StepRunner(cfg, batch, device, amp_dtype, cl)
-            r.step()
-            runners.append(r)
-        except Exception as e:  # noqa: BLE001 - reported in the table, not fatal
-            print(f"variant failed: {type(e).__name__}: {e}")
-            runners.append(None)
-    times = [[] for _ in runners]
-    for _ in range(steps):
-        for i, r in enumerate(runners):
-            if r is not None:
-                times[i].append(r.step())
-    return [sorted(t)[len(t) // 2] if t else None for t in times]
 
 
 def per_item_loader(ds, batch_size: int, workers: int, seed: int = 0):
@@ -307,6 +252,53 @@ def benchmark_self_consistency(batch_size: int = 48, device: str | torch.device 
     return rows
 
 
+def step_variants_of(device) -> list[tuple]:
+    """Table 1's variants ``(name, amp dtype, channels_last, compile)``: the plain fp32 eager
+    baseline first, ``fit``'s default for the device second."""
+    base = [("baseline: plain fp32 eager, NCHW", None, False, "off")]
+    if device.type == "cuda":
+        amp = torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
+        name = str(amp)[6:]
+        return base + [(f"fit default: compiled (CUDA graphs), {name} autocast + channels_last", amp, True, "on"),
+                       (f"--compile off: {name} autocast + channels_last, eager", amp, True, "off"),
+                       (f"{name} autocast only, eager", amp, False, "off")]
+    return base + [("fit default on CPU: fp32 eager, NCHW (same code as the baseline)", None, False, "off"),
+                   ("--compile on: inductor (C++), fp32, NCHW", None, False, "on"),
+                   ("bf16 autocast + channels_last, eager", torch.bfloat16, True, "off")]
+
+
+def step_tables(cfg, batch, device, args) -> float | None:
+    """Tables 1 (supervised step) and 1b (the mixed step of ``--semi``), ``--profile`` of fit's
+    default; returns fit's default samples/s (for table 2)."""
+    from step_variants import loss_difference, profile_steps, time_variants
+
+    variants = step_variants_of(device)
+    rate = None
+    for phase, title in (("supervised", "1. training step (supervised)"),
+                         ("semi", "1b. mixed step of --semi (half labelled, half unlabelled: pose search on the "
+                                  "predictions)")):
+        if phase == "semi" and args.skip_semi:
+            continue
+        print(f"\n{title}: building and warming up")
+        timed = time_variants(cfg, batch, device, variants, args.steps, phase)
+        base_sec, base_runner = timed[0]
+        rows = []
+        for (name, *_), (sec, runner) in zip(variants, timed):
+            diff = loss_difference(runner, base_runner)
+            rows.append((name, "failed", "-", "-", "-") if sec is None else
+                        (name, f"{1000 * sec:.0f}", f"{args.batch_size / sec:.1f}",
+                         f"{base_sec / sec:.2f}x" if base_sec else "-", f"{diff:.1e}" if diff is not None else "-"))
+        print()
+        print(table(f"{title}, batch {args.batch_size}, {device.type}",
+                    ("variant", "ms/step", "samples/s", "vs baseline", "loss vs baseline"), rows))
+        if phase == "supervised" and timed[1][0]:
+            rate = args.batch_size / timed[1][0]
+        if args.profile and timed[1][1] is not None:
+            print(f"\nprofile of '{variants[1][0]}', {phase}, {args.profile_steps} steps:")
+            print(profile_steps(timed[1][1], args.profile_steps))
+    return rate
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--shards", type=Path, default=None)
@@ -320,6 +312,11 @@ def main() -> None:
     ap.add_argument("--device", default="auto")
     ap.add_argument("--tiny", action="store_true", help="the --tiny model instead of the paper's width")
     ap.add_argument("--skip-loader", action="store_true")
+    ap.add_argument("--skip-semi", action="store_true", help="no table 1b (the mixed step of --semi)")
+    ap.add_argument("--skip-sc", action="store_true", help="no table 3 (the self-consistency module)")
+    ap.add_argument("--profile", action="store_true",
+                    help="torch.profiler of fit's default step: top kernels, kernel launches per step")
+    ap.add_argument("--profile-steps", type=int, default=3)
     ap.add_argument("--loader-only", action="store_true", help="only table 2 (no training step: its last column is then -)")
     args = ap.parse_args()
 
@@ -342,31 +339,10 @@ def main() -> None:
     print(f"model: {cfg.model}")
     batch = next(iter(make_loader(ShardDataset(shards, "train"), args.batch_size, seed=0)))
 
-    # 1. training step
+    # 1. training step (and 1b. the mixed step of --semi)
     step_rate = None
     if not args.loader_only:
-        variants = [("baseline: fp32, NCHW", None, False)]
-        if device.type == "cuda":
-            amp = torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
-            variants.append((f"fit default: {str(amp)[6:]} autocast + channels_last", amp, True))
-            variants.append((f"{str(amp)[6:]} autocast only", amp, False))
-        else:
-            variants.append(("fit default on CPU: fp32, NCHW", None, False))
-            variants.append(("channels_last", None, True))
-            variants.append(("bf16 autocast + channels_last", torch.bfloat16, True))
-        step_rows = []
-        secs = time_train_steps(cfg, batch, device, variants, args.steps)
-        base = secs[0]
-        for (name, _, _), sec in zip(variants, secs):
-            if sec is None:
-                step_rows.append((name, "failed", "-", "-"))
-            else:
-                step_rows.append((name, f"{1000 * sec:.0f}", f"{args.batch_size / sec:.1f}",
-                                  f"{base / sec:.2f}x" if base else "-"))
-        print()
-        print(table(f"1. training step, batch {args.batch_size}, {device.type}",
-                    ("variant", "ms/step", "samples/s", "vs baseline"), step_rows))
-        step_rate = args.batch_size / (float(step_rows[1][1]) / 1000) if step_rows[1][1] != "failed" else None
+        step_rate = step_tables(cfg, batch, device, args)
 
     # 2. loader
     workers = tuple(int(w) for w in args.workers.split(","))
@@ -393,7 +369,7 @@ def main() -> None:
                          "main CPU ms/batch", "workers CPU ms/batch", "vs fit step"), rows))
         shutil.rmtree(decoded, ignore_errors=True)
 
-    if args.loader_only:
+    if args.loader_only or args.skip_sc:
         return
     # 3. self-consistency module
     sc = benchmark_self_consistency(batch_size=args.batch_size, device=device)
