@@ -133,5 +133,5 @@ def profile_steps(runner, steps: int, rows: int = 15) -> str:
                 f"launches), {kernels / steps:.0f} kernels run on the GPU")
     else:
         ops = sum(e.count for e in events if e.key.startswith("aten::"))
-        line = f"per step: {ops / steps:.0f} aten op calls on the CPU (no kernel launches off CUDA)"
+        line = f"per step: {ops / steps:.0f} aten op calls on the CPU, nested ones included (no kernel launches off CUDA)"
     return f"{table}\n{line}"
