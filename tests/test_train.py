@@ -194,8 +194,9 @@ def test_bad_inputs_fail_before_training(sample_shards, tmp_path):
 
 
 def test_nan_loss_stops_with_step_and_checkpoint(sample_shards, tmp_path):
-    """Weights corrupted with NaN in the checkpoint: the resumed run stops at its first step and
-    names the last good checkpoint."""
+    """Weights corrupted with NaN in the checkpoint: the resumed run stops and names its first
+    step (the loss is read back every --log-every steps, here after steps 2 and 3: the message
+    still names step 2) and the last good checkpoint; no checkpoint is written after it."""
     out = tmp_path / "nan"
     run_cli(main, ["fit", "--shards", sample_shards, "--out", out, "--steps", "2", "--batch-size", "2", *TINY])
     last = out / "checkpoints" / "last.pt"
@@ -204,8 +205,10 @@ def test_nan_loss_stops_with_step_and_checkpoint(sample_shards, tmp_path):
         if v.is_floating_point():
             v.fill_(float("nan"))
     torch.save(ckpt, last)
-    r = run_cli(main, ["fit", "--out", out, "--steps", "4", "--resume", "--no-progress"], expect_exit=1)
+    r = run_cli(main, ["fit", "--out", out, "--steps", "6", "--resume", "--no-progress", "--log-every", "4",
+                       "--checkpoint-every", "5"], expect_exit=1)
     assert "at step 2" in r.output and "last good checkpoint" in r.output and "last.pt" in r.output
+    assert sorted(p.name for p in (out / "checkpoints").glob("step_*.pt")) == ["step_000002.pt"]
 
 
 def test_ddp_two_cpu_ranks_resume_exactly(sample_shards, tmp_path):
