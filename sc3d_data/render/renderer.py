@@ -402,7 +402,19 @@ class MeshRenderer:
         return out
 
     def close(self) -> None:
-        """Free the GL context; the renderer cannot be used afterwards."""
-        if self._platform is not None:
-            self._platform.delete_context()
-            self._platform = None
+        """Free the GL context; the renderer cannot be used afterwards. With EGL the context is
+        first released from this thread and the thread's EGL state after the display is
+        terminated (EGL's own teardown order: pyrender destroys a context that is still current,
+        which some drivers, NVIDIA's among them, trip over when the process exits)."""
+        if self._platform is None:
+            return
+        if self.backend == "egl":
+            from OpenGL import EGL
+
+            display = getattr(self._platform, "_egl_display", None)
+            if display is not None:
+                EGL.eglMakeCurrent(display, EGL.EGL_NO_SURFACE, EGL.EGL_NO_SURFACE, EGL.EGL_NO_CONTEXT)
+        self._platform.delete_context()
+        self._platform = None
+        if self.backend == "egl":
+            EGL.eglReleaseThread()
