@@ -197,8 +197,11 @@ def sample_shards(tmp_path_factory) -> Path:
     return out
 
 
-#: optimiser steps of the shared short training run (tiny model, batch 8, lr 1e-3 so that it learns in few steps)
-TRAINED_RUN_STEPS = 120
+#: optimiser steps of the shared short training run (tiny model, batch 8, lr 1e-3 so that it learns in few steps).
+#: 360, not fewer: the pose head's error falls steeply between steps 150 and 300 (seeds 1 and 2: 47-59 deg
+#: at 120 steps, 10-60 deg at 180, 1.3 deg at 360), so a shorter run asserts a figure in mid-fall, which
+#: moves by tens of degrees with the seed, the thread count and the CPU (issue 20)
+TRAINED_RUN_STEPS = 360
 
 
 @pytest.fixture(scope="session")
