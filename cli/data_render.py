@@ -14,6 +14,15 @@ from sc3d_data.pipeline.render_job import SAMPLE_MESHES, RenderConfig
 from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
 
 
+def _gpus(text: str | None) -> tuple[int, ...]:
+    from sc3d_data.pipeline.devices import parse_gpus
+
+    try:
+        return parse_gpus(text)
+    except ValueError as e:
+        raise click.BadParameter(str(e)) from None
+
+
 def _floats(text: str) -> tuple[float, ...]:
     try:
         return tuple(float(x) for x in text.split(",") if x.strip())
@@ -67,6 +76,10 @@ def _rgb(text: str) -> tuple[int, int, int]:
                    "counts attempts.")
 @click.option("--timeout", "timeout_s", type=click.FloatRange(0, min_open=True), default=120.0, show_default=True, help="Per-object time limit, seconds.")
 @click.option("--workers", type=click.IntRange(0), default=0, show_default="number of CPU cores")
+@click.option("--gpus", callback=lambda ctx, param, v: _gpus(v), default=None, metavar="0,1,...",
+              help="EGL devices (GPUs) to spread the workers over, round robin; default: device "
+                   "EGL_DEVICE_ID or 0. Ray: each task takes a share of one GPU; slurm: each array task "
+                   "asks for this many GPUs. See docs/scale.md.")
 @click.option("--overwrite", is_flag=True, help="Delete existing shards in --out instead of resuming.")
 @click.option("--progress/--no-progress", default=True, show_default=True)
 @part_option

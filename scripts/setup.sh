@@ -54,4 +54,9 @@ python -c "import importlib.util,sys; sys.exit(importlib.util.find_spec('pyrende
   || python -m pip install -q --no-deps "pyrender==0.1.45"
 # ray + submitit: the Ray and SLURM executors, exercised by tests/test_scale.py (docs/scale.md)
 python -m pip install -q -e ".[test,ray,slurm]"
+# compile the voxelizer's numba kernels once per install (15-30 s; a warm start loads them in
+# well under a second): numba caches them next to the sources, or in its user cache
+# (~/.cache/numba) where the package folder is read-only; without this the first run pays it
+echo "[setup] compiling the voxelizer's kernels (once per install)"
+python -c "import sc3d_data.pipeline.worker_preload"
 echo "[setup] done: activate with '. .venv/bin/activate'"

@@ -25,7 +25,7 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 SAMPLE_MESHES = REPO_ROOT / "assets" / "sample_meshes"
 #: settings that do not change the output; they may differ between a run and its resume
 RUNTIME_ONLY = ("workers", "progress", "timeout_s", "retry_failed", "part", "executor", "address",
-                "retries")
+                "retries", "gpus")
 #: largest framebuffer side the renderer asks for (GL_MAX_RENDERBUFFER_SIZE of Mesa and NVIDIA)
 MAX_ATLAS_SIDE = 16384
 MAX_VOXEL_RESOLUTION = 512
@@ -71,6 +71,7 @@ class RenderConfig:
     executor: str = "local"  # local | ray (slurm runs parts through slurm_executor)
     address: str | None = None  # ray: cluster address, None = a local cluster for the run
     retries: int = 3  # ray: re-runs of an object whose worker died
+    gpus: tuple[int, ...] = ()  # EGL devices the workers are spread over (devices.py); () = as today
 
     def validate(self, n_workers: int = 1) -> None:
         """Raise ``ValueError`` naming the option when a value is out of what the renderer or
