@@ -18,7 +18,9 @@ for arg in "$@"; do
   esac
 done
 
-APT_PACKAGES="libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libxrender1 libosmesa6"
+# libglu1-mesa: `import pyrender` loads pyglet's GL bindings, which open libGLU (absent from GPU images
+# that ship only NVIDIA's driver libraries)
+APT_PACKAGES="libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libglu1-mesa libxrender1 libosmesa6"
 missing=""
 for p in $APT_PACKAGES; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
