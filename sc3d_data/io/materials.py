@@ -26,6 +26,8 @@ import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from sc3d_data.io.names import printable
+
 __all__ = ["SHAPENET_V2_MESH", "MaterialReport", "loader_misses", "make_resolver", "material_report",
            "texture_root"]
 
@@ -183,7 +185,7 @@ def make_resolver(path: Path, root: Path | None):
     class _RootResolver(Resolver):
         def __init__(self, folder: Path, top: Path, misses: list):
             self.parent, self.top, self.misses = Path(os.path.abspath(folder)), top.resolve(), misses
-            self.file_name = Path(path).name
+            self.file_name = printable(Path(path).name)  # trimesh names (and hashes) geometry by it
 
         def _candidates(self, name: str) -> list[str]:
             stripped = map_file_name(name.strip())
