@@ -2,6 +2,7 @@
 
     python benchmarks/render.py [--meshes ../shared/meshes] [--repeat 5] [--views 24]
                                 [--pipeline-repeat 6 --workers 2] [--stages --pipeline-only]
+                                [--sweep 1,2,4,8,16 --copies 3 --pipeline-only]
 
 Each side runs in its own fresh (spawned) process on the same meshes, loaded and normalised
 before timing (loading is not timed). Measured per side: views/s (wall) and CPU-ms per view,
@@ -21,6 +22,18 @@ to a temporary folder) with timing hooks (``benchmarks/stage_profile.py``) and p
 time goes per object: load, normalise, part preparation, upload + draw call, draw + readback,
 voxelize, send to the main process; in the main process receive, compress + write, index.
 
+``--sweep 1,2,4,8,16`` runs that profiled pipeline once per worker count, each in a fresh
+process (its own forkserver: start-up counts as users see it), over the meshes listed
+``--copies`` times, and prints views/s end to end, the speed-up and parallel efficiency against
+the first count of the sweep, and where the workers' wall time goes (forkserver start, GL
+context, waiting for tasks, each stage of an object, hand-off, idle at the end; the main
+process's writer): ``stage_profile.life_table``.
+
+The GL platform (``PYOPENGL_PLATFORM``) is set from ``--backend`` as the first thing this
+script does, before anything can import pyrender or PyOpenGL: pyrender imported without it
+goes through pyglet's GLX loader, which needs ``libGLU`` (absent on GPU machines with
+NVIDIA's EGL only). A baseline that still fails is reported as a line and the script goes on.
+
 ``--pipeline-repeat N`` (N > 0) then runs the real pipeline (``render_dataset``, ``--workers``
 spawned workers, shards written to a temporary folder) over the meshes listed N times (a
 temporary folder of symlinks, ordered pass after pass) and samples the RSS of the worker
@@ -28,11 +41,18 @@ processes every 0.2 s: peak, and the peak and median in each N-th of the run (fl
 """
 from __future__ import annotations
 
+import os
+import sys
+
+# before any import that could load pyrender/PyOpenGL, here and in the spawned processes (they
+# run this module's top level first): see the module doc
+_BACKEND = sys.argv[sys.argv.index("--backend") + 1] if "--backend" in sys.argv[:-1] else "egl"
+os.environ.setdefault("PYOPENGL_PLATFORM", _BACKEND)
+os.environ.setdefault("PYGLET_HEADLESS", "1")
+
 import argparse
 import multiprocessing as mp
-import os
 import resource
-import sys
 import tempfile
 import threading
 import time
@@ -85,14 +105,7 @@ def run_pipeline_memory(paths, root: Path, repeat: int, workers: int, views: int
     from sc3d_data.pipeline.render_run import RenderConfig, render_dataset
 
     with tempfile.TemporaryDirectory(prefix="sc3d-bench-") as tmp:
-        meshes = Path(tmp) / "meshes"
-        for k in range(repeat):
-            for p in paths:
-                rel = p.relative_to(root)
-                cat = rel.parts[0] if len(rel.parts) > 1 else "thing"
-                dst = meshes / f"r{k}_{cat}" / f"{p.stem}{p.suffix}"  # plan order: pass after pass
-                dst.parent.mkdir(parents=True, exist_ok=True)
-                dst.symlink_to(p.resolve())
+        meshes = stage_profile.replicate_meshes(paths, root, repeat, Path(tmp) / "meshes")
         samples: list[tuple[float, float]] = []  # (time, rss of one worker)
         stop = threading.Event()
 
@@ -202,14 +215,71 @@ def run_baseline(paths, views, backend, queue):
                "meshes": len(meshes)})
 
 
+def _guarded(target, args, queue):
+    """Run ``target(*args, queue)`` in the spawned process; an exception is put on the queue as
+    ``{"error": ...}`` instead of leaving the parent waiting for a result."""
+    try:
+        target(*args, queue)
+    except BaseException as e:  # noqa: BLE001 - reported by the parent
+        queue.put({"error": f"{type(e).__name__}: {e}"})
+
+
 def _spawn(target, *args):
+    """``target(*args, queue)`` in a fresh spawned process; what it put on the queue, or
+    ``{"error": ...}`` when it failed or died."""
+    import queue as queue_mod
+
     ctx = mp.get_context("spawn")
     q = ctx.Queue()
-    p = ctx.Process(target=target, args=(*args, q))
+    p = ctx.Process(target=_guarded, args=(target, args, q))
     p.start()
-    res = q.get()
+    while True:
+        try:
+            res = q.get(timeout=1.0)
+            break
+        except queue_mod.Empty:
+            if not p.is_alive():
+                res = {"error": f"the process died (exit code {p.exitcode})"}
+                break
     p.join()
     return res
+
+
+def run_sweep_point(meshes, copies, workers, views, queue):
+    """One point of ``--sweep``: the profiled pipeline (``stage_profile.profile_pipeline``) with
+    ``workers`` workers over ``meshes`` listed ``copies`` times."""
+    from sc3d_data.io.meshes import MESH_SUFFIXES
+
+    paths = sorted(p for p in meshes.rglob("*") if p.suffix.lower() in MESH_SUFFIXES)
+    with tempfile.TemporaryDirectory(prefix="sc3d-sweep-") as tmp:
+        src = stage_profile.replicate_meshes(paths, meshes, copies, Path(tmp) / "m") if copies > 1 else meshes
+        queue.put(stage_profile.profile_pipeline(src, workers, views))
+
+
+def sweep(meshes: Path, counts: list[int], copies: int, views: int) -> str:
+    """The ``--sweep`` report: views/s, speed-up and parallel efficiency per worker count
+    (against the first count) and the workers' wall-time breakdown."""
+    points = []
+    for n in counts:
+        p = _spawn(run_sweep_point, meshes, copies, n, views)
+        if "error" in p:
+            print(f"{n} workers: failed: {p['error']}")
+            continue
+        sm = p["summary"]
+        print(f"{n} workers: {sm['done']} objects ({sm['failed']} failed) in {sm['seconds']:.1f} s = "
+              f"{sm['views_per_s']:.0f} views/s", flush=True)
+        points.append((n, p))
+    if not points:
+        return "no point of the sweep ran"
+    n0, v0 = points[0][0], points[0][1]["summary"]["views_per_s"]
+    lines = ["| workers | objects | wall s | views/s end to end | speed-up | parallel efficiency |",
+             "|---|---|---|---|---|---|"]
+    for n, p in points:
+        sm = p["summary"]
+        up = sm["views_per_s"] / v0
+        lines.append(f"| {n} | {sm['done']} | {sm['seconds']:.1f} | {sm['views_per_s']:.0f} | {up:.2f}x | "
+                     f"{up / (n / n0):.2f} |")
+    return "\n".join(lines) + "\n\n" + stage_profile.life_table(points)
 
 
 def main():
@@ -225,6 +295,9 @@ def main():
     ap.add_argument("--pipeline-only", action="store_true", help="skip the speed comparison")
     ap.add_argument("--stages", action="store_true",
                     help="stage profile of the pipeline as users run it (render --voxelize --workers N)")
+    ap.add_argument("--sweep", default="",
+                    help="worker counts, e.g. 1,2,4,8,16: views/s, efficiency and wall-time breakdown per count")
+    ap.add_argument("--copies", type=int, default=1, help="--sweep: list the meshes this many times")
     a = ap.parse_args()
     from sc3d_data.io.meshes import MESH_SUFFIXES
 
@@ -236,9 +309,21 @@ def main():
     if a.stages:
         print()
         print(stage_profile.stage_table(stage_profile.profile_pipeline(a.meshes, a.workers, a.views), a.workers))
+    if a.sweep:
+        counts = [int(x) for x in a.sweep.split(",") if x.strip()]
+        print(f"\nsweep over {a.copies} x {len(paths)} objects, worker counts {counts}, load average "
+              f"{os.getloadavg()[0]:.1f} at the start")
+        print(sweep(a.meshes, counts, a.copies, a.views))
+        print(f"load average at the end: {os.getloadavg()[0]:.1f}")
     if not a.pipeline_only:
         ours = _spawn(run_sc3d, paths, a.views, a.repeat, a.backend)
         base = _spawn(run_baseline, paths, a.views, a.backend)
+        for side, res in (("sc3d", ours), ("baseline (pyrender)", base)):
+            if "error" in res:
+                print(f"\n{side} failed: {res['error']}")
+        if "error" in ours or "error" in base:
+            ours = base = None
+    if not a.pipeline_only and ours is not None:
         print("\n| measure | sc3d (atlas renderer) | baseline (pyrender README usage) | ratio |")
         print("|---|---|---|---|")
         for key in ("all", "typical"):

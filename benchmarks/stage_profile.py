@@ -14,7 +14,11 @@ process to read); in the main process the ``recv`` of each object, ``write_shard
 Workers are spawned, so they import this module through the benchmark script (the spawn
 start method runs the parent's main module in every child): ``install_worker_hooks`` runs at
 import when ``SC3D_STAGE_LOG`` names a folder, and each worker appends one JSON line per object
-to ``worker-<pid>.jsonl`` there.
+to ``worker-<pid>.jsonl`` there, and at its end one line with its life: when it entered its main
+function (against when the main process started the pool: the forkserver's start and the fork),
+how long ``Job.start`` took (the GL context, the renderer), how long it waited for tasks in its
+pipe and handed results over, and when it ended. :func:`life_table` turns them into the
+per-worker wall-time breakdown that ``render.py --sweep`` prints.
 """
 from __future__ import annotations
 
@@ -26,6 +30,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 ENV = "SC3D_STAGE_LOG"
+#: ``time.monotonic()`` (system-wide on Linux) when the main process started the pool
+T0_ENV = "SC3D_STAGE_T0"
 WORKER_STAGES = ("load", "normalise", "prepare parts", "texture upload + mipmaps",
                  "buffer upload + draw call", "draw + readback", "voxelize", "compress chunks",
                  "send to main")
@@ -60,6 +66,7 @@ def install_worker_hooks() -> None:
     import sc3d_data.io.meshes as mesh_io
     import sc3d_data.geometry.normalize as normalize
     import sc3d_data.render.renderer as render
+    import sc3d_data.pipeline.job as job_mod
     import sc3d_data.pipeline.local_pool as pool
     import sc3d_data.pipeline.render_job as job
     import sc3d_data.voxel.voxelize as voxelize
@@ -93,29 +100,73 @@ def install_worker_hooks() -> None:
         return one(renderer, task, config)
 
     job.render_one = render_one
+    task_fn = job.render_task
+
+    def render_task(config, backend, task):
+        t = time.monotonic()
+        try:
+            return task_fn(config, backend, task)
+        finally:
+            _current["task"] = time.monotonic() - t
+
+    job.render_task = render_task  # the worker unpickles RENDER's ``run`` by this name
     main = pool._worker_main
+    life: dict[str, float] = {}
+    _wrap(job_mod.Job, "start", "job start", life)
 
     class TimedConn:
         def __init__(self, conn):
             self.conn = conn
 
         def recv(self):
-            return self.conn.recv()
+            t = time.monotonic()
+            msg = self.conn.recv()
+            now = time.monotonic()
+            life["last wait"] = now - t  # the wait for the final None is the idle tail
+            life["waiting for tasks"] = life.get("waiting for tasks", 0.0) + now - t
+            return msg
 
         def send(self, msg):
             with _timed("send to main"):
                 self.conn.send(msg)
             if msg[0] in ("ok", "fail"):
+                life["hand-off"] = life.get("hand-off", 0.0) + _current["send to main"]
+                life["in objects"] = life.get("in objects", 0.0) + _current.get("task", 0.0)
                 row = dict(_current, status=msg[0])
                 with open(log_dir / f"worker-{os.getpid()}.jsonl", "a") as f:
                     f.write(json.dumps(row) + "\n")
 
-    pool._worker_main = lambda conn, *a, **k: main(TimedConn(conn), *a, **k)
+    def timed_main(conn, *args, **kwargs):
+        environ = args[3] if len(args) > 3 else kwargs.get("environ") or {}
+        life["entered"] = time.monotonic()
+        life["pool started"] = float(environ.get(T0_ENV, life["entered"]))
+        try:
+            return main(TimedConn(conn), *args, **kwargs)
+        finally:
+            life["ended"] = time.monotonic()
+            with open(log_dir / f"life-{os.getpid()}.json", "w") as f:
+                json.dump(life, f)
+
+    pool._worker_main = timed_main
 
 
-def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = True) -> dict:
+def replicate_meshes(paths: list[Path], root: Path, copies: int, dest: Path) -> Path:
+    """``dest`` filled with symlinks ``rK_CAT/NAME.ext`` to ``paths`` (under ``root``), ``copies``
+    times: a collection of ``copies x len(paths)`` objects whose plan renders pass after pass."""
+    for k in range(copies):
+        for p in paths:
+            rel = p.relative_to(root)
+            cat = rel.parts[0] if len(rel.parts) > 1 else "thing"
+            dst = dest / f"r{k}_{cat}" / f"{p.stem}{p.suffix}"
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            dst.symlink_to(p.resolve())
+    return dest
+
+
+def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = True, **options) -> dict:
     """Run ``render_dataset`` (as ``sc3d-data render --voxelize --workers N``, shards to a
-    temporary folder) with the hooks; per-stage seconds summed over objects, worker and main."""
+    temporary folder; ``options``: more ``RenderConfig`` fields) with the hooks; per-stage
+    seconds summed over objects, worker and main, and each worker's life (``life_table``)."""
     from multiprocessing import connection
 
     import sc3d_data.pipeline.local_pool as pool
@@ -139,16 +190,26 @@ def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = Tr
         return msg
 
     connection.Connection.recv = timed_recv
+    init = pool.WorkerPool.__init__
+
+    def pool_init(self, *args, **kwargs):
+        os.environ[T0_ENV] = repr(time.monotonic())  # the workers get this environment
+        init(self, *args, **kwargs)
+
+    pool.WorkerPool.__init__ = pool_init
     try:
         with tempfile.TemporaryDirectory(prefix="sc3d-stages-") as tmp:
             os.environ[ENV] = tmp
             cfg = RenderConfig(out=Path(tmp) / "out", meshes=meshes, num_views=views, workers=workers,
-                               voxelize=voxelize, bad_texture="fallback", progress=False)
+                               voxelize=voxelize, bad_texture="fallback", progress=False, **options)
             summary = render_dataset(cfg)
             rows = [json.loads(line) for p in Path(tmp).glob("worker-*.jsonl") for line in open(p)]
+            lives = [json.loads(p.read_text()) for p in Path(tmp).glob("life-*.json")]
     finally:
         os.environ.pop(ENV, None)
+        os.environ.pop(T0_ENV, None)
         pool.write_shard, rp.write_index_file, connection.Connection.recv = saved
+        pool.WorkerPool.__init__ = init
         pool.PRELOAD_EXTRA.remove(__name__)
     ok = [r for r in rows if r.get("status") == "ok"]
     worker = {s + c: 0.0 for s in WORKER_STAGES for c in ("", " cpu")}
@@ -160,7 +221,10 @@ def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = Tr
                 - r.get("texture upload + mipmaps" + c, 0.0)
         for s in worker:
             worker[s] += r.get(s, 0.0)
-    return {"summary": summary, "objects": len(ok), "worker": worker,
+    for r in ok:
+        r["rest of the object"] = r.get("task", 0.0) - sum(r.get(st, 0.0) for st in WORKER_STAGES[:-1])
+        worker["rest of the object"] = worker.get("rest of the object", 0.0) + r["rest of the object"]
+    return {"summary": summary, "objects": len(ok), "worker": worker, "lives": lives,
             "main": {s + c: main_acc.get(s + c, 0.0) for s in MAIN_STAGES for c in ("", " cpu")}}
 
 
@@ -188,3 +252,44 @@ def stage_table(p: dict, workers: int) -> str:
 
 if os.environ.get(ENV) and __name__ != "__main__":
     install_worker_hooks()
+
+
+def life_breakdown(p: dict) -> dict[str, float]:
+    """Where the workers' wall time went, summed over workers (seconds): each worker's life runs
+    from the main process starting the pool to the worker's end."""
+    w, lives = p["worker"], p["lives"]
+    out = {"forkserver start + fork": sum(x["entered"] - x["pool started"] for x in lives),
+           "GL context + renderer (Job.start)": sum(x.get("job start", 0.0) for x in lives),
+           "waiting for a task (pipe empty)": sum(x.get("waiting for tasks", 0.0) - x.get("last wait", 0.0)
+                                                   for x in lives)}
+    for s in WORKER_STAGES[:-1] + ("rest of the object",):
+        out[s] = w.get(s, 0.0)
+    out["hand-off (send to main)"] = sum(x.get("hand-off", 0.0) for x in lives)
+    out["idle at the end (others finishing, last shard)"] = sum(x.get("last wait", 0.0) for x in lives)
+    total = sum(x["ended"] - x["pool started"] for x in lives)
+    out["unaccounted (exit, scheduling)"] = total - sum(out.values())
+    out["total"] = total
+    return out
+
+
+def life_table(points: list[tuple[int, dict]]) -> str:
+    """Markdown table: per worker count (``points``: ``(workers, profile_pipeline result)``), each
+    part of the workers' wall time in ms per object (summed over workers) and its share, plus
+    the main process's writer."""
+    cols = [(n, life_breakdown(p), p) for n, p in points]
+    head = "| where the workers' wall time goes (ms per object, share) | " + " | ".join(
+        f"{n} workers" for n, _, _ in cols) + " |"
+    lines = [head, "|---|" + "---|" * len(cols)]
+    for key in cols[0][1]:
+        cells = []
+        for n, b, p in cols:
+            k = max(p["objects"], 1)
+            cells.append(f"{1000 * b[key] / k:.1f} ({100 * b[key] / max(b['total'], 1e-9):.0f}%)")
+        lines.append(f"| {key} | " + " | ".join(cells) + " |")
+    cells = []
+    for n, b, p in cols:
+        k, m = max(p["objects"], 1), p["main"]
+        writer = m["write shard"] + m["write index"] + m["recv in main"]
+        cells.append(f"{1000 * writer / k:.2f} ({100 * writer / max(p['summary']['seconds'], 1e-9):.0f}% of the run)")
+    lines.append("| main process: recv + write shards + index | " + " | ".join(cells) + " |")
+    return "\n".join(lines)

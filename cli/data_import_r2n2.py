@@ -58,9 +58,11 @@ def import_r2n2(renderings, voxels, out, image_size, background, categories, spl
                           split_file=list(split_file) or None, seed=seed, voxel_frame=voxel_frame, front=front,
                           objects_per_shard=objects_per_shard, overwrite=overwrite, part=part, progress=progress,
                           **scale)
+    from sc3d_data.io.names import printable
+
     summary = run_scaled(config, slurm, run, import_on_slurm)
     for f in summary["failures"]:
-        click.echo(f"failed: {f['source']}: {f['reason']}", err=True)
+        click.echo(f"failed: {printable(f['source'])}: {printable(f['reason'])}", err=True)
     click.echo(f"imported {summary['done']} of {summary['planned']} models into {summary['out']} "
                f"({summary['resumed']} already there, {summary['failed']} failed, {summary['skipped']} skipped; "
                f"{summary['seconds']:.1f} s); details in index.json")

@@ -20,7 +20,9 @@ def info(shard_dir: Path, max_failures: int, verify: bool):
         click.echo(index_report(shard_dir, max_failures))
         broken = integrity_report(shard_dir, full=verify)
     except (FileNotFoundError, ValueError) as e:
-        raise click.ClickException(str(e))
+        from sc3d_data.io.names import printable
+
+        raise click.ClickException(printable(e, keep_newlines=True))
     from sc3d_data.io.shards import load_index
 
     n = len(load_index(shard_dir).get("shards", []))

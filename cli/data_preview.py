@@ -23,7 +23,9 @@ def preview(shard_dir: Path, out: Path, max_objects: int, views: int, scale: int
     try:
         sheet = contact_sheet(shard_dir, max_objects, views, scale)
     except (FileNotFoundError, ValueError) as e:
-        raise click.ClickException(str(e))
+        from sc3d_data.io.names import printable
+
+        raise click.ClickException(printable(e, keep_newlines=True))
     out.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(sheet).save(out)
     click.echo(f"wrote {out} ({sheet.shape[1]}x{sheet.shape[0]})")

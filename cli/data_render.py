@@ -8,10 +8,19 @@ from pathlib import Path
 import click
 
 from sc3d_data.geometry.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS
-from sc3d_data.io.meshes import DEFAULT_MAX_FACES
+from sc3d_data.io.meshes import DEFAULT_MAX_FACES, DEFAULT_MAX_FILE_BYTES
 from sc3d_cli.scale_options import executor_options, part_option, run_render
 from sc3d_data.pipeline.render_job import SAMPLE_MESHES, RenderConfig
 from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
+
+
+def _gpus(text: str | None) -> tuple[int, ...]:
+    from sc3d_data.pipeline.devices import parse_gpus
+
+    try:
+        return parse_gpus(text)
+    except ValueError as e:
+        raise click.BadParameter(str(e)) from None
 
 
 def _floats(text: str) -> tuple[float, ...]:
@@ -57,16 +66,23 @@ def _rgb(text: str) -> tuple[int, int, int]:
               help="HDF5 chunks of images and masks: one view each (cheap random-view reads for training) "
                    "or one object each (~1/3 smaller files). Values are the same either way.")
 @click.option("--max-faces", type=click.IntRange(1), default=DEFAULT_MAX_FACES, show_default=True, help="Reject meshes with more triangles.")
+@click.option("--max-file-mib", type=click.IntRange(1), default=DEFAULT_MAX_FILE_BYTES // 2**20, show_default=True,
+              help="Reject mesh files larger than this many MiB before parsing them.")
 @click.option("--bad-texture", type=click.Choice(["fail", "fallback"]), default="fail", show_default=True,
-              help="Unreadable texture: skip the object (fail) or render with material colours (fallback).")
+              help="A texture that is named but cannot be read or loaded: skip the object (fail) or render "
+                   "with material colours and record a warning (fallback).")
 @click.option("--outside-textures", type=click.Choice(["warn", "refuse"]), default="warn", show_default=True,
-              help="Material/texture files outside --meshes (absolute paths, ../): render and record a "
-                   "warning, or refuse the object.")
+              help="Material/texture files outside --meshes (absolute paths, ../), judged from the path "
+                   "and never opened: render without them and record a warning, or refuse the object.")
 @click.option("--retry-failed/--no-retry-failed", default=True, show_default=True,
               help="On a rerun, render the recorded failures again (a killed worker, ...); the index "
                    "counts attempts.")
 @click.option("--timeout", "timeout_s", type=click.FloatRange(0, min_open=True), default=120.0, show_default=True, help="Per-object time limit, seconds.")
 @click.option("--workers", type=click.IntRange(0), default=0, show_default="number of CPU cores")
+@click.option("--gpus", callback=lambda ctx, param, v: _gpus(v), default=None, metavar="0,1,...",
+              help="EGL devices (GPUs) to spread the workers over, round robin; default: device "
+                   "EGL_DEVICE_ID or 0. Ray: each task takes a share of one GPU; slurm: each array task "
+                   "asks for this many GPUs. See docs/scale.md.")
 @click.option("--overwrite", is_flag=True, help="Delete existing shards in --out instead of resuming.")
 @click.option("--progress/--no-progress", default=True, show_default=True)
 @part_option
@@ -75,8 +91,10 @@ def render(elevations, background, part, slurm, **options):
     """Render every mesh under --meshes into HDF5 shards under --out (resumable)."""
     config = RenderConfig(elevations=_floats(elevations), background=_rgb(background), part=part, **options)
     s = run_render(config, slurm)
+    from sc3d_data.io.names import printable
+
     for note in s["notes"]:
-        click.echo(f"warning: {note}", err=True)
+        click.echo(f"warning: {printable(note)}", err=True)
     retried = f", retried {s['retried']}" if s["retried"] else ""
     where = f"part {s['part']}, " if s.get("part", "0/1") != "0/1" else ""
     click.echo(f"{where}done {s['done']}, resumed {s['resumed']}{retried}, skipped {s['skipped']}, failed {s['failed']} "

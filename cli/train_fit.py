@@ -62,13 +62,22 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
     import os
 
     main_rank = os.environ.get("RANK", "0") == "0"  # under torchrun only rank 0 reports
+    from contextlib import nullcontext
+
+    from sc3d_data.io.outlock import LockError, exclusive_lock
+
     try:
-        cfg = resolve_config(options, model_options, resume, config_file)
-        if main_rank:
-            click.echo(f"training {cfg.mode} for {cfg.steps} steps, batch {cfg.batch_size}, "
-                       f"model {cfg.model}, run dir {cfg.out}")
-        summary = run_fit(cfg, resume=resume)
-    except (DataError, CheckpointError, TrainingDiverged, ValueError, OSError) as e:  # OSError: disk full...
+        run_dir = out if out is not None else RunConfig.load(config_file).out
+        # one writer per run folder (rank 0 writes for all ranks), from the "already holds a run"
+        # check to the last checkpoint, so config.yaml and checkpoints belong to one run
+        lock = exclusive_lock(run_dir, "sc3d-train fit", create=True) if main_rank and run_dir else nullcontext()
+        with lock:
+            cfg = resolve_config(options, model_options, resume, config_file)
+            if main_rank:
+                click.echo(f"training {cfg.mode} for {cfg.steps} steps, batch {cfg.batch_size}, "
+                           f"model {cfg.model}, run dir {cfg.out}")
+            summary = run_fit(cfg, resume=resume)
+    except (DataError, CheckpointError, TrainingDiverged, LockError, ValueError, OSError) as e:  # OSError: disk full...
         from sc3d_data.io.shards import one_line
 
         raise click.ClickException(one_line(e)) from e

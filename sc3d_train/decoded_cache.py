@@ -13,14 +13,25 @@ the dataset's ``index.json`` records for the shard (computed from the file when 
 none), so a rewritten shard gets a new folder and a stale copy is never read; old folders are not
 deleted (remove ``DIR`` to reclaim the space).
 
-Concurrency: a missing entry is built under an exclusive ``flock`` on ``DIR/<key>.lock`` (other
-ranks or runs wait for it, then find it built), into a temporary folder renamed into place when
-complete, so a crash leaves no half-written entry (its temporary folder is removed by the next
-build of that entry).
+Verification: each entry holds ``manifest.json``, written when it is built: the shard's SHA-256
+and, per array file, its shape, dtype, size in bytes and SHA-256, and a stamp (inode, size,
+ctime in ns) of the file as built. On open, every entry is checked against the shard it is used
+for: the manifest must name that shard (a folder swapped with another shard's is caught), each
+file must have the recorded size (truncation) and ``.npy`` header (shape, dtype); a file whose
+stamp differs (rewritten, copied, touched: any write changes the ctime, which cannot be set
+back) is hashed again and must match the recorded SHA-256 (an overwrite). An entry that fails
+any check, or has no manifest (built by an older sc3d), is rebuilt from its shard. So a warm open
+costs a few ``stat`` and header reads per shard; only changed files are read whole.
+
+Concurrency: a missing or failing entry is built under an exclusive ``flock`` on
+``DIR/<key>.lock`` (other ranks or runs wait for it, then find it built), into a temporary
+folder renamed into place when complete, so a crash leaves no half-written entry (its temporary
+folder is removed by the next build of that entry).
 """
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 import re
 import shutil
@@ -32,9 +43,11 @@ import numpy as np
 
 from sc3d_data.io.shard_reader import ShardReader
 from sc3d_data.io.shards import ShardError, file_sha256, io_reason, load_index, shard_path
+from sc3d_data.io.names import printable
 from sc3d_train.batch_format import sc_masks_bool
 
 _KEY = re.compile(r"^[0-9a-f]{64}$")
+MANIFEST = "manifest.json"
 
 
 @contextmanager
@@ -81,6 +94,82 @@ def _build(reader: ShardReader, path: str, folder: Path, mask_size: int, voxels:
         a.flush()
 
 
+def _stamp(path: Path) -> list[int]:
+    st = os.stat(path)
+    return [st.st_ino, st.st_size, st.st_ctime_ns]
+
+
+def _header(path: Path) -> tuple[list[int], str]:
+    """``(shape, dtype string)`` from the header of the ``.npy`` file ``path``."""
+    fmt = np.lib.format
+    with open(path, "rb") as f:
+        version = fmt.read_magic(f)
+        read = {(1, 0): fmt.read_array_header_1_0, (2, 0): fmt.read_array_header_2_0}.get(version)
+        if read is None:
+            raise ValueError(f".npy format version {version} not written by sc3d")
+        shape, _, dtype = read(f)
+    return list(shape), dtype.str
+
+
+def _describe(path: Path) -> dict:
+    """The manifest entry of array file ``path`` (module doc)."""
+    shape, dtype = _header(path)
+    return {"shape": shape, "dtype": dtype, "bytes": path.stat().st_size, "sha256": file_sha256(path),
+            "stamp": _stamp(path)}
+
+
+def _write_manifest(folder: Path, manifest: dict) -> None:
+    tmp = folder / f"{MANIFEST}.{os.getpid()}.tmp"
+    tmp.write_text(json.dumps(manifest, indent=1))
+    os.replace(tmp, folder / MANIFEST)
+
+
+def _array_problem(path: Path, entry: dict | None, deep: bool) -> str | None:
+    """Why array file ``path`` does not match its manifest ``entry`` (None: it does). ``deep``:
+    hash the file when its stamp differs from the recorded one."""
+    if entry is None:
+        return "not listed in the manifest"
+    try:
+        if path.stat().st_size != entry["bytes"]:
+            return f"{path.stat().st_size} bytes, built with {entry['bytes']} (truncated or rewritten)"
+        if _header(path) != (entry["shape"], entry["dtype"]):
+            return f"shape/dtype {_header(path)} differ from the built {entry['shape']} {entry['dtype']}"
+        if deep and _stamp(path) != entry["stamp"]:
+            if file_sha256(path) != entry["sha256"]:
+                return "contents differ from what was built (overwritten)"
+            entry["stamp"] = _stamp(path)  # same bytes (a copy, a touch): remember this file
+    except (OSError, ValueError) as e:
+        return f"unreadable ({type(e).__name__}: {e})"
+    return None
+
+
+def verify_entry(folder: Path, names: tuple[str, ...], key: str) -> str | None:
+    """One line naming the file and the problem when cache entry ``folder`` is not the decoded
+    copy of the shard whose SHA-256 is ``key`` with the arrays ``names`` intact (module doc);
+    None when it is (updated stamps are written back where the folder allows)."""
+    try:
+        manifest = json.loads((folder / MANIFEST).read_text())
+        arrays = manifest["arrays"]
+    except FileNotFoundError:
+        return f"{folder / MANIFEST}: missing (an entry of an older sc3d or an interrupted build)"
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        return f"{folder / MANIFEST}: unreadable ({type(e).__name__}: {e})"
+    if manifest.get("shard_sha256") != key:
+        return (f"{folder}: holds the decoded copy of shard {manifest.get('shard_sha256')}, "
+                f"not of {key} (folders swapped or copied)")
+    before = json.dumps(arrays)
+    for name in names:
+        problem = _array_problem(folder / f"{name}.npy", arrays.get(f"{name}.npy"), deep=True)
+        if problem is not None:
+            return f"{folder / (name + '.npy')}: {problem}"
+    if json.dumps(arrays) != before:
+        try:
+            _write_manifest(folder, manifest)
+        except OSError:
+            pass  # a read-only cache is verified again next time
+    return None
+
+
 class DecodedCache:
     """The decoded copies of the shards ``paths`` of dataset ``shard_dir`` in ``cache_dir``
     (built on construction where missing), opened memory-mapped lazily in each process.
@@ -101,26 +190,25 @@ class DecodedCache:
         finally:
             reader.close()
 
-    def _complete(self, folder: Path) -> bool:
-        return all((folder / f"{k}.npy").is_file() for k in self._names)
-
     def _ensure(self, reader: ShardReader, path: str, folder: Path) -> None:
-        if self._complete(folder):
+        """Make ``folder`` the verified decoded copy of shard ``path`` (module doc): keep it when
+        it passes :func:`verify_entry`, else (re)build it under the entry's lock."""
+        if verify_entry(folder, self._names, folder.name) is None:
             return
         try:
             self.cache_dir.mkdir(parents=True, exist_ok=True)
             with _locked(self.cache_dir / f"{folder.name}.lock"):
-                if self._complete(folder):  # another process built it meanwhile
+                if verify_entry(folder, self._names, folder.name) is None:  # another process built it
                     return
                 for stale in self.cache_dir.glob(f"{folder.name}.tmp-*"):  # left by a crash
                     shutil.rmtree(stale, ignore_errors=True)
                 tmp = self.cache_dir / f"{folder.name}.tmp-{os.getpid()}"
                 tmp.mkdir()
-                have = list(folder.glob("*.npy")) if folder.is_dir() else []
                 _build(reader, path, tmp, self.mask_size, self.voxels)
-                for p in have:  # an entry built for another mask size or without voxels
-                    if not (tmp / p.name).exists():
-                        os.replace(p, tmp / p.name)
+                for p in _intact_others(folder, tmp):  # an entry built for another mask size or without voxels
+                    os.replace(p, tmp / p.name)
+                _write_manifest(tmp, {"shard_sha256": folder.name, "source": Path(path).name,
+                                      "arrays": {p.name: _describe(p) for p in sorted(tmp.glob("*.npy"))}})
                 shutil.rmtree(folder, ignore_errors=True)
                 os.replace(tmp, folder)
         except OSError as e:
@@ -133,7 +221,7 @@ class DecodedCache:
 
     def _arrays(self) -> list[dict]:
         if self._pid != os.getpid():
-            self._maps = [{k.rstrip("0123456789"): np.load(f / f"{k}.npy", mmap_mode="r") for k in self._names}
+            self._maps = [{k.rstrip("0123456789"): _open_map(f / f"{k}.npy") for k in self._names}
                           for f in self.folders]
             self._pid = os.getpid()
         return self._maps
@@ -152,3 +240,24 @@ class DecodedCache:
                     out[k] = np.empty((len(rows),) + got.shape[1:], dtype=got.dtype)
                 out[k][sel] = got
         return out
+
+
+def _intact_others(folder: Path, tmp: Path) -> list[Path]:
+    """Array files of an existing entry ``folder`` that the new build in ``tmp`` lacks (another
+    mask size, voxels) and that still match the entry's manifest: worth keeping."""
+    try:
+        arrays = json.loads((folder / MANIFEST).read_text())["arrays"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+    return [p for p in sorted(folder.glob("*.npy")) if not (tmp / p.name).exists()
+            and _array_problem(p, arrays.get(p.name), deep=True) is None]
+
+
+def _open_map(path: Path) -> np.ndarray:
+    """``path`` memory-mapped read-only; ``ShardError`` naming it when it cannot be (e.g. cut
+    short after the cache was verified)."""
+    try:
+        return np.load(path, mmap_mode="r")
+    except (OSError, ValueError) as e:
+        raise ShardError(f"{printable(path)}: cannot map the decoded cache file ({type(e).__name__}: {e}); "
+                         "remove it to have it rebuilt") from e

@@ -38,16 +38,27 @@ class ImageError(ValueError):
 
 def load_image(path: Path, image_size: int, background: list[int]) -> np.ndarray:
     """``path`` -> float32 ``[S, S, 3]`` in [0, 1] (see module doc for modes and sizes)."""
-    from PIL import Image, UnidentifiedImageError
+    import warnings
+
+    from PIL import Image
+
+    from sc3d_data.io.names import printable
 
     try:
-        img = Image.open(path)
-        img.load()
-    except (FileNotFoundError, UnidentifiedImageError, OSError) as e:
-        raise ImageError(f"{path}: cannot read image ({e})") from e
-    if img.size != (image_size, image_size):
-        raise ImageError(f"{path}: image is {img.size[0]}x{img.size[1]}, the model expects "
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            img = Image.open(path)  # reads the header only
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as e:
+        raise ImageError(f"{printable(path)}: image too large to open ({e})") from e
+    except Exception as e:  # noqa: BLE001 - any decoder error: the file is not a usable image
+        raise ImageError(f"{printable(path)}: cannot read image ({type(e).__name__}: {e})") from e
+    if img.size != (image_size, image_size):  # before decoding: an oversized image is never decoded
+        raise ImageError(f"{printable(path)}: image is {img.size[0]}x{img.size[1]}, the model expects "
                          f"{image_size}x{image_size} (crop/resize it like the training renders)")
+    try:
+        img.load()
+    except Exception as e:  # noqa: BLE001 - truncated or corrupt pixel data
+        raise ImageError(f"{printable(path)}: cannot read image ({type(e).__name__}: {e})") from e
     if img.mode not in ACCEPTED_MODES:
         raise ImageError(f"{path}: image mode {img.mode!r} not supported (use one of {ACCEPTED_MODES})")
     if img.mode == "RGB":

@@ -59,6 +59,12 @@ def resolve_device(name: str, dist: DistInfo) -> torch.device:
     if device.type == "cuda":
         if not torch.cuda.is_available():
             raise RuntimeError(f"device {name} requested but CUDA is not available")
+        count = torch.cuda.device_count()
+        if device.index is not None and device.index >= count:
+            raise RuntimeError(
+                f"rank {dist.rank} (local rank {dist.local_rank}) needs {name}, but this machine has "
+                f"{count} GPU{'s' * (count != 1)}: start at most {count} process{'es' * (count != 1)} "
+                f"per machine (torchrun --nproc_per_node {count}) or train on the CPU (--device cpu)")
         torch.cuda.set_device(device)
     return device
 

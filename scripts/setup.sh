@@ -3,10 +3,24 @@
 # needed), a virtual environment in .venv, PyTorch (the CPU wheel unless a torch is already
 # there), pyrender without its PyOpenGL pin, and sc3d itself with its test, ray and slurm extras.
 # Idempotent: rerunning it only installs what is missing.
+#
+#   bash scripts/setup.sh          # CPU machine (CI, development)
+#   bash scripts/setup.sh --gpu    # NVIDIA GPU machine: keep the CUDA PyTorch the python already
+#                                  # has (the venv sees its packages), else install PyPI's CUDA
+#                                  # build; fails in one line if torch then sees no GPU
 set -euo pipefail
 cd "$(dirname "$0")/.."
+GPU=0
+for arg in "$@"; do
+  case "$arg" in
+    --gpu) GPU=1 ;;
+    *) echo "[setup] unknown option $arg (known: --gpu)" >&2; exit 2 ;;
+  esac
+done
 
-APT_PACKAGES="libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libxrender1 libosmesa6"
+# libglu1-mesa: `import pyrender` loads pyglet's GL bindings, which open libGLU (absent from GPU images
+# that ship only NVIDIA's driver libraries)
+APT_PACKAGES="libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libglu1-mesa libxrender1 libosmesa6"
 missing=""
 for p in $APT_PACKAGES; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
@@ -19,15 +33,32 @@ if [ -n "$missing" ]; then
 fi
 
 PY="${PYTHON:-python3}"
-[ -x .venv/bin/python ] || "$PY" -m venv .venv
+if [ ! -x .venv/bin/python ]; then
+  if [ "$GPU" = 1 ] && "$PY" -c "import torch, sys; sys.exit(not torch.cuda.is_available())" 2>/dev/null; then
+    echo "[setup] --gpu: $PY has a CUDA PyTorch; the venv keeps it (--system-site-packages)"
+    "$PY" -m venv --system-site-packages .venv
+  else
+    "$PY" -m venv .venv
+  fi
+fi
 . .venv/bin/activate
 python -m pip install -q --upgrade pip
-# torch 2.13.0: a CPU wheel on these machines; on a GPU machine install the CUDA build first.
+# torch 2.13.0: a CPU wheel on these machines; PyPI's Linux wheel is the CUDA build on a GPU machine.
 python -c "import torch" 2>/dev/null || python -m pip install -q "torch==2.13.0"
+if [ "$GPU" = 1 ]; then
+  python -c "import torch, sys; sys.exit(not torch.cuda.is_available())" || {
+    echo "[setup] --gpu: torch $(python -c 'import torch; print(torch.__version__)') in .venv sees no CUDA GPU (nvidia-smi works? a CPU wheel? remove .venv and rerun)" >&2; exit 1; }
+  echo "[setup] --gpu: $(python -c 'import torch; print(torch.__version__, torch.cuda.get_device_name(0))')"
+fi
 # pyrender 0.1.45 pins PyOpenGL==3.1.0 (broken OSMesa); install it without deps, its deps come
 # from sc3d's pyproject with PyOpenGL 3.1.10.
 python -c "import importlib.util,sys; sys.exit(importlib.util.find_spec('pyrender') is None)" \
   || python -m pip install -q --no-deps "pyrender==0.1.45"
 # ray + submitit: the Ray and SLURM executors, exercised by tests/test_scale.py (docs/scale.md)
 python -m pip install -q -e ".[test,ray,slurm]"
+# compile the voxelizer's numba kernels once per install (15-30 s; a warm start loads them in
+# well under a second): numba caches them next to the sources, or in its user cache
+# (~/.cache/numba) where the package folder is read-only; without this the first run pays it
+echo "[setup] compiling the voxelizer's kernels (once per install)"
+python -c "import sc3d_data.pipeline.worker_preload"
 echo "[setup] done: activate with '. .venv/bin/activate'"

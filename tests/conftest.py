@@ -2,6 +2,8 @@
 with the real renderer and voxelizer (through the CLI, as a user would)."""
 from __future__ import annotations
 
+import json
+import operator
 import os
 from pathlib import Path
 
@@ -13,6 +15,48 @@ SAMPLE_MESHES = REPO / "assets" / "sample_meshes"
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+#: where ``assert_learnt`` appends each figure it checks, one JSON line each (set by
+#: scripts/test_spread.py, which reruns the training tests under several seeds and thread counts)
+LEARNT_FIGURES_ENV = "SC3D_LEARNT_FIGURES"
+
+
+def pytest_addoption(parser):
+    parser.addoption("--train-seed", type=int, default=0,
+                     help="seed of every test that trains a model and asserts what it learnt "
+                          "(scripts/test_spread.py varies it; default 0)")
+
+
+def pytest_configure(config):
+    # an environment variable, not a module global: test modules import this file as
+    # ``tests.conftest``, a second module object beside the ``conftest`` that pytest loads
+    os.environ["SC3D_TRAIN_SEED"] = str(config.getoption("--train-seed"))
+
+
+def train_seed() -> int:
+    """The seed of the training tests in this session (``--train-seed``, default 0)."""
+    return int(os.environ.get("SC3D_TRAIN_SEED", "0"))
+
+_COMPARE = {">=": operator.ge, "<=": operator.le, ">": operator.gt, "<": operator.lt}
+
+
+def assert_learnt(*figures: tuple[str, float, str, float]) -> None:
+    """Assert ``value OP bound`` for each ``(name, value, op, bound)`` that a training test measured
+    (an IoU, a pose error, a loss ratio). Every figure is first appended as a JSON line
+    ``{name, value, op, bound, seed, threads}`` to the file named by ``$SC3D_LEARNT_FIGURES`` when
+    it is set (scripts/test_spread.py reads them back), so one failing figure hides no other; the
+    assertion then names every figure outside its bound."""
+    rows = [{"name": n, "value": float(v), "op": op, "bound": float(b)} for n, v, op, b in figures]
+    target = os.environ.get(LEARNT_FIGURES_ENV)
+    if target:
+        import torch
+
+        with open(target, "a") as f:
+            for r in rows:
+                f.write(json.dumps({**r, "seed": train_seed(), "threads": torch.get_num_threads()}) + "\n")
+    bad = [f"{r['name']}: {r['value']:.4g} is not {r['op']} {r['bound']:g}"
+           for r in rows if not _COMPARE[r["op"]](r["value"], r["bound"])]
+    assert not bad, f"seed {train_seed()}: " + "; ".join(bad)
 
 
 def write_hanging_gltf(folder: Path, name: str = "hang") -> Path:
@@ -81,6 +125,59 @@ def assert_same_dataset(a: Path, b: Path) -> None:
     assert ia["split"] == ib["split"]
 
 
+_BACKENDS: dict[str, tuple[str | None, str]] = {}
+
+
+def require_backend(name: str) -> str:
+    """The ``GL_RENDERER`` of backend ``name`` (``egl``/``osmesa``), probed once per session in a
+    subprocess; skips the calling test, naming what is missing, where it does not work (OSMesa
+    is absent from GPU images that ship only NVIDIA's EGL)."""
+    from sc3d_data.render.gl_backend import BackendError
+    from sc3d_data.render.probe import probe_backend
+
+    if name not in _BACKENDS:
+        try:
+            _BACKENDS[name] = (probe_backend(name)[1], "")
+        except BackendError as e:
+            _BACKENDS[name] = (None, str(e).splitlines()[1].strip() if "\n" in str(e) else str(e))
+    renderer, why = _BACKENDS[name]
+    if renderer is None:
+        pytest.skip(f"needs the {name} OpenGL backend, which does not work here: {why}")
+    return renderer
+
+
+def edge_pixels(mask):
+    """``[..., S, S] bool``: pixels of a mask ``[..., S, S]`` with a 4-neighbour of the other value
+    (where two rasterisers may disagree by GL's rules: the pixel centre's side of an edge)."""
+    import numpy as np
+
+    m = np.asarray(mask) > 0
+    edge = np.zeros_like(m)
+    edge[..., 1:, :] |= m[..., 1:, :] != m[..., :-1, :]
+    edge[..., :-1, :] |= m[..., 1:, :] != m[..., :-1, :]
+    edge[..., :, 1:] |= m[..., :, 1:] != m[..., :, :-1]
+    edge[..., :, :-1] |= m[..., :, 1:] != m[..., :, :-1]
+    return edge
+
+
+def assert_same_raster(images_a, masks_a, images_b, masks_b, what: str = "") -> None:
+    """Two renders of the same views by two rasterisers (llvmpipe, NVIDIA) agree as far as
+    OpenGL's rules make them: masks equal except at pixels on the outline of both masks (an
+    outline one pixel further out or in), and each 8-bit colour channel within 1 at pixels away
+    from either outline (shader arithmetic may round differently). Same rasteriser: these hold
+    with no difference at all."""
+    import numpy as np
+
+    ma, mb = np.asarray(masks_a) > 0, np.asarray(masks_b) > 0
+    ea, eb = edge_pixels(ma), edge_pixels(mb)
+    off = (ma != mb) & ~(ea & eb)
+    assert not off.any(), f"{what}: {int(off.sum())} mask pixels differ away from the outline"
+    inner = ~(ea | eb)
+    diff = np.abs(np.asarray(images_a, np.int16) - np.asarray(images_b, np.int16)).max(axis=-1)
+    worst = int(diff[inner].max()) if inner.any() else 0
+    assert worst <= 1, f"{what}: a colour channel differs by {worst} (> 1) away from the mask edges"
+
+
 def run_cli(group, args: list[str], expect_exit: int | None = 0):
     """Invoke a click group in-process; fail with the command's output when the exit code differs."""
     result = CliRunner().invoke(group, [str(a) for a in args], catch_exceptions=False)
@@ -100,8 +197,11 @@ def sample_shards(tmp_path_factory) -> Path:
     return out
 
 
-#: optimiser steps of the shared short training run (tiny model, batch 8, lr 1e-3 so that it learns in few steps)
-TRAINED_RUN_STEPS = 120
+#: optimiser steps of the shared short training run (tiny model, batch 8, lr 1e-3 so that it learns in few steps).
+#: 360, not fewer: the pose head's error falls steeply between steps 150 and 300 (seeds 1 and 2: 47-59 deg
+#: at 120 steps, 10-60 deg at 180, 1.3 deg at 360), so a shorter run asserts a figure in mid-fall, which
+#: moves by tens of degrees with the seed, the thread count and the CPU (issue 20)
+TRAINED_RUN_STEPS = 360
 
 
 @pytest.fixture(scope="session")
@@ -113,5 +213,5 @@ def trained_run(sample_shards, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("trained_run") / "run"
     run_cli(main, ["fit", "--shards", sample_shards, "--out", out, "--steps", TRAINED_RUN_STEPS,
                    "--batch-size", 8, "--tiny", "--base-channels", 4, "--lr", 1e-3, "--lr-schedule", "constant", "--log-every", 1,
-                   "--checkpoint-every", TRAINED_RUN_STEPS // 2, "--no-progress", "--seed", 0])
+                   "--checkpoint-every", TRAINED_RUN_STEPS // 2, "--no-progress", "--seed", train_seed()])
     return out

@@ -65,7 +65,7 @@ def synthesize(root: Path, seed: int, in_plane_max: float = 0.0):
                            root / "ShapeNetRendering", root / "ShapeNetVox32", root / "truth.json",
                            str(seed), str(in_plane_max)],
                           cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
+    assert proc.returncode == 0, f"r2n2_synth.py: exit status {proc.returncode}\n{proc.stderr[-3000:]}"
     return root / "ShapeNetRendering", root / "ShapeNetVox32", json.loads((root / "truth.json").read_text())
 
 

@@ -15,7 +15,7 @@ import h5py
 import numpy as np
 
 from sc3d_cli.data import main
-from conftest import REPO, SAMPLE_MESHES, run_cli, write_hanging_gltf
+from conftest import REPO, SAMPLE_MESHES, assert_same_raster, require_backend, run_cli, write_hanging_gltf
 
 FAST = ["--views", "4", "--no-progress"]
 
@@ -136,15 +136,20 @@ def test_workers_get_the_environment_the_main_process_has_when_they_start(tmp_pa
 
 def test_osmesa_run_after_an_egl_run_in_one_process(tmp_path):
     """The forkserver imported PyOpenGL for EGL; an OSMesa run in the same process gets spawned
-    workers instead (PyOpenGL's platform cannot change) and renders the same pixels."""
+    workers instead (PyOpenGL's platform cannot change) and renders the same pixels: identical
+    where both backends are llvmpipe, within GL's rules where EGL is a GPU's driver (the
+    tolerance of ``assert_same_raster``). Skipped, naming the backend, where one is missing."""
+    egl, osmesa = require_backend("egl"), require_backend("osmesa")
     args = ["render", "--meshes", SAMPLE_MESHES / "chair", "--workers", "1", *FAST]
     run_cli(main, [*args, "--out", tmp_path / "egl", "--backend", "egl"])
     res = run_cli(main, [*args, "--out", tmp_path / "osmesa", "--backend", "osmesa"])
     assert "backend osmesa" in res.output
     a, b = _shard_arrays(tmp_path / "egl"), _shard_arrays(tmp_path / "osmesa")
-    for k in ("images", "masks"):
-        key = next(n for n in a if n.endswith("/" + k))
-        np.testing.assert_array_equal(a[key], b[key], err_msg=k)
+    key = {k: next(n for n in a if n.endswith("/" + k)) for k in ("images", "masks")}
+    if egl == osmesa:  # one rasteriser behind both: bit for bit
+        for k in ("images", "masks"):
+            np.testing.assert_array_equal(a[key[k]], b[key[k]], err_msg=k)
+    assert_same_raster(a[key["images"]], a[key["masks"]], b[key["images"]], b[key["masks"]], f"{egl} vs {osmesa}")
 
 
 def test_resume_after_kill_keeps_finished_shards(tmp_path):

@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from sc3d_cli.train import main
-from tests.conftest import TRAINED_RUN_STEPS, run_cli
+from tests.conftest import TRAINED_RUN_STEPS, assert_learnt, run_cli
 
 TINY = ["--tiny", "--base-channels", "4", "--no-progress", "--log-every", "1"]
 
@@ -23,6 +23,7 @@ def read_csv(path: Path) -> list[dict]:
         return list(csv.DictReader(f))
 
 
+@pytest.mark.learnt
 def test_fit_writes_the_run_and_learns(trained_run, sample_shards):
     from sc3d_train.checkpoint import build_model, load_model
     from sc3d_train.config import RunConfig
@@ -41,7 +42,6 @@ def test_fit_writes_the_run_and_learns(trained_run, sample_shards):
     assert [int(r["step"]) for r in rows] == list(range(TRAINED_RUN_STEPS))
     total = np.array([float(r["total"]) for r in rows])
     assert np.isfinite(total).all()
-    assert total[-20:].mean() < 0.85 * total[:10].mean(), (total[:10].mean(), total[-20:].mean())
     assert float(rows[0]["samples_per_s"]) > 0
     assert all(0.0 < float(r["data_wait"]) < 1.0 for r in rows)  # the loop waited for data, not only
 
@@ -52,8 +52,9 @@ def test_fit_writes_the_run_and_learns(trained_run, sample_shards):
     untrained = build_model(cfg).eval()
     trained_iou = summarize(predict_dataset(model, ds, "cpu", 96)[0])["overall"]["voxel_iou_0.4"]
     untrained_iou = summarize(predict_dataset(untrained, ds, "cpu", 96)[0])["overall"]["voxel_iou_0.4"]
-    assert trained_iou > untrained_iou + 0.05, (untrained_iou, trained_iou)
-    assert trained_iou > 0.25
+    assert_learnt(("loss, last 20 / first 10 steps", total[-20:].mean() / total[:10].mean(), "<", 0.85),
+                  ("train IoU@0.4 gain over the untrained net", trained_iou - untrained_iou, ">", 0.05),
+                  ("train IoU@0.4", trained_iou, ">", 0.25))
 
 
 def interrupt_at(run: Path, copy: Path, step: int) -> None:
@@ -212,10 +213,12 @@ def test_nan_loss_stops_with_step_and_checkpoint(sample_shards, tmp_path):
 
 
 def test_ddp_two_cpu_ranks_resume_exactly(sample_shards, tmp_path):
-    """torchrun with 2 processes (gloo on the CPU) and the same command: the run completes, only
-    rank 0 reports and writes, and the checkpoint holds both ranks' RNG states. (Exact resume
-    under DDP was checked by hand: 2 steps + --resume to 4 logs the losses of 4 steps at once;
-    one launch here keeps the suite's time budget.)"""
+    """torchrun with 2 processes (gloo on the CPU, ``--device cpu`` also on a GPU machine: on one
+    with a single GPU the default ``auto`` would give rank 1 a ``cuda:1`` that does not exist)
+    and the same command: the run completes, only rank 0 reports and writes, and the checkpoint
+    holds both ranks' RNG states. (Exact resume under DDP was checked by hand: 2 steps +
+    --resume to 4 logs the losses of 4 steps at once; one launch here keeps the suite's time
+    budget.)"""
     import os
     import subprocess
     import sys
@@ -228,7 +231,7 @@ def test_ddp_two_cpu_ranks_resume_exactly(sample_shards, tmp_path):
         # --standalone: torchrun binds a free port itself (picking one here and handing it over
         # raced with other processes taking it in between)
         cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
-               str(script), "fit",
+               str(script), "fit", "--device", "cpu",
                "--batch-size", "4", *TINY, "--checkpoint-every", "2", *map(str, args)]
         env = {**os.environ, "OMP_NUM_THREADS": "1"}
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env,

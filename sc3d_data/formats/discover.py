@@ -28,10 +28,10 @@ from pathlib import Path
 from typing import Iterable
 
 from sc3d_data.formats.shapenet import is_synset_id, resolve_categories, resolve_category
+from sc3d_data.io.materials import SHAPENET_V2_MESH
 
 MESH_EXTENSIONS = (".obj", ".glb", ".gltf", ".ply", ".off", ".stl")
 SHAPENET_V1_MESH = ("model.obj",)
-SHAPENET_V2_MESH = ("models", "model_normalized.obj")
 
 
 @dataclass(frozen=True)
@@ -89,11 +89,10 @@ def _walk(root: Path, problems: list[dict]) -> list[tuple[Path, list[str]]]:
                                                  "not a mesh (its contents are searched)", skipped=True))
                 elif child.is_file(follow_symlinks=True):
                     files.append(child.name)
-                elif child.is_symlink():
+                elif child.is_symlink() and not os.path.exists(child.path):
                     problems.append(_problem(folder / child.name, "broken symlink"))
                 elif mesh_name:
-                    problems.append(_problem(folder / child.name, "not a regular file (FIFO, socket "
-                                             "or device); not read", skipped=True))
+                    problems.append(_problem(folder / child.name, _special_reason(child.path), skipped=True))
             except OSError as e:
                 problems.append(_problem(folder / child.name, f"cannot be read ({e.strerror or e})"))
         out.append((folder, files))
@@ -102,6 +101,15 @@ def _walk(root: Path, problems: list[dict]) -> list[tuple[Path, list[str]]]:
 
     visit(root, frozenset())
     return out
+
+
+def _special_reason(path: str) -> str:
+    """Why ``path`` (not a regular file or folder) is not read: its kind, and where a symlink leads."""
+    from sc3d_data.io.meshes import file_kind
+
+    kind = file_kind(os.stat(path).st_mode)
+    via = f", a symlink to {os.path.realpath(path)}" if os.path.islink(path) else ""
+    return f"not a regular file ({kind}{via}); not read"
 
 
 def _shapenet_model_dir(folder: Path) -> Path | None:

@@ -5,20 +5,21 @@ with their node transforms). ``load_mesh_triangles`` returns exactly the triangl
 renderer draws, in the SOURCE frame of the file (node transforms baked in); the canonical
 frame is reached with the 4x4 ``to_canonical`` of ``sc3d_data.geometry.normalize``.
 
-Bad input raises ``MeshError`` whose message names the file and the problem: a file that does
-not parse, no triangles, NaN/inf vertices, zero surface area, more than ``max_faces``
-triangles, or (``bad_texture="fail"``, the default) a texture that is referenced but cannot be
-read or decoded, coordinates beyond float32 range (the renderer draws in float32), or an OBJ
-whose text cannot be decoded. Warnings (recorded in the index, the object still renders): an
-OBJ's ``.mtl`` that is missing, and a texture read from outside the dataset folder (an absolute
-path or ``../``; ``outside_textures="refuse"`` makes that a failure). Loaders that hang are handled by the per-object time limit of
-``sc3d_data.pipeline.local_pool`` (a worker is killed), not here.
+Bad input raises ``MeshError`` whose message names the file and the problem: a path that is not
+a regular file (FIFO, device, a symlink to one: never opened), a file over ``max_file_bytes``
+(checked before parsing), a file that does not parse, no triangles, NaN/inf vertices, zero
+surface area, more than ``max_faces`` triangles, coordinates beyond float32 range (the renderer
+draws in float32), an OBJ whose text cannot be decoded, or (``bad_texture="fail"``, the default)
+a texture that is named but cannot be read, decoded or loaded. Warnings (recorded in the index,
+the object still renders): an OBJ's ``.mtl`` that is missing, textures not loaded
+(``bad_texture="fallback"``), and material or texture files outside the dataset folder, which
+are never read (``outside_textures="refuse"`` makes them a failure). Which files a mesh may read
+is ``sc3d_data.io.materials``' business. Loaders that hang are handled by the per-object time
+limit of ``sc3d_data.pipeline.local_pool`` (a worker is killed), not here.
 """
 from __future__ import annotations
 
-import json
-import re
-import struct
+import os
 from pathlib import Path
 
 import numpy as np
@@ -34,22 +35,26 @@ DEFAULT_MAX_FACES = 1_000_000
 FLOAT32_SAFE = 1e18
 #: what to do with a texture read from outside the dataset folder
 OUTSIDE_TEXTURES = ("warn", "refuse")
+#: mesh files larger than this (bytes) are rejected before parsing (``--max-file-mib``); the
+#: largest real meshes (ShapeNet, Objaverse GLBs with textures) stay far below it
+DEFAULT_MAX_FILE_BYTES = 2 * 2**30
 
 
 class MeshError(ValueError):
     """A mesh file that cannot be used; the message names the file and the reason."""
 
 
-def load_scene(path: Path):
-    """Parse ``path`` into a ``trimesh.Scene`` (no validation). Raises ``MeshError`` when the
-    file does not parse."""
+def load_scene(path: Path, resolver=None):
+    """Parse ``path`` into a ``trimesh.Scene`` (no validation), reading the files it names
+    through ``resolver`` (``io.materials.make_resolver``; None: trimesh's own, rooted at the
+    mesh's folder). Raises ``MeshError`` when the file does not parse."""
     import trimesh
 
     path = Path(path)
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise MeshError(f"{path}: unsupported mesh format {path.suffix!r} (use one of {', '.join(MESH_SUFFIXES)})")
     try:
-        scene = trimesh.load(str(path), force="scene", process=False)
+        scene = trimesh.load(str(path), force="scene", process=False, resolver=resolver)
     except (UnicodeDecodeError, ModuleNotFoundError) as e:  # text formats: bytes that no charset decodes
         raise MeshError(f"{path}: cannot decode the file as text (not UTF-8 and no other encoding "
                         f"detected; {type(e).__name__}: {e})") from e
@@ -102,147 +107,69 @@ def validate_triangles(vertices: np.ndarray, faces: np.ndarray, source: str = "m
         raise MeshError(f"{source}: zero surface area (all {len(faces)} triangles degenerate)")
 
 
-# ----------------------------------------------------------------------------- textures
-def _image_problem(data_or_path) -> str | None:
-    from PIL import Image
-    import io
+# ----------------------------------------------------------------------------- the file itself
+def check_mesh_file(path: Path, max_file_bytes: int = DEFAULT_MAX_FILE_BYTES) -> None:
+    """Raise ``MeshError`` naming ``path`` when it is not a regular file (a FIFO, a device, a
+    symlink to one: never opened) or is larger than ``max_file_bytes`` (checked before parsing)."""
+    import stat
 
     try:
-        src = io.BytesIO(data_or_path) if isinstance(data_or_path, (bytes, bytearray)) else data_or_path
-        with Image.open(src) as im:
-            im.load()
-    except Exception as e:
-        return f"{type(e).__name__}: {e}"
-    return None
+        st = os.stat(path)
+    except OSError as e:
+        raise MeshError(f"{path}: cannot be read ({e.strerror or e})") from e
+    if not stat.S_ISREG(st.st_mode):
+        via = f" (a symlink to {os.path.realpath(path)})" if os.path.islink(path) else ""
+        raise MeshError(f"{path}: not a regular file but a {file_kind(st.st_mode)}{via}; not read")
+    if max_file_bytes and st.st_size > max_file_bytes:
+        raise MeshError(f"{path}: {st.st_size:,} bytes, over the limit of {max_file_bytes:,} per mesh file "
+                        f"(--max-file-mib); not parsed")
 
 
-def _outside(ref: Path, root: Path | None) -> bool:
-    """True when ``ref`` (a texture or material file) resolves outside the folder ``root``."""
-    if root is None:
-        return False
-    try:
-        Path(ref).resolve().relative_to(Path(root).resolve())
-    except ValueError:
-        return True
-    return False
+def file_kind(mode: int) -> str:
+    """``"FIFO"``, ``"character device"``, ... for an ``os.stat`` ``st_mode``."""
+    import stat
 
-
-def _obj_materials(path: Path, root: Path | None) -> tuple[list[str], list[str], list[Path]]:
-    """``(problems, warnings, referenced files)`` of an OBJ's materials: problems = textures
-    missing or unreadable; warnings = ``mtllib`` files that are missing; referenced = every
-    ``.mtl`` and texture path it names (for the outside-the-folder check)."""
-    problems, warnings, refs = [], [], []
-    text = path.read_text(errors="replace")
-    for lib in re.findall(r"^\s*mtllib\s+(.+?)\s*$", text, flags=re.M):
-        mtl = path.parent / lib
-        refs.append(mtl)
-        if not mtl.is_file():
-            warnings.append(f"material file {lib} not found; rendered with the default material")
-            continue
-        for tex in re.findall(r"^\s*map_Kd\s+(?:-\S+\s+\S+\s+)*(.+?)\s*$", mtl.read_text(errors="replace"), flags=re.M):
-            tex_path = mtl.parent / tex.replace("\\", "/")
-            refs.append(tex_path)
-            if not tex_path.is_file():
-                problems.append(f"texture {tex} (from {mtl.name}) not found")
-            elif (p := _image_problem(tex_path)) is not None:
-                problems.append(f"texture {tex} (from {mtl.name}) unreadable ({p})")
-    return problems, warnings, refs
-
-
-def _gltf_texture_problems(path: Path) -> tuple[list[str], list[str], list[Path]]:
-    raw = path.read_bytes()
-    binary = None
-    if path.suffix.lower() == ".glb":
-        if len(raw) < 20 or raw[:4] != b"glTF":
-            return [], [], []  # the parser reports it
-        json_len = struct.unpack_from("<I", raw, 12)[0]
-        doc = json.loads(raw[20:20 + json_len])
-        rest = 20 + json_len
-        if len(raw) >= rest + 8:
-            bin_len = struct.unpack_from("<I", raw, rest)[0]
-            binary = raw[rest + 8:rest + 8 + bin_len]
-    else:
-        doc = json.loads(raw)
-    problems, refs = [], []
-    for i, image in enumerate(doc.get("images", [])):
-        if "uri" in image:
-            uri = image["uri"]
-            if uri.startswith("data:"):
-                continue
-            img_path = path.parent / uri
-            refs.append(img_path)
-            if not img_path.is_file():
-                problems.append(f"texture image {i} ({uri}) not found")
-                continue
-            p = _image_problem(img_path)
-        elif "bufferView" in image and binary is not None:
-            view = doc["bufferViews"][image["bufferView"]]
-            start = view.get("byteOffset", 0)
-            p = _image_problem(binary[start:start + view["byteLength"]])
-        else:
-            continue
-        if p is not None:
-            problems.append(f"texture image {i} unreadable ({p})")
-    return problems, [], refs
-
-
-def material_report(path: Path, root: Path | None = None) -> tuple[list[str], list[str]]:
-    """``(problems, warnings)`` of the materials of ``path``. Problems: referenced textures
-    that are missing or do not decode (OBJ via its MTL files, GLTF external images, GLB
-    embedded images). Warnings: missing ``.mtl`` files, and material/texture files that lie
-    outside the folder ``root`` (None: no such check)."""
-    path = Path(path)
-    try:
-        suffix = path.suffix.lower()
-        if suffix == ".obj":
-            problems, warnings, refs = _obj_materials(path, root)
-        elif suffix in (".glb", ".gltf"):
-            problems, warnings, refs = _gltf_texture_problems(path)
-        else:
-            return [], []
-    except (OSError, ValueError, KeyError, IndexError, struct.error):
-        return [], []  # not parseable: load_scene reports it
-    seen = set()
-    for ref in refs:
-        if _outside(ref, root) and str(ref) not in seen:
-            seen.add(str(ref))
-            warnings.append(f"reads {ref.resolve()} from outside the dataset folder {Path(root).resolve()}")
-    return problems, warnings
-
-
-def texture_problems(path: Path) -> list[str]:
-    """Referenced textures of ``path`` that are missing or do not decode; empty when all are
-    readable (``material_report``'s problems)."""
-    return material_report(path)[0]
+    kinds = ((stat.S_ISDIR, "folder"), (stat.S_ISFIFO, "FIFO"), (stat.S_ISCHR, "character device"),
+             (stat.S_ISBLK, "block device"), (stat.S_ISSOCK, "socket"))
+    return next((name for test, name in kinds if test(mode)), "special file")
 
 
 # ----------------------------------------------------------------------------- public API
 def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str = "fail",
-              root: Path | None = None, outside_textures: str = "warn"):
+              root: Path | None = None, outside_textures: str = "warn",
+              max_file_bytes: int = DEFAULT_MAX_FILE_BYTES):
     """Load and validate one mesh file as a single object.
 
     Returns ``(scene, vertices, faces, warnings)``: the ``trimesh.Scene`` to render, its
     triangles in the source frame (``vertices [n,3]`` float64, ``faces [m,3]`` int64, node
     transforms baked in) and a list of warnings (textures replaced by material colours when
     ``bad_texture="fallback"``, missing ``.mtl`` files, material files outside the folder
-    ``root``: refused when ``outside_textures="refuse"``). Raises ``MeshError`` on bad input
-    (see module doc)."""
+    ``root``, never read: refused when ``outside_textures="refuse"``). Raises ``MeshError`` on
+    bad input (see module doc)."""
+    from sc3d_data.io.materials import loader_misses, make_resolver, material_report
+
     path = Path(path)
     if bad_texture not in ("fail", "fallback"):
         raise ValueError(f"bad_texture must be 'fail' or 'fallback', not {bad_texture!r}")
     if outside_textures not in OUTSIDE_TEXTURES:
         raise ValueError(f"outside_textures must be one of {OUTSIDE_TEXTURES}, not {outside_textures!r}")
-    problems, notes = material_report(path, root)
-    if problems and bad_texture == "fail":
-        raise MeshError(f"{path}: {'; '.join(problems)} (use --bad-texture fallback to render with material colours)")
-    outside = [n for n in notes if "outside the dataset folder" in n]
-    if outside and outside_textures == "refuse":
-        raise MeshError(f"{path}: {'; '.join(outside)} (refused by --outside-textures refuse)")
-    scene = load_scene(path)
+    check_mesh_file(path, max_file_bytes)
+    try:
+        report = material_report(path, root, outside_textures)
+    except ValueError as e:
+        raise MeshError(f"{path}: {e} (refused by --outside-textures refuse)") from e
+    if report.problems and bad_texture == "fail":
+        raise MeshError(f"{path}: {'; '.join(report.problems)} (use --bad-texture fallback to render with "
+                        "material colours)")
+    resolver = make_resolver(path, root)
+    scene = load_scene(path, resolver)
+    missed = loader_misses(resolver, report)
+    if missed and bad_texture == "fail":
+        raise MeshError(f"{path}: {'; '.join(missed)} (use --bad-texture fallback to render with material colours)")
     vertices, faces = scene_triangles(scene)
     validate_triangles(vertices, faces, str(path), max_faces)
-    warnings = ([f"{path}: {p}; rendered with material colours" for p in problems]
-                + [f"{path}: {n}" for n in notes])
+    warnings = ([f"{path}: {p}; rendered with material colours" for p in report.problems + missed]
+                + [f"{path}: {n}" for n in report.warnings + report.outside])
     return scene, vertices, faces, warnings
 
 

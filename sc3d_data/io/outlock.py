@@ -1,7 +1,7 @@
 """One writer per dataset folder: an exclusive, non-blocking ``flock`` on ``FOLDER/.sc3d.lock``.
 
-``render``, ``voxelize`` (shards) and any other command that rewrites shards or ``index.json``
-hold it for their whole run; a second writer is refused at once with one line naming the folder
+``render``, ``voxelize`` (shards), ``import-r2n2``, ``merge`` and ``sc3d-train fit`` (on its run
+folder) hold it for their whole run; a second writer is refused at once with one line naming the folder
 (and the PID that holds it), and the first one is not disturbed. The lock is released by the
 kernel when the holder exits, also on SIGKILL, so a stale lock file never blocks a rerun.
 """
@@ -14,6 +14,21 @@ from pathlib import Path
 from typing import Iterator
 
 LOCK_NAME = ".sc3d.lock"
+#: descriptors of the locks this process holds; a forked child (a DataLoader worker, ...) closes
+#: its copies at once, so that a child outliving the command never keeps the folder locked
+_HELD: set[int] = set()
+
+
+def _close_in_child() -> None:
+    for fd in _HELD:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+    _HELD.clear()
+
+
+os.register_at_fork(after_in_child=_close_in_child)
 
 
 class LockError(RuntimeError):
@@ -21,12 +36,18 @@ class LockError(RuntimeError):
 
 
 @contextmanager
-def exclusive_lock(folder: Path, command: str = "sc3d-data") -> Iterator[Path]:
-    """Hold the write lock of ``folder`` (created if needed) for the ``with`` block; raises
-    ``LockError`` when another process holds it."""
+def exclusive_lock(folder: Path, command: str = "sc3d-data", create: bool = False) -> Iterator[Path]:
+    """Hold the write lock of ``folder`` for the ``with`` block; raises ``LockError`` when another
+    process holds it. ``create``: make ``folder`` (and its parents) if missing, and remove it
+    again at the end when the block left nothing in it but the lock file (a command that failed
+    on its inputs leaves no empty folder behind)."""
     folder = Path(folder)
+    made = create and not folder.exists()
+    if create:
+        folder.mkdir(parents=True, exist_ok=True)
     path = folder / LOCK_NAME
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    held = False
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -34,8 +55,14 @@ def exclusive_lock(folder: Path, command: str = "sc3d-data") -> Iterator[Path]:
             pid, _, what = os.pread(fd, 200, 0).decode(errors="replace").strip().partition(" ")
             raise LockError(f"{folder}: another process (PID {pid or '?'}: {what or 'unknown'}) is writing to this folder; "
                             f"wait for it to finish or use another --out") from None
+        held = True
+        _HELD.add(fd)
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()} {command}\n".encode(), 0)
         yield path
     finally:
+        _HELD.discard(fd)
+        if made and held and os.listdir(folder) == [LOCK_NAME]:
+            path.unlink()  # still held: nobody else can have taken it
+            folder.rmdir()
         os.close(fd)  # closing the descriptor releases the lock

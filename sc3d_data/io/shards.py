@@ -113,10 +113,14 @@ def io_reason(e: BaseException, folder: Path | None = None, need: int = 0) -> st
 
 def one_line(e: BaseException) -> str:
     """The message a command prints for ``e``: an ``OSError`` with a file name becomes
-    ``FILE: reason``; anything else its own (file-naming) message."""
+    ``FILE: reason``; anything else its own (file-naming) message; control characters and
+    undecodable bytes of names escaped (``io.names.printable``; newlines of a message that is
+    several lines by design are kept)."""
+    from sc3d_data.io.names import printable
+
     if isinstance(e, OSError) and e.filename and str(e.filename) not in str(e.strerror or ""):
-        return f"{e.filename}: {io_reason(e)}"
-    return io_reason(e) if isinstance(e, OSError) else str(e)
+        return printable(f"{e.filename}: {io_reason(e)}", keep_newlines=True)
+    return printable(io_reason(e) if isinstance(e, OSError) else str(e), keep_newlines=True)
 
 
 def package_version() -> str:

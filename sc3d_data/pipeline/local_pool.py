@@ -13,7 +13,8 @@ back (``executor.Job``; default :data:`executor.RENDER`). Per-object time limit
 (``config.timeout_s``, counted from when the worker starts the object): a worker that takes
 longer (a loader that hangs, a huge mesh) is killed and replaced and the object is recorded as
 a failure; a worker that crashes is handled the same way (the next run retries it,
-``retry_failed``); the task queued behind it goes to another worker.
+``retry_failed``); the task queued behind it goes to another worker. With ``config.gpus``,
+worker slot ``i`` renders on EGL device ``gpus[i % len(gpus)]`` (``devices.py``).
 
 Implements ``sc3d_data.pipeline.executor.Executor`` (as ``ray_executor.RayExecutor`` does).
 """
@@ -24,6 +25,7 @@ import os
 import time
 from multiprocessing.connection import wait
 
+from sc3d_data.pipeline.devices import worker_environ
 from sc3d_data.pipeline.job import RENDER, Job
 from sc3d_data.pipeline.render_job import THREAD_ENV, Task
 from sc3d_data.io.shards import write_shard
@@ -108,9 +110,12 @@ def _signal_name(signum: int) -> str:
 
 
 class _Worker:
-    def __init__(self, ctx, job: Job, config, backend: str):
+    def __init__(self, ctx, job: Job, config, backend: str, slot: int = 0):
         self.conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_worker_main, args=(child, job, config, backend, dict(os.environ)),
+        self.slot = slot  # its GPU: ``devices.device_of_slot(slot, config.gpus)`` (render jobs)
+        gpus = tuple(getattr(config, "gpus", ())) if job.gl else ()
+        self.proc = ctx.Process(target=_worker_main, args=(child, job, config, backend,
+                                                           worker_environ(os.environ, slot, gpus)),
                                 daemon=True)
         self.proc.start()
         child.close()
@@ -135,7 +140,7 @@ class WorkerPool:
             os.environ.setdefault(k, v)
         self.ctx = worker_context(backend if job.gl else None)
         self.config, self.backend, self.job = config, backend, job
-        self.workers = [_Worker(self.ctx, job, config, backend) for _ in range(n)]
+        self.workers = [_Worker(self.ctx, job, config, backend, slot) for slot in range(n)]
 
     def wait_ready(self) -> str | None:
         """Block until every worker is set up (has a renderer); return None, or the first start-up error
@@ -162,7 +167,7 @@ class WorkerPool:
         """Kill ``w`` and start a worker in its place; the tasks it had queued behind the one it
         was working on (to be sent again)."""
         w.kill()
-        new = _Worker(self.ctx, self.job, self.config, self.backend)
+        new = _Worker(self.ctx, self.job, self.config, self.backend, w.slot)
         self.workers[self.workers.index(w)] = new
         return w.tasks[1:]
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sc3d_data.pipeline.resume import settings_differ
-from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, file_sha256, load_index, write_index
+from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, file_sha256, load_index, shard_path, write_index
 from sc3d_data.io.shard_reader import verify_shard
 
 
@@ -147,7 +147,8 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
     parts = check_parts(dirs)
     out.mkdir(parents=True, exist_ok=True)
     with exclusive_lock(out, "sc3d-data merge"):
-        if (out / INDEX_NAME).is_file() and not overwrite and "merged" not in load_index(out):
+        old = load_index(out) if (out / INDEX_NAME).is_file() else {}
+        if old and not overwrite and "merged" not in old:
             raise MergeError(f"{out}: already holds a dataset that is not a merge; use another OUT or --overwrite")
         shards, objects, failures, skipped, warnings = [], [], [], [], []
         counts = {"linked": 0, "copied": 0, "kept": 0}
@@ -166,8 +167,8 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
             failures += index.get("failures", [])
             skipped += index.get("skipped", [])
             warnings += index.get("warnings", [])
-        for stale in set(out.glob("shard-*.h5")) - {out / s["file"] for s in shards}:
-            stale.unlink()  # left by an earlier merge of other parts
+        for stale in {e["file"] for e in old.get("shards", [])} - {s["file"] for s in shards}:
+            shard_path(out, stale).unlink(missing_ok=True)  # listed by an earlier merge of other parts
         first = parts[0]
         extra = {"merged": {"parts": [p["_dir"] for p in parts], "count": first["part"]["count"],
                             "rule": first["part"]["rule"], "plan_sha256": first["part"]["plan_sha256"],

@@ -5,7 +5,9 @@ are assigned on the WHOLE collection before partitioning, so a part gives each o
 split as a run over everything. With ``--part I/N`` the plan keeps the objects of part ``I``
 (``partition.part_of``) and numbers them ``0..`` in the same order; chunk ``c`` of a run is its
 plan positions ``c*K .. c*K+K-1`` (``K = objects_per_shard``). Discovery problems and skipped
-files are reported by part 0 only, so merged parts list each once.
+files are reported by part 0 only, so merged parts list each once. A mesh whose path holds a name
+that is not valid UTF-8 is a discovery problem (``io.names.split_not_utf8``): shards store names
+as UTF-8 text.
 """
 from __future__ import annotations
 
@@ -34,8 +36,12 @@ def make_plan(config: RenderConfig) -> Plan:
     from sc3d_data.formats.discover import discover_meshes
     from sc3d_data.formats.splits import assign_splits
 
+    from sc3d_data.io.names import split_not_utf8
+
     entries, problems = discover_meshes(Path(config.meshes), categories=config.categories,
                                         category_override=config.category)
+    entries, name_problems = split_not_utf8(entries, lambda e: e.path, config.meshes)
+    problems += name_problems
     splits, split_desc, split_problems = assign_splits(entries, spec=config.split, seed=config.seed,
                                                        split_file=config.split_file)
     skipped = list(split_problems) + [p for p in problems if p.get("skipped")]

@@ -108,10 +108,16 @@ IMPORT = Job("import", import_task)
 
 def plan_models(config: ImportConfig):
     """``(tasks, split description, part record, problems, skipped)`` of ``config``: the models
-    with a split, in (synset, model id) order, this run's part of them numbered from 0."""
+    with a split, in (synset, model id) order, this run's part of them numbered from 0. A model
+    folder whose name is not valid UTF-8 is a problem (``io.names.split_not_utf8``)."""
     from sc3d_data.formats.splits import assign_splits
 
+    from sc3d_data.io.names import split_not_utf8
+
     models, problems = find_r2n2_models(config.renderings, config.voxels, config.categories)
+    models, name_problems = split_not_utf8(models, lambda m: m.rendering_dir.parent, config.renderings,
+                                           "not imported")
+    problems += name_problems
     splits, split_desc, split_problems = assign_splits(models, spec=config.split, seed=config.seed,
                                                        split_file=config.split_file)
     skipped = list(split_problems)
@@ -151,12 +157,12 @@ def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
     from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index, load_index
     from sc3d_data.io.shards import write_index as write_index_file
     from sc3d_data.pipeline.executor import finished_chunks, start_executor
-    from sc3d_data.pipeline.resume import check_resume, clean_tmp, empty_state, remaining, resume_state
+    from sc3d_data.pipeline.resume import (check_resume, clean_tmp, empty_state, remaining, remove_listed_outputs,
+                                           resume_state)
 
     t0 = time.monotonic()
     if config.overwrite:
-        for p in list(out.glob("shard-*.h5")) + [out / INDEX_NAME]:
-            p.unlink(missing_ok=True)
+        remove_listed_outputs(out)
     clean_tmp(out)
     settings = config.settings()
     tasks, split_desc, part, problems, skipped = plan_models(config)

@@ -119,6 +119,7 @@ def job_task_split(job: Job, config, backend: str, task):
     or when the result is not an ``ObjectRecord``)."""
     from sc3d_data.io.shards import ObjectRecord
 
+    _use_ray_gpu(job, config)
     pos, status, payload = timed_task(job, config, backend, task)
     if status != "ok" or not isinstance(payload[0], ObjectRecord):
         return (pos, status, payload), None
@@ -137,7 +138,26 @@ def _write_shard_task(path: str, settings: dict, *records) -> str:
 
 def _probe_backend(job: Job, config) -> str:
     """Make this worker's state (renderer); the GL backend it got."""
+    _use_ray_gpu(job, config)
     return job.start(config, config.backend if job.gl else "cpu")
+
+
+def _gpu_share(job: Job, config, slots: int) -> float:
+    """GPUs one task asks Ray for: with ``--gpus``, a share of one GPU such that ``slots`` tasks
+    fit on ``len(gpus)`` GPUs (each task draws on one GPU); else none."""
+    gpus = tuple(getattr(config, "gpus", ())) if job.gl else ()
+    return min(1.0, len(gpus) / slots) if gpus else 0.0
+
+
+def _use_ray_gpu(job: Job, config) -> None:
+    """In a Ray task with ``--gpus``: draw on the GPU Ray assigned to this task (its id taken as
+    the EGL device index; the renderer reads it when it makes its context)."""
+    import ray
+
+    from sc3d_data.pipeline.devices import DEVICE_ENV
+
+    if job.gl and getattr(config, "gpus", ()) and ray.get_gpu_ids():
+        os.environ.setdefault(DEVICE_ENV, str(int(ray.get_gpu_ids()[0])))
 
 
 class RayExecutor:
@@ -146,7 +166,8 @@ class RayExecutor:
     def __init__(self, ray, config, backend: str, slots: int, owns_cluster: bool, job: Job = RENDER):
         self.ray, self.config, self.backend, self.slots, self.job = ray, config, backend, slots, job
         self.owns_cluster = owns_cluster
-        self.remote = ray.remote(job_task_split).options(num_cpus=1, num_returns=2, max_retries=config.retries,
+        self.remote = ray.remote(job_task_split).options(num_cpus=1, num_gpus=_gpu_share(job, config, slots),
+                                                            num_returns=2, max_retries=config.retries,
                                                             retry_exceptions=False)
         # compressing a shard runs beside the renders, as the local pool's main process does
         self.writer = ray.remote(_write_shard_task).options(num_cpus=0, max_retries=config.retries)
@@ -166,7 +187,8 @@ class RayExecutor:
                 owns = True
         slots = int(config.workers or ray.cluster_resources().get("CPU", n_workers))
         slots = max(1, slots)
-        probe = ray.remote(_probe_backend).options(num_cpus=1, max_retries=0)
+        probe = ray.remote(_probe_backend).options(num_cpus=1, num_gpus=_gpu_share(job, config, slots),
+                                                   max_retries=0)
         try:
             backends = ray.get([probe.remote(job, config) for _ in range(slots)])
         except Exception as e:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from sc3d_data.geometry.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS, ViewSettings
-from sc3d_data.io.meshes import DEFAULT_MAX_FACES
+from sc3d_data.io.meshes import DEFAULT_MAX_FACES, DEFAULT_MAX_FILE_BYTES
 from sc3d_data.pipeline.partition import Part
 from sc3d_data.io.shards import ObjectRecord, border_clipped, encode_arrays
 
@@ -25,7 +25,7 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 SAMPLE_MESHES = REPO_ROOT / "assets" / "sample_meshes"
 #: settings that do not change the output; they may differ between a run and its resume
 RUNTIME_ONLY = ("workers", "progress", "timeout_s", "retry_failed", "part", "executor", "address",
-                "retries")
+                "retries", "gpus")
 #: largest framebuffer side the renderer asks for (GL_MAX_RENDERBUFFER_SIZE of Mesa and NVIDIA)
 MAX_ATLAS_SIDE = 16384
 MAX_VOXEL_RESOLUTION = 512
@@ -60,6 +60,7 @@ class RenderConfig:
     objects_per_shard: int = 256
     chunks: str = "view"  # HDF5 chunk layout of the images (sc3d_data.io.shards.CHUNK_LAYOUTS)
     max_faces: int = DEFAULT_MAX_FACES
+    max_file_mib: int = DEFAULT_MAX_FILE_BYTES // 2**20  # mesh files over this are not parsed
     bad_texture: str = "fail"
     outside_textures: str = "warn"
     timeout_s: float = 120.0
@@ -71,6 +72,7 @@ class RenderConfig:
     executor: str = "local"  # local | ray (slurm runs parts through slurm_executor)
     address: str | None = None  # ray: cluster address, None = a local cluster for the run
     retries: int = 3  # ray: re-runs of an object whose worker died
+    gpus: tuple[int, ...] = ()  # EGL devices the workers are spread over (devices.py); () = as today
 
     def validate(self, n_workers: int = 1) -> None:
         """Raise ``ValueError`` naming the option when a value is out of what the renderer or
@@ -89,8 +91,8 @@ class RenderConfig:
             raise ValueError(f"--voxel-resolution {self.voxel_resolution}: must be 2 to {MAX_VOXEL_RESOLUTION}")
         if not self.timeout_s > 0:
             raise ValueError(f"--timeout {self.timeout_s}: must be > 0 seconds")
-        if self.objects_per_shard < 1 or self.max_faces < 1:
-            raise ValueError("--objects-per-shard and --max-faces must be >= 1")
+        if self.objects_per_shard < 1 or self.max_faces < 1 or self.max_file_mib < 1:
+            raise ValueError("--objects-per-shard, --max-faces and --max-file-mib must be >= 1")
         per_object = views * self.image_size ** 2 * (4 + (4 if self.depth else 0))
         if self.voxelize:
             per_object += self.voxel_resolution ** 3
@@ -148,7 +150,8 @@ def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord
     root = Path(config.meshes)
     scene, vertices, faces, warnings = load_mesh(Path(task.path), config.max_faces, config.bad_texture,
                                                  root=root if root.is_dir() else root.parent,
-                                                 outside_textures=config.outside_textures)
+                                                 outside_textures=config.outside_textures,
+                                                 max_file_bytes=config.max_file_mib * 2**20)
     try:
         to_canonical = to_canonical_transform(vertices, faces, config.normalize, config.up,
                                               resolve_front(config.front, task.path))

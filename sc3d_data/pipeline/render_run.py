@@ -31,7 +31,8 @@ from pathlib import Path
 from sc3d_data.io.meshes import MESH_SUFFIXES
 from sc3d_data.pipeline.executor import finished_chunks, start_executor
 from sc3d_data.pipeline.render_job import RenderConfig
-from sc3d_data.pipeline.resume import check_out, check_resume, clean_tmp, empty_state, remaining, resume_state
+from sc3d_data.pipeline.resume import (check_out, check_resume, clean_tmp, empty_state, remaining,
+                                       remove_listed_outputs, resume_state)
 from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index
 from sc3d_data.io.shards import write_index as write_index_file
 
@@ -65,9 +66,7 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
     t0 = time.monotonic()
     index_file = out / INDEX_NAME
     if config.overwrite:
-        for p in list(out.glob("shard-*.h5")) + [index_file]:
-            if p.exists():
-                p.unlink()
+        remove_listed_outputs(out)
     clean_tmp(out)
     settings = config.settings(None)
     from sc3d_data.pipeline.plan import make_plan

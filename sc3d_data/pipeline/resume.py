@@ -24,6 +24,28 @@ def clean_tmp(out: Path) -> None:
 
 
 
+def remove_listed_outputs(out: Path) -> None:
+    """``--overwrite``: delete the shards that ``out``'s index lists, then the index. A file the
+    index does not list (a shard-like name the run did not write) is left alone, and so is a
+    listed name that is not a plain file name of ``out`` or leads outside it. An unreadable
+    index is deleted alone."""
+    from sc3d_data.io.shards import INDEX_NAME, ShardError, load_index, shard_path
+
+    index_file = out / INDEX_NAME
+    if not index_file.is_file():
+        return
+    try:
+        entries = load_index(out).get("shards", [])
+    except ShardError:
+        entries = []
+    for entry in entries:
+        try:
+            shard_path(out, entry["file"]).unlink(missing_ok=True)
+        except ShardError:
+            continue
+    index_file.unlink()
+
+
 def check_out(out: Path) -> None:
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: exists and is not a folder")

@@ -41,9 +41,11 @@ def part_configs(config, parts: int, cpus: int, paths: tuple[str, ...] = ("meshe
                  shared_out: bool = False) -> list:
     """One config per array task: part ``i/parts`` into ``OUT/parts/<part dir>`` (``OUT`` itself
     with ``shared_out``), run by the local pool of ``cpus`` workers, input folders ``paths``
-    (fields of ``config``) made absolute."""
+    (fields of ``config``) made absolute. With ``--gpus``, each task asks for ``len(gpus)`` GPUs
+    and spreads its workers over the EGL devices of its allocation, ``0 .. len(gpus) - 1``."""
     root = Path(config.out).resolve()
-    return [dataclasses.replace(config, part=Part(i, parts), workers=cpus, executor="local", progress=False,
+    gpus = {"gpus": tuple(range(len(config.gpus)))} if getattr(config, "gpus", ()) else {}  # its own GPUs
+    return [dataclasses.replace(config, part=Part(i, parts), workers=cpus, executor="local", progress=False, **gpus,
                                 out=root if shared_out else root / "parts" / Part(i, parts).dirname(),
                                 **{k: Path(getattr(config, k)).resolve() for k in paths}) for i in range(parts)]
 
@@ -81,6 +83,9 @@ def submit(fn, configs: list, options: SlurmOptions, log_dir: Path, name: str):
         raise RuntimeError(f"--executor slurm: {e} (--slurm-cluster local runs the array on this machine)") from None
     params = {"timeout_min": options.time_min, "cpus_per_task": options.cpus_per_task, "nodes": 1,
               "tasks_per_node": 1, "name": f"sc3d-{name}"}
+    gpus = len(getattr(configs[0], "gpus", ())) if configs else 0
+    if gpus and options.cluster == "slurm":  # each array task gets its own GPUs (devices.py)
+        params["gpus_per_node"] = gpus
     if options.partition and options.cluster == "slurm":
         params["slurm_partition"] = options.partition
     if options.cluster == "slurm":

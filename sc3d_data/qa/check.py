@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from sc3d_data.geometry.projection import project_voxels
+from sc3d_data.io.names import printable
 from sc3d_data.io.shard_reader import ShardReader, iter_objects, verify_shards
 from sc3d_data.io.shards import ShardError, shard_path
 from sc3d_data.formats.shapenet import category_label
@@ -119,12 +120,12 @@ class CheckReport:
                                  "min_coverage": min(o.mean_coverage for o in self.objects),
                                  "min_near": min(o.mean_near for o in self.objects)}))
         for c, s in rows:
-            lines.append(f"{category_label(c):<22} {s['objects']:>7} {s['mean_iou']:>9.3f} {s['min_iou']:>8.3f} "
+            lines.append(f"{printable(category_label(c)):<22} {s['objects']:>7} {s['mean_iou']:>9.3f} {s['min_iou']:>8.3f} "
                          f"{s['mean_coverage']:>9.3f} {s['min_coverage']:>8.3f} {s['min_near']:>8.3f}")
         lines.append("worst objects (mean coverage, near, IoU over views; worst view and its IoU):")
         for o in self.worst(n_worst):
             lines.append(f"  cov {o.mean_coverage:.3f}  near {o.mean_near:.3f}  IoU {o.mean_iou:.3f}  view {o.worst_view:>2} "
-                         f"{o.iou[o.worst_view]:.3f}  {o.category}/{o.model_id}  ({o.shard} row {o.row})")
+                         f"{o.iou[o.worst_view]:.3f}  {printable(f'{o.category}/{o.model_id}')}  ({o.shard} row {o.row})")
         verdict = "PASS" if self.passed else "FAIL"
         iou_rule = f" or min IoU {self.min_iou}" if self.min_iou > 0 else ""
         lines.append(f"{verdict}: {len(self.failing)} of {len(self.objects)} objects below min coverage "

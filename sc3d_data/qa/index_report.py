@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sc3d_data.io.names import printable
 from sc3d_data.io.shards import load_index
 from sc3d_data.io.shard_reader import verify_shards
 from sc3d_data.formats.shapenet import category_label
@@ -16,7 +17,8 @@ def integrity_report(shard_dir: Path, full: bool = False) -> list[str]:
 
 def index_report(shard_dir: Path, max_failures: int = 50) -> str:
     """Counts per category and split, settings, shards, clipped views, failures with reasons,
-    skipped files and warnings, as plain text."""
+    skipped files and warnings, as plain text; names from disk in ``io.names.printable`` form
+    (no control characters or undecodable bytes reach the terminal)."""
     index = load_index(shard_dir)
     lines = [f"{shard_dir}: sc3d shards (schema {index.get('schema_version')}, sc3d {index.get('sc3d_version')})"
              + ("" if index.get("complete") else "  [INCOMPLETE: rerun the same render command to resume]")]
@@ -26,28 +28,28 @@ def index_report(shard_dir: Path, max_failures: int = 50) -> str:
     header = f"  {'category':<24}" + "".join(f"{s:>8}" for s in splits) + f"{'total':>8}"
     lines.append(header)
     for cat, per in counts.get("by_category", {}).items():
-        lines.append(f"  {category_label(cat):<24}" + "".join(f"{per.get(s, 0):>8}" for s in splits) + f"{sum(per.values()):>8}")
+        lines.append(f"  {printable(category_label(cat)):<24}" + "".join(f"{per.get(s, 0):>8}" for s in splits) + f"{sum(per.values()):>8}")
     lines.append(f"  {'all':<24}" + "".join(f"{counts['by_split'][s]:>8}" for s in splits) + f"{counts.get('total', 0):>8}")
     clipped = index.get("clipped", {})
     lines.append(f"\nclipped views (mask touches the border): {clipped.get('views', 0)} in {clipped.get('objects', 0)} objects")
     lines.append("\nsettings:")
     for k, v in index.get("settings", {}).items():
-        lines.append(f"  {k}: {v}")
+        lines.append(f"  {k}: {printable(v)}")
     if "split" in index:
         lines.append(f"  split rule: {index['split'].get('spec', index['split'].get('method'))}")
     failures = index.get("failures", [])
     lines.append(f"\nfailures: {len(failures)}")
     for f in failures[:max_failures]:
         tries = f" (attempts: {f['attempts']})" if f.get("attempts", 1) > 1 else ""
-        lines.append(f"  {f.get('source')}: {f.get('reason')}{tries}")
+        lines.append(f"  {printable(f.get('source'))}: {printable(f.get('reason'))}{tries}")
     if len(failures) > max_failures:
         lines.append(f"  ... {len(failures) - max_failures} more (see index.json)")
     skipped = index.get("skipped", [])
     if skipped:
         lines.append(f"\nskipped: {len(skipped)}")
-        lines.extend(f"  {s.get('source')}: {s.get('reason')}" for s in skipped[:max_failures])
+        lines.extend(f"  {printable(s.get('source'))}: {printable(s.get('reason'))}" for s in skipped[:max_failures])
     warnings = index.get("warnings", [])
     if warnings:
         lines.append(f"\nwarnings: {len(warnings)}")
-        lines.extend(f"  {w.get('warning')}" for w in warnings[:max_failures])
+        lines.extend(f"  {printable(w.get('warning'))}" for w in warnings[:max_failures])
     return "\n".join(lines)

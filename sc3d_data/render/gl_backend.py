@@ -14,8 +14,8 @@ import numpy as np
 
 BACKENDS = ("egl", "osmesa")
 DEBIAN_PACKAGES = {
-    "egl": "libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libxrender1",
-    "osmesa": "libosmesa6 libgl1 libxrender1",
+    "egl": "libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libglu1-mesa libxrender1",
+    "osmesa": "libosmesa6 libgl1 libglu1-mesa libxrender1",
 }
 
 

@@ -239,8 +239,12 @@ class MeshRenderer:
         if backend == "egl":
             from pyrender.platforms import egl
 
-            platform = egl.EGLPlatform(width, height, device=egl.get_device_by_index(
-                int(os.environ.get("EGL_DEVICE_ID", "0"))))
+            index = int(os.environ.get("EGL_DEVICE_ID", "0"))  # a worker's --gpus device (pipeline/devices.py)
+            devices = egl.query_devices() if index else []
+            if index and index >= len(devices):
+                raise RuntimeError(f"EGL device {index} does not exist: this machine has {len(devices)} "
+                                   f"(--gpus / EGL_DEVICE_ID take 0 to {max(len(devices) - 1, 0)})")
+            platform = egl.EGLPlatform(width, height, device=egl.get_device_by_index(index))
         else:
             from pyrender.platforms.osmesa import OSMesaPlatform
 
@@ -402,7 +406,19 @@ class MeshRenderer:
         return out
 
     def close(self) -> None:
-        """Free the GL context; the renderer cannot be used afterwards."""
-        if self._platform is not None:
-            self._platform.delete_context()
-            self._platform = None
+        """Free the GL context; the renderer cannot be used afterwards. With EGL the context is
+        first released from this thread and the thread's EGL state after the display is
+        terminated (EGL's own teardown order: pyrender destroys a context that is still current,
+        which some drivers, NVIDIA's among them, trip over when the process exits)."""
+        if self._platform is None:
+            return
+        if self.backend == "egl":
+            from OpenGL import EGL
+
+            display = getattr(self._platform, "_egl_display", None)
+            if display is not None:
+                EGL.eglMakeCurrent(display, EGL.EGL_NO_SURFACE, EGL.EGL_NO_SURFACE, EGL.EGL_NO_CONTEXT)
+        self._platform.delete_context()
+        self._platform = None
+        if self.backend == "egl":
+            EGL.eglReleaseThread()

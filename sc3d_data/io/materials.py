@@ -1,0 +1,228 @@
+"""The material and texture files a mesh file names: where they may lie, which exist and decode,
+and the resolver through which trimesh reads them.
+
+Conventions
+-----------
+- **Texture root** (:func:`texture_root`): the folder every ``.mtl``, texture or external glTF
+  file a mesh names must lie in, after resolving ``..`` and symlinks: the dataset folder
+  (``--meshes``), or, without one, the mesh's own folder. A ShapeNetCore v2 mesh
+  (``MODEL/models/model_normalized.obj``, whose ``.mtl`` names ``../images/textureN.jpg``) may
+  also read its model folder ``MODEL/``.
+- A reference is judged from its path alone (``Path.resolve``: string work and symlink reads,
+  no file opened) before any file it names is opened. A reference outside the root is never
+  opened: with ``outside="warn"`` the object renders without it and a warning says so, with
+  ``"refuse"`` the object fails.
+- Everything trimesh asks for goes through :class:`_RootResolver` (rooted at the texture root),
+  which records what it could not serve, so a texture that is named but not loaded is reported
+  (:func:`loader_misses`), never dropped silently.
+"""
+from __future__ import annotations
+
+import io
+import json
+import os
+import re
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from sc3d_data.io.names import printable
+
+__all__ = ["SHAPENET_V2_MESH", "MaterialReport", "loader_misses", "make_resolver", "material_report",
+           "texture_root"]
+
+#: ShapeNetCore v2's mesh inside a model folder
+SHAPENET_V2_MESH = ("models", "model_normalized.obj")
+#: numbers and switches that follow an option of an MTL map statement (``-s 1 1 1``, ``-clamp on``)
+_OPTION_VALUE = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^(on|off)$")
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    return Path(path).resolve().is_relative_to(Path(folder).resolve())
+
+
+def texture_root(path: Path, root: Path | None) -> Path:
+    """The folder the files named by mesh ``path`` must lie in (module doc): ``root`` (the mesh's
+    folder when None), widened to the model folder of a ShapeNetCore v2 mesh that lies inside it."""
+    path = Path(path)
+    base = Path(root) if root is not None else path.parent
+    if path.parts[-2:] == SHAPENET_V2_MESH:
+        model = path.parent.parent
+        if _inside(base, model):
+            return model
+    return base
+
+
+def map_file_name(value: str) -> str:
+    """The file name of an MTL map statement's value, without its options:
+    ``"-s 1 1 1 -clamp on tex.png"`` -> ``"tex.png"``; Windows separators become ``/``."""
+    tokens = value.split()
+    while len(tokens) > 1 and tokens[0].startswith("-") and not _OPTION_VALUE.match(tokens[0]):
+        tokens.pop(0)
+        while len(tokens) > 1 and _OPTION_VALUE.match(tokens[0]):
+            tokens.pop(0)
+    return " ".join(tokens).replace("\\", "/")
+
+
+def _image_problem(data_or_path) -> str | None:
+    from PIL import Image
+
+    try:
+        src = io.BytesIO(data_or_path) if isinstance(data_or_path, (bytes, bytearray)) else data_or_path
+        with Image.open(src) as im:
+            im.load()
+    except Exception as e:  # noqa: BLE001 - any decoder error is the texture's problem
+        return f"{type(e).__name__}: {e}"
+    return None
+
+
+@dataclass
+class MaterialReport:
+    """What the materials of one mesh file name. ``problems``: textures inside the root that are
+    missing or do not decode; ``warnings``: ``.mtl`` files that are missing; ``outside``: one
+    line per file outside the root (never opened); ``reported``: resolved paths of all of these."""
+
+    problems: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    outside: list[str] = field(default_factory=list)
+    reported: set[str] = field(default_factory=set)
+
+
+def _obj_refs(path: Path, root: Path, report: MaterialReport) -> list[tuple[str, Path]]:
+    """``[(name as written, path)]`` of the textures an OBJ's material files name; material files
+    outside ``root`` are noted in ``report`` and not read, missing ones warned about."""
+    refs = []
+    text = path.read_text(errors="replace")
+    for lib in re.findall(r"^\s*mtllib\s+(.+?)\s*$", text, flags=re.M):
+        mtl = path.parent / lib
+        if not _inside(mtl, root):
+            refs.append((lib, mtl))
+            continue
+        if not mtl.is_file():
+            report.warnings.append(f"material file {lib} not found; rendered with the default material")
+            report.reported.add(str(mtl.resolve()))
+            continue
+        for tex in re.findall(r"^\s*map_Kd\s+(.+?)\s*$", mtl.read_text(errors="replace"), flags=re.M | re.I):
+            name = map_file_name(tex)
+            refs.append((f"{name} (from {mtl.name})", mtl.parent / name))
+    return refs
+
+
+def _gltf_refs(path: Path) -> tuple[list[tuple[str, Path]], list[tuple[str, bytes]]]:
+    """``(external images [(name, path)], embedded images [(name, bytes)])`` of a GLTF/GLB."""
+    raw = path.read_bytes()
+    binary = None
+    if path.suffix.lower() == ".glb":
+        if len(raw) < 20 or raw[:4] != b"glTF":
+            return [], []  # the parser reports it
+        json_len = struct.unpack_from("<I", raw, 12)[0]
+        doc = json.loads(raw[20:20 + json_len])
+        rest = 20 + json_len
+        if len(raw) >= rest + 8:
+            bin_len = struct.unpack_from("<I", raw, rest)[0]
+            binary = raw[rest + 8:rest + 8 + bin_len]
+    else:
+        doc = json.loads(raw)
+    external, embedded = [], []
+    for i, image in enumerate(doc.get("images", [])):
+        if "uri" in image and not image["uri"].startswith("data:"):
+            external.append((f"texture image {i} ({image['uri']})", path.parent / image["uri"]))
+        elif "bufferView" in image and binary is not None:
+            view = doc["bufferViews"][image["bufferView"]]
+            start = view.get("byteOffset", 0)
+            embedded.append((f"texture image {i}", binary[start:start + view["byteLength"]]))
+    return external, embedded
+
+
+def material_report(path: Path, root: Path | None = None, outside: str = "warn") -> MaterialReport:
+    """The materials of mesh ``path`` (module doc), judged against :func:`texture_root`.
+
+    Files outside the root are decided on from their paths, before any is opened: with
+    ``outside="refuse"`` a ``ValueError`` lists them; otherwise they are listed in
+    ``report.outside`` and never opened. Then the textures inside are checked: missing or
+    undecodable ones go to ``report.problems``."""
+    path = Path(path)
+    top = texture_root(path, root)
+    report = MaterialReport()
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".obj":
+            refs, embedded = _obj_refs(path, top, report), []
+        elif suffix in (".glb", ".gltf"):
+            refs, embedded = _gltf_refs(path)
+        else:
+            return report
+    except (OSError, ValueError, KeyError, IndexError, TypeError, struct.error):
+        return report  # not parseable: the loader reports it
+    inside = []
+    for name, ref in refs:
+        if _inside(ref, top):
+            inside.append((name, ref))
+        elif str(ref.resolve()) not in report.reported:
+            report.reported.add(str(ref.resolve()))
+            report.outside.append(f"{ref.resolve()} lies outside the dataset folder {top.resolve()}")
+    if report.outside and outside == "refuse":
+        raise ValueError("; ".join(report.outside))
+    report.outside = [f"{o}: not read; rendered without it (--outside-textures)" for o in report.outside]
+    for name, ref in inside:
+        report.reported.add(str(ref.resolve()))
+        if not ref.is_file():
+            report.problems.append(f"texture {name} not found")
+        elif (p := _image_problem(ref)) is not None:
+            report.problems.append(f"texture {name} unreadable ({p})")
+    for name, data in embedded:
+        if (p := _image_problem(data)) is not None:
+            report.problems.append(f"{name} unreadable ({p})")
+    return report
+
+
+def make_resolver(path: Path, root: Path | None):
+    """A trimesh resolver for mesh ``path`` that serves files inside :func:`texture_root` (names
+    relative to the mesh's folder, ``..`` allowed while inside; like trimesh's own it also tries
+    the name without options and the bare file name) and records every name it could not serve."""
+    from trimesh.resolvers import Resolver
+
+    class _RootResolver(Resolver):
+        def __init__(self, folder: Path, top: Path, misses: list):
+            self.parent, self.top, self.misses = Path(os.path.abspath(folder)), top.resolve(), misses
+            self.file_name = printable(Path(path).name)  # trimesh names (and hashes) geometry by it
+
+        def _candidates(self, name: str) -> list[str]:
+            stripped = map_file_name(name.strip())
+            return list(dict.fromkeys([name.strip(), stripped, stripped.lstrip("/"), os.path.basename(stripped)]))
+
+        def get(self, name: str) -> bytes:
+            first = (self.parent / map_file_name(name.strip())).resolve()
+            for cand in self._candidates(name):
+                p = (self.parent / cand).resolve()
+                if p.is_relative_to(self.top) and p.exists():
+                    with open(p, "rb") as f:
+                        return f.read()
+            inside = first.is_relative_to(self.top)
+            self.misses.append((name.strip(), str(first), "not found" if inside else
+                                f"outside the dataset folder {self.top}, not read"))
+            raise FileNotFoundError(f"{name.strip()}: " + self.misses[-1][2])
+
+        def namespaced(self, namespace: str):
+            return _RootResolver(self.parent / namespace, self.top, self.misses)
+
+        def keys(self):
+            for folder, _, names in os.walk(self.parent):
+                for n in names:
+                    yield os.path.relpath(os.path.join(folder, n), self.parent)
+
+        def write(self, name, data):
+            raise PermissionError(f"{name}: sc3d does not write beside meshes")
+
+    return _RootResolver(Path(path).parent, texture_root(path, root), [])
+
+
+def loader_misses(resolver, report: MaterialReport) -> list[str]:
+    """Files the loader asked ``resolver`` for and did not get, except those ``report`` already
+    lists: one line each (``name: reason``)."""
+    lines = []
+    for name, resolved, reason in resolver.misses:
+        if resolved not in report.reported:
+            report.reported.add(resolved)
+            lines.append(f"{name} named by the mesh or its materials was not loaded ({reason})")
+    return lines
