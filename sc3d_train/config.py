@@ -37,7 +37,9 @@ MODES = ("supervised", "semi", "labeled-only", "true-pose-masks")
 #: fields that ``--resume`` may change (they do not alter the optimisation trajectory up to the
 #: checkpoint); every other field must match the checkpoint's config.
 RESUMABLE_FIELDS = ("steps", "checkpoint_every", "workers", "decoded_cache", "log_every", "device", "progress",
-                    "out")
+                    "out", "val_every")
+#: what picks ``checkpoints/best.pt`` among the validations of a run (:mod:`sc3d_train.validation`)
+SELECT_BY = ("iou+pose", "iou", "pose")
 #: the one "tiny" preset (``fit --tiny``, ``ModelConfig.tiny()``): a small network for CPU demos
 #: and tests
 TINY_MODEL = {"base_channels": 8, "shape_dim": 32, "pose_dim": 8}
@@ -173,6 +175,14 @@ class RunConfig(_Plain):
     channels_last: str = setting("auto", "Channels-last memory format (auto: on for CUDA).",
                                  choices=("auto", "on", "off"))
     checkpoint_every: int = setting(500, "Write a checkpoint every N steps (and at the end).")
+    # validation and the choice of checkpoints/best.pt (sc3d_train.validation)
+    val_every: int = setting(100, "Evaluate on the --val-split objects every N steps and at the end, and "
+                             "keep the best as checkpoints/best.pt (0: off).")
+    val_split: str = setting("val", "Split of --shards to validate on: objects never trained on (not the "
+                             "training split; test is refused).")
+    val_views: int = setting(4, "Views per validation object (evenly spaced), to keep validation cheap.")
+    select_by: str = setting("iou+pose", "What picks best.pt: iou+pose (mean IoU@0.4 + share of views "
+                             "within 30 deg), iou, or pose (that share).", choices=SELECT_BY)
     log_every: int = setting(10, "Log the losses every N steps.")
     progress: bool = setting(True, "Show a progress bar.")
     # nested configs
@@ -194,6 +204,11 @@ class RunConfig(_Plain):
             raise ValueError(f"labeled fraction must be in (0, 1], got {self.labeled_fraction}")
         if not 0.0 <= self.semi_labeled_share < 1.0:
             raise ValueError(f"semi labelled share must be in [0, 1), got {self.semi_labeled_share}")
+        if self.val_every and self.val_split in (self.split, "test"):
+            raise ValueError(f"val split {self.val_split!r} must hold objects never trained on and not "
+                             f"the test objects (training split {self.split!r}; --val-every 0 turns validation off)")
+        if self.val_every < 0 or self.val_views < 1:
+            raise ValueError("val_every must be >= 0 and val_views >= 1")
         if self.mode == "semi":
             if self.pretrain_steps is None:
                 self.pretrain_steps = self.steps // 2
