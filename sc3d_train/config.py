@@ -122,6 +122,10 @@ class LossWeights(_Plain):
     wkl_unlabeled: float = setting(0.02, "Weight of L_KL on unlabelled images.", cli=False)
     unlabeled_sc_at_search: bool = setting(True, "Unlabelled images: L_sc at the searched pose "
                                            "(else at the pose head's).", cli=False)
+    unlabeled_pose_gate: int = setting(-1, "Unlabelled images: the searched azimuth is a pseudo-label "
+                                       "(L_pose, L_sc at it) only where it lies within this many azimuth bins "
+                                       "of the head's top azimuth; elsewhere no L_pose and L_sc at the head's "
+                                       "pose (-1: always; issue 24).", cli=False)
     search_mask_size: int = setting(24, "Mask size of the pose search for labelled images.", cli=False)
     search_samples: int = setting(32, "Samples per ray of that search.", cli=False)
     unlabeled_search_mask_size: int = setting(16, "Mask size of the pose search for unlabelled images.",
