@@ -27,6 +27,10 @@ def test_claims_trains_every_run_and_writes_the_tables(sample_shards, tmp_path):
     assert modes["sup-1tube"]["model"]["voxel_decoder"] == "1tube"
     assert modes["semi"]["mode"] == "semi" and modes["labeled-only"]["mode"] == "labeled-only"
     assert modes["ray"]["loss_weights"]["proj"] == 0.0 and modes["ray-proj"]["loss_weights"]["proj"] == 0.125
+    # best.pt of every run is what was evaluated; the ablations learn no pose: picked by IoU alone
+    assert {n for n in RUNS if modes[n]["select_by"] == "iou"} == {"ray", "ray-proj"}
+    assert all(json.loads((out / "runs" / n / "seed-0" / "eval" / "metrics.json").read_text())["checkpoint"]
+               .endswith("best.pt") for n in RUNS)
     report = (out / "claims.md").read_text()
     for title in ("Ours (Sup), 3 tubes", "Ours (Sup), 1 tube", "labelled only", "Ours (Semi)",
                   "Ray (true pose)", "Ray + Projection (true pose)",

@@ -68,6 +68,8 @@ def test_validation_picks_best_and_leaves_training_alone(sample_shards, tmp_path
     weights = [load_checkpoint(val / "checkpoints" / f)["model"] for f in ("best.pt", "last.pt")]
     assert best_step == 8 or any(not torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
     assert (val / "curves.png").stat().st_size > 10_000
+    resumed = run_cli(main, ["fit", "--out", val, "--steps", 9, "--resume", "--no-progress"])
+    assert "best on 'val' (iou+pose): step " in resumed.output
 
 
 def test_validation_refuses_the_training_and_test_splits(sample_shards, tmp_path):
