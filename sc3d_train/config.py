@@ -117,7 +117,9 @@ class LossWeights(_Plain):
     pos_weight: float = setting(3.0, "Weight of occupied voxels in the cross-entropy (alpha_p).", cli=False)
     num_samples: int = setting(RAY_SAMPLES, "Samples per ray of L_sc.", cli=False)
     wpose: float = setting(1.0, "Weight of the pose loss on labelled images.", cli=False)
-    wpose_unlabeled: float = setting(1.0, "Weight of the pose loss on unlabelled images.", cli=False)
+    wpose_unlabeled: float = setting(0.0, "Weight of the pose loss on unlabelled images (0: the searched "
+                                     "azimuth is no pseudo-label; measured: at 1 it cost the pose that the "
+                                     "labels taught, docs/training.md).", cli=False)
     wsc_unlabeled: float = setting(1.0, "Weight of L_sc on unlabelled images.", cli=False)
     wkl_unlabeled: float = setting(0.02, "Weight of L_KL on unlabelled images.", cli=False)
     unlabeled_sc_at_search: bool = setting(True, "Unlabelled images: L_sc at the searched pose "
