@@ -15,14 +15,15 @@ from sc3d_train.command_config import ClaimsConfig
 @click.option("--eval-shards", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Shards to evaluate on (objects never trained on; may be the same folder).")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
-              help="Study folder: runs/NAME (each run and its eval), claims.md, claims.json, claims.png.")
+              help="Study folder: runs/NAME/seed-S (each run and its eval), claims.md, claims.json, claims.png.")
 @click.option("--runs", default=None, help="Comma-separated subset of: sup-3tube, sup-1tube, "
               "labeled-only, semi, ray, ray-proj [all].")
 @config_options(ClaimsConfig)
-def claims(train_shards, eval_shards, eval_split, out, preset, runs, device, workers):
+def claims(train_shards, eval_shards, eval_split, out, preset, runs, device, workers, pick, seeds):
     """Train the paper's comparisons (supervised 3/1 tubes, labelled-only vs semi at 15%, ray vs
-    ray+projection at the true pose) with one seed and equal budgets, evaluate each on held-out
-    objects and write the paper's tables. Rerunning resumes."""
+    ray+projection at the true pose) with --seeds seeds and equal budgets, evaluate each on
+    held-out objects and write the paper's tables (mean ± standard deviation over the seeds).
+    Rerunning resumes."""
     from sc3d_train.checkpoint import CheckpointError
     from sc3d_train.claims import RUNS, run_all
     from sc3d_train.data import DataError
@@ -32,6 +33,7 @@ def claims(train_shards, eval_shards, eval_split, out, preset, runs, device, wor
     if unknown:
         raise click.UsageError(f"unknown runs {unknown}; choose from {', '.join(RUNS)}")
     try:
-        run_all(train_shards, eval_shards, out, preset, eval_split, device, workers, names, echo=click.echo)
+        run_all(train_shards, eval_shards, out, preset, eval_split, device, workers, names, echo=click.echo,
+                seeds=seeds, pick=pick)
     except (DataError, CheckpointError, FileNotFoundError, ValueError) as e:
         raise click.ClickException(str(e)) from e

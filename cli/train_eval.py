@@ -10,25 +10,26 @@ from sc3d_train.command_config import EvalConfig
 
 
 @click.command("eval")
-@click.option("--checkpoint", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="A checkpoint of `sc3d-train fit` (e.g. RUN_DIR/checkpoints/last.pt).")
+@click.option("--checkpoint", type=click.Path(path_type=Path), required=True,
+              help="A run folder of `sc3d-train fit` (its --pick checkpoint) or a checkpoint file "
+              "(e.g. RUN_DIR/checkpoints/last.pt).")
 @click.option("--shards", type=click.Path(file_okay=False, path_type=Path), required=True)
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Directory for metrics.json and predictions.png [RUN_DIR/eval_SPLIT beside the checkpoint].")
 @config_options(EvalConfig)
-def eval_cmd(checkpoint, shards, out, pose_from, device, split, batch_size, examples):
+def eval_cmd(checkpoint, shards, out, pose_from, device, split, pick, batch_size, examples):
     """Voxel IoU (0.4, 0.5), mask IoU and pose error per category on a split."""
     from sc3d_train.checkpoint import CheckpointError
     from sc3d_train.data import DataError
     from sc3d_train.evaluate import evaluate
 
     try:
-        result = evaluate(checkpoint, shards, split, out, device, batch_size, examples, pose_from)
+        result = evaluate(checkpoint, shards, split, out, device, batch_size, examples, pose_from, pick)
     except (DataError, CheckpointError, ValueError, OSError) as e:
         from sc3d_data.io.shards import one_line
 
         raise click.ClickException(one_line(e)) from e
-    click.echo(f"{checkpoint} (step {result['step']}) on split {split!r} of {shards} (pose: {pose_from}):")
+    click.echo(f"{result['checkpoint']} (step {result['step']}) on split {split!r} of {shards} (pose: {pose_from}):")
     click.echo(result["table"])
     out = Path(result["out"])
     click.echo(f"wrote {out / 'metrics.json'} and {out / 'predictions.png'}")

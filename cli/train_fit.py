@@ -86,3 +86,8 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
     losses = ", ".join(f"{k} {v:.4f}" for k, v in summary["last_losses"].items())
     click.echo(f"done: step {summary['step']}, {summary['samples_per_s']:.1f} samples/s; {losses}")
     click.echo(f"checkpoint: {summary['checkpoint']}")
+    best = summary.get("best")
+    if best:
+        click.echo(f"best on {best['split']!r} ({best['select_by']}): step {best['step']}, IoU@0.4 "
+                   f"{best['val_iou']:.3f}, rotation within 30 deg {best['val_rot_acc30']:.2f} "
+                   f"(checkpoints/best.pt; eval --checkpoint {summary['checkpoint'].rsplit('/checkpoints/', 1)[0]})")

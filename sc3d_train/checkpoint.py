@@ -66,6 +66,26 @@ def last_path(run_dir: Path) -> Path:
     return checkpoint_dir(run_dir) / "last.pt"
 
 
+def best_path(run_dir: Path) -> Path:
+    """The run's best checkpoint on its validation split (:mod:`sc3d_train.validation`)."""
+    return checkpoint_dir(run_dir) / "best.pt"
+
+
+def run_checkpoint(path: Path, pick: str = "best") -> Path:
+    """The checkpoint file that ``path`` names: ``path`` itself when it is a file; for a run folder
+    ``checkpoints/best.pt`` (``pick="best"``; ``last.pt`` where the run kept no best, e.g. with
+    validation off) or ``checkpoints/last.pt`` (``pick="last"``)."""
+    path = Path(path)
+    if path.is_dir():
+        from sc3d_train.command_config import CHECKPOINT_PICKS
+
+        if pick not in CHECKPOINT_PICKS:
+            raise ValueError(f"pick must be one of {CHECKPOINT_PICKS}, got {pick!r}")
+        best = best_path(path)
+        return best if pick == "best" and best.is_file() else last_path(path)
+    return path
+
+
 def rng_state() -> dict:
     """This process's RNG states (torch CPU, CUDA when present, numpy, python)."""
     return {"torch": torch.get_rng_state(),
@@ -79,6 +99,21 @@ def set_rng_state(state: dict) -> None:
         torch.cuda.set_rng_state_all(state["cuda"])
     np.random.set_state(state["numpy"])
     random.setstate(state["python"])
+
+
+def save_best(run_dir: Path, payload: dict) -> Path:
+    """Write ``payload`` (``model``, ``step``, ``config``, ``validation``: no optimiser or RNG, it
+    is not resumed from) as ``checkpoints/best.pt``, atomically."""
+    path = best_path(run_dir)
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        torch.save({"format_version": FORMAT_VERSION, **payload}, tmp)
+        os.replace(tmp, path)
+    except (OSError, RuntimeError) as e:
+        tmp.unlink(missing_ok=True)
+        raise CheckpointError(f"{path}: cannot write checkpoint ({' '.join(str(e).split())})") from e
+    return path
 
 
 def save_checkpoint(run_dir: Path, payload: dict) -> Path:

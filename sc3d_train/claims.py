@@ -1,8 +1,9 @@
-"""``sc3d-train claims``: train the paper's comparisons with one seed and equal budgets, evaluate
+"""``sc3d-train claims``: train the paper's comparisons with K seeds and equal budgets, evaluate
 each on held-out shards, and write the paper's tables (markdown) and one figure.
 
-Runs (each a normal ``fit`` run folder under ``OUT/runs/NAME`` and its evaluation under
-``OUT/runs/NAME/eval``; a rerun skips runs whose evaluation exists, so the command resumes):
+Runs (each a normal ``fit`` run folder under ``OUT/runs/NAME/seed-S`` per seed and its evaluation
+of ``best.pt`` (``--pick last``: ``last.pt``) under ``.../eval``; a rerun skips (run, seed) pairs
+whose evaluation exists and resumes a half-trained one, so the command resumes):
 
 =================  ============================================================================
 ``sup-3tube``       supervised, all training objects, 3-tube voxel decoder (the paper's model)
@@ -16,7 +17,11 @@ Runs (each a normal ``fit`` run folder under ``OUT/runs/NAME`` and its evaluatio
 
 Presets (:data:`PRESETS`): ``cpu`` (the tiny network, 700 steps of 32: about 30-40 min for ~200
 training objects on 2 CPU cores) and ``paper`` (the paper's width and Adam 2e-4, batch 48, for
-a GPU). Every run gets the same step budget and seed.
+a GPU). Every run gets the same step budget and seeds: ``--seeds K`` trains each with seeds
+``seed .. seed + K - 1``; every cell of the tables is then the mean ± sample standard deviation
+over the K evaluations, and each claim says whether it holds on the means and whether the
+difference exceeds two standard deviations of the difference of the means
+(:func:`~sc3d_train.claims_report.check_claims`).
 
 Outputs: ``OUT/claims.md`` (IoU@0.4 per category and mean, in the paper's layout; pose errors per
 category; the two ablations), ``OUT/claims.json`` (every number) and ``OUT/claims.png``.
@@ -25,15 +30,13 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
+from sc3d_train.claims_report import RUNS, aggregate, write_report
 from sc3d_train.command_config import ClaimsConfig
-from sc3d_train.config import RunConfig
+from sc3d_train.config import ModelConfig, RunConfig
 from sc3d_train.config_io import defaults_of
-
-RUNS = ("sup-3tube", "sup-1tube", "labeled-only", "semi", "ray", "ray-proj")
-
 
 #: ``fit``'s defaults (:class:`RunConfig`), which a preset does not set again
 _FIT = defaults_of(RunConfig)
@@ -51,6 +54,8 @@ class ClaimsPreset:
     labeled_fraction: float = _FIT["labeled_fraction"]
     seed: int = _FIT["seed"]
     runs: tuple = RUNS
+    #: further ``fit`` settings: RunConfig fields (``val_every``, ...) and ModelConfig fields
+    #: (``base_channels``, ...)
     extra: dict = field(default_factory=dict)
 
 
@@ -61,164 +66,91 @@ PRESETS = {
 
 
 def run_config(name: str, preset: ClaimsPreset, shards: Path, out: Path, device: str = ClaimsConfig.device,
-               workers: int = ClaimsConfig.workers) -> RunConfig:
-    """The :class:`RunConfig` of run ``name`` (one of :data:`RUNS`)."""
+               workers: int = ClaimsConfig.workers, seed: int | None = None) -> RunConfig:
+    """The :class:`RunConfig` of run ``name`` (one of :data:`RUNS`) with ``seed`` (None: the
+    preset's). The ablations at the true pose train no pose, so their ``best.pt`` is picked by IoU."""
     from sc3d_train.resolve import resolve_config
 
     options = dict(shards=str(Path(shards).resolve()), out=str(out), steps=preset.steps,
-                   batch_size=preset.batch_size, lr=preset.lr, lr_schedule=preset.lr_schedule, seed=preset.seed,
+                   batch_size=preset.batch_size, lr=preset.lr, lr_schedule=preset.lr_schedule,
+                   seed=preset.seed if seed is None else seed,
                    labeled_fraction=preset.labeled_fraction, device=device, workers=workers,
                    progress=False, checkpoint_every=preset.steps)
     options["mode"] = {"labeled-only": "labeled-only", "semi": "semi", "ray": "true-pose-masks",
                        "ray-proj": "true-pose-masks"}.get(name, "supervised")
+    if options["mode"] == "true-pose-masks":
+        options["select_by"] = "iou"
     model_options = {"tiny": preset.tiny, "voxel_decoder": "1tube" if name == "sup-1tube" else "3tube"}
+    model_fields = {f.name for f in fields(ModelConfig)}
+    for k, v in preset.extra.items():
+        (model_options if k in model_fields else options)[k] = v
     cfg = resolve_config(options, model_options)
     if name == "ray":
         cfg = replace(cfg, loss_weights=replace(cfg.loss_weights, proj=0.0))
     return cfg
 
 
-def run_all(train_shards: Path, eval_shards: Path, out: Path,
-            preset: "str | ClaimsPreset" = ClaimsConfig.preset, eval_split: str = ClaimsConfig.eval_split,
-            device: str = ClaimsConfig.device, workers: int = ClaimsConfig.workers, runs=None,
-            echo=print) -> dict:
-    """Train and evaluate every run of ``preset`` (skipping finished ones); write the report.
-    Returns ``{run name: eval metrics}``."""
+def seed_list(preset: ClaimsPreset, seeds: int) -> list[int]:
+    """The seeds of a study: ``preset.seed``, ``preset.seed + 1``, ... (``seeds`` of them)."""
+    if seeds < 1:
+        raise ValueError(f"seeds must be >= 1, got {seeds}")
+    return [preset.seed + k for k in range(seeds)]
+
+
+def run_folder(out: Path, name: str, seed: int) -> Path:
+    """``OUT/runs/NAME/seed-S``: the ``fit`` run of ``name`` with ``seed`` (its eval in ``eval/``)."""
+    return Path(out) / "runs" / name / f"seed-{seed}"
+
+
+def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path, eval_shards: Path, out: Path,
+                       eval_split: str, device: str, workers: int, pick: str, echo) -> tuple[dict, float | None]:
+    """The eval metrics of run ``name`` with ``seed``: read back when its evaluation exists,
+    else trained (resumed from its ``last.pt`` when there is one) and evaluated on ``pick``.
+    Returns ``(metrics, seconds spent or None when read back)``."""
+    from sc3d_train.checkpoint import run_checkpoint
     from sc3d_train.evaluate import evaluate
     from sc3d_train.trainer import fit
 
+    run_dir = run_folder(out, name, seed)
+    metrics_file = run_dir / "eval" / "metrics.json"
+    if metrics_file.is_file():
+        echo(f"{name} seed {seed}: done before, reading {metrics_file}")
+        return json.loads(metrics_file.read_text()), None
+    t0 = time.perf_counter()
+    resume = (run_dir / "checkpoints" / "last.pt").is_file()
+    cfg = RunConfig.load(RunConfig.path_in(run_dir)) if resume else \
+        run_config(name, p, train_shards, run_dir, device, workers, seed)
+    echo(f"{name} seed {seed}: {cfg.mode}, {cfg.steps} steps of {cfg.batch_size}" + (" (resuming)" if resume else ""))
+    fit(cfg, resume=resume)
+    res = evaluate(run_checkpoint(run_dir, pick), eval_shards, eval_split, run_dir / "eval", device)
+    seconds = time.perf_counter() - t0
+    echo(f"    {name} seed {seed} (step {res['step']}): mean IoU@0.4 {res['mean']['voxel_iou_0.4']:.3f}, median "
+         f"rotation error {res['mean']['pose_rotation_median']:.1f} deg ({seconds / 60:.1f} min)")
+    return res, seconds
+
+
+def run_all(train_shards: Path, eval_shards: Path, out: Path,
+            preset: "str | ClaimsPreset" = ClaimsConfig.preset, eval_split: str = ClaimsConfig.eval_split,
+            device: str = ClaimsConfig.device, workers: int = ClaimsConfig.workers, runs=None,
+            echo=print, seeds: int = ClaimsConfig.seeds, pick: str = ClaimsConfig.pick) -> dict:
+    """Train and evaluate every run of ``preset`` with each of ``seeds`` seeds (skipping finished
+    (run, seed) pairs); write the report. Returns ``{run name: aggregate}`` (:func:`aggregate`)."""
     p = PRESETS[preset] if isinstance(preset, str) else preset
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    results, timings = {}, {}
-    names = list(runs or p.runs)
-    for i, name in enumerate(names):
-        run_dir = out / "runs" / name
-        metrics_file = run_dir / "eval" / "metrics.json"
-        if metrics_file.is_file():
-            echo(f"[{i + 1}/{len(names)}] {name}: done before, reading {metrics_file}")
-            results[name] = json.loads(metrics_file.read_text())
-            continue
-        t0 = time.perf_counter()
-        resume = (run_dir / "checkpoints" / "last.pt").is_file()
-        cfg = RunConfig.load(RunConfig.path_in(run_dir)) if resume else \
-            run_config(name, p, train_shards, run_dir, device, workers)
-        echo(f"[{i + 1}/{len(names)}] {name}: {cfg.mode}, {cfg.steps} steps of {cfg.batch_size}"
-             + (" (resuming)" if resume else ""))
-        fit(cfg, resume=resume)
-        res = evaluate(run_dir / "checkpoints" / "last.pt", eval_shards, eval_split, run_dir / "eval", device)
-        results[name] = res
-        timings[name] = time.perf_counter() - t0
-        echo(f"    {name}: mean IoU@0.4 {res['mean']['voxel_iou_0.4']:.3f}, median rotation error "
-             f"{res['mean']['pose_rotation_median']:.1f} deg ({timings[name] / 60:.1f} min)")
-    report = write_report(results, out, preset=asdict(p), eval_split=eval_split,
+    per_seed, timings = {}, {}
+    names, seed_values = list(runs or p.runs), seed_list(p, seeds)
+    for name in names:
+        per_seed[name] = {}
+        for seed in seed_values:
+            res, seconds = train_and_evaluate(name, seed, p, train_shards, eval_shards, out, eval_split,
+                                              device, workers, pick, echo)
+            per_seed[name][seed] = res
+            if seconds is not None:
+                timings[f"{name}/seed-{seed}"] = seconds
+    results = {name: aggregate(by_seed) for name, by_seed in per_seed.items()}
+    report = write_report(results, out, preset=asdict(p), seeds=seed_values, pick=pick, eval_split=eval_split,
                           train_shards=str(train_shards), eval_shards=str(eval_shards), timings=timings)
     echo(f"wrote {out / 'claims.md'}, {out / 'claims.json'}, {out / 'claims.png'}")
     echo(report)
     return results
-
-
-def _categories(results: dict) -> list[str]:
-    cats = set()
-    for r in results.values():
-        cats |= set(r["per_category"])
-    return sorted(cats)
-
-
-def _row(res: dict, cats: list[str], key: str, fmt: str) -> list[str]:
-    cells = []
-    for c in cats:
-        v = res["per_category"].get(c, {}).get(key)
-        cells.append("-" if v is None else fmt.format(v))
-    v = res["mean"].get(key)
-    return cells + ["-" if v is None else fmt.format(v)]
-
-
-def format_report(results: dict) -> str:
-    """The markdown tables: reconstruction (IoU@0.4 %, per category and mean), pose (median
-    rotation error, share within 30 deg), ablations."""
-    from sc3d_data.formats.shapenet import category_label
-
-    cats = _categories(results)
-    names = [category_label(c).split(" (")[0] for c in cats]
-    head = "| run | " + " | ".join(names) + " | Mean |\n|---|" + "---|" * (len(cats) + 1) + "\n"
-    titles = {"sup-3tube": "Ours (Sup), 3 tubes", "sup-1tube": "Ours (Sup), 1 tube",
-              "labeled-only": "labelled only", "semi": "Ours (Semi)",
-              "ray": "Ray (true pose)", "ray-proj": "Ray + Projection (true pose)"}
-    out = ["### Reconstruction: voxel IoU@0.4 (%) on held-out objects\n", head]
-    for name in ("sup-3tube", "sup-1tube", "labeled-only", "semi", "ray", "ray-proj"):
-        if name in results:
-            cells = _row(results[name], cats, "voxel_iou_0.4", "{:.3f}")
-            cells = [c if c == "-" else f"{100 * float(c):.1f}" for c in cells]
-            out.append(f"| {titles[name]} | " + " | ".join(cells) + " |\n")
-    out.append("\n### Pose (no pose labels in training): median rotation error (deg) / share within 30 deg\n\n")
-    out.append(head)
-    for name in ("sup-3tube", "sup-1tube", "labeled-only", "semi"):
-        if name in results:
-            med = _row(results[name], cats, "pose_rotation_median", "{:.1f}")
-            acc = _row(results[name], cats, "pose_rotation_acc30", "{:.2f}")
-            out.append(f"| {titles[name]} | " + " | ".join(f"{m} / {a}" for m, a in zip(med, acc)) + " |\n")
-    out.append("\n### Claims\n\n| claim | measured | holds |\n|---|---|---|\n")
-    for claim, measured, holds in check_claims(results):
-        out.append(f"| {claim} | {measured} | {'yes' if holds else 'no'} |\n")
-    return "".join(out)
-
-
-def check_claims(results: dict) -> list[tuple[str, str, bool]]:
-    """The paper's qualitative claims, checked on the measured means."""
-    def mean_iou(n):
-        return results[n]["mean"]["voxel_iou_0.4"]
-
-    rows = []
-    for a, b, text in (("sup-3tube", "sup-1tube", "3 tubes >= 1 tube"),
-                       ("semi", "labeled-only", "semi > labelled only"),
-                       ("ray-proj", "ray", "ray + projection >= ray")):
-        if a in results and b in results:
-            holds = mean_iou(a) > mean_iou(b) if a == "semi" else mean_iou(a) >= mean_iou(b)
-            rows.append((text, f"{mean_iou(a):.3f} vs {mean_iou(b):.3f}", holds))
-    return rows
-
-
-def plot_report(results: dict, path: Path) -> None:
-    """IoU@0.4 per category (bars per run) and the rotation-error share within 30 deg."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    from sc3d_data.formats.shapenet import category_label
-
-    cats = _categories(results)
-    labels = [category_label(c).split(" (")[0] for c in cats] + ["mean"]
-    fig, axes = plt.subplots(1, 2, figsize=(13, 4))
-    names = list(results)
-    width = 0.8 / max(len(names), 1)
-    x = np.arange(len(labels))
-    for k, name in enumerate(names):
-        res = results[name]
-        for ax, key in zip(axes, ("voxel_iou_0.4", "pose_rotation_acc30")):
-            vals = [res["per_category"].get(c, {}).get(key) for c in cats] + [res["mean"].get(key)]
-            vals = [np.nan if v is None else v for v in vals]
-            if key.startswith("pose") and name in ("ray", "ray-proj"):
-                continue
-            ax.bar(x + k * width, vals, width, label=name)
-    for ax, title in zip(axes, ("voxel IoU@0.4 (held-out objects)", "share of views with rotation error <= 30 deg")):
-        ax.set_xticks(x + 0.4 - width / 2)
-        ax.set_xticklabels(labels, fontsize=8)
-        ax.set_title(title)
-        ax.set_ylim(0, 1)
-    axes[0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def write_report(results: dict, out: Path, **meta) -> str:
-    text = format_report(results)
-    (Path(out) / "claims.md").write_text(text)
-    slim = {k: {"per_category": v["per_category"], "mean": v["mean"], "overall": v["overall"]}
-            for k, v in results.items()}
-    (Path(out) / "claims.json").write_text(json.dumps({"meta": meta, "results": slim}, indent=1, default=str))
-    plot_report(results, Path(out) / "claims.png")
-    return text

@@ -12,6 +12,10 @@ from sc3d_train.config_io import setting
 #: where the pose of a prediction comes from
 POSE_SOURCES = ("search", "head")
 CLAIMS_PRESETS = ("cpu", "paper")
+#: which checkpoint of a run folder is read (``sc3d_train.checkpoint.run_checkpoint``)
+CHECKPOINT_PICKS = ("best", "last")
+PICK_HELP = ("Checkpoint of a run folder: best (checkpoints/best.pt, the best validation of fit; last.pt "
+             "where the run kept none) or last.")
 
 
 @dataclass
@@ -30,6 +34,7 @@ class EvalConfig(InferenceConfig):
     """``sc3d-train eval``."""
 
     split: str = setting("test", "Split of the shards to evaluate.")
+    pick: str = setting("best", PICK_HELP, choices=CHECKPOINT_PICKS)
     batch_size: int = setting(64, "Images per forward pass.")
     examples: int = setting(2, "Objects per category shown in predictions.png (views 3 and 15 of each).")
 
@@ -51,3 +56,6 @@ class ClaimsConfig:
                           choices=CLAIMS_PRESETS)
     device: str = setting("auto", DEVICE_HELP)
     workers: int = setting(0, "DataLoader workers per run.")
+    pick: str = setting("best", PICK_HELP, choices=CHECKPOINT_PICKS)
+    seeds: int = setting(1, "Seeds per run (seed, seed + 1, ...): each cell of claims.md becomes mean +- "
+                         "standard deviation over them.")

@@ -37,7 +37,9 @@ MODES = ("supervised", "semi", "labeled-only", "true-pose-masks")
 #: fields that ``--resume`` may change (they do not alter the optimisation trajectory up to the
 #: checkpoint); every other field must match the checkpoint's config.
 RESUMABLE_FIELDS = ("steps", "checkpoint_every", "workers", "decoded_cache", "log_every", "device", "progress",
-                    "out", "compile", "compile_backend")
+                    "out", "compile", "compile_backend", "val_every")
+#: what picks ``checkpoints/best.pt`` among the validations of a run (:mod:`sc3d_train.validation`)
+SELECT_BY = ("iou+pose", "iou", "pose")
 #: the one "tiny" preset (``fit --tiny``, ``ModelConfig.tiny()``): a small network for CPU demos
 #: and tests
 TINY_MODEL = {"base_channels": 8, "shape_dim": 32, "pose_dim": 8}
@@ -115,11 +117,17 @@ class LossWeights(_Plain):
     pos_weight: float = setting(3.0, "Weight of occupied voxels in the cross-entropy (alpha_p).", cli=False)
     num_samples: int = setting(RAY_SAMPLES, "Samples per ray of L_sc.", cli=False)
     wpose: float = setting(1.0, "Weight of the pose loss on labelled images.", cli=False)
-    wpose_unlabeled: float = setting(1.0, "Weight of the pose loss on unlabelled images.", cli=False)
+    wpose_unlabeled: float = setting(0.0, "Weight of the pose loss on unlabelled images (0: the searched "
+                                     "azimuth is no pseudo-label; measured: at 1 it cost the pose that the "
+                                     "labels taught, docs/training.md).", cli=False)
     wsc_unlabeled: float = setting(1.0, "Weight of L_sc on unlabelled images.", cli=False)
     wkl_unlabeled: float = setting(0.02, "Weight of L_KL on unlabelled images.", cli=False)
     unlabeled_sc_at_search: bool = setting(True, "Unlabelled images: L_sc at the searched pose "
                                            "(else at the pose head's).", cli=False)
+    unlabeled_pose_gate: int = setting(-1, "Unlabelled images: the searched azimuth is a pseudo-label "
+                                       "(L_pose, L_sc at it) only where it lies within this many azimuth bins "
+                                       "of the head's top azimuth; elsewhere no L_pose and L_sc at the head's "
+                                       "pose (-1: always; issue 24).", cli=False)
     search_mask_size: int = setting(24, "Mask size of the pose search for labelled images.", cli=False)
     search_samples: int = setting(32, "Samples per ray of that search.", cli=False)
     unlabeled_search_mask_size: int = setting(16, "Mask size of the pose search for unlabelled images.",
@@ -179,6 +187,14 @@ class RunConfig(_Plain):
                                    "it with eager kernels (tests, debugging).", cli=False,
                                    choices=("inductor", "aot_eager"))
     checkpoint_every: int = setting(500, "Write a checkpoint every N steps (and at the end).")
+    # validation and the choice of checkpoints/best.pt (sc3d_train.validation)
+    val_every: int = setting(100, "Evaluate on the --val-split objects every N steps and at the end, and "
+                             "keep the best as checkpoints/best.pt (0: off).")
+    val_split: str = setting("val", "Split of --shards to validate on: objects never trained on (not the "
+                             "training split; test is refused).")
+    val_views: int = setting(4, "Views per validation object (evenly spaced), to keep validation cheap.")
+    select_by: str = setting("iou+pose", "What picks best.pt: iou+pose (mean IoU@0.4 + share of views "
+                             "within 30 deg), iou, or pose (that share).", choices=SELECT_BY)
     log_every: int = setting(10, "Log the losses every N steps.")
     progress: bool = setting(True, "Show a progress bar.")
     # nested configs
@@ -200,6 +216,11 @@ class RunConfig(_Plain):
             raise ValueError(f"labeled fraction must be in (0, 1], got {self.labeled_fraction}")
         if not 0.0 <= self.semi_labeled_share < 1.0:
             raise ValueError(f"semi labelled share must be in [0, 1), got {self.semi_labeled_share}")
+        if self.val_every and self.val_split in (self.split, "test"):
+            raise ValueError(f"val split {self.val_split!r} must hold objects never trained on and not "
+                             f"the test objects (training split {self.split!r}; --val-every 0 turns validation off)")
+        if self.val_every < 0 or self.val_views < 1:
+            raise ValueError("val_every must be >= 0 and val_views >= 1")
         if self.mode == "semi":
             if self.pretrain_steps is None:
                 self.pretrain_steps = self.steps // 2

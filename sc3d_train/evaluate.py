@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from sc3d_data.formats.shapenet import category_label
-from sc3d_train.checkpoint import load_model
+from sc3d_train.checkpoint import load_model, run_checkpoint
 from sc3d_train.command_config import POSE_SOURCES, EvalConfig
 from sc3d_train.data import ShardDataset
 from sc3d_train.pose import pose_errors
@@ -55,8 +55,9 @@ def iou(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 @torch.no_grad()
 def predict_dataset(model, dataset: ShardDataset, device, batch_size: int = 64,
                     keep: int = 2, keep_views: tuple[int, ...] = (3, 15), pose_from: str = "head",
-                    loss_weights=None):
-    """Run ``model`` over every view of ``dataset``. Returns ``(rows, examples)``: one dict per
+                    loss_weights=None, indices=None):
+    """Run ``model`` over every view of ``dataset`` (or its items ``indices``, object * V + view,
+    when given). Returns ``(rows, examples)``: one dict per
     image (category, model_id, view, iou_0.4, iou_0.5, mask_iou, azimuth/elevation predicted and
     true, rotation_error) and, for the first ``keep`` objects of every category, views
     ``keep_views`` (default 3 and 15: opposite sides) with input, masks, voxels and poses (numpy)
@@ -67,7 +68,10 @@ def predict_dataset(model, dataset: ShardDataset, device, batch_size: int = 64,
 
     kept_objects: dict[str, list[str]] = defaultdict(list)
 
-    loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, shuffle=False)
+    if indices is None:
+        loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, shuffle=False)
+    else:
+        loader = (dataset.get_batch(indices[i:i + batch_size]) for i in range(0, len(indices), batch_size))
     rows, examples = [], []
     for batch in loader:
         out = model(batch["images"].to(device))
@@ -222,13 +226,15 @@ def default_output_dir(checkpoint: Path, name: str) -> Path:
 
 def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, device: str = EvalConfig.device,
              batch_size: int = EvalConfig.batch_size, examples: int = EvalConfig.examples,
-             pose_from: str = EvalConfig.pose_from) -> dict:
-    """Evaluate ``checkpoint`` on ``split`` of ``shards``; writes ``out/metrics.json`` and
+             pose_from: str = EvalConfig.pose_from, pick: str = EvalConfig.pick) -> dict:
+    """Evaluate ``checkpoint`` (a file, or a run folder: its ``pick`` checkpoint,
+    :func:`~sc3d_train.checkpoint.run_checkpoint`) on ``split`` of ``shards``; writes ``out/metrics.json`` and
     ``out/predictions.png`` (``out`` None: ``RUN_DIR/eval_SPLIT``, :func:`default_output_dir`);
     ``examples`` objects per category are drawn. Returns the metrics dict (also holding
     ``table``, the text table, and ``out``)."""
     dev = torch.device("cuda" if device == "auto" and torch.cuda.is_available() else
                        "cpu" if device == "auto" else device)
+    checkpoint = run_checkpoint(checkpoint, pick)
     model, cfg, ckpt = load_model(checkpoint, dev)
     dataset = ShardDataset(shards, split, subset="all", mask_size=cfg.model.mask_size,
                            require_voxels=True, image_size=cfg.model.image_size)

@@ -112,7 +112,10 @@ def unsupervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None
     occupancy and mask, at the elevation bin the head predicts); L_pose pulls the head's azimuth
     towards it and, when ``unlabeled_sc_at_search`` is set, L_sc is taken at that searched pose
     (detached) rather than at the head's pose, so the voxels are fitted to the mask from the
-    viewpoint that explains it best. ``batch`` needs ``K_sc``, ``distance``. Returns
+    viewpoint that explains it best. With ``unlabeled_pose_gate`` N >= 0 the searched azimuth counts
+    only where it is within N azimuth bins of the head's top one (a confidence gate: a head that
+    learnt pose from labels is not pulled to a worse search); elsewhere no L_pose and L_sc at the
+    head's pose. ``batch`` needs ``K_sc``, ``distance``. Returns
     ``LOSS_KEYS`` without ``l3d`` and ``l2d`` (no labels)."""
     w = weights or LossWeights()
     size = batch["masks_sc"].shape[-1] if "masks_sc" in batch else MASK_SIZE
@@ -126,10 +129,16 @@ def unsupervised_loss(out: ModelOutput, batch: dict, weights: LossWeights | None
 
         target = search_at_head_elevation(occupancy, masks_pred, batch["distance"], batch["K_sc"],
                                           out.pose_logits, grid, w)
-        pose = pose_classification_loss(out.pose_logits, target, grid, elevation=False)
+        trusted = torch.ones_like(target, dtype=torch.bool)
+        if w.unlabeled_pose_gate >= 0:  # pseudo-label only where the search agrees with the head
+            a = grid.azimuth_bins
+            gap = (grid.split(target)[0] - out.pose_logits[:, :a].detach().argmax(1)) % a
+            trusted = torch.minimum(gap, a - gap) <= w.unlabeled_pose_gate
+        pose = pose_classification_loss(out.pose_logits, target.masked_fill(~trusted, -1), grid, elevation=False)
         if w.unlabeled_sc_at_search:
             cand_az, _ = grid.candidates(target.device)
-            at = replace(out, azimuth=cand_az.to(torch.float32)[target],
+            searched = cand_az.to(torch.float32)[target]
+            at = replace(out, azimuth=torch.where(trusted, searched, out.azimuth.detach().float()),
                          elevation=out.elevation.detach())
     sc = _sc(at, occupancy, masks_pred, batch, w)
     total = w.wsc_unlabeled * sc["lsc"] + w.wkl_unlabeled * kl + w.wpose_unlabeled * pose

@@ -98,7 +98,9 @@ def gpu_utilisation(device) -> float | None:
 
 
 def plot_curves(csv_path: Path, png_path: Path) -> None:
-    """Loss terms (log scale) and samples/s against the step, from ``metrics.csv``."""
+    """Loss terms (log scale) and samples/s against the step, from ``metrics.csv``; with a
+    ``validation.csv`` beside it (:mod:`sc3d_train.validation`), a third panel: validation IoU@0.4
+    and share within 30 degrees against the step, the best checkpoint's step marked."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -108,8 +110,14 @@ def plot_curves(csv_path: Path, png_path: Path) -> None:
         rows = list(csv.DictReader(f))
     if not rows:
         return
+    val_path = Path(csv_path).with_name("validation.csv")
+    val = []
+    if val_path.is_file():
+        with open(val_path, newline="") as f:
+            val = list(csv.DictReader(f))
     steps = [int(r["step"]) for r in rows]
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+    fig, axes = plt.subplots(1, 3 if val else 2, figsize=(16 if val else 11, 4))
+    ax, ax2 = axes[0], axes[1]
     for key in ("total", "l3d", "l2d", "lsc", "kl", "pose", "u_lsc", "u_pose"):
         if any(r.get(key) not in ("", None) for r in rows):
             vals = [float(r[key]) if r.get(key) not in ("", None) else math.nan for r in rows]
@@ -122,7 +130,17 @@ def plot_curves(csv_path: Path, png_path: Path) -> None:
     ax2.plot(steps, [float(r["samples_per_s"]) for r in rows])
     ax2.set_xlabel("step")
     ax2.set_title("samples/s")
+    if val:
+        ax3, vsteps = axes[2], [int(r["step"]) for r in val]
+        for key, label in (("val_iou", "IoU@0.4"), ("val_rot_acc30", "rotation within 30 deg")):
+            ax3.plot(vsteps, [float(r[key]) for r in val], marker="o", label=label)
+        best = [int(r["step"]) for r in val if r["best"] == "1"]
+        if best:
+            ax3.axvline(best[-1], color="gray", linestyle=":", label=f"best.pt (step {best[-1]})")
+        ax3.set_ylim(0, 1)
+        ax3.set_xlabel("step")
+        ax3.set_title("validation (objects never trained on)")
+        ax3.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(png_path, dpi=80)
     plt.close(fig)
-

@@ -36,7 +36,8 @@ step, eager or compiled; on one CUDA device compiled with CUDA graphs by default
 :mod:`~sc3d_train.loss_window` (the finiteness check without a host sync per step),
 :mod:`~sc3d_train.runtime`
 (ranks, device, AMP), :mod:`~sc3d_train.metrics_log` (metrics.csv, TensorBoard, curves),
-:mod:`~sc3d_train.streams` (datasets and loaders of each phase), :mod:`~sc3d_train.checkpoint`;
+:mod:`~sc3d_train.streams` (datasets and loaders of each phase), :mod:`~sc3d_train.checkpoint`,
+:mod:`~sc3d_train.validation` (the val split every ``val_every`` steps, ``best.pt``);
 this one holds the loop.
 """
 from __future__ import annotations
@@ -61,6 +62,7 @@ from sc3d_train.runtime import (DistInfo, all_gather, all_mean, all_min, channel
 from sc3d_train.schedule import batch_split, data_position, lr_at, phase_at
 from sc3d_train.streams import labeled_dataset, phase_loaders, run_datasets, write_labeled_objects
 from sc3d_train.train_step import TrainStep, compile_plan
+from sc3d_train.validation import Validator
 
 
 class TrainingDiverged(RuntimeError):
@@ -220,7 +222,8 @@ def mean_scalars(t: Training, losses: dict) -> dict:
 
 def fit(cfg: RunConfig, resume: bool = False) -> dict:
     """Train according to ``cfg`` (see module doc). Returns a summary dict: ``step``,
-    ``last_losses``, ``samples_per_s``, ``checkpoint`` (path of last.pt).
+    ``last_losses``, ``samples_per_s``, ``checkpoint`` (path of last.pt), ``best`` (the
+    validation record of best.pt, or None).
 
     Raises :class:`TrainingDiverged` on a non-finite loss, ``DataError`` / ``CheckpointError``
     on bad inputs, before any training step."""
@@ -230,7 +233,8 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
         start_step, ckpt_file = restore(t)
         last_good = str(last_path(t.run_dir))
         if start_step >= cfg.steps:
-            return {"step": start_step, "last_losses": {}, "samples_per_s": 0.0, "checkpoint": str(ckpt_file)}
+            return {"step": start_step, "last_losses": {}, "samples_per_s": 0.0, "checkpoint": str(ckpt_file),
+                    "best": None}
     else:
         torch.manual_seed(cfg.seed + 1000003 * t.dist.rank)  # per-rank noise (reparameterisation)
     wrap_ddp(t)
@@ -243,6 +247,7 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
         if cfg.mode in ("semi", "labeled-only"):
             write_labeled_objects(t.run_dir / "labeled_objects.txt", t.labeled)
     log = MetricsLog(t.run_dir, start_step, enabled=t.dist.is_main)
+    validator = Validator.for_run(cfg, t.device, start_step, t.dist.is_main, getattr(log, "tb", None))
     progress = None
     if t.dist.is_main and cfg.progress:
         from sc3d_data.pipeline.progress import progress_bar
@@ -280,6 +285,8 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
                                          samples_s=f"{rate:.1f}", data_wait=f"{100 * wait_share:.0f}%")
             if progress is not None:
                 progress.update(1)
+            if validator is not None and validator.due(done):
+                validator.run(t.model, done)
             if save_now:
                 path = save(t, done, log)
                 last_good = str(path) if path else last_good
@@ -292,4 +299,4 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
             progress.close()
         log.close()
     return {"step": cfg.steps, "last_losses": last_losses, "samples_per_s": rate,
-            "checkpoint": str(last_path(t.run_dir))}
+            "checkpoint": str(last_path(t.run_dir)), "best": validator.best if validator else None}

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import pytest
 import yaml
 
 from sc3d_cli.train import main
@@ -19,20 +20,26 @@ def test_claims_trains_every_run_and_writes_the_tables(sample_shards, tmp_path):
     results = run_all(sample_shards, sample_shards, out, preset, eval_split="test", device="cpu", echo=lines.append)
     assert set(results) == set(RUNS)
     for name in RUNS:
-        cfg = yaml.safe_load((out / "runs" / name / "config.yaml").read_text())
+        cfg = yaml.safe_load((out / "runs" / name / "seed-0" / "config.yaml").read_text())
         assert cfg["steps"] == 2 and cfg["seed"] == 0  # equal budgets, one seed
-        assert (out / "runs" / name / "eval" / "metrics.json").is_file()
-    modes = {n: yaml.safe_load((out / "runs" / n / "config.yaml").read_text()) for n in RUNS}
+        assert (out / "runs" / name / "seed-0" / "eval" / "metrics.json").is_file()
+    modes = {n: yaml.safe_load((out / "runs" / n / "seed-0" / "config.yaml").read_text()) for n in RUNS}
     assert modes["sup-1tube"]["model"]["voxel_decoder"] == "1tube"
     assert modes["semi"]["mode"] == "semi" and modes["labeled-only"]["mode"] == "labeled-only"
     assert modes["ray"]["loss_weights"]["proj"] == 0.0 and modes["ray-proj"]["loss_weights"]["proj"] == 0.125
+    # best.pt of every run is what was evaluated; the ablations learn no pose: picked by IoU alone
+    assert {n for n in RUNS if modes[n]["select_by"] == "iou"} == {"ray", "ray-proj"}
+    assert all(json.loads((out / "runs" / n / "seed-0" / "eval" / "metrics.json").read_text())["checkpoint"]
+               .endswith("best.pt") for n in RUNS)
     report = (out / "claims.md").read_text()
     for title in ("Ours (Sup), 3 tubes", "Ours (Sup), 1 tube", "labelled only", "Ours (Semi)",
-                  "Ray (true pose)", "Ray + Projection (true pose)", "| claim | measured | holds |"):
+                  "Ray (true pose)", "Ray + Projection (true pose)",
+                  "| claim | measured | difference ± σ | holds (means) | beyond 2σ |"):
         assert title in report, title
     saved = json.loads((out / "claims.json").read_text())
     assert saved["results"]["semi"]["mean"]["voxel_iou_0.4"] == results["semi"]["mean"]["voxel_iou_0.4"]
     assert (out / "claims.png").stat().st_size > 10_000
+    assert "n/a (1 seed)" in report and "±" not in report.split("### Claims")[0]  # one seed: no error bars
     # a rerun trains nothing: every run is read back
     again = []
     run_all(sample_shards, sample_shards, out, preset, eval_split="test", device="cpu", echo=again.append)
@@ -43,3 +50,57 @@ def test_claims_cli_refuses_unknown_runs(sample_shards, tmp_path):
     r = run_cli(main, ["claims", "--train-shards", sample_shards, "--eval-shards", sample_shards,
                        "--out", tmp_path / "c", "--runs", "sup-3tube,bogus"], expect_exit=2)
     assert "bogus" in r.output
+
+
+def test_claims_with_two_seeds_reports_mean_and_standard_deviation(sample_shards, tmp_path):
+    """``--seeds 2``: each run trained with seeds 0 and 1 (its own folder), every cell the mean ±
+    sample standard deviation of the two evaluations, recomputed here from the per-seed
+    metrics.json files; the claim carries sigma = sqrt(s_a^2 / 2 + s_b^2 / 2)."""
+    import numpy as np
+
+    from sc3d_train.claims import ClaimsPreset, run_all
+
+    preset = ClaimsPreset(steps=2, batch_size=4, lr=1e-3, tiny=True, extra={"base_channels": 4})
+    out = tmp_path / "claims"
+
+    def study():
+        lines = []
+        run_all(sample_shards, sample_shards, out, preset, "test", "cpu", runs=["labeled-only", "semi"],
+                seeds=2, echo=lines.append)
+        return "\n".join(lines)
+
+    study()
+    saved = json.loads((out / "claims.json").read_text())
+    assert saved["meta"]["seeds"] == [0, 1]
+    per_seed = {}
+    for name in ("labeled-only", "semi"):
+        for seed in (0, 1):
+            run = out / "runs" / name / f"seed-{seed}"
+            assert yaml.safe_load((run / "config.yaml").read_text())["seed"] == seed
+            per_seed[name, seed] = json.loads((run / "eval" / "metrics.json").read_text())
+        res = saved["results"][name]
+        assert res["seeds"] == [0, 1]
+        for cat, figures in res["per_category"].items():
+            for key in ("voxel_iou_0.4", "pose_rotation_median", "pose_rotation_acc30"):
+                vals = [per_seed[name, s]["per_category"][cat][key] for s in (0, 1)]
+                assert figures[key] == pytest.approx(np.mean(vals))
+                assert res["std"]["per_category"][cat][key] == pytest.approx(np.std(vals, ddof=1))
+        vals = [per_seed[name, s]["mean"]["voxel_iou_0.4"] for s in (0, 1)]
+        assert res["mean"]["voxel_iou_0.4"] == pytest.approx(np.mean(vals))
+        assert res["std"]["mean"]["voxel_iou_0.4"] == pytest.approx(np.std(vals, ddof=1))
+    (claim,) = saved["claims"]
+    m = {n: [per_seed[n, s]["mean"]["voxel_iou_0.4"] for s in (0, 1)] for n in ("semi", "labeled-only")}
+    sigma = np.sqrt(np.var(m["semi"], ddof=1) / 2 + np.var(m["labeled-only"], ddof=1) / 2)
+    assert claim["claim"] == "semi > labelled only"
+    assert claim["difference"] == pytest.approx(np.mean(m["semi"]) - np.mean(m["labeled-only"]))
+    assert claim["sigma"] == pytest.approx(sigma)
+    assert claim["beyond_2sigma"] == bool(claim["difference"] > 2 * sigma)
+    report = (out / "claims.md").read_text()
+    iou = 100 * saved["results"]["semi"]["mean"]["voxel_iou_0.4"]
+    iou_sd = 100 * saved["results"]["semi"]["std"]["mean"]["voxel_iou_0.4"]
+    assert f"{iou:.1f} ± {iou_sd:.1f} |" in report and "over 2 seeds" in report
+    assert ("| yes |" if claim["beyond_2sigma"] else "| no |") in report.splitlines()[-1]
+    # resume per (run, seed): a lost evaluation is redone from the trained run, the rest read back
+    (out / "runs" / "semi" / "seed-1" / "eval" / "metrics.json").unlink()
+    again = study()
+    assert again.count("done before") == 3 and "semi seed 1: semi, " in again and "(resuming)" in again

@@ -214,7 +214,7 @@ def test_unsupervised_loss_updates_encoder_and_voxel_decoder_not_mask_decoder():
     batch = make_batch()
     unlabeled = {k: batch[k] for k in ("images", "K_sc", "distance")}
     out = model(unlabeled["images"])
-    losses = unsupervised_loss(out, unlabeled, grid=model.pose_grid)
+    losses = unsupervised_loss(out, unlabeled, LossWeights(wpose_unlabeled=1.0), grid=model.pose_grid)
     # no 3D/2D label terms are reported for unlabelled images (nothing is optimised there)
     assert set(losses) == set(LOSS_KEYS) - {"l3d", "l2d"}
     assert float(losses["pose"].detach()) > 0  # the pose search between predicted voxels and mask
@@ -241,3 +241,36 @@ def test_tiny_model_fits_one_batch():
     assert all(np.isfinite(h["total"]) for h in history)
     assert_learnt(("L_3D after / before 20 steps", history[-1]["l3d"] / history[0]["l3d"], "<", 0.85),
                   ("total loss after / before 20 steps", history[-1]["total"] / history[0]["total"], "<", 1.0))
+
+
+def test_unlabelled_pose_gate_keeps_only_searches_that_agree_with_the_head():
+    """``unlabeled_pose_gate`` N: L_pose is the azimuth cross-entropy over the images whose searched
+    azimuth bin lies within N bins (circularly) of the head's top bin, recomputed here from the
+    search; N = 12 (half the 24 bins) trusts every image, as no gate (-1) does."""
+    import torch.nn.functional as F
+
+    from sc3d_train.pose_search import search_at_head_elevation
+
+    torch.manual_seed(0)
+    model = SelfConsistencyNet(ModelConfig.tiny())
+    batch = make_batch(b=6)
+    unlabeled = {k: batch[k] for k in ("images", "K_sc", "distance")}
+    out = model(unlabeled["images"])
+    grid = model.pose_grid
+    loss = {gate: unsupervised_loss(out, unlabeled, LossWeights(unlabeled_pose_gate=gate), grid)["pose"]
+            for gate in (-1, 0, 3, 12)}
+    assert float(loss[12].detach()) == pytest.approx(float(loss[-1].detach()))
+    occupancy = torch.sigmoid(out.voxel_logits.float())
+    masks = area_downsample(torch.sigmoid(out.mask_logits.float()), 48)  # the loss's size without masks_sc
+    target = search_at_head_elevation(occupancy, masks, unlabeled["distance"], unlabeled["K_sc"], out.pose_logits,
+                                      grid, LossWeights())
+    a = grid.azimuth_bins
+    searched, head = grid.split(target)[0], out.pose_logits[:, :a].argmax(1)
+    kept = []
+    for gate in (0, 3):
+        gap = torch.minimum((searched - head) % a, (head - searched) % a)
+        keep = gap <= gate
+        expected = F.cross_entropy(out.pose_logits[keep, :a].float(), searched[keep]) if keep.any() else 0.0
+        assert float(loss[gate].detach()) == pytest.approx(float(torch.as_tensor(expected).detach()), rel=1e-5)
+        kept.append(int(keep.sum()))
+    assert kept[0] < 6 and kept[1] > 0  # the gate drops some images and keeps some
