@@ -29,15 +29,13 @@ on CUDA, gloo on CPU); the global batch is split evenly over ranks. Everything t
 trajectory (weights, optimiser, AMP scaler, every RNG, step, data position) is checkpointed, so
 ``--resume`` continues exactly: the loss at step N equals the uninterrupted run's.
 
-Modules: :mod:`~sc3d_train.schedule` (phase, lr, data position of a step),
-:mod:`~sc3d_train.phase_step` (batches and losses of a step), :mod:`~sc3d_train.train_step` (the
-step, eager or compiled; on one CUDA device compiled with CUDA graphs by default),
-:mod:`~sc3d_train.device_prefetch` (the next batch copied to the GPU on a side stream),
-:mod:`~sc3d_train.loss_window` (the finiteness check without a host sync per step),
-:mod:`~sc3d_train.runtime`
-(ranks, device, AMP), :mod:`~sc3d_train.metrics_log` (metrics.csv, TensorBoard, curves),
-:mod:`~sc3d_train.streams` (datasets and loaders of each phase), :mod:`~sc3d_train.checkpoint`,
-:mod:`~sc3d_train.validation` (the val split every ``val_every`` steps, ``best.pt``);
+Modules: :mod:`~sc3d_train.schedule` (phase, lr, data position of a step), :mod:`~sc3d_train.phase_step`
+(batches and losses of a step), :mod:`~sc3d_train.train_step` (the step, eager or compiled; on one
+CUDA device with CUDA graphs by default), :mod:`~sc3d_train.device_prefetch` (the next batch copied
+to the GPU on a side stream), :mod:`~sc3d_train.loss_window` (the finiteness check without a host
+sync per step), :mod:`~sc3d_train.runtime` (ranks, device, AMP), :mod:`~sc3d_train.metrics_log`
+(metrics.csv, TensorBoard, curves), :mod:`~sc3d_train.streams` (datasets and loaders of each
+phase), :mod:`~sc3d_train.checkpoint`, :mod:`~sc3d_train.validation` (the val split, ``best.pt``):
 this one holds the loop.
 """
 from __future__ import annotations
