@@ -35,11 +35,15 @@ def test_eval_writes_metrics_table_and_picture(trained_run, sample_shards, tmp_p
 
 @pytest.mark.learnt
 def test_pose_is_learnt_without_pose_labels(trained_run, sample_shards):
-    """The shared short run (120 steps of 8, tiny model, 8 training objects, no pose label read):
-    its pose head predicts the camera of its training views far better than chance: measured
-    median rotation error 36 deg and 47% of the 192 views within 30 deg (chance: 90 deg and about
-    17%; before the pose search the same run gave ~80 deg). `eval` without --out writes beside
-    the run."""
+    """The shared short run (360 steps of 8, tiny model, 8 training objects, no pose label read):
+    its pose head predicts the camera of its training views far better than chance (90 deg
+    median, 17% within 30 deg), and its silhouettes beat the untrained network's (mask IoU
+    0.00-0.07). `eval` without --out writes beside the run.
+
+    Spread, 20 runs (seeds 0-9 x torch threads 1 and 2, scripts/test_spread.py, 2-core Xeon,
+    2026-11-25): median rotation error 1.8-31.7 deg (median 4.8; 2 of 20 above 10), within 30 deg
+    0.48-0.92, mask IoU 0.18-0.995 (median 0.98; 3 of 20 below 0.9: from some initialisations
+    the mask loss falls slowly and is still falling at step 360). Bounds: 45 deg, 0.35, 0.12."""
     r = run_cli(main, ["eval", "--checkpoint", trained_run / "checkpoints" / "last.pt",
                        "--shards", sample_shards, "--split", "train", "--pose", "head"])
     out = trained_run / "eval_train"
@@ -47,8 +51,8 @@ def test_pose_is_learnt_without_pose_labels(trained_run, sample_shards):
     overall = json.loads((out / "metrics.json").read_text())["overall"]
     assert overall["images"] == 192
     assert_learnt(("pose rotation median (deg)", overall["pose_rotation_median"], "<=", 45.0),
-                  ("pose within 30 deg", overall["pose_rotation_acc30"], ">=", 0.40),
-                  ("mask IoU", overall["mask_iou"], ">=", 0.35))
+                  ("pose within 30 deg", overall["pose_rotation_acc30"], ">=", 0.35),
+                  ("mask IoU", overall["mask_iou"], ">=", 0.12))
 
 
 def test_eval_metric_definitions():

@@ -25,6 +25,14 @@ def read_csv(path: Path) -> list[dict]:
 
 @pytest.mark.learnt
 def test_fit_writes_the_run_and_learns(trained_run, sample_shards):
+    """The shared short run writes every file of a run, logs every step, and learns: its loss
+    and its mask loss fall, and its voxels beat the same network untrained (train IoU@0.4 of the
+    untrained net: 0.04).
+
+    Spread, 20 runs (seeds 0-9 x torch threads 1 and 2, scripts/test_spread.py, 2-core Xeon,
+    2026-11-25): loss last 20 / first 10 steps 0.15-0.25, train IoU@0.4 0.27-0.74 (gain over
+    the untrained net 0.23-0.70). Bounds: 0.5, 0.15 and 0.10; the mask loss's ratio (added
+    after that measurement) is in docs/testing.md."""
     from sc3d_train.checkpoint import build_model, load_model
     from sc3d_train.config import RunConfig
     from sc3d_train.data import ShardDataset
@@ -52,9 +60,11 @@ def test_fit_writes_the_run_and_learns(trained_run, sample_shards):
     untrained = build_model(cfg).eval()
     trained_iou = summarize(predict_dataset(model, ds, "cpu", 96)[0])["overall"]["voxel_iou_0.4"]
     untrained_iou = summarize(predict_dataset(untrained, ds, "cpu", 96)[0])["overall"]["voxel_iou_0.4"]
-    assert_learnt(("loss, last 20 / first 10 steps", total[-20:].mean() / total[:10].mean(), "<", 0.85),
-                  ("train IoU@0.4 gain over the untrained net", trained_iou - untrained_iou, ">", 0.05),
-                  ("train IoU@0.4", trained_iou, ">", 0.25))
+    mask_loss = np.array([float(r["l2d"]) for r in rows])
+    assert_learnt(("loss, last 20 / first 10 steps", total[-20:].mean() / total[:10].mean(), "<", 0.5),
+                  ("mask loss, last 20 / first 10 steps", mask_loss[-20:].mean() / mask_loss[:10].mean(), "<", 0.75),
+                  ("train IoU@0.4 gain over the untrained net", trained_iou - untrained_iou, ">", 0.10),
+                  ("train IoU@0.4", trained_iou, ">", 0.15))
 
 
 def interrupt_at(run: Path, copy: Path, step: int) -> None:
