@@ -54,7 +54,7 @@ def test_semi_phase_keeps_the_pose_of_labelled_training(trained_run, sample_shar
     unlabelled loss weight 0 (the labelled half alone: what labelled-only training would do in
     those steps). Figure: median rotation error of semi minus that of the labelled-only
     continuation, on the 4 training objects whose labels the semi run never reads (the images its
-    unlabelled pass learns from), and on the held-out val objects.
+    unlabelled pass learns from).
 
     Found on the way (branch i24, trained seed 0, semi seeds 0-2, median rotation error on the
     unlabelled objects after 20 mixed steps; 0.4 deg at the start): labelled-only continuation 3.4 /
@@ -63,11 +63,10 @@ def test_semi_phase_keeps_the_pose_of_labelled_training(trained_run, sample_shar
     pseudo-label but no unlabelled L_sc 31.6 / 30.0 / 45.3. The pseudo-label on the searched azimuth
     is what cost the pose; a confidence gate on it (``unlabeled_pose_gate`` 1) did not help.
     Measured for this test with ``wpose_unlabeled`` 1 (scripts/test_spread.py --seeds 0-2
-    --threads 1): unlabelled objects +14.3, +60.0, +59.5 deg, val objects -0.0, +0.2, +7.4.
-    With the default 0 (same command, load 3-4, branch i24): unlabelled objects -9.9, -0.0,
-    +0.5 deg; val objects -7.5, -0.0, +0.1 deg. BOUNDS: the requirement (no worse) with room for
-    noise (10 deg: two-thirds of one 15-deg azimuth bin; 15 deg on val, at chance in both runs),
-    which every seed of the earlier default broke."""
+    --threads 1): unlabelled objects +14.3, +60.0, +59.5 deg. With the default 0, 20 runs
+    (--seeds 0-9 --threads 1,2, 2-core Xeon, 2026-11-25): -37.2 to +7.5 deg (median -2.6).
+    BOUND 12 deg: the requirement (no worse) with room for that spread (4.5 deg above its worst),
+    below a whole 15-deg azimuth bin, which every seed of the earlier default broke."""
     from sc3d_train.data import ShardDataset
 
     ends = {}
@@ -77,9 +76,10 @@ def test_semi_phase_keeps_the_pose_of_labelled_training(trained_run, sample_shar
         cfg = semi_run_at_boundary(trained_run, out, **weights)
         run_cli(main, ["fit", "--out", out, "--resume", "--no-progress"])
         ends[name] = out / "checkpoints" / "last.pt"
+    # only the unlabelled training objects: the one val object is at chance in both runs (about
+    # 90 deg), so the difference there is noise (-30 to +45 deg over 11 runs) and asserts nothing
     sets = {"unlabelled objects": ShardDataset(sample_shards, "train", subset="unlabeled", labeled_fraction=0.15,
-                                               seed=cfg.seed),
-            "val objects": ShardDataset(sample_shards, "val")}
+                                               seed=cfg.seed)}
     figures = []
     for name, dataset in sets.items():
         semi, only = (median_rotation_error(ends[k], dataset) for k in ("semi", "labelled only"))
@@ -90,4 +90,4 @@ def test_semi_phase_keeps_the_pose_of_labelled_training(trained_run, sample_shar
 
 
 #: semi may be at most this much worse than the labelled-only continuation (degrees; docstring)
-BOUNDS = {"unlabelled objects": 10.0, "val objects": 15.0}
+BOUNDS = {"unlabelled objects": 12.0}
