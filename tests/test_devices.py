@@ -49,7 +49,8 @@ def test_gpus_on_a_cluster_one_share_per_ray_task_own_gpus_per_slurm_task(tmp_pa
 def test_each_worker_draws_on_its_slots_device(sample_shards, tmp_path):
     """``--gpus 0`` with 2 workers: the same dataset as the session's run without the option;
     ``--gpus 0,7``: the second worker's context is asked for device 7, which this machine
-    lacks, and the run stops naming it."""
+    lacks, and the run stops naming it, also with ``--backend auto`` (no silent fall back to
+    OSMesa, which would draw on the CPU whatever --gpus says)."""
     out = tmp_path / "gpu0"
     run_cli(main, ["render", "--meshes", SAMPLE_MESHES, "--out", out, "--voxelize", "--workers", "2",
                    "--gpus", "0", "--no-progress"])
@@ -57,3 +58,6 @@ def test_each_worker_draws_on_its_slots_device(sample_shards, tmp_path):
     res = run_cli(main, ["render", "--meshes", SAMPLE_MESHES / "chair", "--out", tmp_path / "gpu7", "--workers",
                          "2", "--gpus", "0,7", "--backend", "egl", "--views", "4", "--no-progress"], expect_exit=1)
     assert "EGL device 7 does not exist" in res.output
+    res = run_cli(main, ["render", "--meshes", SAMPLE_MESHES / "chair", "--out", tmp_path / "auto7", "--workers",
+                         "1", "--gpus", "7", "--views", "4", "--no-progress"], expect_exit=1)
+    assert "EGL device 7 does not exist" in res.output and "osmesa:" not in res.output

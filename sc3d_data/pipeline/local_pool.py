@@ -245,12 +245,18 @@ class WorkerPool:
 
 def start_pool(n: int, config, job: Job = RENDER) -> WorkerPool:
     """Start ``n`` workers of ``job`` with ``config.backend``; ``auto`` tries EGL, then OSMesa
-    (the workers themselves are the probe: the main process never creates a GL context). Raises
-    ``BackendError`` naming the Debian packages when no backend works."""
+    (the workers themselves are the probe: the main process never creates a GL context), EGL
+    alone when ``config.gpus`` names devices. Raises ``BackendError`` naming the Debian packages
+    when no backend works."""
     from sc3d_data.render.gl_backend import BackendError, install_hint
 
     errors = []
-    for backend in job.backends(getattr(config, "backend", "auto")):
+    backends = job.backends(getattr(config, "backend", "auto"))
+    if job.gl and getattr(config, "gpus", ()):
+        # --gpus names EGL devices: a device that fails is an error, not a silent fall back to
+        # OSMesa's CPU rasteriser
+        backends = [b for b in backends if b == "egl"]
+    for backend in backends:
         pool = WorkerPool(n, config, backend, job)
         err = pool.wait_ready()
         if err is None:
