@@ -74,7 +74,7 @@ if [ "$BENCH" = 1 ]; then
   step pose_search "$PY" benchmarks/pose_search.py --shards "$WORK/shards"
   step scale "$PY" benchmarks/scale.py --meshes "$SUB" --workers 4
   step faults "$PY" benchmarks/faults.py --meshes "$SUB" --files 60 --workers 4
-  git archive HEAD | tar -x -C "$WORK" --one-top-level=old 2>/dev/null || { mkdir -p "$WORK/old"; git archive HEAD | tar -x -C "$WORK/old"; }
+  mkdir -p "$WORK/old" && git archive HEAD | tar -x -C "$WORK/old"   # the *_compare scripts against HEAD itself
   step pipeline_compare "$PY" benchmarks/pipeline_compare.py "$WORK/old" "$SUB" --repeat 1
   step voxelize_compare "$PY" benchmarks/voxelize_compare.py "$WORK/old" "$SUB" --repeat 1
 fi

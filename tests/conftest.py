@@ -37,6 +37,7 @@ def train_seed() -> int:
     """The seed of the training tests in this session (``--train-seed``, default 0)."""
     return int(os.environ.get("SC3D_TRAIN_SEED", "0"))
 
+
 _COMPARE = {">=": operator.ge, "<=": operator.le, ">": operator.gt, "<": operator.lt}
 
 
@@ -148,16 +149,14 @@ def require_backend(name: str) -> str:
 
 def edge_pixels(mask):
     """``[..., S, S] bool``: pixels of a mask ``[..., S, S]`` with a 4-neighbour of the other value
-    (where two rasterisers may disagree by GL's rules: the pixel centre's side of an edge)."""
+    (where two rasterisers may disagree by GL's rules: the pixel centre's side of an edge); the
+    image border is no edge."""
     import numpy as np
+    from scipy import ndimage
 
     m = np.asarray(mask) > 0
-    edge = np.zeros_like(m)
-    edge[..., 1:, :] |= m[..., 1:, :] != m[..., :-1, :]
-    edge[..., :-1, :] |= m[..., 1:, :] != m[..., :-1, :]
-    edge[..., :, 1:] |= m[..., :, 1:] != m[..., :, :-1]
-    edge[..., :, :-1] |= m[..., :, 1:] != m[..., :, :-1]
-    return edge
+    cross = ndimage.generate_binary_structure(2, 1).reshape((1,) * (m.ndim - 2) + (3, 3))
+    return ndimage.binary_dilation(m, cross) & ~ndimage.binary_erosion(m, cross, border_value=1)
 
 
 def assert_same_raster(images_a, masks_a, images_b, masks_b, what: str = "") -> None:

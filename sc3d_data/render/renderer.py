@@ -410,15 +410,16 @@ class MeshRenderer:
         first released from this thread and the thread's EGL state after the display is
         terminated (EGL's own teardown order: pyrender destroys a context that is still current,
         which some drivers, NVIDIA's among them, trip over when the process exits)."""
-        if self._platform is None:
+        platform, self._platform = self._platform, None
+        if platform is None:
             return
-        if self.backend == "egl":
-            from OpenGL import EGL
+        if self.backend != "egl":
+            platform.delete_context()
+            return
+        from OpenGL import EGL
 
-            display = getattr(self._platform, "_egl_display", None)
-            if display is not None:
-                EGL.eglMakeCurrent(display, EGL.EGL_NO_SURFACE, EGL.EGL_NO_SURFACE, EGL.EGL_NO_CONTEXT)
-        self._platform.delete_context()
-        self._platform = None
-        if self.backend == "egl":
-            EGL.eglReleaseThread()
+        display = getattr(platform, "_egl_display", None)
+        if display is not None:
+            EGL.eglMakeCurrent(display, EGL.EGL_NO_SURFACE, EGL.EGL_NO_SURFACE, EGL.EGL_NO_CONTEXT)
+        platform.delete_context()
+        EGL.eglReleaseThread()
