@@ -193,6 +193,9 @@ class RunConfig(_Plain):
     val_split: str = setting("val", "Split of --shards to validate on: objects never trained on (not the "
                              "training split; test is refused).")
     val_views: int = setting(4, "Views per validation object (evenly spaced), to keep validation cheap.")
+    val_min_objects: int = setting(5, "Keep best.pt only when the val split has at least N objects; with "
+                                   "fewer the figures are still logged, no best.pt is kept and eval reads "
+                                   "last.pt (a pick on 1-4 objects follows noise).")
     select_by: str = setting("iou+pose", "What picks best.pt: iou+pose (mean IoU@0.4 + share of views "
                              "within 30 deg), iou, or pose (that share).", choices=SELECT_BY)
     log_every: int = setting(10, "Log the losses every N steps.")
@@ -219,8 +222,8 @@ class RunConfig(_Plain):
         if self.val_every and self.val_split in (self.split, "test"):
             raise ValueError(f"val split {self.val_split!r} must hold objects never trained on and not "
                              f"the test objects (training split {self.split!r}; --val-every 0 turns validation off)")
-        if self.val_every < 0 or self.val_views < 1:
-            raise ValueError("val_every must be >= 0 and val_views >= 1")
+        if self.val_every < 0 or self.val_views < 1 or self.val_min_objects < 1:
+            raise ValueError("val_every must be >= 0, val_views and val_min_objects >= 1")
         if self.mode == "semi":
             if self.pretrain_steps is None:
                 self.pretrain_steps = self.steps // 2

@@ -27,6 +27,12 @@ and ``checkpoints/best.pt`` (model, config, step and the validation record: what
 ``claims`` read by default). On ``--resume`` the rows after the resumed step are dropped and
 ``best.pt``'s record is the best to beat (exact resume retraces the same weights). The torch RNG
 state is restored after each validation, so the trajectory does not depend on ``val_every``.
+
+**Too few validation objects.** With fewer than ``val_min_objects`` (5) objects in the split the
+figures are still computed and logged (``best`` stays 0), but no ``best.pt`` is kept: ``eval`` and
+``claims`` then read ``last.pt``. Why: a score on a handful of objects follows noise, not the
+network. On the bundled sample meshes (2 val objects, 8 images) a 300-step run's ``best.pt`` was
+step 100, chosen because 2 of its 8 images were within 30 degrees and none of step 300's.
 """
 from __future__ import annotations
 
@@ -93,6 +99,8 @@ class Validator:
             w.writeheader()
             w.writerows(rows)
         self.best = None
+        #: whether this split is large enough to pick best.pt (module doc: too few objects)
+        self.selects = dataset.num_objects >= cfg.val_min_objects
         if start_step > 0 and best_path(self.run_dir).is_file():
             self.best = load_checkpoint(best_path(self.run_dir)).get("validation")
 
@@ -108,6 +116,9 @@ class Validator:
             say(f"no {cfg.val_split!r} objects in {cfg.shards}: no validation, no best.pt "
                 f"(eval reads last.pt)")
             return None
+        if dataset.num_objects < cfg.val_min_objects:
+            say(f"only {dataset.num_objects} {cfg.val_split!r} object(s) in {cfg.shards} (< --val-min-objects "
+                f"{cfg.val_min_objects}): validation figures are logged, no best.pt (eval reads last.pt)")
         return cls(cfg, dataset, device, start_step, tb)
 
     def due(self, done: int) -> bool:
@@ -133,8 +144,8 @@ class Validator:
         figures = {"val_iou": mean["voxel_iou_0.4"], "val_rot_median": mean["pose_rotation_median"],
                    "val_rot_acc30": mean["pose_rotation_acc30"]}
         figures["val_score"] = score(figures, self.cfg.select_by)
-        better = self.best is None or figures["val_score"] > self.best["val_score"] or not np.isfinite(
-            self.best["val_score"])
+        better = self.selects and (self.best is None or figures["val_score"] > self.best["val_score"]
+                                   or not np.isfinite(self.best["val_score"]))
         if better:
             self.best = {"step": done, "select_by": self.cfg.select_by, "split": self.cfg.val_split,
                          "images": len(rows), **figures}

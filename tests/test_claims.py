@@ -14,7 +14,8 @@ from tests.conftest import run_cli
 def test_claims_trains_every_run_and_writes_the_tables(sample_shards, tmp_path):
     from sc3d_train.claims import RUNS, ClaimsPreset, run_all
 
-    preset = ClaimsPreset(steps=2, batch_size=4, lr=1e-3, tiny=True)
+    # the sample shards hold 2 val objects: best.pt is kept with --val-min-objects 1
+    preset = ClaimsPreset(steps=2, batch_size=4, lr=1e-3, tiny=True, extra={"val_min_objects": 1})
     out = tmp_path / "claims"
     lines = []
     results = run_all(sample_shards, sample_shards, out, preset, eval_split="test", device="cpu", echo=lines.append)

@@ -29,7 +29,7 @@ def test_validation_picks_best_and_leaves_training_alone(sample_shards, tmp_path
     assert view_indices(2, 24, 4) == [0, 6, 12, 18, 24, 30, 36, 42]
     val = tmp_path / "val"  # validated every step, interrupted after 4 steps and resumed to 8
     run_cli(main, ["fit", "--shards", sample_shards, "--out", val, "--steps", 4, *TINY, "--val-every", 1,
-                   "--val-views", 24, "--checkpoint-every", 4, "--log-every", 1])
+                   "--val-views", 24, "--val-min-objects", 1, "--checkpoint-every", 4, "--log-every", 1])
     first_best = load_checkpoint(val / "checkpoints" / "best.pt")["validation"]
     run_cli(main, ["fit", "--out", val, "--steps", 8, "--resume", "--no-progress"])
     plain = tmp_path / "plain"  # no validation at all
@@ -70,6 +70,26 @@ def test_validation_picks_best_and_leaves_training_alone(sample_shards, tmp_path
     assert (val / "curves.png").stat().st_size > 10_000
     resumed = run_cli(main, ["fit", "--out", val, "--steps", 9, "--resume", "--no-progress"])
     assert "best on 'val' (iou+pose): step " in resumed.output
+
+
+def test_too_few_val_objects_log_figures_but_keep_no_best(sample_shards, tmp_path):
+    """The sample shards hold 2 val objects (< the default --val-min-objects 5): fit still writes
+    the validation rows, marks none best, keeps no best.pt, says so, and eval of the run folder
+    reads last.pt."""
+    from sc3d_train.data import ShardDataset
+
+    assert ShardDataset(sample_shards, "val").num_objects == 2
+    run = tmp_path / "run"
+    out = run_cli(main, ["fit", "--shards", sample_shards, "--out", run, "--steps", 2, *TINY, "--val-every", 1,
+                         "--checkpoint-every", 2])
+    assert "only 2 'val' object(s)" in out.output and "no best.pt (eval reads last.pt)" in out.output
+    assert "best on" not in out.output
+    rows = read_csv(run / "validation.csv")
+    assert [int(r["step"]) for r in rows] == [1, 2] and all(r["best"] == "0" for r in rows)
+    assert not (run / "checkpoints" / "best.pt").exists()
+    ev = run_cli(main, ["eval", "--checkpoint", run, "--shards", sample_shards, "--split", "val", "--examples", 0,
+                        "--device", "cpu", "--out", tmp_path / "ev"])
+    assert "last.pt (step 2)" in ev.output
 
 
 def test_validation_refuses_the_training_and_test_splits(sample_shards, tmp_path):
