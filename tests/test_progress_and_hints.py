@@ -11,7 +11,7 @@ import pytest
 
 from sc3d_cli.data import main
 from conftest import SAMPLE_MESHES, run_cli
-from sc3d_data.pipeline.progress import LineProgress, progress_bar
+from sc3d_data.pipeline.run.progress import LineProgress, progress_bar
 
 
 class FakeTTY(io.StringIO):

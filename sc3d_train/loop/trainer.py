@@ -248,7 +248,7 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
     validator = Validator.for_run(cfg, t.device, start_step, t.dist.is_main, getattr(log, "tb", None))
     progress = None
     if t.dist.is_main and cfg.progress:
-        from sc3d_data.pipeline.progress import progress_bar
+        from sc3d_data.pipeline.run.progress import progress_bar
 
         progress = progress_bar(total=cfg.steps, initial=start_step, unit="step", desc="train")
 

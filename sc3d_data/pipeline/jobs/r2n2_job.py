@@ -18,6 +18,7 @@ Ctrl-C loses no finished shard; other settings are refused (``--overwrite`` star
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -25,10 +26,11 @@ from typing import Callable
 from sc3d_data.formats.r2n2 import (BLENDER_LENS_MM, BLENDER_SENSOR_MM, MASK_THRESHOLD, R2N2_FOV_DEG, R2N2_FRONT,
                                     R2N2_NUM_VIEWS, R2N2_VOXEL_RESOLUTION, R2N2Model, find_r2n2_models,
                                     load_r2n2_object)
-from sc3d_data.pipeline.job import ExecOptions, Job
+from sc3d_data.pipeline.executors.job import ExecOptions, Job
+from sc3d_data.pipeline.executors.slurm_executor import SlurmOptions, run_array, summed_parts
 from sc3d_data.io.shards import CHUNK_LAYOUTS, encode_arrays
-from sc3d_data.pipeline.partition import Part
-from sc3d_data.pipeline.render_job import Task
+from sc3d_data.pipeline.run.partition import Part
+from sc3d_data.pipeline.run.plan import Task
 
 
 @dataclass
@@ -49,7 +51,7 @@ class ImportConfig(ExecOptions):
     front: str = R2N2_FRONT
     objects_per_shard: int = 256
     overwrite: bool = False
-    part: Part = Part(0, 1)  # --part I/N (sc3d_data.pipeline.partition); 0/1 = all models
+    part: Part = Part(0, 1)  # --part I/N (sc3d_data.pipeline.run.partition); 0/1 = all models
     progress: bool = True  # a progress bar / log lines on stderr
 
     def settings(self) -> dict:
@@ -73,7 +75,7 @@ class ImportConfig(ExecOptions):
 def _take_part(plan: list, part, problems: list, skipped: list):
     """This run's share of ``plan`` (``[(model, split)]``) for ``--part`` (all when None), the
     index's ``part`` record, and the problems/skipped files (reported by part 0 only)."""
-    from sc3d_data.pipeline.partition import part_of, part_record, plan_digest
+    from sc3d_data.pipeline.run.partition import part_of, part_record, plan_digest
 
     part = part or Part(0, 1)
     digest = plan_digest((m.category, m.model_id, s) for m, s in plan)
@@ -142,7 +144,7 @@ def import_r2n2(config: ImportConfig, progress: Callable[[int], None] | None = N
     discovery). ``ValueError`` / ``FileNotFoundError`` / ``ShardError`` with one line naming
     the folder or file (another ``--part`` or other settings in ``out``, missing input, ...)."""
     from sc3d_data.io.outlock import exclusive_lock
-    from sc3d_data.pipeline.resume import check_out
+    from sc3d_data.pipeline.run.resume import check_out
 
     out = Path(config.out)
     check_out(out)
@@ -156,9 +158,9 @@ def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
 
     from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index, load_index
     from sc3d_data.io.shards import write_index as write_index_file
-    from sc3d_data.pipeline.executor import finished_chunks, start_executor
-    from sc3d_data.pipeline.resume import (check_resume, clean_tmp, empty_state, remaining, remove_listed_outputs,
-                                           resume_state)
+    from sc3d_data.pipeline.executors.executor import finished_chunks, start_executor
+    from sc3d_data.pipeline.run.resume import (check_resume, clean_tmp, empty_state, remaining, remove_listed_outputs,
+                                               resume_state)
 
     t0 = time.monotonic()
     if config.overwrite:
@@ -190,7 +192,7 @@ def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
     try:
         write_index(not todo)
         if todo and progress is None and config.progress:
-            from sc3d_data.pipeline.progress import progress_bar
+            from sc3d_data.pipeline.run.progress import progress_bar
 
             bar = progress_bar(total=len(todo), unit="obj", desc="import-r2n2")
             progress = bar.update
@@ -231,3 +233,21 @@ def _chunk_records(c: int, results: list, failures: list) -> list:
             failures.append({"source": t.path, "category": t.category, "model_id": t.model_id, "reason": payload,
                              "chunk": c, "pos": t.pos})
     return records
+
+
+def import_part(config) -> dict:
+    """What one array task of ``import-r2n2`` runs."""
+    return import_r2n2(config)
+
+
+def import_on_slurm(config, options: SlurmOptions) -> dict:
+    """``import-r2n2`` of ``config`` (``r2n2_job.ImportConfig``) as a job array, then merged into
+    ``config.out``; the summary keys of ``r2n2_job.import_r2n2`` (summed over the parts)."""
+    from sc3d_data.pipeline.run.merge import merge_parts
+
+    t0 = time.monotonic()
+    configs, summaries = run_array(import_part, config, options, paths=("renderings", "voxels"))
+    merge_parts(Path(config.out), [c.out for c in configs])
+    out = summed_parts(summaries, ("done", "resumed", "failed", "skipped", "planned"), t0, config)
+    out["failures"] = [f for s in summaries for f in s["failures"]]
+    return out

@@ -72,7 +72,7 @@ def _job(args):
 def _map(jobs, workers: int):
     if workers <= 1 or len(jobs) <= 1:
         return [_job(j) for j in jobs]
-    from sc3d_data.pipeline.local_pool import worker_context
+    from sc3d_data.pipeline.executors.local_pool import worker_context
 
     with ProcessPoolExecutor(max_workers=workers, mp_context=worker_context(None),
                              initializer=limit_threads) as ex:
@@ -134,7 +134,7 @@ def _voxelize_shards_locked(shard_dir, resolution, workers, overwrite, progress)
     old_voxel_failures = [f for f in index.get("failures", []) if f.get("stage") == "voxelize"]
     bar = None
     if progress:
-        from sc3d_data.pipeline.progress import progress_bar
+        from sc3d_data.pipeline.run.progress import progress_bar
 
         bar = progress_bar(total=len(paths), unit="shard", desc="voxelize")
     new_failures = []

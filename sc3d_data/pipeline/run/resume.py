@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sc3d_data.pipeline.render_job import Task
+from sc3d_data.pipeline.run.plan import Task
 
 
 def clean_tmp(out: Path) -> None:

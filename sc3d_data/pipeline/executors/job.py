@@ -1,17 +1,27 @@
 """What an executor runs on each object (:class:`Job`), the run options every job shares
-(:class:`ExecOptions`), and the render job (:data:`RENDER`).
+(:class:`ExecOptions`) and the environment of a worker (:data:`THREAD_ENV`; :data:`CRASH_ENV`,
+a test hook): the contract between ``executors/`` and ``jobs/``, kept here so that executors
+import no job.
 
-Jobs: :data:`RENDER` (``render_job.render_task``, one renderer per worker), ``r2n2_job.IMPORT``
-(one 3D-R2N2 model into an ``ObjectRecord``) and ``voxel_meshes.VOXELIZE_MESH`` (one mesh into
-a ``.binvox`` file the worker writes). A task is any object with ``pos`` (its plan position)
-and ``path`` (the file named in failure reasons). Executors: ``executor.py``.
+Jobs (in ``sc3d_data.pipeline.jobs``): ``render_job.RENDER`` (``render_job.render_task``, one
+renderer per worker), ``r2n2_job.IMPORT`` (one 3D-R2N2 model into an ``ObjectRecord``) and
+``voxel_meshes.VOXELIZE_MESH`` (one mesh into a ``.binvox`` file the worker writes). A task is
+any object with ``pos`` (its plan position) and ``path`` (the file named in failure reasons),
+e.g. ``run.plan.Task``. Executors: ``executor.py``.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Callable
 
-from sc3d_data.pipeline.render_job import RenderConfig, cached_renderer, render_task
+
+#: one BLAS/OpenMP thread per worker process (the workers are the parallelism)
+THREAD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+              "LP_NUM_THREADS": "1"}
+#: TEST-ONLY fault injection (tests/test_scale.py): comma-separated model ids whose worker
+#: process kills itself with SIGKILL when it starts them, as a mesh that crashes the GL driver
+#: would. Unset in normal use; nothing else reads it.
+CRASH_ENV = "SC3D_TEST_CRASH_MODEL_IDS"
 
 
 @dataclass(frozen=True)
@@ -59,23 +69,3 @@ class ExecOptions:
     address: str | None = None
     retries: int = 3
     backend: str = "auto"
-
-
-def render_setup(config: RenderConfig, backend: str) -> str:
-    """Make this worker's renderer (``render_job.cached_renderer``); the GL backend it got."""
-    return cached_renderer(config, backend)[1]
-
-
-def drop_renderers() -> None:
-    """Close and forget this process's cached renderers."""
-    from sc3d_data.pipeline import render_job
-
-    for renderer, _ in render_job._RENDERERS.values():
-        try:
-            renderer.close()
-        except Exception:  # noqa: BLE001 - it is being dropped
-            pass
-    render_job._RENDERERS.clear()
-
-
-RENDER = Job("render", render_task, setup=render_setup, drop=drop_renderers, gl=True)

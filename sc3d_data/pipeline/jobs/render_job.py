@@ -1,5 +1,6 @@
 """One object's work for ``sc3d-data render``: the run's settings (:class:`RenderConfig`), the
-unit of work (:class:`Task`) and the function every executor runs on it (:func:`render_task`).
+unit of work (``run.plan.Task``), the function every executor runs on it (:func:`render_task`)
+and the job that runs it (:data:`RENDER`).
 
 Executors (``local_pool``, ``ray_executor``, ``slurm_executor``) only move tasks and results;
 what happens to one object is defined here once: load, validate, normalise into the canonical
@@ -18,10 +19,12 @@ import numpy as np
 
 from sc3d_data.geometry.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS, ViewSettings
 from sc3d_data.io.meshes import DEFAULT_MAX_FACES, DEFAULT_MAX_FILE_BYTES
-from sc3d_data.pipeline.partition import Part
+from sc3d_data.pipeline.executors.job import CRASH_ENV, THREAD_ENV, Job
+from sc3d_data.pipeline.run.partition import Part
+from sc3d_data.pipeline.run.plan import Task
 from sc3d_data.io.shards import ObjectRecord, border_clipped, encode_arrays
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
+REPO_ROOT = Path(__file__).resolve().parents[3]
 SAMPLE_MESHES = REPO_ROOT / "assets" / "sample_meshes"
 #: settings that do not change the output; they may differ between a run and its resume
 RUNTIME_ONLY = ("workers", "progress", "timeout_s", "retry_failed", "part", "executor", "address",
@@ -29,8 +32,6 @@ RUNTIME_ONLY = ("workers", "progress", "timeout_s", "retry_failed", "part", "exe
 #: largest framebuffer side the renderer asks for (GL_MAX_RENDERBUFFER_SIZE of Mesa and NVIDIA)
 MAX_ATLAS_SIDE = 16384
 MAX_VOXEL_RESOLUTION = 512
-THREAD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
-              "LP_NUM_THREADS": "1"}
 
 
 @dataclass
@@ -68,11 +69,11 @@ class RenderConfig:
     overwrite: bool = False
     progress: bool = True
     retry_failed: bool = True
-    part: Part = Part(0, 1)  # this run's share of the plan (partition.py)
+    part: Part = Part(0, 1)  # this run's share of the plan (run/partition.py)
     executor: str = "local"  # local | ray (slurm runs parts through slurm_executor)
     address: str | None = None  # ray: cluster address, None = a local cluster for the run
     retries: int = 3  # ray: re-runs of an object whose worker died
-    gpus: tuple[int, ...] = ()  # EGL devices the workers are spread over (devices.py); () = as today
+    gpus: tuple[int, ...] = ()  # EGL devices the workers are spread over (executors/devices.py); () = as today
 
     def validate(self, n_workers: int = 1) -> None:
         """Raise ``ValueError`` naming the option when a value is out of what the renderer or
@@ -127,15 +128,6 @@ class RenderConfig:
                          "msaa_samples": 0}
         return d
 
-
-
-@dataclass(frozen=True)
-class Task:
-    pos: int
-    path: str
-    category: str
-    model_id: str
-    split: str
 
 
 def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord, list[str]]:
@@ -208,10 +200,6 @@ def _backend_order(backend: str) -> tuple[str, ...]:
 
 
 _RENDERERS: dict = {}
-#: TEST-ONLY fault injection (tests/test_scale.py): comma-separated model ids whose worker
-#: process kills itself with SIGKILL when it starts them, as a mesh that crashes the GL driver
-#: would. Unset in normal use; nothing else reads it.
-CRASH_ENV = "SC3D_TEST_CRASH_MODEL_IDS"
 
 
 def cached_renderer(config: RenderConfig, backend: str):
@@ -264,3 +252,21 @@ def render_task(config: RenderConfig, backend: str, task: Task) -> tuple[int, st
         return task.pos, "fail", failure_reason(task, e)
     finally:
         _release_memory()
+
+
+def render_setup(config: RenderConfig, backend: str) -> str:
+    """Make this worker's renderer (:func:`cached_renderer`); the GL backend it got."""
+    return cached_renderer(config, backend)[1]
+
+
+def drop_renderers() -> None:
+    """Close and forget this process's cached renderers."""
+    for renderer, _ in _RENDERERS.values():
+        try:
+            renderer.close()
+        except Exception:  # noqa: BLE001 - it is being dropped
+            pass
+    _RENDERERS.clear()
+
+
+RENDER = Job("render", render_task, setup=render_setup, drop=drop_renderers, gl=True)

@@ -36,8 +36,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from sc3d_data.pipeline.job import RENDER, Job
-from sc3d_data.pipeline.render_job import CRASH_ENV, THREAD_ENV
+from sc3d_data.pipeline.executors.job import CRASH_ENV, THREAD_ENV, Job
 
 MISSING = "the Ray executor needs Ray: pip install 'sc3d[ray]'"
 
@@ -58,7 +57,7 @@ def worker_env(local: bool) -> dict:
     if os.environ.get(CRASH_ENV):  # the test-only fault injection reaches the workers
         env[CRASH_ENV] = os.environ[CRASH_ENV]
     if local:
-        root = str(Path(__file__).resolve().parents[2])
+        root = str(Path(__file__).resolve().parents[3])
         env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in [os.environ.get("PYTHONPATH")] if p])
     return {"env_vars": env}
 
@@ -154,7 +153,7 @@ def _use_ray_gpu(job: Job, config) -> None:
     the EGL device index; the renderer reads it when it makes its context)."""
     import ray
 
-    from sc3d_data.pipeline.devices import DEVICE_ENV
+    from sc3d_data.pipeline.executors.devices import DEVICE_ENV
 
     if job.gl and getattr(config, "gpus", ()) and ray.get_gpu_ids():
         os.environ.setdefault(DEVICE_ENV, str(int(ray.get_gpu_ids()[0])))
@@ -163,7 +162,7 @@ def _use_ray_gpu(job: Job, config) -> None:
 class RayExecutor:
     """See module doc; make one with :meth:`start`."""
 
-    def __init__(self, ray, config, backend: str, slots: int, owns_cluster: bool, job: Job = RENDER):
+    def __init__(self, ray, config, backend: str, slots: int, owns_cluster: bool, job: Job):
         self.ray, self.config, self.backend, self.slots, self.job = ray, config, backend, slots, job
         self.owns_cluster = owns_cluster
         self.remote = ray.remote(job_task_split).options(num_cpus=1, num_gpus=_gpu_share(job, config, slots),
@@ -173,7 +172,7 @@ class RayExecutor:
         self.writer = ray.remote(_write_shard_task).options(num_cpus=0, max_retries=config.retries)
 
     @classmethod
-    def start(cls, config, n_workers: int, job: Job = RENDER) -> "RayExecutor":
+    def start(cls, config, n_workers: int, job: Job) -> "RayExecutor":
         """Join or start the cluster (module doc) and set up one worker per CPU slot (one
         renderer each; the first error of the GL backend is raised here, naming the packages)."""
         ray = require_ray()

@@ -8,8 +8,8 @@ tasks on a cluster) and hands each result back to the driver (``render_run``, ``
 died, and where a finished chunk's shard file is written from (``write_shard``). It never
 decides what an object's result is: that is the job's (same result whatever the executor).
 
-What a worker runs is a ``job.Job``: ``job.RENDER``, ``r2n2_job.IMPORT`` or
-``voxel_meshes.VOXELIZE_MESH``.
+What a worker runs is a ``job.Job``: ``jobs.render_job.RENDER``, ``jobs.r2n2_job.IMPORT`` or
+``jobs.voxel_meshes.VOXELIZE_MESH``.
 
 SLURM is not an executor of this kind: a job array runs whole parts (``slurm_executor``), each
 part with the local pool, and ``merge`` joins them.
@@ -20,8 +20,8 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Protocol
 
-from sc3d_data.pipeline.job import RENDER, Job
-from sc3d_data.pipeline.render_job import Task
+from sc3d_data.pipeline.executors.job import Job
+from sc3d_data.pipeline.run.plan import Task
 
 #: ``(pos, "ok", (record, warnings))`` or ``(pos, "fail", reason)``; ``pos`` = the task's plan position
 Result = tuple[int, str, object]
@@ -48,16 +48,16 @@ class Executor(Protocol):
         """Stop the workers (and a cluster started for the run)."""
 
 
-def start_executor(config, n_workers: int, job: Job = RENDER) -> Executor:
+def start_executor(config, n_workers: int, job: Job) -> Executor:
     """The executor of ``config.executor`` (``local`` or ``ray``) running ``job`` with
     ``n_workers`` workers."""
     if config.executor == "ray":
-        from sc3d_data.pipeline.ray_executor import RayExecutor
+        from sc3d_data.pipeline.executors.ray_executor import RayExecutor
 
         return RayExecutor.start(config, n_workers, job)
     if config.executor != "local":
         raise ValueError(f"--executor {config.executor}: expected local or ray here (slurm submits parts)")
-    from sc3d_data.pipeline.local_pool import start_pool
+    from sc3d_data.pipeline.executors.local_pool import start_pool
 
     return start_pool(n_workers, config, job)
 

@@ -1,10 +1,14 @@
 """SLURM executor of ``render``, ``import-r2n2`` and ``voxelize --meshes`` with ``--executor
-slurm``: a job array through submitit.
+slurm``: a job array through submitit. Each job holds its own entry points, the function one
+array task runs and the whole run (``jobs.render_run.render_part`` / ``render_on_slurm``,
+``jobs.r2n2_job.import_part`` / ``import_on_slurm``, ``jobs.voxel_meshes.voxelize_part`` /
+``voxelize_on_slurm``), built on :func:`run_array` and :func:`summed_parts` here, so this module
+imports no job.
 
-Array task ``i`` of ``N = --slurm-parts`` runs part ``i/N`` (``partition.py``) with the local
+Array task ``i`` of ``N = --slurm-parts`` runs part ``i/N`` (``run/partition.py``) with the local
 pool (``--slurm-cpus-per-task`` workers) into ``OUT/parts/part-00i-of-00N/``; the submitting
 process waits for the array (printing a line per finished part), then merges the parts into
-``OUT`` (``merge.py``). ``voxelize --meshes`` writes one file per mesh, so its parts share
+``OUT`` (``run/merge.py``). ``voxelize --meshes`` writes one file per mesh, so its parts share
 ``OUT`` and nothing is merged. Every part is an ordinary resumable output folder, so a rerun of the
 same command resubmits the array and finished parts return at once; a part that failed is
 named with its error and the merge is not attempted until every part is complete.
@@ -19,8 +23,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from sc3d_data.pipeline.partition import Part
-from sc3d_data.pipeline.render_job import RenderConfig
+from sc3d_data.pipeline.run.partition import Part
 
 MISSING = "the SLURM executor needs submitit: pip install 'sc3d[slurm]'"
 
@@ -48,27 +51,6 @@ def part_configs(config, parts: int, cpus: int, paths: tuple[str, ...] = ("meshe
     return [dataclasses.replace(config, part=Part(i, parts), workers=cpus, executor="local", progress=False, **gpus,
                                 out=root if shared_out else root / "parts" / Part(i, parts).dirname(),
                                 **{k: Path(getattr(config, k)).resolve() for k in paths}) for i in range(parts)]
-
-
-def render_part(config) -> dict:
-    """What one array task of ``render`` runs (a plain function: submitit pickles it by reference)."""
-    from sc3d_data.pipeline.render_run import render_dataset
-
-    return render_dataset(config)
-
-
-def import_part(config) -> dict:
-    """What one array task of ``import-r2n2`` runs."""
-    from sc3d_data.pipeline.r2n2_job import import_r2n2
-
-    return import_r2n2(config)
-
-
-def voxelize_part(config) -> dict:
-    """What one array task of ``voxelize --meshes`` runs."""
-    from sc3d_data.pipeline.voxel_meshes import voxelize_meshes
-
-    return voxelize_meshes(config).as_dict()
 
 
 def submit(fn, configs: list, options: SlurmOptions, log_dir: Path, name: str):
@@ -127,45 +109,9 @@ def run_array(fn, config, options: SlurmOptions, paths: tuple[str, ...] = ("mesh
     return configs, summaries
 
 
-def _summed(summaries: list[dict], keys: tuple[str, ...], t0: float, config) -> dict:
+def summed_parts(summaries: list[dict], keys: tuple[str, ...], t0: float, config) -> dict:
+    """The whole run's summary from the parts' ``summaries``: ``keys`` summed, with the
+    ``seconds`` since ``t0``, ``out``, ``part`` 0/1 and ``executor`` slurm."""
     out = {k: sum(s[k] for s in summaries) for k in keys}
     out.update(seconds=time.monotonic() - t0, out=str(config.out), part="0/1", executor="slurm")
     return out
-
-
-def render_on_slurm(config: RenderConfig, options: SlurmOptions) -> dict:
-    """Render ``config`` as a job array of ``options.parts`` parts, then merge into ``config.out``.
-    Returns the summary keys of ``render_dataset`` (summed over the parts)."""
-    from sc3d_data.pipeline.merge import merge_parts
-
-    t0 = time.monotonic()
-    configs, summaries = run_array(render_part, config, options)
-    merged = merge_parts(Path(config.out), [c.out for c in configs])
-    out = _summed(summaries, ("done", "resumed", "skipped", "failed", "retried", "repaired", "views"), t0, config)
-    out.update(notes=[n for s in summaries for n in s["notes"]],
-               views_per_s=out["views"] / out["seconds"] if out["seconds"] > 0 else 0.0,
-               backend=",".join(sorted({str(s["backend"]) for s in summaries})),
-               workers=options.parts * options.cpus_per_task, merged_objects=merged.objects)
-    return out
-
-
-def import_on_slurm(config, options: SlurmOptions) -> dict:
-    """``import-r2n2`` of ``config`` (``r2n2_job.ImportConfig``) as a job array, then merged into
-    ``config.out``; the summary keys of ``r2n2_job.import_r2n2`` (summed over the parts)."""
-    from sc3d_data.pipeline.merge import merge_parts
-
-    t0 = time.monotonic()
-    configs, summaries = run_array(import_part, config, options, paths=("renderings", "voxels"))
-    merge_parts(Path(config.out), [c.out for c in configs])
-    out = _summed(summaries, ("done", "resumed", "failed", "skipped", "planned"), t0, config)
-    out["failures"] = [f for s in summaries for f in s["failures"]]
-    return out
-
-
-def voxelize_on_slurm(config, options: SlurmOptions) -> dict:
-    """``voxelize --meshes`` of ``config`` (``voxel_meshes.VoxelMeshesConfig``) as a job array whose
-    parts share ``config.out`` (one ``.binvox`` per mesh; failures in
-    ``failures.part-00I-of-00N.json``); the summed ``VoxelizeSummary`` fields."""
-    t0 = time.monotonic()
-    _, summaries = run_array(voxelize_part, config, options, shared_out=True)
-    return _summed(summaries, ("done", "resumed", "failed"), t0, config)

@@ -29,7 +29,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from sc3d_data.pipeline.resume import settings_differ
+from sc3d_data.pipeline.run.resume import settings_differ
 from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, file_sha256, load_index, shard_path, write_index
 from sc3d_data.io.shard_reader import verify_shard
 

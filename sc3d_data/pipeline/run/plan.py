@@ -14,8 +14,20 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sc3d_data.pipeline.partition import part_of, part_record, plan_digest
-from sc3d_data.pipeline.render_job import RenderConfig, Task
+from sc3d_data.pipeline.run.partition import part_of, part_record, plan_digest
+
+
+@dataclass(frozen=True)
+class Task:
+    """One object of a run's plan: its position ``pos`` (0.. in plan order), mesh ``path`` (the
+    file named in failure reasons), ``category``, ``model_id`` and ``split``. Every job's task is
+    one of these (``r2n2_job.R2N2Task`` adds fields)."""
+
+    pos: int
+    path: str
+    category: str
+    model_id: str
+    split: str
 
 
 @dataclass
@@ -31,8 +43,9 @@ class Plan:
     found_any: bool = True
 
 
-def make_plan(config: RenderConfig) -> Plan:
-    """Discover, split and partition ``config.meshes`` (module doc)."""
+def make_plan(config) -> Plan:
+    """Discover, split and partition ``config.meshes`` (module doc); ``config`` is a
+    ``jobs.render_job.RenderConfig`` (not imported: ``run/`` sits below ``jobs/``)."""
     from sc3d_data.formats.discover import discover_meshes
     from sc3d_data.formats.splits import assign_splits
 

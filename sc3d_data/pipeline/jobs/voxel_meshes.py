@@ -8,7 +8,7 @@ the per-mesh time limit ``--timeout``; ``--executor slurm``: ``slurm_executor``)
 ``.binvox`` files are complete (written atomically) and skipped on a rerun, so a crash or
 Ctrl-C loses no finished file; failures (with the reason: error, time limit, worker
 killed) go to ``out/failures.json``, sorted by source. With ``part`` (``--part I/N``) only
-the meshes of that part (``sc3d_data.pipeline.partition``) are done and failures go to
+the meshes of that part (``sc3d_data.pipeline.run.partition``) are done and failures go to
 ``out/failures.part-00I-of-00N.json``, so N jobs can share one ``out`` folder.
 (Shards: voxelize each part folder of a partitioned render, or render with ``--voxelize``.)
 """
@@ -21,10 +21,11 @@ from pathlib import Path
 import numpy as np
 
 from sc3d_data.io.shards import write_json_atomic
-from sc3d_data.pipeline.job import ExecOptions, Job
-from sc3d_data.pipeline.partition import Part
-from sc3d_data.pipeline.render_job import Task
-from sc3d_data.pipeline.voxel_job import VoxelizeSummary, limit_threads, voxelize_canonical
+from sc3d_data.pipeline.executors.job import ExecOptions, Job
+from sc3d_data.pipeline.executors.slurm_executor import SlurmOptions, run_array, summed_parts
+from sc3d_data.pipeline.run.partition import Part
+from sc3d_data.pipeline.run.plan import Task
+from sc3d_data.pipeline.jobs.voxel_job import VoxelizeSummary, limit_threads, voxelize_canonical
 
 
 @dataclass
@@ -96,8 +97,8 @@ def voxelize_meshes(config: VoxelMeshesConfig) -> VoxelizeSummary:
     """One ``.binvox`` per mesh under ``config.meshes``, same relative paths under ``config.out``
     (module doc), on the executor of ``config.executor`` (local pool or Ray; per-mesh time
     limit ``config.timeout_s``)."""
-    from sc3d_data.pipeline.executor import start_executor
-    from sc3d_data.pipeline.partition import part_of
+    from sc3d_data.pipeline.executors.executor import start_executor
+    from sc3d_data.pipeline.run.partition import part_of
     from sc3d_data.formats.discover import discover_meshes
 
     t0 = time.monotonic()
@@ -122,7 +123,7 @@ def voxelize_meshes(config: VoxelMeshesConfig) -> VoxelizeSummary:
         pool, bar = start_executor(config, n, VOXELIZE_MESH), None
         try:
             if config.progress:
-                from sc3d_data.pipeline.progress import progress_bar
+                from sc3d_data.pipeline.run.progress import progress_bar
 
                 bar = progress_bar(total=len(todo), unit="mesh", desc="voxelize")
             for pos, status, payload in pool.run(todo):
@@ -141,3 +142,17 @@ def voxelize_meshes(config: VoxelMeshesConfig) -> VoxelizeSummary:
     write_json_atomic(out / ("failures.json" if part.whole else f"failures.{part.dirname()}.json"), failures)
     summary.seconds = time.monotonic() - t0
     return summary
+
+
+def voxelize_part(config) -> dict:
+    """What one array task of ``voxelize --meshes`` runs."""
+    return voxelize_meshes(config).as_dict()
+
+
+def voxelize_on_slurm(config, options: SlurmOptions) -> dict:
+    """``voxelize --meshes`` of ``config`` (``voxel_meshes.VoxelMeshesConfig``) as a job array whose
+    parts share ``config.out`` (one ``.binvox`` per mesh; failures in
+    ``failures.part-00I-of-00N.json``); the summed ``VoxelizeSummary`` fields."""
+    t0 = time.monotonic()
+    _, summaries = run_array(voxelize_part, config, options, shared_out=True)
+    return summed_parts(summaries, ("done", "resumed", "failed"), t0, config)

@@ -3,7 +3,7 @@ shards and ``index.json`` in plan order.
 
 Design
 ------
-- Plan (``plan.py``): discovered meshes with a split, ordered by ``(category, model_id)``,
+- Plan (``run/plan.py``): discovered meshes with a split, ordered by ``(category, model_id)``,
   optionally one part of a deterministic partition (``--part I/N``). The plan is cut into
   chunks of ``objects_per_shard`` objects; chunk ``c`` becomes ``shard-{c:05d}.h5`` (objects
   that fail are left out of it).
@@ -15,7 +15,7 @@ Design
   chunks of results in memory. The shard file itself is written by the executor
   (``Executor.write_shard``: here for the local pool, on a Ray worker for Ray, from the arrays
   in the object store: they never pass through this process).
-- Resume and retry (``resume.py``): the index is rewritten atomically after every shard; a
+- Resume and retry (``run/resume.py``): the index is rewritten atomically after every shard; a
   rerun keeps intact chunks and renders the rest (and the recorded failures). Ctrl-C or a kill
   loses at most the chunks in progress.
 - One writer: the run holds ``sc3d_data.io.outlock.exclusive_lock(out)``.
@@ -29,10 +29,11 @@ import time
 from pathlib import Path
 
 from sc3d_data.io.meshes import MESH_SUFFIXES
-from sc3d_data.pipeline.executor import finished_chunks, start_executor
-from sc3d_data.pipeline.render_job import RenderConfig
-from sc3d_data.pipeline.resume import (check_out, check_resume, clean_tmp, empty_state, remaining,
-                                       remove_listed_outputs, resume_state)
+from sc3d_data.pipeline.executors.executor import finished_chunks, start_executor
+from sc3d_data.pipeline.executors.slurm_executor import SlurmOptions, run_array, summed_parts
+from sc3d_data.pipeline.jobs.render_job import RENDER, RenderConfig
+from sc3d_data.pipeline.run.resume import (check_out, check_resume, clean_tmp, empty_state, remaining,
+                                           remove_listed_outputs, resume_state)
 from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index
 from sc3d_data.io.shards import write_index as write_index_file
 
@@ -69,7 +70,7 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
         remove_listed_outputs(out)
     clean_tmp(out)
     settings = config.settings(None)
-    from sc3d_data.pipeline.plan import make_plan
+    from sc3d_data.pipeline.run.plan import make_plan
 
     plan = make_plan(config)
     tasks, problems, skipped, split_desc = plan.tasks, plan.problems, plan.skipped, plan.split_desc
@@ -96,7 +97,7 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
     n_workers = max(1, min(config.workers or os.cpu_count() or 1, max(1, len(todo))))
     if executor is not None and executor.config.settings(None) != settings:
         raise ValueError("the executor given was started with other render settings than this run")
-    pool = executor if executor is not None else start_executor(config, n_workers) if todo else None
+    pool = executor if executor is not None else start_executor(config, n_workers, RENDER) if todo else None
     settings["backend"] = pool.backend if pool else (old or {}).get("settings", {}).get("backend")
 
     def write_index(complete: bool) -> None:
@@ -148,7 +149,7 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
         write_index(not todo)
         if pool is not None:
             if config.progress:
-                from sc3d_data.pipeline.progress import progress_bar
+                from sc3d_data.pipeline.run.progress import progress_bar
 
                 bar = progress_bar(total=len(todo), unit="obj", desc="render")
             for chunk in finished_chunks(pool, todo, K, n_workers, bar.update if bar is not None else None):
@@ -170,3 +171,24 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
             "seconds": seconds, "views": views, "views_per_s": views / seconds if seconds > 0 else 0.0,
             "out": str(out), "backend": settings["backend"], "workers": n_workers if todo else 0,
             "part": str(config.part), "executor": config.executor}
+
+
+def render_part(config) -> dict:
+    """What one array task of ``render`` runs (a plain function: submitit pickles it by reference)."""
+    return render_dataset(config)
+
+
+def render_on_slurm(config: RenderConfig, options: SlurmOptions) -> dict:
+    """Render ``config`` as a job array of ``options.parts`` parts, then merge into ``config.out``.
+    Returns the summary keys of ``render_dataset`` (summed over the parts)."""
+    from sc3d_data.pipeline.run.merge import merge_parts
+
+    t0 = time.monotonic()
+    configs, summaries = run_array(render_part, config, options)
+    merged = merge_parts(Path(config.out), [c.out for c in configs])
+    out = summed_parts(summaries, ("done", "resumed", "skipped", "failed", "retried", "repaired", "views"), t0, config)
+    out.update(notes=[n for s in summaries for n in s["notes"]],
+               views_per_s=out["views"] / out["seconds"] if out["seconds"] > 0 else 0.0,
+               backend=",".join(sorted({str(s["backend"]) for s in summaries})),
+               workers=options.parts * options.cpus_per_task, merged_objects=merged.objects)
+    return out

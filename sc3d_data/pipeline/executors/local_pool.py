@@ -9,14 +9,14 @@ worker gets the main process's environment as it is when the worker starts (``_w
 as a spawned one would. Each makes its per-worker state once (``Job.start``: for rendering ONE
 ``MeshRenderer``) and handles one object at a time: the main process sends tasks down a pipe,
 keeping the next one queued behind the current (``QUEUED``), and gets the result of ``job.run``
-back (``executor.Job``; default :data:`executor.RENDER`). Per-object time limit
+back (``job.Job``, e.g. ``jobs.render_job.RENDER``). Per-object time limit
 (``config.timeout_s``, counted from when the worker starts the object): a worker that takes
 longer (a loader that hangs, a huge mesh) is killed and replaced and the object is recorded as
 a failure; a worker that crashes is handled the same way (the next run retries it,
 ``retry_failed``); the task queued behind it goes to another worker. With ``config.gpus``,
 worker slot ``i`` renders on EGL device ``gpus[i % len(gpus)]`` (``devices.py``).
 
-Implements ``sc3d_data.pipeline.executor.Executor`` (as ``ray_executor.RayExecutor`` does).
+Implements ``sc3d_data.pipeline.executors.executor.Executor`` (as ``ray_executor.RayExecutor`` does).
 """
 from __future__ import annotations
 
@@ -25,17 +25,17 @@ import os
 import time
 from multiprocessing.connection import wait
 
-from sc3d_data.pipeline.devices import worker_environ
-from sc3d_data.pipeline.job import RENDER, Job
-from sc3d_data.pipeline.render_job import THREAD_ENV, Task
+from sc3d_data.pipeline.executors.devices import worker_environ
+from sc3d_data.pipeline.executors.job import THREAD_ENV, Job
+from sc3d_data.pipeline.run.plan import Task
 from sc3d_data.io.shards import write_shard
 
 
 #: tasks a worker holds at a time: the one it works on and the next, already in its pipe
 QUEUED = 2
 #: imported once by the forkserver (see module doc); ``PRELOAD_EGL`` when EGL workers come first
-PRELOAD = "sc3d_data.pipeline.worker_preload"
-PRELOAD_EGL = "sc3d_data.pipeline.worker_preload_egl"
+PRELOAD = "sc3d_data.pipeline.executors.worker_preload"
+PRELOAD_EGL = "sc3d_data.pipeline.executors.worker_preload_egl"
 #: more modules for the forkserver to import after the preload (before the first pool starts;
 #: ``benchmarks/stage_profile.py`` adds its timing hooks so that the workers inherit them)
 PRELOAD_EXTRA: list[str] = []
@@ -135,7 +135,7 @@ class WorkerPool:
     ``(pos, status, payload)`` with status ``ok`` (payload: (record, warnings)) or ``fail``
     (payload: reason), enforcing the per-object time limit."""
 
-    def __init__(self, n: int, config, backend: str, job: Job = RENDER):
+    def __init__(self, n: int, config, backend: str, job: Job):
         for k, v in THREAD_ENV.items():
             os.environ.setdefault(k, v)
         self.ctx = worker_context(backend if job.gl else None)
@@ -243,7 +243,7 @@ class WorkerPool:
             w.kill()
 
 
-def start_pool(n: int, config, job: Job = RENDER) -> WorkerPool:
+def start_pool(n: int, config, job: Job) -> WorkerPool:
     """Start ``n`` workers of ``job`` with ``config.backend``; ``auto`` tries EGL, then OSMesa
     (the workers themselves are the probe: the main process never creates a GL context), EGL
     alone when ``config.gpus`` names devices. Raises ``BackendError`` naming the Debian packages
