@@ -371,7 +371,7 @@ def scenario_fit_disk_full(work, rows, ref):
     rc, text = run(["unshare", "-rm", "bash", "-c", script])
     diff = "?"
     if (work / "fitB_last.pt").is_file():
-        from sc3d_train.checkpoint import load_checkpoint
+        from sc3d_train.loop.checkpoint import load_checkpoint
 
         a = load_checkpoint(work / "fitA" / "checkpoints" / "last.pt")["model"]
         b = load_checkpoint(work / "fitB_last.pt")["model"]

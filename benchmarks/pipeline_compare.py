@@ -28,7 +28,7 @@ RUN_ONE = """
 import json, sys
 sys.path.insert(0, {tree!r})
 from pathlib import Path
-from sc3d_data.pipeline.render_run import RenderConfig, render_dataset
+from sc3d_data.pipeline.jobs.render_run import RenderConfig, render_dataset
 s = render_dataset(RenderConfig(out=Path({out!r}), meshes=Path({meshes!r}), voxelize=True,
                                 workers={workers}, progress=False, bad_texture="fallback"))
 print(json.dumps({{k: s[k] for k in ("done", "failed", "seconds", "views_per_s")}}))

@@ -18,9 +18,9 @@ import time
 import numpy as np
 import torch
 
-from sc3d_train.data import ShardDataset
-from sc3d_train.pose import PoseGrid, angular_error_deg
-from sc3d_train.pose_search import search_losses_per_object
+from sc3d_train.data.dataset import ShardDataset
+from sc3d_train.paper.pose import PoseGrid, angular_error_deg
+from sc3d_train.paper.pose_search import search_losses_per_object
 
 
 def main() -> None:

@@ -102,7 +102,7 @@ def run_pipeline_memory(paths, root: Path, repeat: int, workers: int, views: int
     tracker) are left out."""
     import numpy as np
 
-    from sc3d_data.pipeline.render_run import RenderConfig, render_dataset
+    from sc3d_data.pipeline.jobs.render_run import RenderConfig, render_dataset
 
     with tempfile.TemporaryDirectory(prefix="sc3d-bench-") as tmp:
         meshes = stage_profile.replicate_meshes(paths, root, repeat, Path(tmp) / "meshes")

@@ -39,7 +39,7 @@ def ids(out: Path) -> list:
 
 
 def run_local(cfg) -> float:
-    from sc3d_data.pipeline.render_run import render_dataset
+    from sc3d_data.pipeline.jobs.render_run import render_dataset
 
     t0 = time.monotonic()
     render_dataset(cfg)
@@ -49,8 +49,8 @@ def run_local(cfg) -> float:
 def run_ray(cfg, workers: int) -> tuple[float, float]:
     import dataclasses
 
-    from sc3d_data.pipeline.ray_executor import init_local
-    from sc3d_data.pipeline.render_run import render_dataset
+    from sc3d_data.pipeline.executors.ray_executor import init_local
+    from sc3d_data.pipeline.jobs.render_run import render_dataset
 
     t0 = time.monotonic()
     ray = init_local(workers)
@@ -86,7 +86,8 @@ def run_parts(cfg, out: Path, parts: int, workers: int) -> float:
 
 
 def run_slurm_local(cfg, parts: int, workers: int) -> float:
-    from sc3d_data.pipeline.slurm_executor import SlurmOptions, render_on_slurm
+    from sc3d_data.pipeline.executors.slurm_executor import SlurmOptions
+    from sc3d_data.pipeline.jobs.render_run import render_on_slurm
 
     t0 = time.monotonic()
     render_on_slurm(cfg, SlurmOptions(parts=parts, cpus_per_task=max(1, workers // parts), cluster="local"))
@@ -102,7 +103,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1, help="rounds of all engines; the fastest of each is shown")
     args = ap.parse_args()
     sys.argv = sys.argv[:1]
-    from sc3d_data.pipeline.render_job import RenderConfig
+    from sc3d_data.pipeline.jobs.render_job import RenderConfig
 
     with tempfile.TemporaryDirectory(prefix="sc3d-scale-") as tmp:
         tmp = Path(tmp)

@@ -66,9 +66,9 @@ def install_worker_hooks() -> None:
     import sc3d_data.io.meshes as mesh_io
     import sc3d_data.geometry.normalize as normalize
     import sc3d_data.render.renderer as render
-    import sc3d_data.pipeline.job as job_mod
-    import sc3d_data.pipeline.local_pool as pool
-    import sc3d_data.pipeline.render_job as job
+    import sc3d_data.pipeline.executors.job as job_mod
+    import sc3d_data.pipeline.executors.local_pool as pool
+    import sc3d_data.pipeline.jobs.render_job as job
     import sc3d_data.voxel.voxelize as voxelize
 
     log_dir = Path(os.environ[ENV])
@@ -169,9 +169,9 @@ def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = Tr
     seconds summed over objects, worker and main, and each worker's life (``life_table``)."""
     from multiprocessing import connection
 
-    import sc3d_data.pipeline.local_pool as pool
-    import sc3d_data.pipeline.render_run as rp
-    from sc3d_data.pipeline.render_run import RenderConfig, render_dataset
+    import sc3d_data.pipeline.executors.local_pool as pool
+    import sc3d_data.pipeline.jobs.render_run as rp
+    from sc3d_data.pipeline.jobs.render_run import RenderConfig, render_dataset
 
     main_acc: dict[str, float] = {}
     saved = (pool.write_shard, rp.write_index_file, connection.Connection.recv)

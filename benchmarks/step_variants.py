@@ -1,5 +1,5 @@
 """(A module of ``train_step.py``, not run directly.) Table 1 of ``train_step.py``: ``fit``'s
-training step (:class:`sc3d_train.train_step.TrainStep`, the code ``fit`` runs) in several
+training step (:class:`sc3d_train.loop.train_step.TrainStep`, the code ``fit`` runs) in several
 variants on one fixed batch, interleaved step by step, each from the same weights, batch and
 random numbers so that their losses can be compared; and ``--profile``: where a step goes
 (torch.profiler's top kernels and kernel launches per step).
@@ -24,14 +24,15 @@ def phase_batches(cfg, batch: dict, device, channels_last: bool, phase: str) -> 
     """The device batches of one step: ``supervised`` (the whole batch, with its pose targets
     searched from its voxels and masks once, as ``fit`` does before training) or ``semi`` (the
     mixed phase: the first half labelled, the second half without labels)."""
-    from sc3d_train.losses import search_target
-    from sc3d_train.phase_step import training_batch
+    from sc3d_train.paper.losses import search_target
+    from sc3d_train.paper.pose import PoseGrid
+    from sc3d_train.loop.phase_step import training_batch
 
     def part(lo, hi, kind):
         sub = {k: v[lo:hi] for k, v in batch.items()}
         out = training_batch(sub, kind, device, channels_last)
         if kind == "supervised":
-            out["pose_target"] = search_target(out["voxels"], out["masks_sc"], out, cfg.model.pose_grid(),
+            out["pose_target"] = search_target(out["voxels"], out["masks_sc"], out, PoseGrid.of(cfg.model),
                                                cfg.loss_weights)
         return out
 
@@ -45,8 +46,8 @@ class StepRunner:
     """One variant: its own model (seed 0), Adam and :class:`TrainStep` on fixed device batches."""
 
     def __init__(self, cfg, batch: dict, device, amp_dtype, channels_last: bool, compile_: str, phase: str):
-        from sc3d_train.checkpoint import build_model
-        from sc3d_train.train_step import TrainStep, compile_plan
+        from sc3d_train.loop.checkpoint import build_model
+        from sc3d_train.loop.train_step import TrainStep, compile_plan
 
         cfg = replace(cfg, compile=compile_, mode="semi" if phase == "semi" else "supervised")
         torch.manual_seed(0)

@@ -67,7 +67,7 @@ def render_samples(out: Path) -> Path:
 def per_item_loader(ds, batch_size: int, workers: int, seed: int = 0):
     """The first make_loader, kept as the baseline: per-sample ``__getitem__`` in the
     workers, ``default_collate`` into ~14 float tensors sent through shared memory."""
-    from sc3d_train.loader import ViewSampler, _limit_worker_threads
+    from sc3d_train.data.loader import ViewSampler, _limit_worker_threads
 
     return torch.utils.data.DataLoader(
         ds, batch_size=batch_size, sampler=ViewSampler(ds.num_objects, ds.num_views, seed),
@@ -86,8 +86,8 @@ class _QueuedBatches(torch.utils.data.Dataset):
         return len(self.ds)
 
     def __getitem__(self, key):
-        from sc3d_train.batch_format import BINARY_KEYS
-        from sc3d_train.batch_transfer import pack
+        from sc3d_train.data.batch_format import BINARY_KEYS
+        from sc3d_train.data.batch_transfer import pack
 
         arrays, strings = self.ds.compact_batch(key[1][0])
         return pack(arrays, strings, bits=BINARY_KEYS) if torch.utils.data.get_worker_info() else (arrays, strings)
@@ -96,9 +96,9 @@ class _QueuedBatches(torch.utils.data.Dataset):
 def queued_loader(ds, batch_size: int, workers: int, seed: int = 0):
     """The previous make_loader, kept as a baseline: whole batches per worker, packed into one
     tensor per batch that travels through the DataLoader's queue (not the shared ring)."""
-    from sc3d_train.batch_format import compact_tensors
-    from sc3d_train.batch_transfer import PackedBatch, unpack
-    from sc3d_train.loader import BatchSampler, ViewSampler, _keep, _limit_worker_threads
+    from sc3d_train.data.batch_format import compact_tensors
+    from sc3d_train.data.batch_transfer import PackedBatch, unpack
+    from sc3d_train.data.loader import BatchSampler, ViewSampler, _keep, _limit_worker_threads
 
     loader = torch.utils.data.DataLoader(
         _QueuedBatches(ds), batch_size=None, num_workers=workers, collate_fn=_keep,
@@ -138,10 +138,10 @@ def time_loaders(datasets: dict[str, Path], batch_size: int, workers: tuple[int,
     (worker start-up, prefetch queue: ``2 + 8 * workers``) and, with a cache, enough batches for each worker to have
     decoded every object (6 epochs per worker). ``cache_objects=0``: no cache, each batch reads
     its views from the files; ``decoded_cache``: a folder for the decoded copy
-    (``sc3d_train.decoded_cache``, built before timing), gathered from instead."""
-    from sc3d_train.batch_format import expand_batch
-    from sc3d_train.data import ShardDataset
-    from sc3d_train.loader import make_loader
+    (``sc3d_train.data.decoded_cache``, built before timing), gathered from instead."""
+    from sc3d_train.data.batch_format import expand_batch
+    from sc3d_train.data.dataset import ShardDataset
+    from sc3d_train.data.loader import make_loader
 
     makers, warm = {}, {}
     for label, shards in datasets.items():
@@ -197,9 +197,9 @@ def benchmark_self_consistency(batch_size: int = 48, device: str | torch.device 
     from drc_reference import project_occupancy_reference
 
     from sc3d_data.geometry.camera import intrinsics, scale_intrinsics
-    from sc3d_train.self_consistency import DEFAULT_NUM_SAMPLES, iou_loss, self_consistency_losses
+    from sc3d_train.paper.self_consistency import DEFAULT_NUM_SAMPLES, iou_loss, self_consistency_losses
 
-    from sc3d_train.config import MASK_SIZE
+    from sc3d_train.settings.config import MASK_SIZE
 
     num_samples = num_samples or DEFAULT_NUM_SAMPLES
     mask_size = mask_size or MASK_SIZE
@@ -320,10 +320,10 @@ def main() -> None:
     ap.add_argument("--loader-only", action="store_true", help="only table 2 (no training step: its last column is then -)")
     args = ap.parse_args()
 
-    from sc3d_train.data import ShardDataset
-    from sc3d_train.loader import make_loader
-    from sc3d_train.resolve import resolve_config
-    from sc3d_train.runtime import DistInfo, resolve_device
+    from sc3d_train.data.dataset import ShardDataset
+    from sc3d_train.data.loader import make_loader
+    from sc3d_train.loop.resolve import resolve_config
+    from sc3d_train.loop.runtime import DistInfo, resolve_device
 
     device = resolve_device(args.device, DistInfo())
     tmp = None

@@ -1,4 +1,4 @@
-"""click options generated from the config dataclasses of :mod:`sc3d_train.config`: one
+"""click options generated from the config dataclasses of :mod:`sc3d_train.settings.config`: one
 ``--name`` per field declared with ``cli=True`` (``--name/--no-name`` for a bool), its type,
 choices, default and help taken from the declaration, so the command line cannot drift from
 the dataclasses."""
@@ -9,7 +9,7 @@ from dataclasses import MISSING
 
 import click
 
-from sc3d_train.config_io import cli_fields, default_of, field_types, option_name
+from sc3d_train.settings.config_io import cli_fields, default_of, field_types, option_name
 
 CLICK_TYPES = {int: click.INT, float: click.FLOAT, str: click.STRING}
 

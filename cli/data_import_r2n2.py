@@ -45,8 +45,8 @@ def import_r2n2(renderings, voxels, out, image_size, background, categories, spl
     "ShapeNet and 3D-R2N2 data"); check them with `sc3d-data check --shards OUT`. A rerun
     keeps the finished shards and imports the rest (resumable); runs on the local pool, Ray or
     a SLURM job array (--executor)."""
-    from sc3d_data.pipeline.r2n2_job import ImportConfig, import_r2n2 as run
-    from sc3d_data.pipeline.slurm_executor import import_on_slurm
+    from sc3d_data.pipeline.jobs.r2n2_job import ImportConfig, import_r2n2 as run
+    from sc3d_data.pipeline.jobs.r2n2_job import import_on_slurm
 
     try:
         bg = tuple(int(c) for c in background.split(","))

@@ -15,7 +15,7 @@ def merge(out, parts, copy, overwrite):
     """Combine the folders of `render/import-r2n2 --part I/N` runs (PARTS, all N of them) into one
     dataset in OUT with one index. Refuses parts made with other settings, missing or unfinished
     parts and duplicate objects; shard files are hard-linked (or copied) into OUT; rerunnable."""
-    from sc3d_data.pipeline.merge import merge_parts
+    from sc3d_data.pipeline.run.merge import merge_parts
     from sc3d_data.io.shards import one_line
 
     try:

@@ -1,6 +1,6 @@
 """``sc3d-data render``: meshes -> rendered views (+ voxels) in HDF5 shards. Thin wrapper over
-``sc3d_data.pipeline.render_run.render_dataset`` (or, with ``--executor slurm``,
-``sc3d_data.pipeline.slurm_executor.render_on_slurm``)."""
+``sc3d_data.pipeline.jobs.render_run.render_dataset`` (or, with ``--executor slurm``,
+``sc3d_data.pipeline.jobs.render_run.render_on_slurm``)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -10,12 +10,12 @@ import click
 from sc3d_data.geometry.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS
 from sc3d_data.io.meshes import DEFAULT_MAX_FACES, DEFAULT_MAX_FILE_BYTES
 from sc3d_cli.scale_options import executor_options, part_option, run_render
-from sc3d_data.pipeline.render_job import SAMPLE_MESHES, RenderConfig
+from sc3d_data.pipeline.jobs.render_job import SAMPLE_MESHES, RenderConfig
 from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
 
 
 def _gpus(text: str | None) -> tuple[int, ...]:
-    from sc3d_data.pipeline.devices import parse_gpus
+    from sc3d_data.pipeline.executors.devices import parse_gpus
 
     try:
         return parse_gpus(text)

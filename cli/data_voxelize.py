@@ -35,9 +35,9 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
     write one .binvox per mesh. Reruns skip finished shards/files; failures go to the index
     (shards) or DIR2/failures.json (meshes). --meshes runs on the local pool, Ray or a SLURM job
     array (--executor), with a per-mesh --timeout."""
-    from sc3d_data.pipeline.slurm_executor import voxelize_on_slurm
-    from sc3d_data.pipeline.voxel_job import voxelize_shards
-    from sc3d_data.pipeline.voxel_meshes import VoxelMeshesConfig, voxelize_meshes
+    from sc3d_data.pipeline.jobs.voxel_meshes import voxelize_on_slurm
+    from sc3d_data.pipeline.jobs.voxel_job import voxelize_shards
+    from sc3d_data.pipeline.jobs.voxel_meshes import VoxelMeshesConfig, voxelize_meshes
 
     if (shards is None) == (meshes is None):
         raise click.UsageError("give either SHARDS or --meshes DIR --out DIR2")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from sc3d_data.pipeline.partition import Part, parse_part, part_from_env
+from sc3d_data.pipeline.run.partition import Part, parse_part, part_from_env
 
 
 def _part(ctx, param, value) -> Part:
@@ -25,7 +25,7 @@ def part_option(f):
 
 
 def _slurm(ctx, param, value):
-    from sc3d_data.pipeline.slurm_executor import SlurmOptions
+    from sc3d_data.pipeline.executors.slurm_executor import SlurmOptions
 
     p = ctx.params
     return SlurmOptions(parts=value, cpus_per_task=p.pop("slurm_cpus_per_task"), partition=p.pop("slurm_partition"),
@@ -80,7 +80,7 @@ def run_scaled(config, slurm, run_local, run_slurm):
 
 def run_render(config, slurm):
     """Run ``render`` with ``config.executor``; errors become one line."""
-    from sc3d_data.pipeline.render_run import render_dataset
-    from sc3d_data.pipeline.slurm_executor import render_on_slurm
+    from sc3d_data.pipeline.jobs.render_run import render_dataset
+    from sc3d_data.pipeline.jobs.render_run import render_on_slurm
 
     return run_scaled(config, slurm, render_dataset, render_on_slurm)

@@ -1,4 +1,4 @@
-"""``sc3d-train claims``: option parsing only; the work is ``sc3d_train.claims.run_all``."""
+"""``sc3d-train claims``: option parsing only; the work is ``sc3d_train.evaluation.claims.run_all``."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -6,7 +6,7 @@ from pathlib import Path
 import click
 
 from sc3d_cli.config_options import config_options
-from sc3d_train.command_config import ClaimsConfig
+from sc3d_train.settings.command_config import ClaimsConfig
 
 
 @click.command()
@@ -24,9 +24,9 @@ def claims(train_shards, eval_shards, eval_split, out, preset, runs, device, wor
     ray+projection at the true pose) with --seeds seeds and equal budgets, evaluate each on
     held-out objects and write the paper's tables (mean ± standard deviation over the seeds).
     Rerunning resumes."""
-    from sc3d_train.checkpoint import CheckpointError
-    from sc3d_train.claims import RUNS, run_all
-    from sc3d_train.data import DataError
+    from sc3d_train.loop.checkpoint import CheckpointError
+    from sc3d_train.evaluation.claims import RUNS, run_all
+    from sc3d_train.data.dataset import DataError
 
     names = [r.strip() for r in runs.split(",")] if runs else None
     unknown = sorted(set(names or []) - set(RUNS))

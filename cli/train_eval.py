@@ -1,4 +1,4 @@
-"""``sc3d-train eval``: option parsing only; the work is ``sc3d_train.evaluate.evaluate``."""
+"""``sc3d-train eval``: option parsing only; the work is ``sc3d_train.evaluation.evaluate.evaluate``."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -6,7 +6,7 @@ from pathlib import Path
 import click
 
 from sc3d_cli.config_options import config_options
-from sc3d_train.command_config import EvalConfig
+from sc3d_train.settings.command_config import EvalConfig
 
 
 @click.command("eval")
@@ -19,9 +19,9 @@ from sc3d_train.command_config import EvalConfig
 @config_options(EvalConfig)
 def eval_cmd(checkpoint, shards, out, pose_from, device, split, pick, batch_size, examples):
     """Voxel IoU (0.4, 0.5), mask IoU and pose error per category on a split."""
-    from sc3d_train.checkpoint import CheckpointError
-    from sc3d_train.data import DataError
-    from sc3d_train.evaluate import evaluate
+    from sc3d_train.loop.checkpoint import CheckpointError
+    from sc3d_train.data.dataset import DataError
+    from sc3d_train.evaluation.evaluate import evaluate
 
     try:
         result = evaluate(checkpoint, shards, split, out, device, batch_size, examples, pose_from, pick)

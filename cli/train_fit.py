@@ -1,6 +1,6 @@
-"""``sc3d-train fit``: option parsing only; the work is ``sc3d_train.trainer.fit``.
+"""``sc3d-train fit``: option parsing only; the work is ``sc3d_train.loop.trainer.fit``.
 
-The settings' options are generated from the dataclasses of ``sc3d_train.config`` (their
+The settings' options are generated from the dataclasses of ``sc3d_train.settings.config`` (their
 defaults and help live there); the options written here are the paths, the mode flags, the
 tiny preset and ``--config`` / ``--resume``."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from sc3d_cli.config_options import config_options, given_on_command_line
-from sc3d_train.config import TINY_MODEL, ModelConfig, RunConfig
+from sc3d_train.settings.config import TINY_MODEL, ModelConfig, RunConfig
 
 TINY_NOTES = {k: f"[--tiny: {v}]" for k, v in TINY_MODEL.items()}
 
@@ -36,10 +36,10 @@ TINY_NOTES = {k: f"[--tiny: {v}]" for k, v in TINY_MODEL.items()}
 @click.pass_context
 def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_settings):
     """Train the self-consistency model on the shards' training split."""
-    from sc3d_train.checkpoint import CheckpointError
-    from sc3d_train.data import DataError
-    from sc3d_train.resolve import resolve_config
-    from sc3d_train.trainer import TrainingDiverged, fit as run_fit
+    from sc3d_train.loop.checkpoint import CheckpointError
+    from sc3d_train.data.dataset import DataError
+    from sc3d_train.loop.resolve import resolve_config
+    from sc3d_train.loop.trainer import TrainingDiverged, fit as run_fit
 
     if semi and labeled_only:
         raise click.UsageError("--semi and --labeled-only exclude each other")

@@ -1,4 +1,4 @@
-"""``sc3d-train predict``: option parsing only; the work is ``sc3d_train.predict.predict``."""
+"""``sc3d-train predict``: option parsing only; the work is ``sc3d_train.evaluation.predict.predict``."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -6,7 +6,7 @@ from pathlib import Path
 import click
 
 from sc3d_cli.config_options import config_options
-from sc3d_train.command_config import PredictConfig
+from sc3d_train.settings.command_config import PredictConfig
 
 
 @click.command()
@@ -17,11 +17,11 @@ from sc3d_train.command_config import PredictConfig
 @config_options(PredictConfig)
 def predict(checkpoint, images, out, pose_from, device, threshold):
     """Voxels (.binvox, .npz), mesh (.obj), pose (.json) and a picture (.png) per IMAGE."""
-    from sc3d_train.checkpoint import CheckpointError
-    from sc3d_train.predict import ImageError, predict as run_predict
+    from sc3d_train.loop.checkpoint import CheckpointError
+    from sc3d_train.evaluation.predict import ImageError, predict as run_predict
 
     if out is None:
-        from sc3d_train.evaluate import default_output_dir
+        from sc3d_train.evaluation.evaluate import default_output_dir
 
         out = default_output_dir(checkpoint, "predictions")
     try:

@@ -60,5 +60,5 @@ python -m pip install -q -e ".[test,ray,slurm]"
 # well under a second): numba caches them next to the sources, or in its user cache
 # (~/.cache/numba) where the package folder is read-only; without this the first run pays it
 echo "[setup] compiling the voxelizer's kernels (once per install)"
-python -c "import sc3d_data.pipeline.worker_preload"
+python -c "import sc3d_data.pipeline.executors.worker_preload"
 echo "[setup] done: activate with '. .venv/bin/activate'"

@@ -1,6 +1,6 @@
 """A plain second implementation of the differentiable ray consistency projection, for tests and
 benchmarks: ``project_occupancy_reference`` follows the same rays and samples as
-``sc3d_train.self_consistency.project_occupancy`` but gathers the 8 corner voxels by hand and
+``sc3d_train.paper.self_consistency.project_occupancy`` but gathers the 8 corner voxels by hand and
 accumulates the escape product in a Python loop, so a test comparing the two fails if either
 the module's grid_sample coordinates or its log-space escape are wrong. Not part of the library.
 """
@@ -10,7 +10,7 @@ import torch
 from torch import Tensor
 
 from sc3d_data.geometry.voxel_grid import CUBE_HALF
-from sc3d_train.self_consistency import DEFAULT_NUM_SAMPLES, camera_rays, sample_points
+from sc3d_train.paper.self_consistency import DEFAULT_NUM_SAMPLES, camera_rays, sample_points
 
 
 def project_occupancy_reference(occupancy: Tensor, azimuth: Tensor, elevation: Tensor, distance: Tensor,

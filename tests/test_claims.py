@@ -12,7 +12,7 @@ from tests.conftest import run_cli
 
 
 def test_claims_trains_every_run_and_writes_the_tables(sample_shards, tmp_path):
-    from sc3d_train.claims import RUNS, ClaimsPreset, run_all
+    from sc3d_train.evaluation.claims import RUNS, ClaimsPreset, run_all
 
     # the sample shards hold 2 val objects: best.pt is kept with --val-min-objects 1
     preset = ClaimsPreset(steps=2, batch_size=4, lr=1e-3, tiny=True, extra={"val_min_objects": 1})
@@ -59,7 +59,7 @@ def test_claims_with_two_seeds_reports_mean_and_standard_deviation(sample_shards
     metrics.json files; the claim carries sigma = sqrt(s_a^2 / 2 + s_b^2 / 2)."""
     import numpy as np
 
-    from sc3d_train.claims import ClaimsPreset, run_all
+    from sc3d_train.evaluation.claims import ClaimsPreset, run_all
 
     preset = ClaimsPreset(steps=2, batch_size=4, lr=1e-3, tiny=True, extra={"base_channels": 4})
     out = tmp_path / "claims"

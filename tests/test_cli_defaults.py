@@ -1,7 +1,7 @@
 """The data commands' click options agree with the settings dataclasses they fill.
 
-``RenderConfig`` (``sc3d_data.pipeline.render_job``) and ``ImportConfig``
-(``sc3d_data.pipeline.r2n2_job``) are the one source of defaults for ``sc3d-data render`` and
+``RenderConfig`` (``sc3d_data.pipeline.jobs.render_job``) and ``ImportConfig``
+(``sc3d_data.pipeline.jobs.r2n2_job``) are the one source of defaults for ``sc3d-data render`` and
 ``sc3d-data import-r2n2``; the click options repeat them for ``--help``. This test fails when
 one drifts from the other. (``sc3d-train``'s options are generated from its dataclasses:
 tests/test_config.py.) Options whose text is parsed by the command (``--elevations 30``,
@@ -54,14 +54,14 @@ def test_checker_catches_a_drifted_default():
 
 def render_case(tmp):
     from sc3d_cli.data_render import _floats, _rgb, render
-    from sc3d_data.pipeline.render_job import RenderConfig
+    from sc3d_data.pipeline.jobs.render_job import RenderConfig
 
     return render, RenderConfig, {"elevations": _floats, "background": _rgb}, ["--out", tmp / "out"]
 
 
 def import_case(tmp):
     from sc3d_cli.data_import_r2n2 import import_r2n2
-    from sc3d_data.pipeline.r2n2_job import ImportConfig
+    from sc3d_data.pipeline.jobs.r2n2_job import ImportConfig
 
     def rgb(text):
         return tuple(int(c) for c in text.split(","))

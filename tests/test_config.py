@@ -25,8 +25,8 @@ def fit_command():
 def test_fit_options_are_the_dataclass_fields_with_their_defaults():
     """Every field declared for the command line has one option whose default is the
     dataclass's, and every other fit option is one of the few written by hand."""
-    from sc3d_train.config import LossWeights, ModelConfig, RunConfig
-    from sc3d_train.config_io import cli_fields
+    from sc3d_train.settings.config import LossWeights, ModelConfig, RunConfig
+    from sc3d_train.settings.config_io import cli_fields
 
     params = {p.name: p for p in fit_command().params}
     declared = {}
@@ -45,15 +45,15 @@ def test_fit_options_are_the_dataclass_fields_with_their_defaults():
 
 
 @pytest.mark.parametrize("command, config, function", [
-    ("sc3d_cli.train_eval:eval_cmd", "EvalConfig", "sc3d_train.evaluate:evaluate"),
-    ("sc3d_cli.train_predict:predict", "PredictConfig", "sc3d_train.predict:predict"),
-    ("sc3d_cli.train_claims:claims", "ClaimsConfig", "sc3d_train.claims:run_all")])
+    ("sc3d_cli.train_eval:eval_cmd", "EvalConfig", "sc3d_train.evaluation.evaluate:evaluate"),
+    ("sc3d_cli.train_predict:predict", "PredictConfig", "sc3d_train.evaluation.predict:predict"),
+    ("sc3d_cli.train_claims:claims", "ClaimsConfig", "sc3d_train.evaluation.claims:run_all")])
 def test_eval_predict_claims_options_and_functions_share_the_dataclass_defaults(command, config, function):
     import importlib
     import inspect
 
-    from sc3d_train import command_config
-    from sc3d_train.config_io import cli_fields, defaults_of
+    from sc3d_train.settings import command_config
+    from sc3d_train.settings.config_io import cli_fields, defaults_of
 
     def load(target):
         module, name = target.split(":")
@@ -70,8 +70,8 @@ def test_eval_predict_claims_options_and_functions_share_the_dataclass_defaults(
 
 
 def test_one_tiny_preset_and_one_mask_size():
-    from sc3d_train.config import MASK_SIZE, ModelConfig
-    from sc3d_train.data import ShardDataset
+    from sc3d_train.settings.config import MASK_SIZE, ModelConfig
+    from sc3d_train.data.dataset import ShardDataset
 
     tiny = ModelConfig.tiny()
     assert (tiny.base_channels, tiny.shape_dim, tiny.pose_dim) == (8, 32, 8)
@@ -82,8 +82,8 @@ def test_one_tiny_preset_and_one_mask_size():
 
 
 def test_plain_data_round_trip_and_errors(tmp_path):
-    from sc3d_train.config import LossWeights, ModelConfig, RunConfig
-    from sc3d_train.config_io import ConfigError, from_plain
+    from sc3d_train.settings.config import LossWeights, ModelConfig, RunConfig
+    from sc3d_train.settings.config_io import ConfigError, from_plain
 
     cfg = RunConfig(shards="/s", out="/o", model=ModelConfig.tiny(), loss_weights=LossWeights(proj=0.0))
     plain = cfg.to_dict()
@@ -108,8 +108,8 @@ def test_config_yaml_reproduces_the_run(sample_shards, tmp_path):
     identical weights; an option given beside --config overrides the file (different weights:
     the negative control); a run folder with the config.json of earlier versions resumes; an
     unknown or ill-typed key in the file is refused with one line."""
-    from sc3d_train.checkpoint import load_checkpoint
-    from sc3d_train.config import RunConfig
+    from sc3d_train.loop.checkpoint import load_checkpoint
+    from sc3d_train.settings.config import RunConfig
 
     a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
     run_cli(main, ["fit", "--shards", sample_shards, "--out", a, "--steps", "2", "--batch-size", "2",
@@ -149,8 +149,8 @@ def test_config_yaml_reproduces_the_run(sample_shards, tmp_path):
 def test_docs_tables_match_the_dataclasses():
     from pathlib import Path
 
-    from sc3d_train.config import LossWeights, ModelConfig, RunConfig
-    from sc3d_train.config_io import markdown_table
+    from sc3d_train.settings.config import LossWeights, ModelConfig, RunConfig
+    from sc3d_train.settings.config_io import markdown_table
 
     doc = (Path(__file__).resolve().parents[1] / "docs" / "config.md").read_text()
     for cls in (RunConfig, ModelConfig, LossWeights):

@@ -1,4 +1,4 @@
-"""``--gpus``: which EGL device each render worker draws on (``sc3d_data/pipeline/devices.py``).
+"""``--gpus``: which EGL device each render worker draws on (``sc3d_data/pipeline/executors/devices.py``).
 
 No GPU here: the assignment, the option and its plumbing into the executors are checked, and
 with the real renderer that each worker makes its context on the device of its slot (device 0
@@ -11,7 +11,7 @@ import pytest
 
 from conftest import SAMPLE_MESHES, assert_same_dataset, run_cli
 from sc3d_cli.data import main
-from sc3d_data.pipeline.devices import DEVICE_ENV, device_of_slot, parse_gpus, worker_environ
+from sc3d_data.pipeline.executors.devices import DEVICE_ENV, device_of_slot, parse_gpus, worker_environ
 
 
 def test_gpus_spread_worker_slots_round_robin():
@@ -31,11 +31,10 @@ def test_gpus_spread_worker_slots_round_robin():
 
 
 def test_gpus_on_a_cluster_one_share_per_ray_task_own_gpus_per_slurm_task(tmp_path):
-    from sc3d_data.pipeline.job import RENDER
-    from sc3d_data.pipeline.r2n2_job import IMPORT
-    from sc3d_data.pipeline.ray_executor import _gpu_share
-    from sc3d_data.pipeline.render_job import RenderConfig
-    from sc3d_data.pipeline.slurm_executor import part_configs
+    from sc3d_data.pipeline.jobs.r2n2_job import IMPORT
+    from sc3d_data.pipeline.executors.ray_executor import _gpu_share
+    from sc3d_data.pipeline.jobs.render_job import RENDER, RenderConfig
+    from sc3d_data.pipeline.executors.slurm_executor import part_configs
 
     cfg = RenderConfig(out=tmp_path, gpus=(2, 5))
     assert _gpu_share(RENDER, cfg, 8) == 0.25 and _gpu_share(RENDER, cfg, 1) == 1.0

@@ -56,7 +56,7 @@ def test_pose_is_learnt_without_pose_labels(trained_run, sample_shards):
 
 
 def test_eval_metric_definitions():
-    from sc3d_train.evaluate import iou, summarize
+    from sc3d_train.paper.metrics import iou, summarize
 
     a = torch.zeros(2, 4, 4, 4, dtype=torch.bool)
     b = a.clone()

@@ -188,7 +188,7 @@ def _flip_byte_in_chunk(path: Path, dataset: str, row: int) -> None:
 def test_d6_truncated_or_flipped_shards_are_detected_named_and_re_rendered(corpus_run, tmp_path):
     from sc3d_data.io.shards import ShardError
     from sc3d_data.io.shard_reader import iter_objects
-    from sc3d_train.data import DataError, scan_objects
+    from sc3d_train.data.dataset import DataError, scan_objects
 
     out = tmp_path / "out"
     shutil.copytree(corpus_run, out)
@@ -279,7 +279,7 @@ def test_d8_checkpoint_on_a_full_disk_removes_its_temp_and_resume_finds_the_newe
         {sys.executable} - <<'EOF'
         import os, torch
         from pathlib import Path
-        from sc3d_train.checkpoint import CheckpointError, resume_checkpoint, save_checkpoint
+        from sc3d_train.loop.checkpoint import CheckpointError, resume_checkpoint, save_checkpoint
         run = Path(os.environ["T"]) / "run"
         def payload(step, mb):
             return {{"model": {{"w": torch.ones(mb * 2**18)}}, "config": {{}}, "step": step}}
@@ -336,8 +336,8 @@ def test_d10_a_crafted_checkpoint_runs_nothing_and_a_real_one_loads(tmp_path, co
     import torch
 
     from sc3d_cli.train import main as train_main
-    from sc3d_train.checkpoint import (CheckpointError, load_checkpoint, resume_checkpoint, rng_state,
-                                       save_checkpoint)
+    from sc3d_train.loop.checkpoint import (CheckpointError, load_checkpoint, resume_checkpoint, rng_state,
+                                            save_checkpoint)
 
     marker = tmp_path / "pwned"
     evil = tmp_path / "evil.pt"
@@ -375,7 +375,7 @@ def test_d10_a_crafted_checkpoint_runs_nothing_and_a_real_one_loads(tmp_path, co
 
 # ----------------------------------------------------------------------------- D11
 def test_d11_index_paths_outside_the_dataset_are_refused(tmp_path, corpus_run):
-    from sc3d_train.data import scan_objects
+    from sc3d_train.data.dataset import scan_objects
 
     victim_dir = tmp_path / "victim"
     victim_dir.mkdir()

@@ -208,7 +208,7 @@ def _assert_cache_matches(cache, stored: dict) -> None:
 
 def test_e4_decoded_cache_entries_are_verified_against_their_shard(chair_shards, tmp_path):
     from sc3d_data.io.shards import ShardError, load_index, shard_path
-    from sc3d_train.decoded_cache import DecodedCache
+    from sc3d_train.data.decoded_cache import DecodedCache
 
     paths = [str(shard_path(chair_shards, e["file"])) for e in load_index(chair_shards)["shards"]]
     keys = [e["sha256"] for e in load_index(chair_shards)["shards"]]

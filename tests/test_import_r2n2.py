@@ -26,7 +26,7 @@ from click.testing import CliRunner
 from sc3d_data.io.binvox import read_binvox, write_binvox
 from sc3d_data.geometry.normalize import apply_transform
 from sc3d_data.formats.r2n2 import (grid_placement, obj_to_canonical, parse_metadata_line,
-                                   r2n2_cameras, rotate_grid)
+                                    r2n2_cameras, rotate_grid)
 from r2n2_synth import blender_camera
 from sc3d_data.io.shards import load_index
 from sc3d_data.io.shard_reader import iter_objects
@@ -365,7 +365,7 @@ def test_import_killed_mid_run_resumes_and_equals_an_uninterrupted_import(fake_r
         shutil.copytree(V / src, V / CHAIR / f"copy{k}")
     out = tmp_path / "out"
     script = ("import os, signal\n"
-              "from sc3d_data.pipeline.r2n2_job import ImportConfig, import_r2n2\n"
+              "from sc3d_data.pipeline.jobs.r2n2_job import ImportConfig, import_r2n2\n"
               "seen = []\n"
               "def progress(n):\n"
               "    seen.append(n)\n"

@@ -22,8 +22,14 @@ LAYERS = [
     {"sc3d_data.geometry"},
     {"sc3d_data.io"},
     {"sc3d_data.formats", "sc3d_data.render", "sc3d_data.voxel"},
-    {"sc3d_data.pipeline", "sc3d_data.qa"},
-    {"sc3d_train"},
+    {"sc3d_data.pipeline.run", "sc3d_data.qa"},
+    {"sc3d_data.pipeline.executors"},
+    {"sc3d_data.pipeline.jobs"},
+    {"sc3d_train.settings"},
+    {"sc3d_train.paper"},
+    {"sc3d_train.data"},
+    {"sc3d_train.loop"},
+    {"sc3d_train.evaluation"},
     {"sc3d_cli"},
 ]
 MAX_LINES = 300
@@ -127,6 +133,17 @@ def test_every_package_folder_is_installed():
 
 def test_no_import_cycle():
     assert find_cycle(import_graph()) is None
+
+
+#: package __init__ modules that group layers and sit in none (docstrings only)
+GROUPING_PACKAGES = {"sc3d_data", "sc3d_train", "sc3d_data.pipeline"}
+
+
+def test_every_module_sits_in_a_layer():
+    """A module outside every layer would escape the check below (e.g. a new file dropped into
+    sc3d_train/ beside the sub-packages instead of into one of them)."""
+    loose = sorted(m for m in module_files() if layer_of(m) is None and m not in GROUPING_PACKAGES)
+    assert not loose, "modules in no layer of LAYERS (put them in a sub-package): " + ", ".join(loose)
 
 
 def test_imports_go_from_higher_layers_to_lower_ones():

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from sc3d_train.batch_transfer import PackedBatch, RingBatch, SharedRing, pack, unpack
+from sc3d_train.data.batch_transfer import PackedBatch, RingBatch, SharedRing, pack, unpack
 
 
 def test_pack_round_trip_is_exact_and_packs_only_binary_arrays():
@@ -59,9 +59,9 @@ def test_workers_send_every_batch_through_the_ring(sample_shards, monkeypatch):
     """With workers, no batch takes the per-batch tensor path (``pack`` raising in the forked
     workers would surface here), and batches kept while the loader wraps its ring 3 times stay
     equal to the in-process ones (each is copied out of its slot before it is yielded)."""
-    import sc3d_train.batch_transfer as transfer
-    from sc3d_train.data import ShardDataset
-    from sc3d_train.loader import make_loader
+    import sc3d_train.data.batch_transfer as transfer
+    from sc3d_train.data.dataset import ShardDataset
+    from sc3d_train.data.loader import make_loader
 
     ds = ShardDataset(sample_shards, "train", cache_objects=0)
     expected = iter(make_loader(ds, 3, seed=5, workers=0))
@@ -92,9 +92,9 @@ def _stored(ds, index):
                          ids=["decoded-objects-cached", "views-read-per-batch", "decoded-cache-folder"])
 def test_loader_batches_are_the_stored_data_with_and_without_workers(sample_shards, cache_objects, decoded,
                                                                       tmp_path):
-    from sc3d_train.batch_format import expand_batch, sc_masks
-    from sc3d_train.data import ShardDataset
-    from sc3d_train.loader import ViewSampler, make_loader
+    from sc3d_train.data.batch_format import expand_batch, sc_masks
+    from sc3d_train.data.dataset import ShardDataset
+    from sc3d_train.data.loader import ViewSampler, make_loader
 
     ds = ShardDataset(sample_shards, "train", cache_objects=cache_objects,
                       decoded_cache=tmp_path / "decoded" if decoded else None)
@@ -154,9 +154,9 @@ def test_view_chunks_are_the_default_and_both_layouts_load_the_same_values(sampl
 
     from sc3d_data.io.shard_reader import read_records
     from sc3d_data.io.shards import load_index, write_index, write_shard
-    from sc3d_train.batch_format import expand_batch
-    from sc3d_train.data import ShardDataset
-    from sc3d_train.loader import make_loader
+    from sc3d_train.data.batch_format import expand_batch
+    from sc3d_train.data.dataset import ShardDataset
+    from sc3d_train.data.loader import make_loader
 
     index = load_index(sample_shards)
     assert index["settings"]["chunks"] == "view"
@@ -204,8 +204,8 @@ def test_sc_masks_equal_the_upsample_and_pool_reference():
     upsampling to the common multiple + average pooling) thresholded at 0.5, on masks where many
     output pixels sit exactly at half coverage; hand case: a 64 px mask with only row 1 set
     covers output row 0 by 1/4 and row 1 by 1/2 (its 4/3-pixel areas)."""
-    from sc3d_train.batch_format import sc_masks
-    from sc3d_train.self_consistency import area_downsample
+    from sc3d_train.data.batch_format import sc_masks
+    from sc3d_train.paper.self_consistency import area_downsample
 
     rng = np.random.default_rng(0)
     for size, m in ((64, 48), (64, 32), (48, 64), (50, 48)):
@@ -226,7 +226,7 @@ def test_a_corrupted_view_fails_naming_the_file_and_other_views_still_load(sampl
 
     from sc3d_data.io.shard_reader import ShardReader
     from sc3d_data.io.shards import ShardError
-    from sc3d_train.data import DataError, ShardDataset
+    from sc3d_train.data.dataset import DataError, ShardDataset
 
     bad = tmp_path / "bad"
     shutil.copytree(sample_shards, bad)
@@ -264,7 +264,7 @@ def test_decoded_cache_is_keyed_by_the_shard_sha256_and_rebuilt_for_a_changed_sh
     import json
     import shutil
 
-    from sc3d_train.data import DataError, ShardDataset
+    from sc3d_train.data.dataset import DataError, ShardDataset
 
     data = tmp_path / "data"
     shutil.copytree(sample_shards, data)
@@ -311,7 +311,7 @@ def test_decoded_cache_build_waits_for_the_lock(sample_shards, tmp_path):
     import sys
     import threading
 
-    from sc3d_train.data import ShardDataset
+    from sc3d_train.data.dataset import ShardDataset
 
     ds = ShardDataset(sample_shards, "train")
     key = _index_sha(sample_shards, Path(ds.objects[0].shard).name)
@@ -339,8 +339,8 @@ def test_fit_option_decoded_cache_reaches_the_run_datasets(sample_shards, tmp_pa
     from click.testing import CliRunner
 
     from sc3d_cli.train import main
-    from sc3d_train.config import RESUMABLE_FIELDS, RunConfig
-    from sc3d_train.streams import run_datasets
+    from sc3d_train.settings.config import RESUMABLE_FIELDS, RunConfig
+    from sc3d_train.loop.streams import run_datasets
 
     assert "decoded_cache" in RESUMABLE_FIELDS
     monkeypatch.chdir(tmp_path)

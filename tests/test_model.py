@@ -8,12 +8,12 @@ import pytest
 import torch
 
 from sc3d_data.geometry.camera import intrinsics, scale_intrinsics
-from sc3d_train.config import LossWeights, ModelConfig
-from sc3d_train.losses import LOSS_KEYS, supervised_loss, unsupervised_loss, voxel_loss
-from sc3d_train.model import SelfConsistencyNet, VoxelDecoder
-from sc3d_train.pose import (PoseGrid, angular_error_deg, pose_classification_loss, pose_errors, pose_from_logits,
-                             rotation_error_deg, wrap_degrees)
-from sc3d_train.self_consistency import area_downsample
+from sc3d_train.settings.config import LossWeights, ModelConfig
+from sc3d_train.paper.losses import LOSS_KEYS, supervised_loss, unsupervised_loss, voxel_loss
+from sc3d_train.paper.model import SelfConsistencyNet, VoxelDecoder
+from sc3d_train.paper.pose import (PoseGrid, angular_error_deg, pose_classification_loss, pose_errors, pose_from_logits,
+                                   rotation_error_deg, wrap_degrees)
+from sc3d_train.paper.self_consistency import area_downsample
 from tests.conftest import assert_learnt, train_seed
 
 
@@ -249,7 +249,7 @@ def test_unlabelled_pose_gate_keeps_only_searches_that_agree_with_the_head():
     search; N = 12 (half the 24 bins) trusts every image, as no gate (-1) does."""
     import torch.nn.functional as F
 
-    from sc3d_train.pose_search import search_at_head_elevation
+    from sc3d_train.paper.pose_search import search_at_head_elevation
 
     torch.manual_seed(0)
     model = SelfConsistencyNet(ModelConfig.tiny())

@@ -11,7 +11,7 @@ import pytest
 
 from sc3d_cli.data import main
 from conftest import SAMPLE_MESHES, run_cli
-from sc3d_data.pipeline.progress import LineProgress, progress_bar
+from sc3d_data.pipeline.run.progress import LineProgress, progress_bar
 
 
 class FakeTTY(io.StringIO):
@@ -69,7 +69,7 @@ def test_split_rules_in_help(command):
 
 
 def test_missing_voxels_hint_names_a_command_that_works(tmp_path):
-    from sc3d_train.data import DataError, ShardDataset
+    from sc3d_train.data.dataset import DataError, ShardDataset
 
     (tmp_path / "m" / "chair").mkdir(parents=True)
     shutil.copy(SAMPLE_MESHES / "chair" / "chair2_blendswap.glb", tmp_path / "m" / "chair")

@@ -112,8 +112,8 @@ def test_workers_get_the_environment_the_main_process_has_when_they_start(tmp_pa
     yet they see a variable set afterwards, as spawned workers would: here the test-only crash
     hook, set between two runs of this process, kills the worker of the first object. The
     object queued behind it in that worker's pipe is sent again and rendered."""
-    from sc3d_data.pipeline import local_pool
-    from sc3d_data.pipeline.render_job import CRASH_ENV
+    from sc3d_data.pipeline.executors import local_pool
+    from sc3d_data.pipeline.executors.job import CRASH_ENV
 
     meshes = tmp_path / "meshes" / "thing"
     meshes.mkdir(parents=True)

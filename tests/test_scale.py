@@ -21,7 +21,7 @@ import pytest
 
 from sc3d_cli.data import main
 from conftest import SAMPLE_MESHES, assert_same_dataset, objects_by_id, run_cli, write_hanging_gltf
-from sc3d_data.pipeline.partition import Part, parse_part, part_from_env, part_of
+from sc3d_data.pipeline.run.partition import Part, parse_part, part_from_env, part_of
 
 SETTINGS = ["--views", "4", "--voxelize", "--objects-per-shard", "2", "--no-progress"]
 
@@ -35,7 +35,7 @@ def local_run(tmp_path_factory) -> Path:
 
 def part_config(out: Path, part: Part):
     """``render --meshes SAMPLE_MESHES *SETTINGS --part I/N --out OUT`` as a library config."""
-    from sc3d_data.pipeline.render_job import RenderConfig
+    from sc3d_data.pipeline.jobs.render_job import RenderConfig
 
     return RenderConfig(out=out, meshes=SAMPLE_MESHES, num_views=4, voxelize=True, objects_per_shard=2,
                         progress=False, part=part)
@@ -45,15 +45,16 @@ def part_config(out: Path, part: Part):
 def pool():
     """One local pool (2 workers) shared by the part runs of this module (``render_dataset(...,
     executor=pool)``: the parts differ only in their objects, the workers are reused)."""
-    from sc3d_data.pipeline.local_pool import start_pool
+    from sc3d_data.pipeline.executors.local_pool import start_pool
+    from sc3d_data.pipeline.jobs.render_job import RENDER
 
-    p = start_pool(2, part_config(Path("unused"), Part(0, 1)))
+    p = start_pool(2, part_config(Path("unused"), Part(0, 1)), RENDER)
     yield p
     p.close()
 
 
 def render_parts(root: Path, n: int, pool) -> list[Path]:
-    from sc3d_data.pipeline.render_run import render_dataset
+    from sc3d_data.pipeline.jobs.render_run import render_dataset
 
     parts = [root / f"p{i}" for i in range(n)]
     for i, out in enumerate(parts):
@@ -202,8 +203,8 @@ def test_slurm_without_a_cluster_is_refused_not_run_locally(tmp_path):
 def ray_cluster():
     """A local Ray cluster of 2 CPUs; its workers get the test-only crash hook for the model id
     ``crash_me`` (no other test mesh has that id)."""
-    from sc3d_data.pipeline.ray_executor import init_local
-    from sc3d_data.pipeline.render_job import CRASH_ENV
+    from sc3d_data.pipeline.executors.ray_executor import init_local
+    from sc3d_data.pipeline.executors.job import CRASH_ENV
 
     os.environ[CRASH_ENV] = "crash_me"
     try:

@@ -8,10 +8,10 @@ import torch
 from scipy.spatial import Delaunay
 
 from sc3d_data.geometry.camera import extrinsics, intrinsics, project_points, scale_intrinsics
-from sc3d_train.pose import angular_error_deg
+from sc3d_train.paper.pose import angular_error_deg
 from drc_reference import project_occupancy_reference
-from sc3d_train.self_consistency import (area_downsample, project_occupancy, ray_cube_bounds,
-                                         self_consistency_losses)
+from sc3d_train.paper.self_consistency import (area_downsample, project_occupancy, ray_cube_bounds,
+                                               self_consistency_losses)
 
 G, S = 32, 48
 K48 = scale_intrinsics(intrinsics(64), S, 64)
@@ -228,8 +228,8 @@ def test_pose_search_recovers_the_true_pose_of_rendered_objects(shard_views):
     of the asymmetric bundled objects (chairs, the jeep): measured 69 of 72 (the 3 others are
     front/back flips; chance is 3 of 72). Elevation is only weakly determined by a silhouette:
     the true 30 deg is the best of the 5 candidates 10..50 for 45 of 72 views (chance 14)."""
-    from sc3d_train.pose import PoseGrid
-    from sc3d_train.pose_search import search_losses_per_object
+    from sc3d_train.paper.pose import PoseGrid
+    from sc3d_train.paper.pose_search import search_losses_per_object
 
     objs = [o for o in shard_views if o["model_id"].startswith(("dining_chair", "jeep", "chair2"))]
     assert len(objs) == 3
@@ -255,8 +255,8 @@ def test_test_time_search_recovers_the_azimuth_and_weighs_the_head_prior():
     candidate 3 (45 deg) at elevation bin 2 (30 deg) with no prior; a prior that puts all the
     head's probability on 90 deg with a huge weight overrides the search (the weight is what
     decides between them)."""
-    from sc3d_train.pose import PoseGrid
-    from sc3d_train.pose_search import search_azimuth
+    from sc3d_train.paper.pose import PoseGrid
+    from sc3d_train.paper.pose_search import search_azimuth
 
     grid = PoseGrid()
     occ = asymmetric_object()[None]

@@ -32,10 +32,10 @@ def test_fit_writes_the_run_and_learns(trained_run, sample_shards):
     Spread, 20 runs (seeds 0-9 x torch threads 1 and 2, scripts/test_spread.py, 2-core Xeon,
     2026-11-25): loss last 20 / first 10 steps 0.15-0.25, mask loss 0.25-0.41, train IoU@0.4
     0.27-0.74 (gain over the untrained net 0.23-0.70). Bounds: 0.5, 0.75, 0.15 and 0.10."""
-    from sc3d_train.checkpoint import build_model, load_model
-    from sc3d_train.config import RunConfig
-    from sc3d_train.data import ShardDataset
-    from sc3d_train.evaluate import predict_dataset, summarize
+    from sc3d_train.loop.checkpoint import build_model, load_model
+    from sc3d_train.settings.config import RunConfig
+    from sc3d_train.data.dataset import ShardDataset
+    from sc3d_train.paper.metrics import predict_dataset, summarize
 
     for name in ("config.yaml", "metrics.csv", "curves.png", "checkpoints/last.pt",
                  f"checkpoints/step_{TRAINED_RUN_STEPS:06d}.pt",
@@ -114,7 +114,7 @@ def test_resume_equals_uninterrupted(sample_shards, tmp_path):
 
 
 def test_semi_supervised_runs_both_phases(sample_shards, tmp_path):
-    from sc3d_train.data import ShardDataset
+    from sc3d_train.data.dataset import ShardDataset
 
     out = tmp_path / "semi"
     run_cli(main, ["fit", "--shards", sample_shards, "--out", out, "--steps", "4", "--batch-size", "4",
@@ -167,8 +167,8 @@ def test_fit_refuses_the_test_split(sample_shards, tmp_path):
 
 def test_loader_masks_follow_the_camera(sample_shards):
     """The 48 px masks come from the 64 px masks, and K_sc is K scaled by 3/4."""
-    from sc3d_train.data import ShardDataset
-    from sc3d_train.loader import ViewSampler
+    from sc3d_train.data.dataset import ShardDataset
+    from sc3d_train.data.loader import ViewSampler
 
     ds = ShardDataset(sample_shards, "train")
     item = ds[5]
@@ -278,9 +278,9 @@ def test_semi_resume_across_the_phase_boundary_equals_uninterrupted(sample_shard
 def test_unlabelled_pass_leaves_batchnorm_running_statistics_alone():
     """The unlabelled pass of the semi phase normalises with its own batch statistics (train
     mode) but does not move the running statistics that eval uses."""
-    from sc3d_train.config import ModelConfig
-    from sc3d_train.model import SelfConsistencyNet
-    from sc3d_train.phase_step import frozen_batchnorm_statistics
+    from sc3d_train.settings.config import ModelConfig
+    from sc3d_train.paper.model import SelfConsistencyNet
+    from sc3d_train.loop.phase_step import frozen_batchnorm_statistics
 
     torch.manual_seed(0)
     model = SelfConsistencyNet(ModelConfig.tiny()).train()
@@ -301,7 +301,7 @@ def test_data_wait_clock_counts_the_time_next_blocks():
     clock must show 3 x 30 ms of waiting (and nothing of the loop's own time)."""
     import time
 
-    from sc3d_train.metrics_log import DataWaitClock
+    from sc3d_train.loop.metrics_log import DataWaitClock
 
     def slow():
         for i in range(3):

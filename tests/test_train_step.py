@@ -1,4 +1,4 @@
-"""The training step of ``fit`` (sc3d_train/train_step.py): the compiled step against the eager
+"""The training step of ``fit`` (sc3d_train/loop/train_step.py): the compiled step against the eager
 one, exact resume of a compiled run, the finiteness window, and (``gpu`` marker) the CUDA fast
 path: no host sync in the steady-state step, CUDA graphs replayed (a short CUDA fit with the
 defaults, now compiled, that learns: tests/test_gpu.py).
@@ -22,11 +22,11 @@ needs_cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUD
 def make_step(sample_shards, mode: str, compile_: str, backend: str = "aot_eager", device: str = "cpu",
               batch: int = 4, amp: str = "off"):
     """A :class:`TrainStep` on a fresh seeded tiny model (C = 4) and its batches iterator."""
-    from sc3d_train.resolve import resolve_config
-    from sc3d_train.streams import phase_loaders
-    from sc3d_train.metrics_log import DataWaitClock
-    from sc3d_train.train_step import TrainStep, compile_plan
-    from sc3d_train.trainer import device_batches, prepare
+    from sc3d_train.loop.resolve import resolve_config
+    from sc3d_train.loop.streams import phase_loaders
+    from sc3d_train.loop.metrics_log import DataWaitClock
+    from sc3d_train.loop.train_step import TrainStep, compile_plan
+    from sc3d_train.loop.trainer import device_batches, prepare
 
     cfg = resolve_config({"shards": str(sample_shards), "out": "unused", "batch_size": batch, "mode": mode,
                           "labeled_fraction": 0.5, "pretrain_steps": 0, "compile": compile_,
@@ -90,8 +90,8 @@ def test_compiled_run_resumes_exactly_and_follows_the_eager_run(sample_shards, t
 def test_loss_window_names_the_first_bad_step():
     """Steps 7..11 recorded without a read-back; the check finds step 9, the first non-finite
     one, and empties the window."""
-    from sc3d_train.loss_window import LossWindow
-    from sc3d_train.runtime import DistInfo
+    from sc3d_train.loop.loss_window import LossWindow
+    from sc3d_train.loop.runtime import DistInfo
 
     window = LossWindow(5, torch.device("cpu"))
     for step, value in zip(range(7, 12), [1.0, 2.0, float("nan"), float("inf"), 3.0]):

@@ -21,10 +21,10 @@ def read_csv(path):
 
 
 def test_validation_picks_best_and_leaves_training_alone(sample_shards, tmp_path):
-    from sc3d_train.checkpoint import load_checkpoint
-    from sc3d_train.data import ShardDataset
-    from sc3d_train.evaluate import evaluate
-    from sc3d_train.validation import view_indices
+    from sc3d_train.loop.checkpoint import load_checkpoint
+    from sc3d_train.data.dataset import ShardDataset
+    from sc3d_train.evaluation.evaluate import evaluate
+    from sc3d_train.loop.validation import view_indices
 
     assert view_indices(2, 24, 4) == [0, 6, 12, 18, 24, 30, 36, 42]
     val = tmp_path / "val"  # validated every step, interrupted after 4 steps and resumed to 8

@@ -37,7 +37,7 @@ Cameras are built in the OBJ frame and moved into the canonical one (``R' = R A^
 Images: premultiplied RGB and alpha are area-averaged (PIL box filter) to the target size,
 mask = alpha >= 0.5, RGB = composited over the background colour.
 
-The import job (settings, plan, parts, shards and index) is ``sc3d_data.pipeline.r2n2_job``.
+The import job (settings, plan, parts, shards and index) is ``sc3d_data.pipeline.jobs.r2n2_job``.
 
 Length: one module because every 3D-R2N2 convention (metadata columns, Blender camera, binvox
 placement, v1 front axis) is read in one place next to the code that applies it.

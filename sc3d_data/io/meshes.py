@@ -15,7 +15,7 @@ the object still renders): an OBJ's ``.mtl`` that is missing, textures not loade
 (``bad_texture="fallback"``), and material or texture files outside the dataset folder, which
 are never read (``outside_textures="refuse"`` makes them a failure). Which files a mesh may read
 is ``sc3d_data.io.materials``' business. Loaders that hang are handled by the per-object time
-limit of ``sc3d_data.pipeline.local_pool`` (a worker is killed), not here.
+limit of ``sc3d_data.pipeline.executors.local_pool`` (a worker is killed), not here.
 """
 from __future__ import annotations
 

@@ -1,19 +1,19 @@
 """Running the per-object data jobs (render, voxelize, import) on one machine or many.
 
-Modules, one job each:
+Three sub-packages, lowest first; a module imports its own folder and the folders before it only
+(``tests/test_layout.py``):
 
-- ``render_job``: settings of a render run and the work on one object (``render_task``);
-- ``plan`` / ``partition``: which objects a run (or part ``I/N`` of a run) handles;
-- ``job``: what a worker runs per object (``Job``: render, import, voxelize a mesh) and the
-  options every job's run shares (``ExecOptions``: executor, workers, timeout, Ray address);
-- ``executor``: the interface of an executor (run a job per object with a time limit, yield
-  ``(pos, status, payload)``) and ``--executor``'s choice;
-- ``local_pool`` / ``ray_executor``: the two executors;
-- ``slurm_executor``: a job array of parts through submitit, then ``merge`` (render, import;
-  ``voxelize --meshes`` parts share one folder);
-- ``render_run``: the render driver (chunks, shards and index in plan order);
-- ``resume``: what an existing index lets a rerun keep;
-- ``merge``: part folders -> one dataset;
-- ``voxel_job``: ``sc3d-data voxelize SHARDS``; ``voxel_meshes``: ``voxelize --meshes``;
-- ``r2n2_job``: ``sc3d-data import-r2n2`` (plan, shards and index, resume).
+- ``run``: run control every job shares: ``plan`` (``Task``, one object of a plan; the render
+  plan), ``partition`` (which objects part ``I/N`` handles), ``resume`` (what an existing index
+  lets a rerun keep), ``progress`` (objects/s, ETA), ``merge`` (part folders -> one dataset);
+- ``executors``: where and how long each object runs: ``job`` (the contract: ``Job``, what a
+  worker runs per object; ``ExecOptions``, the options every job's run shares; the worker
+  environment), ``executor`` (the interface and ``--executor``'s choice), ``local_pool`` (with
+  ``worker_preload``, ``worker_preload_egl`` and ``devices``), ``ray_executor`` and
+  ``slurm_executor`` (a job array of parts through submitit);
+- ``jobs``: what happens to one object and the run of a job over its plan: ``render_job`` and
+  ``render_run`` (``sc3d-data render``), ``r2n2_job`` (``import-r2n2``), ``voxel_job``
+  (``voxelize SHARDS``) and ``voxel_meshes`` (``voxelize --meshes``), each with its SLURM entry.
+
+Adding an executor touches ``executors/`` only; adding a job, ``jobs/`` (and its CLI command).
 """

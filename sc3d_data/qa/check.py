@@ -198,7 +198,7 @@ def check_shards(shard_dir: Path, min_iou: float = DEFAULT_MIN_IOU,
     report = CheckReport(min_iou=min_iou, min_coverage=min_coverage, min_near=min_near)
     it = iter_objects(shard_dir, fields=("voxels", "masks", "K", "R", "t"))
     if progress:
-        from sc3d_data.pipeline.progress import progress_bar
+        from sc3d_data.pipeline.run.progress import progress_bar
 
         it = progress_bar(it, unit="obj", desc="check")
     for obj in it:

@@ -239,7 +239,7 @@ class MeshRenderer:
         if backend == "egl":
             from pyrender.platforms import egl
 
-            index = int(os.environ.get("EGL_DEVICE_ID", "0"))  # a worker's --gpus device (pipeline/devices.py)
+            index = int(os.environ.get("EGL_DEVICE_ID", "0"))  # a worker's --gpus device (executors/devices.py)
             devices = egl.query_devices() if index else []
             if index and index >= len(devices):
                 raise RuntimeError(f"EGL device {index} does not exist: this machine has {len(devices)} "

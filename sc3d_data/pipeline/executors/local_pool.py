@@ -1,0 +1,268 @@
+"""The default executor of ``render``, ``voxelize --meshes`` and ``import-r2n2``: a pool of
+worker processes on this machine (no extra dependency).
+
+Workers are forked from multiprocessing's ``forkserver``, a clean process that imported
+``worker_preload`` (trimesh, the voxelizer's compiled kernels) once, so a worker starts in
+~0.3 CPU-s instead of ~1.2 (``spawn``, the fallback where there is no forkserver). Neither the
+server nor the main process ever creates a GL context, so none is inherited through a fork; a
+worker gets the main process's environment as it is when the worker starts (``_worker_main``),
+as a spawned one would. Each makes its per-worker state once (``Job.start``: for rendering ONE
+``MeshRenderer``) and handles one object at a time: the main process sends tasks down a pipe,
+keeping the next one queued behind the current (``QUEUED``), and gets the result of ``job.run``
+back (``job.Job``, e.g. ``jobs.render_job.RENDER``). Per-object time limit
+(``config.timeout_s``, counted from when the worker starts the object): a worker that takes
+longer (a loader that hangs, a huge mesh) is killed and replaced and the object is recorded as
+a failure; a worker that crashes is handled the same way (the next run retries it,
+``retry_failed``); the task queued behind it goes to another worker. With ``config.gpus``,
+worker slot ``i`` renders on EGL device ``gpus[i % len(gpus)]`` (``devices.py``).
+
+Implements ``sc3d_data.pipeline.executors.executor.Executor`` (as ``ray_executor.RayExecutor`` does).
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import time
+from multiprocessing.connection import wait
+
+from sc3d_data.pipeline.executors.devices import worker_environ
+from sc3d_data.pipeline.executors.job import THREAD_ENV, Job
+from sc3d_data.pipeline.run.plan import Task
+from sc3d_data.io.shards import write_shard
+
+
+#: tasks a worker holds at a time: the one it works on and the next, already in its pipe
+QUEUED = 2
+#: imported once by the forkserver (see module doc); ``PRELOAD_EGL`` when EGL workers come first
+PRELOAD = "sc3d_data.pipeline.executors.worker_preload"
+PRELOAD_EGL = "sc3d_data.pipeline.executors.worker_preload_egl"
+#: more modules for the forkserver to import after the preload (before the first pool starts;
+#: ``benchmarks/stage_profile.py`` adds its timing hooks so that the workers inherit them)
+PRELOAD_EXTRA: list[str] = []
+#: what this process asked its forkserver to preload: None until the first pool, then the GL
+#: backend it imported ("egl") or "" (none). The server is started once per process.
+_server_gl: list[str | None] = [None]
+
+
+def worker_context(gl_backend: str | None):
+    """The multiprocessing context of a pool whose workers use ``gl_backend`` (None: no GL):
+    ``forkserver`` where the platform has one, preloaded by the first pool of this process
+    (with EGL when that pool renders with EGL); ``spawn`` where there is no forkserver or the
+    server imported PyOpenGL for another backend (``PYOPENGL_PLATFORM`` cannot change)."""
+    if "forkserver" not in mp.get_all_start_methods():
+        return mp.get_context("spawn")
+    ctx = mp.get_context("forkserver")
+    if _server_gl[0] is None:
+        _server_gl[0] = "egl" if gl_backend == "egl" else ""
+        # "__main__" first, as multiprocessing's default does: the server imports the main
+        # module once (e.g. the sc3d-data script) and the workers it forks skip re-importing it
+        ctx.set_forkserver_preload(["__main__", PRELOAD_EGL if _server_gl[0] else PRELOAD, *PRELOAD_EXTRA])
+    if gl_backend is not None and _server_gl[0] not in ("", gl_backend):
+        return mp.get_context("spawn")
+    return ctx
+
+
+def _worker_main(conn, job: Job, config, backend: str, environ: dict | None = None) -> None:
+    """Worker process: take the main process's ``environ`` (the forkserver's dates from its own
+    start), ``job.start`` (one renderer), then (task -> result) until ``None``."""
+    if environ is not None:
+        import sys
+
+        fixed = {k: os.environ[k] for k in ("PYOPENGL_PLATFORM",) if k in os.environ and "OpenGL" in sys.modules}
+        os.environ.clear()
+        os.environ.update(environ)
+        os.environ.update(fixed)  # PyOpenGL was imported by the forkserver with this platform
+    for k, v in THREAD_ENV.items():
+        os.environ.setdefault(k, v)
+    try:
+        job.start(config, backend)
+    except Exception as e:
+        conn.send(("dead", None, f"{type(e).__name__}: {e}"))
+        return
+    try:
+        conn.send(("ready", None, None))
+        while True:
+            task = conn.recv()
+            if task is None:
+                break
+            try:
+                pos, status, payload = job.run(config, backend, task)
+                reply = (status, pos, payload)
+                del payload
+            except KeyboardInterrupt:
+                break
+            conn.send(reply)
+            del reply
+    except (EOFError, OSError, KeyboardInterrupt):
+        pass  # the main process is gone or stopping: nothing to report to
+    if job.drop is not None:
+        job.drop()
+
+
+def _signal_name(signum: int) -> str:
+    import signal
+
+    try:
+        name = signal.Signals(signum).name
+    except ValueError:
+        return "unknown signal"
+    return name + (": out of memory or killed from outside" if name == "SIGKILL" else "")
+
+
+class _Worker:
+    def __init__(self, ctx, job: Job, config, backend: str, slot: int = 0):
+        self.conn, child = ctx.Pipe()
+        self.slot = slot  # its GPU: ``devices.device_of_slot(slot, config.gpus)`` (render jobs)
+        gpus = tuple(getattr(config, "gpus", ())) if job.gl else ()
+        self.proc = ctx.Process(target=_worker_main, args=(child, job, config, backend,
+                                                           worker_environ(os.environ, slot, gpus)),
+                                daemon=True)
+        self.proc.start()
+        child.close()
+        self.ready = False
+        self.tasks: list[Task] = []  # sent, no result yet; the first is the one being worked on
+        self.started = 0.0  # when the first of ``tasks`` started (its time limit runs from here)
+
+    def kill(self) -> None:
+        if self.proc.is_alive():
+            self.proc.kill()
+        self.proc.join(5)
+        self.conn.close()
+
+
+class WorkerPool:
+    """``n`` workers of ``job``, each holding up to ``QUEUED`` tasks; ``run(tasks)`` yields
+    ``(pos, status, payload)`` with status ``ok`` (payload: (record, warnings)) or ``fail``
+    (payload: reason), enforcing the per-object time limit."""
+
+    def __init__(self, n: int, config, backend: str, job: Job):
+        for k, v in THREAD_ENV.items():
+            os.environ.setdefault(k, v)
+        self.ctx = worker_context(backend if job.gl else None)
+        self.config, self.backend, self.job = config, backend, job
+        self.workers = [_Worker(self.ctx, job, config, backend, slot) for slot in range(n)]
+
+    def wait_ready(self) -> str | None:
+        """Block until every worker is set up (has a renderer); return None, or the first start-up error
+        (the pool is then closed)."""
+        while not all(w.ready for w in self.workers):
+            ready = wait([w.conn for w in self.workers if not w.ready], timeout=120)
+            if not ready:
+                self.close()
+                return f"{self.job.name} workers did not start within 120 s"
+            for w in self.workers:
+                if w.conn in ready:
+                    try:
+                        status, _, payload = w.conn.recv()
+                    except (EOFError, OSError):
+                        w.proc.join(5)
+                        status, payload = "dead", f"worker exited with code {w.proc.exitcode}"
+                    if status == "dead":
+                        self.close()
+                        return payload
+                    w.ready = True
+        return None
+
+    def _replace(self, w: _Worker) -> list[Task]:
+        """Kill ``w`` and start a worker in its place; the tasks it had queued behind the one it
+        was working on (to be sent again)."""
+        w.kill()
+        new = _Worker(self.ctx, self.job, self.config, self.backend, w.slot)
+        self.workers[self.workers.index(w)] = new
+        return w.tasks[1:]
+
+    def run(self, tasks, may_dispatch=lambda pos: True):
+        """Yield ``(pos, status, payload)`` per task. Each worker has up to ``QUEUED`` tasks
+        sent ahead, so it starts the next object the moment it sends a result (no round trip
+        through this process in between); the time limit of a task runs from then."""
+        todo = list(tasks)[::-1]  # pop() from the end = plan order
+        timeout = self.config.timeout_s
+        while todo or any(w.tasks for w in self.workers):
+            for w in self.workers:
+                while w.ready and len(w.tasks) < QUEUED and todo and may_dispatch(todo[-1].pos):
+                    task = todo.pop()
+                    if not w.tasks:
+                        w.started = time.monotonic()
+                    w.tasks.append(task)
+                    try:
+                        w.conn.send(task)
+                    except OSError:
+                        break  # the worker died: its pipe reads EOF below and the task is failed
+
+            busy = [w for w in self.workers if w.tasks]
+            now = time.monotonic()
+            wait_s = min([w.started + timeout - now for w in busy], default=1.0)
+            ready = wait([w.conn for w in self.workers], timeout=max(0.0, min(wait_s, 1.0)))
+            for w in list(self.workers):
+                if w.conn in ready:
+                    try:
+                        status, pos, payload = w.conn.recv()
+                    except (EOFError, OSError):
+                        status, pos, payload = "crash", None, None
+                    if status == "ready":
+                        w.ready = True
+                    elif status == "dead":
+                        self.close()
+                        from sc3d_data.render.gl_backend import BackendError
+
+                        raise BackendError(f"{self.job.name} worker could not start: {payload}")
+                    elif status in ("ok", "fail"):
+                        w.tasks.pop(0)
+                        w.started = time.monotonic()
+                        yield pos, status, payload
+                    else:  # crashed
+                        task = w.tasks[0] if w.tasks else None
+                        w.proc.join(5)
+                        code = w.proc.exitcode
+                        if not w.ready:
+                            self.close()
+                            raise RuntimeError(f"a {self.job.name} worker died while starting (exit code {code})")
+                        todo.extend(self._replace(w)[::-1])
+                        if task is not None:
+                            how = (f"killed by signal {-code} ({_signal_name(-code)})" if code and code < 0
+                                   else f"exited with code {code}")
+                            yield task.pos, "fail", f"{task.path}: {self.job.name} worker {how} while working on it"
+                elif w.tasks and time.monotonic() - w.started > timeout:
+                    task = w.tasks[0]
+                    todo.extend(self._replace(w)[::-1])
+                    yield task.pos, "fail", f"{task.path}: timed out after {timeout:g} s (--timeout)"
+
+    def write_shard(self, path, records, settings: dict) -> str:
+        """Write the shard in this (the main) process (``Executor.write_shard``)."""
+        return write_shard(path, records, settings)
+
+    def close(self) -> None:
+        for w in self.workers:
+            try:
+                if w.proc.is_alive() and not w.tasks:
+                    w.conn.send(None)
+            except OSError:
+                pass
+        for w in self.workers:
+            w.proc.join(2)
+            w.kill()
+
+
+def start_pool(n: int, config, job: Job) -> WorkerPool:
+    """Start ``n`` workers of ``job`` with ``config.backend``; ``auto`` tries EGL, then OSMesa
+    (the workers themselves are the probe: the main process never creates a GL context), EGL
+    alone when ``config.gpus`` names devices. Raises ``BackendError`` naming the Debian packages
+    when no backend works."""
+    from sc3d_data.render.gl_backend import BackendError, install_hint
+
+    errors = []
+    backends = job.backends(getattr(config, "backend", "auto"))
+    if job.gl and getattr(config, "gpus", ()):
+        # --gpus names EGL devices: a device that fails is an error, not a silent fall back to
+        # OSMesa's CPU rasteriser
+        backends = [b for b in backends if b == "egl"]
+    for backend in backends:
+        pool = WorkerPool(n, config, backend, job)
+        err = pool.wait_ready()
+        if err is None:
+            pool.backend = backend
+            return pool
+        if not job.gl:  # no GL to blame: the workers themselves could not start
+            raise RuntimeError(f"{job.name} workers could not start: {err}")
+        errors.append(f"{backend}: {err}")
+    raise BackendError("no headless OpenGL backend works:\n  " + "\n  ".join(errors) + "\n" + install_hint())

@@ -1,0 +1,158 @@
+"""``sc3d-data voxelize --meshes DIR --out DIR2`` as a library: one ``.binvox`` per mesh.
+
+Every mesh under ``meshes`` (``sc3d_data.formats.discover`` layouts) is normalised like
+``render`` does (``--normalize``/``--up``/``--front``) and written to
+``out/<same relative path>.binvox`` (sc3d header: translate -0.5, scale 1) by the worker
+that voxelized it (job ``VOXELIZE_MESH`` on the local pool or Ray, ``executor.py``, with
+the per-mesh time limit ``--timeout``; ``--executor slurm``: ``slurm_executor``). Existing
+``.binvox`` files are complete (written atomically) and skipped on a rerun, so a crash or
+Ctrl-C loses no finished file; failures (with the reason: error, time limit, worker
+killed) go to ``out/failures.json``, sorted by source. With ``part`` (``--part I/N``) only
+the meshes of that part (``sc3d_data.pipeline.run.partition``) are done and failures go to
+``out/failures.part-00I-of-00N.json``, so N jobs can share one ``out`` folder.
+(Shards: voxelize each part folder of a partitioned render, or render with ``--voxelize``.)
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from sc3d_data.io.shards import write_json_atomic
+from sc3d_data.pipeline.executors.job import ExecOptions, Job
+from sc3d_data.pipeline.executors.slurm_executor import SlurmOptions, run_array, summed_parts
+from sc3d_data.pipeline.run.partition import Part
+from sc3d_data.pipeline.run.plan import Task
+from sc3d_data.pipeline.jobs.voxel_job import VoxelizeSummary, limit_threads, voxelize_canonical
+
+
+@dataclass
+class VoxelMeshesConfig(ExecOptions):
+    """Every option of ``sc3d-data voxelize --meshes DIR --out DIR2`` (and, from
+    ``ExecOptions``, where and how long each mesh runs)."""
+
+    meshes: Path
+    out: Path
+    resolution: int = 32
+    normalize: str = "fit"
+    up: str = "+Y"
+    front: str = "auto"
+    overwrite: bool = False
+    progress: bool = True  # a progress bar / log lines on stderr
+    part: Part = Part(0, 1)
+    workers: int = field(default=1, kw_only=True)  # voxelize's --workers default (ExecOptions: 0)
+
+
+def binvox_target(config: VoxelMeshesConfig, path: str) -> Path:
+    """``out/<path relative to meshes>.binvox`` (``out/<name>.binvox`` for one mesh file)."""
+    meshes = Path(config.meshes)
+    rel = Path(path).relative_to(meshes) if meshes.is_dir() else Path(Path(path).name)
+    return Path(config.out) / rel.with_suffix(".binvox")
+
+
+def voxelize_mesh_task(config: VoxelMeshesConfig, backend: str, task: Task):
+    """The job of one mesh (``executor.Job``, run by a worker): load, normalise as ``render``
+    does, voxelize to ``[G, G, G]`` and write its ``.binvox`` (atomically). ``(pos, "ok",
+    (target path, []))`` or ``(pos, "fail", reason)``."""
+    limit_threads()
+    try:
+        from sc3d_data.io.binvox import write_binvox
+        from sc3d_data.io.meshes import load_mesh_triangles
+        from sc3d_data.geometry.normalize import to_canonical_transform
+        from sc3d_data.formats.shapenet import resolve_front
+
+        vertices, faces = load_mesh_triangles(Path(task.path))
+        T = to_canonical_transform(vertices, faces, mode=config.normalize, up=config.up,
+                                   front=resolve_front(config.front, task.path))
+        target = binvox_target(config, task.path)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        write_binvox(target, voxelize_canonical(vertices, faces, T, config.resolution))
+        return task.pos, "ok", (str(target), [])
+    except Exception as e:  # noqa: BLE001 - recorded per mesh, never aborts the run
+        return task.pos, "fail", f"{type(e).__name__}: {e}"
+
+
+def warm_voxelizer(config: VoxelMeshesConfig, backend: str) -> str:
+    """Load the voxelizer's compiled kernels in this worker (one tetrahedron at ``config.resolution``)
+    so that it does not count against the first mesh's time limit."""
+    from sc3d_data.voxel.voxelize import voxelize_triangles
+
+    if config.resolution not in _WARM:
+        limit_threads()
+        tet = np.array([[-0.3, -0.3, -0.3], [0.3, -0.3, -0.3], [0, 0.3, -0.3], [0, 0, 0.3]])
+        voxelize_triangles(tet, np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]]), config.resolution)
+        _WARM.add(config.resolution)
+    return backend
+
+
+_WARM: set = set()  # resolutions warmed up in this process
+
+
+VOXELIZE_MESH = Job("voxelize", voxelize_mesh_task, setup=warm_voxelizer)
+
+
+def voxelize_meshes(config: VoxelMeshesConfig) -> VoxelizeSummary:
+    """One ``.binvox`` per mesh under ``config.meshes``, same relative paths under ``config.out``
+    (module doc), on the executor of ``config.executor`` (local pool or Ray; per-mesh time
+    limit ``config.timeout_s``)."""
+    from sc3d_data.pipeline.executors.executor import start_executor
+    from sc3d_data.pipeline.run.partition import part_of
+    from sc3d_data.formats.discover import discover_meshes
+
+    t0 = time.monotonic()
+    out, part = Path(config.out), config.part
+    entries, problems = discover_meshes(Path(config.meshes))
+    out.mkdir(parents=True, exist_ok=True)
+    summary = VoxelizeSummary()
+    if not part.whole:
+        entries = [e for e in entries if part_of(e.category, e.model_id, part.count) == part.index]
+        problems = problems if part.index == 0 else []
+    todo = []
+    for e in entries:
+        if binvox_target(config, str(e.path)).is_file() and not config.overwrite:
+            summary.shards_skipped += 1
+        else:
+            todo.append(Task(len(todo), str(e.path), e.category, e.model_id, ""))
+    failures = [dict(p) for p in problems]
+    if todo:
+        import os
+
+        n = max(1, min(config.workers or os.cpu_count() or 1, len(todo)))
+        pool, bar = start_executor(config, n, VOXELIZE_MESH), None
+        try:
+            if config.progress:
+                from sc3d_data.pipeline.run.progress import progress_bar
+
+                bar = progress_bar(total=len(todo), unit="mesh", desc="voxelize")
+            for pos, status, payload in pool.run(todo):
+                if status == "ok":
+                    summary.objects += 1
+                else:
+                    failures.append({"source": todo[pos].path, "reason": payload})
+                    summary.failed += 1
+                if bar is not None:
+                    bar.update(1)
+        finally:
+            pool.close()
+            if bar is not None:
+                bar.close()
+    failures.sort(key=lambda f: f["source"])
+    write_json_atomic(out / ("failures.json" if part.whole else f"failures.{part.dirname()}.json"), failures)
+    summary.seconds = time.monotonic() - t0
+    return summary
+
+
+def voxelize_part(config) -> dict:
+    """What one array task of ``voxelize --meshes`` runs."""
+    return voxelize_meshes(config).as_dict()
+
+
+def voxelize_on_slurm(config, options: SlurmOptions) -> dict:
+    """``voxelize --meshes`` of ``config`` (``voxel_meshes.VoxelMeshesConfig``) as a job array whose
+    parts share ``config.out`` (one ``.binvox`` per mesh; failures in
+    ``failures.part-00I-of-00N.json``); the summed ``VoxelizeSummary`` fields."""
+    t0 = time.monotonic()
+    _, summaries = run_array(voxelize_part, config, options, shared_out=True)
+    return summed_parts(summaries, ("done", "resumed", "failed"), t0, config)

@@ -1,0 +1,182 @@
+"""``sc3d-data merge OUT PART_DIR...``: part folders (``--part I/N`` runs of ``render`` or
+``import-r2n2``) -> one normal dataset folder.
+
+Checks, before anything is written (each refusal is one line naming the folder):
+
+- every part is a finished dataset (``index.json`` says complete, every listed shard intact);
+- all parts have the same settings and split (the GL backend may differ), the same part count
+  ``N`` and the same plan digest (planned from the same collection);
+- parts ``0..N-1`` are each given exactly once (a missing part is named);
+- each part accounts for the objects it was assigned (shards + failures), and no object id
+  appears twice across parts.
+
+Output: the shards of part 0, then part 1, ... become ``OUT/shard-00000.h5``, ... (hard links
+when ``OUT`` is on the same file system, else copies; ``copy=True`` always copies), so the
+merged folder holds its own files and the parts can be deleted afterwards. ``index.json``
+lists them with their objects (rows unchanged), all failures, skipped files and warnings, the
+counts, the settings of the parts and ``"merged"`` (which parts, when). The shard files are
+not rewritten: each object's arrays, cameras and attributes are the bytes the part wrote,
+which are those of a run over the whole collection (``tests/test_scale.py``).
+
+Resumable: a shard already in ``OUT`` with the right size and SHA-256 is kept; the index is
+written last, so an interrupted merge is finished by running it again.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from sc3d_data.pipeline.run.resume import settings_differ
+from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, file_sha256, load_index, shard_path, write_index
+from sc3d_data.io.shard_reader import verify_shard
+
+
+class MergeError(ValueError):
+    """Parts that cannot be merged (message names the folder and the problem)."""
+
+
+@dataclass
+class MergeSummary:
+    parts: int
+    shards: int
+    objects: int
+    failed: int
+    linked: int
+    copied: int
+    kept: int
+    seconds: float
+    out: str
+
+
+def _object_key(entry: dict) -> tuple[str, str] | None:
+    return (entry["category"], entry["model_id"]) if entry.get("model_id") else None
+
+
+def check_parts(dirs: list[Path]) -> list[dict]:
+    """The parts' indexes, in part order, after every check of the module doc."""
+    if not dirs:
+        raise MergeError("no part folders given")
+    indexes = []
+    for d in dirs:
+        try:
+            index = load_index(d)
+        except (FileNotFoundError, ValueError) as e:
+            raise MergeError(str(e)) from None
+        if "part" not in index:
+            raise MergeError(f"{d}: index has no part record (made by an older sc3d?); rerun it with --part")
+        if not index.get("complete"):
+            raise MergeError(f"{d}: part {index['part']['index']}/{index['part']['count']} is not finished "
+                             "(index incomplete); rerun it (it resumes), then merge")
+        for entry in index.get("shards", []):
+            problem = verify_shard(d, entry, full=False)
+            if problem:
+                raise MergeError(f"{problem}; rerun that part (it re-renders the shard), then merge")
+        indexes.append(index)
+    first, d0 = indexes[0], dirs[0]
+    n = first["part"]["count"]
+    seen: dict[int, Path] = {}
+    for d, index in zip(dirs, indexes):
+        p = index["part"]
+        diff = settings_differ(first.get("settings", {}), index.get("settings", {}))
+        if diff:
+            raise MergeError(f"{d}: made with other settings than {d0} ({', '.join(diff)} differ); refused")
+        if index.get("split") != first.get("split"):
+            raise MergeError(f"{d}: split differs from {d0}; refused")
+        if index.get("voxels", {}).get("resolution") != first.get("voxels", {}).get("resolution"):
+            raise MergeError(f"{d}: voxelized at another resolution than {d0}; refused")
+        if p["count"] != n or p.get("plan_sha256") != first["part"].get("plan_sha256"):
+            raise MergeError(f"{d}: part {p['index']}/{p['count']} of another plan than {d0} "
+                             f"(part {first['part']['index']}/{n}); refused")
+        if p["index"] in seen:
+            raise MergeError(f"{d}: part {p['index']}/{n} is given twice (also {seen[p['index']]})")
+        seen[p["index"]] = d
+        done = len(index.get("objects", [])) + sum(1 for f in index.get("failures", []) if _object_key(f))
+        if done != p["assigned"]:
+            raise MergeError(f"{d}: part {p['index']}/{n} accounts for {done} of its {p['assigned']} objects")
+    missing = sorted(set(range(n)) - set(seen))
+    if missing:
+        raise MergeError(f"missing part(s) {', '.join(f'{i}/{n}' for i in missing)} (given: "
+                         f"{', '.join(str(i) for i in sorted(seen))}); run them, then merge")
+    owner: dict[tuple[str, str], Path] = {}
+    for d, index in zip(dirs, indexes):
+        for e in index.get("objects", []) + index.get("failures", []):
+            key = _object_key(e)
+            if key is None:
+                continue
+            if key in owner:
+                raise MergeError(f"{d}: object {key[0]}/{key[1]} is also in {owner[key]} (duplicate); refused")
+            owner[key] = d
+    if sum(ix["part"]["assigned"] for ix in indexes) != first["part"]["planned_total"]:
+        raise MergeError(f"the parts were assigned {sum(ix['part']['assigned'] for ix in indexes)} objects, "
+                         f"the plan has {first['part']['planned_total']}")
+    order = sorted(range(len(dirs)), key=lambda k: indexes[k]["part"]["index"])
+    return [dict(indexes[k], _dir=str(dirs[k])) for k in order]
+
+
+def _place(src: Path, dst: Path, copy: bool) -> str:
+    """Put ``src`` at ``dst`` atomically (temporary name, then rename): a hard link, or a copy
+    across file systems / with ``copy``. Returns ``"linked"`` or ``"copied"``."""
+    tmp = dst.with_name(dst.name + ".tmp")
+    if tmp.exists():
+        tmp.unlink()
+    how = "copied"
+    if not copy:
+        try:
+            os.link(src, tmp)
+            how = "linked"
+        except OSError:
+            pass
+    if how == "copied":
+        shutil.copyfile(src, tmp)
+    os.replace(tmp, dst)
+    return how
+
+
+def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite: bool = False) -> MergeSummary:
+    """Merge ``part_dirs`` into ``out`` (module doc)."""
+    from sc3d_data.io.outlock import exclusive_lock
+
+    t0 = time.monotonic()
+    out = Path(out)
+    dirs = [Path(d) for d in part_dirs]
+    if any(d.resolve() == out.resolve() for d in dirs):
+        raise MergeError(f"{out}: the output folder cannot be one of the parts")
+    parts = check_parts(dirs)
+    out.mkdir(parents=True, exist_ok=True)
+    with exclusive_lock(out, "sc3d-data merge"):
+        old = load_index(out) if (out / INDEX_NAME).is_file() else {}
+        if old and not overwrite and "merged" not in old:
+            raise MergeError(f"{out}: already holds a dataset that is not a merge; use another OUT or --overwrite")
+        shards, objects, failures, skipped, warnings = [], [], [], [], []
+        counts = {"linked": 0, "copied": 0, "kept": 0}
+        for index in parts:
+            src_dir = Path(index["_dir"])
+            for entry in index.get("shards", []):
+                name = SHARD_PATTERN.format(len(shards))
+                dst = out / name
+                if dst.is_file() and dst.stat().st_size == entry["bytes"] and file_sha256(dst) == entry["sha256"]:
+                    counts["kept"] += 1
+                else:
+                    counts[_place(src_dir / entry["file"], dst, copy)] += 1
+                objects += [dict(o, shard=name, chunk=len(shards)) for o in index["objects"]
+                            if o["shard"] == entry["file"]]
+                shards.append(dict(entry, file=name, chunk=len(shards)))
+            failures += index.get("failures", [])
+            skipped += index.get("skipped", [])
+            warnings += index.get("warnings", [])
+        for stale in {e["file"] for e in old.get("shards", [])} - {s["file"] for s in shards}:
+            shard_path(out, stale).unlink(missing_ok=True)  # listed by an earlier merge of other parts
+        first = parts[0]
+        extra = {"merged": {"parts": [p["_dir"] for p in parts], "count": first["part"]["count"],
+                            "rule": first["part"]["rule"], "plan_sha256": first["part"]["plan_sha256"],
+                            "planned_total": first["part"]["planned_total"],
+                            "backends": sorted({str(p["settings"].get("backend")) for p in parts})}}
+        if "voxels" in first:
+            extra["voxels"] = first["voxels"]
+        write_index(out, complete=True, settings=first["settings"], split=first.get("split", {}), shards=shards,
+                    objects=objects, failures=failures, skipped=skipped, warnings=warnings, extra=extra)
+    return MergeSummary(parts=len(parts), shards=len(shards), objects=len(objects),
+                        failed=sum(1 for f in failures), seconds=time.monotonic() - t0, out=str(out), **counts)

@@ -1,0 +1,130 @@
+"""Resume of ``sc3d-data render``: what an existing ``index.json`` in ``--out`` lets a run keep.
+
+The index is rewritten atomically after every shard. A rerun with the same settings (and the
+same ``--part``) skips chunks that are complete (their shard is listed, exists and matches the
+size and SHA-256 in the index: a truncated or corrupted shard is rendered again) and, with
+``retry_failed``, renders the recorded failures of complete chunks again and rewrites their
+shard in plan order. Stale ``*.tmp`` files are deleted.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from sc3d_data.pipeline.run.plan import Task
+
+
+def clean_tmp(out: Path) -> None:
+    """Delete temporary files a killed run left in ``out``."""
+    for p in out.glob("*.tmp"):
+        try:
+            p.unlink()
+        except OSError:
+            pass
+
+
+
+
+def remove_listed_outputs(out: Path) -> None:
+    """``--overwrite``: delete the shards that ``out``'s index lists, then the index. A file the
+    index does not list (a shard-like name the run did not write) is left alone, and so is a
+    listed name that is not a plain file name of ``out`` or leads outside it. An unreadable
+    index is deleted alone."""
+    from sc3d_data.io.shards import INDEX_NAME, ShardError, load_index, shard_path
+
+    index_file = out / INDEX_NAME
+    if not index_file.is_file():
+        return
+    try:
+        entries = load_index(out).get("shards", [])
+    except ShardError:
+        entries = []
+    for entry in entries:
+        try:
+            shard_path(out, entry["file"]).unlink(missing_ok=True)
+        except ShardError:
+            continue
+    index_file.unlink()
+
+
+def check_out(out: Path) -> None:
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out}: exists and is not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ValueError(f"--out {out}: cannot create the folder ({e.strerror or e})") from e
+
+
+def settings_differ(old: dict, new: dict, defaults: dict | None = None) -> list[str]:
+    """Settings that differ between an existing index and this run, or between two parts
+    (keys an older index lacks count as their value in ``defaults``; the GL backend is not
+    compared: EGL and OSMesa give the same images)."""
+    defaults = defaults or {}
+    skip = ("backend", "requested_backend")
+    keys = (set(old) | set(new)) - set(skip)
+    return sorted(k for k in keys if old.get(k, defaults.get(k)) != new.get(k, defaults.get(k)))
+
+
+def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[Task]) -> dict:
+    """What an existing index lets this run keep: chunks whose shard is intact (or that were
+    empty), their index entries, and the failures to render again (``retry_failed``)."""
+    from sc3d_data.io.shard_reader import verify_shard
+
+    by_key = {(t.category, t.model_id): t for t in tasks}
+    done_chunks, broken = set(old.get("empty_chunks", [])), []
+    for s in old.get("shards", []):
+        problem = verify_shard(out, s)
+        if problem is None:
+            done_chunks.add(s["chunk"])
+        else:
+            broken.append(problem + "; rendering its objects again")
+    shards = [s for s in old.get("shards", []) if s["chunk"] in done_chunks]
+    objects = [o for o in old.get("objects", []) if o.get("chunk") in done_chunks]
+    failures = [f for f in old.get("failures", []) if f.get("chunk") in done_chunks]
+    warnings = [w for w in old.get("warnings", []) if w.get("chunk") in done_chunks]
+    retry, attempts = set(), {}
+    if retry_failed:
+        for f in failures:
+            t = by_key.get((f.get("category"), f.get("model_id")))
+            if t is not None and t.pos // K == f.get("chunk"):
+                retry.add(t.pos)
+                attempts[t.pos] = int(f.get("attempts", 1))
+        failures = [f for f in failures if f.get("pos") not in retry]
+        warnings = [w for w in warnings if w.get("source") not in {tasks[p].path for p in retry}]
+    return {"done_chunks": done_chunks, "shards": shards, "objects": objects, "failures": failures,
+            "warnings": warnings, "retry": retry, "attempts": attempts, "broken": broken,
+            "empty_chunks": [c for c in old.get("empty_chunks", []) if c in done_chunks]}
+
+
+def empty_state() -> dict:
+    """The resume state of a fresh run (nothing kept)."""
+    return {"done_chunks": set(), "shards": [], "objects": [], "failures": [], "warnings": [],
+            "retry": set(), "attempts": {}, "broken": [], "empty_chunks": []}
+
+
+def remaining(tasks: list[Task], state: dict, K: int) -> tuple[list[Task], int]:
+    """``(todo, resumed)`` of a run with resume ``state`` over ``tasks`` in chunks of ``K``: the
+    tasks of chunks not kept plus the failures it retries, and how many objects the kept chunks
+    hold (their recorded failures left out)."""
+    done, retry = state["done_chunks"], state["retry"]
+    todo = [t for t in tasks if t.pos // K not in done or t.pos in retry]
+    kept_failed = {(f.get("category"), f.get("model_id")) for f in state["failures"]}
+    resumed = sum(1 for t in tasks if t.pos // K in done and t.pos not in retry
+                  and (t.category, t.model_id) not in kept_failed)
+    return todo, resumed
+
+
+def check_resume(out: Path, old: dict, settings: dict, defaults: dict, part: dict) -> None:
+    """``ValueError`` when ``out``'s index cannot be resumed by this run: other settings, another
+    ``--part`` or a merged dataset."""
+    if "merged" in old:
+        raise ValueError(f"{out}: is a merged dataset (sc3d-data merge); render parts into their own "
+                         "folders and merge again, or use another --out")
+    diff = settings_differ(old.get("settings", {}), settings, defaults)
+    if diff:
+        raise ValueError(f"{out}: existing shards were made with other settings ({', '.join(diff)} differ); "
+                         "use another --out or --overwrite")
+    old_part = old.get("part", {"index": 0, "count": 1})
+    if (old_part.get("index"), old_part.get("count")) != (part["index"], part["count"]):
+        raise ValueError(f"{out}: holds part {old_part.get('index')}/{old_part.get('count')}, this run is part "
+                         f"{part['index']}/{part['count']}; give each part its own --out")

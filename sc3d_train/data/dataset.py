@@ -1,0 +1,316 @@
+"""Training data from sc3d shards: a map-style torch Dataset over (object, view) pairs.
+
+* File handles: reads go through ``sc3d_data.io.shard_reader.ShardReader``, which never keeps a
+  handle across pickling or ``fork``: each process (main or DataLoader worker) opens its own
+  lazily on first read, so ``num_workers > 0`` is safe with any start method.
+* Sampling and batching (seeded, resumable, rank-aware) are ``sc3d_train.data.loader``; the batch
+  format (compact batches, 48 px masks, float expansion) is ``sc3d_train.data.batch_format``.
+
+Training batch keys (B samples; ``batch_format.expand_batch`` of a compact batch):
+``images`` [B,3,S,S] float in [0,1]; ``voxels`` [B,G,G,G] float {0,1} (index order [x,y,z]);
+``masks`` [B,S,S] float; ``masks_sc`` [B,M,M] float; ``K`` [B,3,3] and ``K_sc`` [B,3,3]
+(pixels at S and M); ``R`` [B,3,3], ``t`` [B,3] (world->camera, OpenCV); ``distance``,
+``azimuth``, ``elevation`` [B] (world units, degrees; the ground-truth pose is for evaluation
+only); ``category``, ``model_id`` (lists of str); ``labeled`` [B] bool; ``index`` [B] long
+(object index * V + view).
+
+Length: one module because the three ways a batch is gathered (decoded objects kept per process,
+views read per batch, a decoded cache folder) must give the same batch from the same fields.
+"""
+from __future__ import annotations
+
+import os
+from collections import OrderedDict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from torch.utils.data import Dataset
+
+from sc3d_data.geometry.camera import scale_intrinsics
+from sc3d_data.io.shard_reader import ShardReader
+from sc3d_data.io.shards import ShardError
+from sc3d_train.data.batch_format import compact_tensors, expand_batch, sc_masks_bool
+from sc3d_train.settings.config import MASK_SIZE
+from sc3d_train.data.decoded_cache import DecodedCache
+
+
+#: the per-view cameras and poses of a sample (small: read whole per shard for large splits)
+CAMERA_FIELDS = ("K", "R", "t", "distance", "azimuth", "elevation")
+#: the per-view datasets a sample reads (with ``voxels``, per object, when voxels are required)
+VIEW_FIELDS = ("images", "masks") + CAMERA_FIELDS
+
+
+class DataError(ValueError):
+    """Bad training data (missing voxels, wrong image size, empty split, ...)."""
+
+
+# ----------------------------------------------------------------------------- objects
+@dataclass(frozen=True)
+class ObjectRef:
+    """Where one object lives: shard file, row, and its string fields."""
+
+    shard: str
+    row: int
+    model_id: str
+    category: str
+    split: str
+
+
+def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
+    """All objects of a shard directory (reading only string fields) and facts about the data:
+    ``{"image_size", "num_views", "voxel_resolution" (None without voxels),
+    "files_without_voxels", "settings", "K" (3x3 list, pixels), "distance"}`` (camera of the
+    first view of the first object: all views share intrinsics and distance, SPEC). Clear errors for a missing/empty directory."""
+    shard_dir = Path(shard_dir)
+    if not shard_dir.is_dir():
+        raise DataError(f"{shard_dir}: shard directory does not exist")
+    try:
+        reader = ShardReader(shard_dir)
+        if not reader.files:
+            raise DataError(f"{shard_dir}: the index lists no shard files")
+        summaries = reader.summaries()
+    except ShardError as e:
+        raise DataError(str(e)) from e
+    refs = [ObjectRef(str(sm.path), r, sm.model_id[r], sm.category[r], sm.split[r])
+            for sm in summaries for r in range(sm.num_objects)]
+    image_sizes = {sm.image_size for sm in summaries}
+    views = {sm.num_views for sm in summaries}
+    vres = {sm.voxel_resolution for sm in summaries if sm.voxel_resolution is not None}
+    no_vox = [str(sm.path) for sm in summaries if sm.voxel_resolution is None]
+    camera = {"K": summaries[0].K.tolist(), "distance": summaries[0].distance}
+    if len(image_sizes) != 1 or len(views) != 1:
+        raise DataError(f"{shard_dir}: shards disagree on image size {image_sizes} or views {views}")
+    info = {"image_size": image_sizes.pop(), "num_views": views.pop(),
+            "voxel_resolution": vres.pop() if len(vres) == 1 else None,
+            "files_without_voxels": no_vox, "settings": reader.settings,
+            "K": camera["K"], "distance": camera["distance"]}
+    return refs, info
+
+
+def choose_labeled(refs: list[ObjectRef], fraction: float, seed: int) -> set[str]:
+    """The labelled subset, chosen by object and stratified by category: in each category of
+    ``n_c`` objects (sorted by model_id), ``max(1, round(fraction * n_c))`` objects drawn with
+    ``numpy.random.default_rng([seed, c])`` (c = the category's rank in sorted order); returns
+    their ``shard:row`` keys. Deterministic and independent of the shard order."""
+    by_category: dict[str, list[ObjectRef]] = {}
+    for r in refs:
+        by_category.setdefault(r.category, []).append(r)
+    keys = set()
+    for c, category in enumerate(sorted(by_category)):
+        order = sorted(by_category[category], key=lambda r: (r.model_id, r.shard, r.row))
+        k = min(len(order), max(1, round(fraction * len(order))))
+        pick = np.random.default_rng([seed, c]).permutation(len(order))[:k]
+        keys |= {f"{order[i].shard}:{order[i].row}" for i in pick}
+    return keys
+
+
+def background_of(info: dict) -> list[int]:
+    """The dataset's background colour (RGB 0..255) from the shard settings (white default)."""
+    bg = info.get("settings", {}).get("background", [255, 255, 255])
+    if isinstance(bg, (int, float)):
+        bg = [bg] * 3
+    bg = [float(c) for c in bg][:3]
+    if max(bg) <= 1.0:  # stored as floats in [0, 1]
+        bg = [c * 255.0 for c in bg]
+    return [int(round(c)) for c in bg]
+
+
+# ----------------------------------------------------------------------------- dataset
+class ShardDataset(Dataset):
+    """Views of the objects of one split; item ``i`` is view ``i % V`` of object ``i // V``.
+
+    ``subset``: ``"all"``, ``"labeled"`` or ``"unlabeled"`` with the labelled subset chosen by
+    :func:`choose_labeled` (``labeled_fraction``, ``seed``). ``require_voxels`` (training,
+    evaluation) fails before any work when a shard has no ``voxels``. ``image_size``, when
+    given, must match the shards (e.g. the size a checkpoint was trained at).
+    ``cache_objects``: decoded objects kept per process (LRU; ~0.45 MB each at 64 px, 24 views).
+    Batches use it only when the whole split fits (``num_objects <= cache_objects``); larger
+    splits read just the views a batch needs (:meth:`compact_batch`). ``decoded_cache``: a
+    folder for a decoded, memory-mapped copy of the arrays (:mod:`sc3d_train.data.decoded_cache`;
+    opt-in, ~22x the shards' disk space), built here where missing; batches then gather from it.
+    """
+
+    def __init__(self, shard_dir: Path, split: str = "train", subset: str = "all",
+                 labeled_fraction: float = 1.0, seed: int = 0, mask_size: int = MASK_SIZE,
+                 require_voxels: bool = True, image_size: int | None = None,
+                 cache_objects: int = 128, decoded_cache: Path | str | None = None):
+        refs, info = scan_objects(shard_dir)
+        self.shard_dir, self.split, self.subset = str(shard_dir), split, subset
+        if require_voxels and info["files_without_voxels"]:
+            raise DataError(f"{info['files_without_voxels'][0]}: shard has no 'voxels' dataset; "
+                            f"run `sc3d-data voxelize {shard_dir}` first")
+        if image_size is not None and image_size != info["image_size"]:
+            raise DataError(f"{shard_dir}: images are {info['image_size']}x{info['image_size']} but "
+                            f"the model expects {image_size}x{image_size}")
+        in_split = [r for r in refs if r.split == split]
+        if not in_split:
+            splits = sorted({r.split for r in refs})
+            raise DataError(f"{shard_dir}: split {split!r} is empty (splits present: {splits})")
+        labeled_keys = choose_labeled(in_split, labeled_fraction, seed) if labeled_fraction < 1 \
+            else {f"{r.shard}:{r.row}" for r in in_split}
+        self.objects = [r for r in in_split if subset == "all"
+                        or (subset == "labeled") == (f"{r.shard}:{r.row}" in labeled_keys)]
+        if not self.objects:
+            raise DataError(f"{shard_dir}: no {subset} objects in split {split!r} "
+                            f"(labelled fraction {labeled_fraction})")
+        self.labeled = np.array([f"{r.shard}:{r.row}" in labeled_keys for r in self.objects])
+        self.info = info
+        self.image_size, self.num_views = info["image_size"], info["num_views"]
+        self.mask_size, self.require_voxels = mask_size, require_voxels
+        self.cache_objects = cache_objects
+        self._reader = ShardReader(shard_dir)
+        self._shards = sorted({r.shard for r in self.objects})
+        number = {shard: i for i, shard in enumerate(self._shards)}
+        self._shard_index = np.array([number[r.shard] for r in self.objects], dtype=np.int64)
+        self._rows = np.array([r.row for r in self.objects], dtype=np.int64)
+        self._cache: OrderedDict[int, dict] = OrderedDict()
+        self._pid = None
+        try:
+            self._decoded = DecodedCache(Path(decoded_cache), Path(shard_dir), self._shards, mask_size,
+                                         require_voxels) if decoded_cache else None
+        except ShardError as e:
+            raise DataError(str(e)) from e
+        self._cameras = None if self._decoded is None and self.cache_objects >= self.num_objects \
+            else self._read_cameras()
+
+    def __len__(self) -> int:
+        return len(self.objects) * self.num_views
+
+    @property
+    def num_objects(self) -> int:
+        return len(self.objects)
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state["_cache"], state["_pid"] = OrderedDict(), None
+        return state
+
+    def close(self) -> None:
+        self._reader.close()
+
+    def object_arrays(self, obj_i: int) -> dict:
+        """All stored arrays of object ``obj_i`` (every view, numpy): ``images [V,S,S,3]``,
+        ``masks [V,S,S]``, ``K [V,3,3]``, ``R``, ``t``, ``distance [V]``, ``azimuth``,
+        ``elevation``, ``voxels [G,G,G]`` (with ``require_voxels``)."""
+        return self._object(obj_i)
+
+    def _object(self, obj_i: int) -> dict:
+        """All arrays of object ``obj_i`` (every view, as stored), from this process's LRU cache
+        (used when the whole split fits in it: each object is then decoded once)."""
+        if self._pid != os.getpid():  # new process (forked worker): its own cache
+            self._cache, self._pid = OrderedDict(), os.getpid()
+        arrays = self._cache.get(obj_i)
+        if arrays is not None:
+            self._cache.move_to_end(obj_i)
+            return arrays
+        ref = self.objects[obj_i]
+        names = VIEW_FIELDS + (("voxels",) if self.require_voxels else ())
+        try:
+            arrays = self._reader.read(ref.shard, ref.row, names)
+        except ShardError as e:  # checksum / gzip error: the reader names the file and row
+            raise DataError(f"{e} (object {ref.model_id})") from e
+        m = self.mask_size
+        arrays["masks_sc"] = np.zeros((self.num_views, m, m), dtype=bool)  # filled per view
+        arrays["has_sc"] = np.zeros(self.num_views, dtype=bool)            # by _masks_sc
+        if self.cache_objects > 0:
+            self._cache[obj_i] = arrays
+            while len(self._cache) > self.cache_objects:
+                self._cache.popitem(last=False)
+        return arrays
+
+    def __getitem__(self, index: int) -> dict:
+        """One sample (the keys of the module docstring without the batch axis)."""
+        batch = self.get_batch([index])
+        return {k: v[0] for k, v in batch.items()}
+
+    def get_batch(self, indices) -> dict:
+        """The batch of dataset ``indices`` (length B): the keys of the module docstring, equal
+        to ``default_collate`` of the single items."""
+        return expand_batch(compact_tensors(*self.compact_batch(indices)))
+
+    def compact_batch(self, indices) -> tuple[dict[str, np.ndarray], dict]:
+        """The batch of ``indices`` in stored dtypes, as ``(arrays, strings)``: ``images``
+        [B,S,S,3] uint8 (HWC), ``masks`` [B,S,S] and ``masks_sc`` [B,M,M] bool, ``voxels``
+        [B,G,G,G] uint8 (with ``require_voxels``), ``K``, ``K_sc``, ``R``, ``t``, ``distance``,
+        ``azimuth``, ``elevation`` float32, ``labeled`` bool, ``index`` int64; strings:
+        ``category``, ``model_id``. With a ``decoded_cache`` the arrays are gathered from it. When the
+        split fits in ``cache_objects``, objects are decoded
+        whole once (LRU cache) and the 48 px masks computed once per (object, view); otherwise
+        (large datasets: an object comes back once per epoch, so a cache would only miss) only
+        the batch's views are read, grouped by shard (``ShardReader.read_views``)."""
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1)
+        objs, views = np.divmod(idx, self.num_views)
+        if self._decoded is not None:
+            got = self._decoded.views(self._shard_index[objs], self._rows[objs], views)
+            got.update({k: a[objs, views] for k, a in self._cameras.items()})
+            masks_sc = got["masks_sc"]
+        elif self.cache_objects >= self.num_objects:
+            arrays = [self._object(int(o)) for o in objs]
+            got = {name: np.stack([a[name][v] for a, v in zip(arrays, views)]) for name in VIEW_FIELDS}
+            if self.require_voxels:
+                got["voxels"] = np.stack([a["voxels"] for a in arrays])
+            masks_sc = self._masks_sc(arrays, views, got["masks"])
+        else:
+            got = self._read_views(objs, views)
+            masks_sc = sc_masks_bool(got["masks"], self.mask_size)
+        K = got["K"].astype(np.float32)
+        out = {"images": got["images"], "masks": got["masks"] > 0, "masks_sc": masks_sc, "K": K,
+               "K_sc": np.asarray(scale_intrinsics(K.astype(np.float64), self.mask_size,
+                                                   self.image_size), dtype=np.float32)}
+        for name in ("R", "t", "distance", "azimuth", "elevation"):
+            out[name] = got[name].astype(np.float32)
+        out["labeled"] = self.labeled[objs].astype(bool)
+        out["index"] = idx
+        if self.require_voxels:
+            out["voxels"] = got["voxels"]
+        strings = {"category": [self.objects[o].category for o in objs],
+                   "model_id": [self.objects[o].model_id for o in objs]}
+        return out, strings
+
+    def _read_cameras(self) -> dict[str, np.ndarray]:
+        """``CAMERA_FIELDS`` of every object of the split, ``[num_objects, V, ...]`` as stored
+        (~2.3 KB per object at 24 views; read once here, in the process that makes the
+        dataset, and shared with forked loader workers)."""
+        out: dict[str, np.ndarray] = {}
+        for s, path in enumerate(self._shards):
+            mine = np.flatnonzero(self._shard_index == s)
+            try:
+                whole = self._reader.read_whole(path, CAMERA_FIELDS)
+            except ShardError as e:
+                raise DataError(str(e)) from e
+            for k, a in whole.items():
+                if k not in out:
+                    out[k] = np.empty((self.num_objects,) + a.shape[1:], dtype=a.dtype)
+                out[k][mine] = a[self._rows[mine]]
+        return out
+
+    def _read_views(self, objs: np.ndarray, views: np.ndarray) -> dict[str, np.ndarray]:
+        """``VIEW_FIELDS`` (+ ``voxels``) of the B (object, view) pairs, ``[B, ...]`` as stored:
+        images, masks and voxels read from the files (one ``read_views`` per shard the batch
+        touches), the cameras from :meth:`_read_cameras`."""
+        names = ("images", "masks") + (("voxels",) if self.require_voxels else ())
+        shard_of = self._shard_index[objs]
+        out: dict[str, np.ndarray] = {k: a[objs, views] for k, a in self._cameras.items()}
+        for s in np.unique(shard_of).tolist():
+            sel = np.flatnonzero(shard_of == s)
+            path = self._shards[s]
+            try:
+                got = self._reader.read_views(path, self._rows[objs[sel]], views[sel], names)
+            except ShardError as e:  # checksum / gzip error: the reader names the file and rows
+                raise DataError(str(e)) from e
+            for k, a in got.items():
+                if k not in out:
+                    out[k] = np.empty((len(objs),) + a.shape[1:], dtype=a.dtype)
+                out[k][sel] = a
+        return out
+
+    def _masks_sc(self, arrays: list[dict], views: np.ndarray, masks: np.ndarray) -> np.ndarray:
+        """``masks_sc [B, M, M]`` bool of the B views (stored ``masks [B, S, S]``), computed with
+        :func:`sc_masks` for the views not yet in their object's cache entry, then cached."""
+        todo = [i for i, (a, v) in enumerate(zip(arrays, views)) if not a["has_sc"][v]]
+        if todo:
+            new = sc_masks_bool(masks[todo], self.mask_size)
+            for i, m in zip(todo, new):
+                arrays[i]["masks_sc"][views[i]], arrays[i]["has_sc"][views[i]] = m, True
+        return np.stack([a["masks_sc"][v] for a, v in zip(arrays, views)])

@@ -1,0 +1,156 @@
+"""``sc3d-train claims``: train the paper's comparisons with K seeds and equal budgets, evaluate
+each on held-out shards, and write the paper's tables (markdown) and one figure.
+
+Runs (each a normal ``fit`` run folder under ``OUT/runs/NAME/seed-S`` per seed and its evaluation
+of ``best.pt`` (``--pick last``: ``last.pt``) under ``.../eval``; a rerun skips (run, seed) pairs
+whose evaluation exists and resumes a half-trained one, so the command resumes):
+
+=================  ============================================================================
+``sup-3tube``       supervised, all training objects, 3-tube voxel decoder (the paper's model)
+``sup-1tube``       the same with the 1-tube decoder (ablation, paper Table "voxel decoder")
+``labeled-only``    the labelled fraction alone (supervised loss)
+``semi``            the same labelled fraction + the unlabelled rest (``fit --semi``)
+``ray``             voxels learnt from masks alone at the TRUE pose, L_ray only (ablation,
+                    paper Table "2D-3D self-consistency"; DRC's setting)
+``ray-proj``        the same with L_ray + L_proj
+=================  ============================================================================
+
+Presets (:data:`PRESETS`): ``cpu`` (the tiny network, 700 steps of 32: about 30-40 min for ~200
+training objects on 2 CPU cores) and ``paper`` (the paper's width and Adam 2e-4, batch 48, for
+a GPU). Every run gets the same step budget and seeds: ``--seeds K`` trains each with seeds
+``seed .. seed + K - 1``; every cell of the tables is then the mean ± sample standard deviation
+over the K evaluations, and each claim says whether it holds on the means and whether the
+difference exceeds two standard deviations of the difference of the means
+(:func:`~sc3d_train.evaluation.claims_report.check_claims`).
+
+Outputs: ``OUT/claims.md`` (IoU@0.4 per category and mean, in the paper's layout; pose errors per
+category; the two ablations), ``OUT/claims.json`` (every number) and ``OUT/claims.png``.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+
+from sc3d_train.evaluation.claims_report import RUNS, aggregate, write_report
+from sc3d_train.settings.command_config import ClaimsConfig
+from sc3d_train.settings.config import ModelConfig, RunConfig
+from sc3d_train.settings.config_io import defaults_of
+
+#: ``fit``'s defaults (:class:`RunConfig`), which a preset does not set again
+_FIT = defaults_of(RunConfig)
+
+
+@dataclass(frozen=True)
+class ClaimsPreset:
+    """Budget and network of every run of a claims study (unset fields: ``fit``'s defaults)."""
+
+    steps: int
+    batch_size: int
+    lr: float
+    tiny: bool
+    lr_schedule: str = _FIT["lr_schedule"]
+    labeled_fraction: float = _FIT["labeled_fraction"]
+    seed: int = _FIT["seed"]
+    runs: tuple = RUNS
+    #: further ``fit`` settings: RunConfig fields (``val_every``, ...) and ModelConfig fields
+    #: (``base_channels``, ...)
+    extra: dict = field(default_factory=dict)
+
+
+PRESETS = {
+    "cpu": ClaimsPreset(steps=700, batch_size=32, lr=_FIT["lr"], tiny=True),
+    "paper": ClaimsPreset(steps=20000, batch_size=48, lr=2e-4, tiny=False, lr_schedule="constant"),
+}
+
+
+def run_config(name: str, preset: ClaimsPreset, shards: Path, out: Path, device: str = ClaimsConfig.device,
+               workers: int = ClaimsConfig.workers, seed: int | None = None) -> RunConfig:
+    """The :class:`RunConfig` of run ``name`` (one of :data:`RUNS`) with ``seed`` (None: the
+    preset's). The ablations at the true pose train no pose, so their ``best.pt`` is picked by IoU."""
+    from sc3d_train.loop.resolve import resolve_config
+
+    options = dict(shards=str(Path(shards).resolve()), out=str(out), steps=preset.steps,
+                   batch_size=preset.batch_size, lr=preset.lr, lr_schedule=preset.lr_schedule,
+                   seed=preset.seed if seed is None else seed,
+                   labeled_fraction=preset.labeled_fraction, device=device, workers=workers,
+                   progress=False, checkpoint_every=preset.steps)
+    options["mode"] = {"labeled-only": "labeled-only", "semi": "semi", "ray": "true-pose-masks",
+                       "ray-proj": "true-pose-masks"}.get(name, "supervised")
+    if options["mode"] == "true-pose-masks":
+        options["select_by"] = "iou"
+    model_options = {"tiny": preset.tiny, "voxel_decoder": "1tube" if name == "sup-1tube" else "3tube"}
+    model_fields = {f.name for f in fields(ModelConfig)}
+    for k, v in preset.extra.items():
+        (model_options if k in model_fields else options)[k] = v
+    cfg = resolve_config(options, model_options)
+    if name == "ray":
+        cfg = replace(cfg, loss_weights=replace(cfg.loss_weights, proj=0.0))
+    return cfg
+
+
+def seed_list(preset: ClaimsPreset, seeds: int) -> list[int]:
+    """The seeds of a study: ``preset.seed``, ``preset.seed + 1``, ... (``seeds`` of them)."""
+    if seeds < 1:
+        raise ValueError(f"seeds must be >= 1, got {seeds}")
+    return [preset.seed + k for k in range(seeds)]
+
+
+def run_folder(out: Path, name: str, seed: int) -> Path:
+    """``OUT/runs/NAME/seed-S``: the ``fit`` run of ``name`` with ``seed`` (its eval in ``eval/``)."""
+    return Path(out) / "runs" / name / f"seed-{seed}"
+
+
+def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path, eval_shards: Path, out: Path,
+                       eval_split: str, device: str, workers: int, pick: str, echo) -> tuple[dict, float | None]:
+    """The eval metrics of run ``name`` with ``seed``: read back when its evaluation exists,
+    else trained (resumed from its ``last.pt`` when there is one) and evaluated on ``pick``.
+    Returns ``(metrics, seconds spent or None when read back)``."""
+    from sc3d_train.loop.checkpoint import run_checkpoint
+    from sc3d_train.evaluation.evaluate import evaluate
+    from sc3d_train.loop.trainer import fit
+
+    run_dir = run_folder(out, name, seed)
+    metrics_file = run_dir / "eval" / "metrics.json"
+    if metrics_file.is_file():
+        echo(f"{name} seed {seed}: done before, reading {metrics_file}")
+        return json.loads(metrics_file.read_text()), None
+    t0 = time.perf_counter()
+    resume = (run_dir / "checkpoints" / "last.pt").is_file()
+    cfg = RunConfig.load(RunConfig.path_in(run_dir)) if resume else \
+        run_config(name, p, train_shards, run_dir, device, workers, seed)
+    echo(f"{name} seed {seed}: {cfg.mode}, {cfg.steps} steps of {cfg.batch_size}" + (" (resuming)" if resume else ""))
+    fit(cfg, resume=resume)
+    res = evaluate(run_checkpoint(run_dir, pick), eval_shards, eval_split, run_dir / "eval", device)
+    seconds = time.perf_counter() - t0
+    echo(f"    {name} seed {seed} (step {res['step']}): mean IoU@0.4 {res['mean']['voxel_iou_0.4']:.3f}, median "
+         f"rotation error {res['mean']['pose_rotation_median']:.1f} deg ({seconds / 60:.1f} min)")
+    return res, seconds
+
+
+def run_all(train_shards: Path, eval_shards: Path, out: Path,
+            preset: "str | ClaimsPreset" = ClaimsConfig.preset, eval_split: str = ClaimsConfig.eval_split,
+            device: str = ClaimsConfig.device, workers: int = ClaimsConfig.workers, runs=None,
+            echo=print, seeds: int = ClaimsConfig.seeds, pick: str = ClaimsConfig.pick) -> dict:
+    """Train and evaluate every run of ``preset`` with each of ``seeds`` seeds (skipping finished
+    (run, seed) pairs); write the report. Returns ``{run name: aggregate}`` (:func:`aggregate`)."""
+    p = PRESETS[preset] if isinstance(preset, str) else preset
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    per_seed, timings = {}, {}
+    names, seed_values = list(runs or p.runs), seed_list(p, seeds)
+    for name in names:
+        per_seed[name] = {}
+        for seed in seed_values:
+            res, seconds = train_and_evaluate(name, seed, p, train_shards, eval_shards, out, eval_split,
+                                              device, workers, pick, echo)
+            per_seed[name][seed] = res
+            if seconds is not None:
+                timings[f"{name}/seed-{seed}"] = seconds
+    results = {name: aggregate(by_seed) for name, by_seed in per_seed.items()}
+    report = write_report(results, out, preset=asdict(p), seeds=seed_values, pick=pick, eval_split=eval_split,
+                          train_shards=str(train_shards), eval_shards=str(eval_shards), timings=timings)
+    echo(f"wrote {out / 'claims.md'}, {out / 'claims.json'}, {out / 'claims.png'}")
+    echo(report)
+    return results

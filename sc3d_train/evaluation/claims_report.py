@@ -1,0 +1,185 @@
+"""The report of ``sc3d-train claims``: each run's evaluations aggregated over seeds
+(:func:`aggregate`: mean and sample standard deviation of every figure), the paper's tables
+(``claims.md``, :func:`format_report`), the claims checked with their error bars
+(:func:`check_claims`), ``claims.json`` and the figure ``claims.png``. The training and
+evaluation of the runs is :mod:`sc3d_train.evaluation.claims`."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+RUNS = ("sup-3tube", "sup-1tube", "labeled-only", "semi", "ray", "ray-proj")
+
+
+def _stats(values: list) -> dict:
+    """``{"mean", "std", "values"}`` of per-seed values (None: a figure a seed could not give,
+    left out); ``std`` is the sample standard deviation (ddof 1), None for fewer than 2 values."""
+    vals = [float(v) for v in values if v is not None]
+    if not vals:
+        return {"mean": None, "std": None, "values": values}
+    return {"mean": float(np.mean(vals)), "std": float(np.std(vals, ddof=1)) if len(vals) > 1 else None,
+            "values": values}
+
+
+def aggregate(by_seed: dict) -> dict:
+    """One run's eval metrics over seeds (``{seed: metrics}``) in the shape of one evaluation
+    (``per_category``, ``mean``, ``overall``: the mean over seeds of each figure), plus ``std``
+    (the same blocks holding the sample standard deviation, None for one seed), ``seeds`` and
+    ``per_seed`` (each seed's blocks)."""
+    seeds = sorted(by_seed)
+    runs = [by_seed[s] for s in seeds]
+    out = {"seeds": seeds, "per_seed": {s: {k: by_seed[s][k] for k in ("per_category", "mean", "overall")}
+                                        for s in seeds}}
+
+    def block(get) -> tuple[dict, dict]:
+        keys = sorted({k for r in runs for k in (get(r) or {})})
+        stats = {k: _stats([(get(r) or {}).get(k) for r in runs]) for k in keys}
+        return {k: v["mean"] for k, v in stats.items()}, {k: v["std"] for k, v in stats.items()}
+
+    out["std"] = {"per_category": {}}
+    out["per_category"] = {}
+    for c in sorted({c for r in runs for c in r["per_category"]}):
+        out["per_category"][c], out["std"]["per_category"][c] = block(lambda r, c=c: r["per_category"].get(c))
+    for name in ("mean", "overall"):
+        out[name], out["std"][name] = block(lambda r, name=name: r[name])
+    return out
+
+
+def _categories(results: dict) -> list[str]:
+    cats = set()
+    for r in results.values():
+        cats |= set(r["per_category"])
+    return sorted(cats)
+
+
+def _cell(value, std, fmt: str, scale: float = 1.0) -> str:
+    """``mean`` or ``mean ± std`` (``-`` where the figure is missing)."""
+    if value is None:
+        return "-"
+    text = fmt.format(scale * value)
+    return text if std is None else f"{text} ± {fmt.format(scale * std)}"
+
+
+def _row(res: dict, cats: list[str], key: str, fmt: str, scale: float = 1.0) -> list[str]:
+    std = res.get("std", {})
+    cells = [_cell(res["per_category"].get(c, {}).get(key), std.get("per_category", {}).get(c, {}).get(key), fmt,
+                   scale) for c in cats]
+    return cells + [_cell(res["mean"].get(key), std.get("mean", {}).get(key), fmt, scale)]
+
+
+TITLES = {"sup-3tube": "Ours (Sup), 3 tubes", "sup-1tube": "Ours (Sup), 1 tube", "labeled-only": "labelled only",
+          "semi": "Ours (Semi)", "ray": "Ray (true pose)", "ray-proj": "Ray + Projection (true pose)"}
+
+
+def format_report(results: dict) -> str:
+    """The markdown tables: reconstruction (IoU@0.4 %, per category and mean), pose (median
+    rotation error, share within 30 deg), the claims. With several seeds every cell is
+    ``mean ± sample standard deviation`` over the seeds."""
+    from sc3d_data.formats.shapenet import category_label
+
+    cats = _categories(results)
+    names = [category_label(c).split(" (")[0] for c in cats]
+    head = "| run | " + " | ".join(names) + " | Mean |\n|---|" + "---|" * (len(cats) + 1) + "\n"
+    seeds = sorted({len(r.get("seeds", [0])) for r in results.values()})
+    over = f" (mean ± standard deviation over {seeds[0]} seeds)" if seeds and seeds[-1] > 1 else ""
+    out = [f"### Reconstruction: voxel IoU@0.4 (%) on held-out objects{over}\n\n", head]
+    for name in RUNS:
+        if name in results:
+            out.append(f"| {TITLES[name]} | " + " | ".join(_row(results[name], cats, "voxel_iou_0.4", "{:.1f}", 100))
+                       + " |\n")
+    out.append("\n### Pose (no pose labels in training): median rotation error (deg) / share within 30 deg"
+               f"{over}\n\n")
+    out.append(head)
+    for name in ("sup-3tube", "sup-1tube", "labeled-only", "semi"):
+        if name in results:
+            med = _row(results[name], cats, "pose_rotation_median", "{:.1f}")
+            acc = _row(results[name], cats, "pose_rotation_acc30", "{:.2f}")
+            out.append(f"| {TITLES[name]} | " + " | ".join(f"{m} / {a}" for m, a in zip(med, acc)) + " |\n")
+    out.append("\n### Claims\n\nmean IoU@0.4 (mean of categories); σ: the standard deviation of the difference "
+               "of the two means, sqrt(s_a² / K + s_b² / K) with s the sample standard deviation over K seeds\n\n"
+               "| claim | measured | difference ± σ | holds (means) | beyond 2σ |\n|---|---|---|---|---|\n")
+    for c in check_claims(results):
+        sigma = "" if c["sigma"] is None else f" ± {c['sigma']:.3f}"
+        beyond = "n/a (1 seed)" if c["beyond_2sigma"] is None else ("yes" if c["beyond_2sigma"] else "no")
+        out.append(f"| {c['claim']} | {c['measured']} | {c['difference']:+.3f}{sigma} | "
+                   f"{'yes' if c['holds'] else 'no'} | {beyond} |\n")
+    return "".join(out)
+
+
+CLAIMS = (("sup-3tube", "sup-1tube", "3 tubes >= 1 tube", False),
+          ("semi", "labeled-only", "semi > labelled only", True),
+          ("ray-proj", "ray", "ray + projection >= ray", False))
+
+
+def check_claims(results: dict) -> list[dict]:
+    """The paper's qualitative claims on the mean IoU@0.4 over categories: per claim ``claim``,
+    ``measured`` (text), ``difference`` (a - b of the means over seeds), ``sigma`` (standard
+    deviation of that difference: ``sqrt(s_a^2 / K_a + s_b^2 / K_b)``; None with one seed),
+    ``holds`` (on the means; ``>`` for the strict claim, else ``>=``) and ``beyond_2sigma``
+    (``difference > 2 sigma``; None with one seed)."""
+    rows = []
+    for a, b, text, strict in CLAIMS:
+        if a not in results or b not in results:
+            continue
+        (ma, sa, ka), (mb, sb, kb) = ((results[n]["mean"]["voxel_iou_0.4"],
+                                       results[n].get("std", {}).get("mean", {}).get("voxel_iou_0.4"),
+                                       len(results[n].get("seeds", [0]))) for n in (a, b))
+        d = ma - mb
+        sigma = None if sa is None or sb is None else float(np.sqrt(sa ** 2 / ka + sb ** 2 / kb))
+        rows.append({"claim": text, "a": a, "b": b,
+                     "measured": f"{_cell(ma, sa, '{:.3f}')} vs {_cell(mb, sb, '{:.3f}')}",
+                     "difference": d, "sigma": sigma, "holds": d > 0 if strict else d >= 0,
+                     "beyond_2sigma": None if sigma is None else bool(d > 2 * sigma)})
+    return rows
+
+
+def plot_report(results: dict, path: Path) -> None:
+    """IoU@0.4 per category (bars per run) and the rotation-error share within 30 deg (error bars:
+    the standard deviation over seeds)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from sc3d_data.formats.shapenet import category_label
+
+    cats = _categories(results)
+    labels = [category_label(c).split(" (")[0] for c in cats] + ["mean"]
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4))
+    names = list(results)
+    width = 0.8 / max(len(names), 1)
+    x = np.arange(len(labels))
+    for k, name in enumerate(names):
+        res = results[name]
+        for ax, key in zip(axes, ("voxel_iou_0.4", "pose_rotation_acc30")):
+            vals = [res["per_category"].get(c, {}).get(key) for c in cats] + [res["mean"].get(key)]
+            vals = [np.nan if v is None else v for v in vals]
+            std = res.get("std", {})
+            err = [std.get("per_category", {}).get(c, {}).get(key) for c in cats] + [std.get("mean", {}).get(key)]
+            if key.startswith("pose") and name in ("ray", "ray-proj"):
+                continue
+            ax.bar(x + k * width, vals, width, label=name, yerr=[0 if e is None else e for e in err], capsize=2)
+    for ax, title in zip(axes, ("voxel IoU@0.4 (held-out objects)", "share of views with rotation error <= 30 deg")):
+        ax.set_xticks(x + 0.4 - width / 2)
+        ax.set_xticklabels(labels, fontsize=8)
+        ax.set_title(title)
+        ax.set_ylim(0, 1)
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def write_report(results: dict, out: Path, **meta) -> str:
+    """``claims.md`` (:func:`format_report`), ``claims.json`` (``meta``; per run the means, ``std``,
+    ``seeds`` and ``per_seed`` blocks; ``claims``: :func:`check_claims`) and ``claims.png``."""
+    text = format_report(results)
+    (Path(out) / "claims.md").write_text(text)
+    keys = ("per_category", "mean", "overall", "std", "seeds", "per_seed")
+    slim = {k: {key: v[key] for key in keys if key in v} for k, v in results.items()}
+    (Path(out) / "claims.json").write_text(json.dumps({"meta": meta, "results": slim, "claims": check_claims(results)},
+                                                      indent=1, default=str))
+    plot_report(results, Path(out) / "claims.png")
+    return text

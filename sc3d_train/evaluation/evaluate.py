@@ -1,0 +1,168 @@
+"""``sc3d-train eval``: metrics of a checkpoint on a split of the shards (SPEC "Metrics").
+
+Every view of every object of the split is one test image (24 per object by default).
+
+* Voxel IoU at thresholds 0.4 (3D-R2N2) and 0.5 (PTN): ``|P & G| / |P | G|`` of the predicted
+  occupancy probability ``>= thr`` against the ground-truth grid, per image.
+* Mask IoU: predicted mask probability ``>= 0.5`` against the rendered mask at the size the
+  model predicts (the image size), per image.
+* Pose error: the rotation error, the geodesic angle between the predicted camera rotation and
+  the shard's true ``R`` (MVC's metric): median, mean, fraction within 15 and 30 degrees; the
+  absolute wrapped azimuth and elevation errors in degrees (``sc3d_train.paper.pose``): mean, median
+  and the fraction within 30 degrees; ``az~flip`` (``pose_azimuth_flip_acc30``), a diagnostic,
+  also counts azimuths within 30 degrees of the true azimuth + 180 (front/back confusion).
+  The evaluated pose is, by default, the test-time self-consistent one (``pose_from="search"``:
+  the azimuth whose projection of the predicted voxels best matches the predicted mask, at the
+  elevation of the pose head; no label) or the pose head's alone (``"head"``).
+
+Per category: the mean over that category's images. ``mean``: the unweighted mean of the
+per-category values (the paper's "Mean" column). ``overall``: pooled over all images.
+Thresholds are fixed in advance (never tuned on the test set).
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from sc3d_data.formats.shapenet import category_label
+from sc3d_train.loop.checkpoint import load_model, run_checkpoint
+from sc3d_train.settings.command_config import POSE_SOURCES, EvalConfig
+from sc3d_train.data.dataset import ShardDataset
+from sc3d_train.paper.metrics import MASK_THRESHOLD, VOXEL_THRESHOLDS, predict_dataset, summarize
+
+#: where the evaluated pose comes from: ``search`` (default) the azimuth whose projection of the
+#: predicted voxels best matches the predicted mask, at the head's elevation (test-time
+#: self-consistency, :func:`sc3d_train.paper.pose_search.self_consistent_pose`); ``head`` the pose
+#: head's soft-argmax alone
+
+TABLE_COLUMNS = (("images", "n", "{:d}"), ("voxel_iou_0.4", "IoU@.4", "{:.3f}"),
+                 ("voxel_iou_0.5", "IoU@.5", "{:.3f}"), ("mask_iou", "maskIoU", "{:.3f}"),
+                 ("pose_rotation_median", "rot med", "{:.1f}"), ("pose_rotation_mean", "rot err", "{:.1f}"),
+                 ("pose_rotation_acc15", "rot<15", "{:.2f}"), ("pose_rotation_acc30", "rot<30", "{:.2f}"),
+                 ("pose_azimuth_mean", "az err", "{:.1f}"), ("pose_azimuth_median", "az med", "{:.1f}"),
+                 ("pose_azimuth_acc30", "az<30", "{:.2f}"), ("pose_azimuth_flip_acc30", "az~flip", "{:.2f}"),
+                 ("pose_elevation_mean", "el err", "{:.1f}"),
+                 ("pose_elevation_acc30", "el<30", "{:.2f}"))
+
+
+def format_table(summary: dict) -> str:
+    """A fixed-width text table: one row per category, then ``mean`` and ``overall``."""
+    lines = [f"{'category':<22}" + "".join(f"{h:>9}" for _, h, _ in TABLE_COLUMNS)]
+    rows = list(summary["per_category"].items()) + [("mean", summary["mean"]), ("overall", summary["overall"])]
+    for name, vals in rows:
+        if name in summary["per_category"]:
+            name = category_label(name)
+        cells = []
+        for key, _, fmt in TABLE_COLUMNS:
+            v = vals.get(key)
+            cells.append(f"{'':>9}" if v is None else f"{fmt.format(v):>9}")
+        lines.append(f"{name[:22]:<22}" + "".join(cells))
+    return "\n".join(lines)
+
+
+def voxel_silhouette(voxels: np.ndarray, azimuth: float, elevation: float, distance: float,
+                     K: np.ndarray, image_size: int) -> np.ndarray:
+    """Silhouette ``[S, S]`` bool of a boolean grid seen from a pose (``sc3d_data.geometry.projection``
+    with the camera of ``sc3d_data.geometry.camera``)."""
+    from sc3d_data.geometry.camera import extrinsics
+    from sc3d_data.geometry.projection import project_voxels
+
+    R, t = extrinsics(np.float64(azimuth), np.float64(elevation), np.float64(distance))
+    return project_voxels(voxels, K, R, t, image_size)
+
+
+def plot_examples(examples: list[dict], path: Path, per_row: int = 2) -> None:
+    """``per_row`` examples per figure row, each as 5 panels: input, true mask, predicted mask,
+    true voxels at the true pose, predicted voxels (>= 0.5) at the predicted pose; each example
+    is labelled with its object, view, IoU and true/predicted (azimuth, elevation) and rotation
+    error."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n_rows = max(1, math.ceil(len(examples) / per_row))
+    fig, axes = plt.subplots(n_rows, 5 * per_row, figsize=(1.3 * 5 * per_row, 1.55 * n_rows), squeeze=False)
+    for ax in axes.flat:
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.axis("off")
+    titles = ("input", "mask true", "mask pred", "vox @ true pose", "vox @ pred pose")
+    for k, ex in enumerate(examples):
+        r, c0 = divmod(k, per_row)
+        c0 *= 5
+        S = ex["image"].shape[0]
+        panels = (ex["image"], ex["mask_true"], ex["mask_pred"],
+                  voxel_silhouette(ex["voxels_true"], ex["azimuth_true"], ex["elevation_true"], ex["distance"], ex["K"], S),
+                  voxel_silhouette(ex["voxels_pred"] >= 0.5, ex["azimuth_pred"], ex["elevation_pred"], ex["distance"], ex["K"], S))
+        for c, img in enumerate(panels):
+            ax = axes[r, c0 + c]
+            ax.axis("on")
+            ax.imshow(img, cmap=None if img.ndim == 3 else "gray", vmin=0, vmax=1)
+            if r == 0:
+                ax.set_title(titles[c], fontsize=7)
+        axes[r, c0].set_ylabel(ex["title"][:26], fontsize=5)
+        axes[r, c0 + 4].set_xlabel(
+            f"IoU {ex['iou']:.2f} rot {ex['rotation_error']:.0f}\n"
+            f"pred ({ex['azimuth_pred']:.0f},{ex['elevation_pred']:.0f}) true ({ex['azimuth_true']:.0f},"
+            f"{ex['elevation_true']:.0f})", fontsize=5)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def default_output_dir(checkpoint: Path, name: str) -> Path:
+    """Beside the checkpoint's run: ``RUN_DIR/NAME`` for ``RUN_DIR/checkpoints/X.pt``, else
+    ``CHECKPOINT_DIR/NAME``."""
+    checkpoint = Path(checkpoint)
+    parent = checkpoint.parent
+    return (parent.parent if parent.name == "checkpoints" else parent) / name
+
+
+def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, device: str = EvalConfig.device,
+             batch_size: int = EvalConfig.batch_size, examples: int = EvalConfig.examples,
+             pose_from: str = EvalConfig.pose_from, pick: str = EvalConfig.pick) -> dict:
+    """Evaluate ``checkpoint`` (a file, or a run folder: its ``pick`` checkpoint,
+    :func:`~sc3d_train.loop.checkpoint.run_checkpoint`) on ``split`` of ``shards``; writes ``out/metrics.json`` and
+    ``out/predictions.png`` (``out`` None: ``RUN_DIR/eval_SPLIT``, :func:`default_output_dir`);
+    ``examples`` objects per category are drawn. Returns the metrics dict (also holding
+    ``table``, the text table, and ``out``)."""
+    dev = torch.device("cuda" if device == "auto" and torch.cuda.is_available() else
+                       "cpu" if device == "auto" else device)
+    checkpoint = run_checkpoint(checkpoint, pick)
+    model, cfg, ckpt = load_model(checkpoint, dev)
+    dataset = ShardDataset(shards, split, subset="all", mask_size=cfg.model.mask_size,
+                           require_voxels=True, image_size=cfg.model.image_size)
+    if dataset.info["voxel_resolution"] != cfg.model.voxel_resolution:
+        raise ValueError(f"{shards}: voxels are {dataset.info['voxel_resolution']}^3 but the checkpoint "
+                         f"predicts {cfg.model.voxel_resolution}^3")
+    if pose_from not in POSE_SOURCES:
+        raise ValueError(f"pose_from must be one of {POSE_SOURCES}, got {pose_from!r}")
+    rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
+                                 loss_weights=cfg.loss_weights)
+    summary = summarize(rows)
+    out = Path(out) if out is not None else default_output_dir(checkpoint, f"eval_{split}")
+    out.mkdir(parents=True, exist_ok=True)
+    result = {"checkpoint": str(checkpoint), "step": int(ckpt.get("step", -1)), "shards": str(shards),
+              "split": split, "pose_from": pose_from, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
+              **summary}
+    (out / "metrics.json").write_text(json.dumps(_finite(result), indent=1))
+    plot_examples(kept, out / "predictions.png")
+    result["table"] = format_table(summary)
+    result["out"] = str(out)
+    return result
+
+
+def _finite(obj):
+    """JSON-safe copy: NaN/inf become None."""
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj

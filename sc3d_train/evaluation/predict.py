@@ -1,0 +1,173 @@
+"""``sc3d-train predict``: images -> voxels, mesh, pose and a picture, with a trained checkpoint.
+
+Per input image ``NAME.png`` (written to the output directory):
+
+* ``NAME.binvox``: occupancy ``>= threshold`` (sc3d's [-0.5, 0.5]^3 cube, ``sc3d_data.io.binvox``),
+* ``NAME.npz``: ``probabilities`` float32 [G,G,G] ([x,y,z]), ``voxels`` bool, ``mask`` float32
+  [S,S] (predicted mask probability), ``azimuth``, ``elevation`` (degrees), ``threshold``,
+* ``NAME.obj``: marching-cubes surface (scikit-image) of the probabilities at ``threshold``, in
+  the canonical frame (the grid cube [-0.5, 0.5]^3, +Y up, front +Z),
+* ``NAME.json``: the predicted pose (azimuth, elevation in degrees; the camera distance of the
+  training data) and the paths above,
+* ``NAME.png``: the input, the predicted mask, and the predicted voxels' silhouette seen from the
+  predicted pose (``sc3d_data.geometry.projection`` through ``sc3d_data.geometry.camera``).
+
+Input images must have the training image size (no silent resizing: the camera intrinsics and
+the framing of the training renders would no longer hold). Modes: RGB is used as is; RGBA, LA,
+L and P are converted to RGBA and alpha-composited onto the training data's background colour
+(stored in the checkpoint), so a transparent PNG looks like the renders; other modes (CMYK,
+16-bit, float, 1-bit) are refused.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from sc3d_train.loop.checkpoint import load_model
+from sc3d_train.settings.command_config import PredictConfig
+
+ACCEPTED_MODES = ("RGB", "RGBA", "LA", "L", "P")
+
+
+class ImageError(ValueError):
+    """An input image that cannot be fed to the model (size, mode, unreadable)."""
+
+
+def load_image(path: Path, image_size: int, background: list[int]) -> np.ndarray:
+    """``path`` -> float32 ``[S, S, 3]`` in [0, 1] (see module doc for modes and sizes)."""
+    import warnings
+
+    from PIL import Image
+
+    from sc3d_data.io.names import printable
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            img = Image.open(path)  # reads the header only
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as e:
+        raise ImageError(f"{printable(path)}: image too large to open ({e})") from e
+    except Exception as e:  # noqa: BLE001 - any decoder error: the file is not a usable image
+        raise ImageError(f"{printable(path)}: cannot read image ({type(e).__name__}: {e})") from e
+    if img.size != (image_size, image_size):  # before decoding: an oversized image is never decoded
+        raise ImageError(f"{printable(path)}: image is {img.size[0]}x{img.size[1]}, the model expects "
+                         f"{image_size}x{image_size} (crop/resize it like the training renders)")
+    try:
+        img.load()
+    except Exception as e:  # noqa: BLE001 - truncated or corrupt pixel data
+        raise ImageError(f"{printable(path)}: cannot read image ({type(e).__name__}: {e})") from e
+    if img.mode not in ACCEPTED_MODES:
+        raise ImageError(f"{path}: image mode {img.mode!r} not supported (use one of {ACCEPTED_MODES})")
+    if img.mode == "RGB":
+        return np.asarray(img, dtype=np.float32) / 255.0
+    rgba = np.asarray(img.convert("RGBA"), dtype=np.float32) / 255.0
+    alpha = rgba[..., 3:4]
+    bg = np.asarray(background, dtype=np.float32)[None, None, :3] / 255.0
+    return rgba[..., :3] * alpha + bg * (1.0 - alpha)
+
+
+def voxel_mesh(probabilities: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """Marching cubes of ``probabilities [G,G,G]`` ([x,y,z]) at ``threshold``: ``(vertices [V,3]``
+    in the canonical frame, ``faces [F,3])``. The grid is zero-padded so the surface is closed;
+    voxel centres sit at ``-0.5 + (i + 0.5)/G`` (SPEC). Empty arrays when nothing is occupied."""
+    from skimage.measure import marching_cubes
+
+    from sc3d_data.geometry.voxel_grid import voxel_centres
+
+    G = probabilities.shape[0]
+    padded = np.pad(probabilities.astype(np.float32), 1)
+    if padded.max() < threshold:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    verts, faces, _, _ = marching_cubes(padded, level=threshold)
+    verts = voxel_centres(verts - 1, G)  # undo the padding: vertex coordinates are voxel indices
+    # skimage's faces wind inwards for a solid of high values (negative signed volume): flip
+    return verts, faces[:, ::-1].copy()
+
+
+def write_obj(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
+    with open(path, "w") as f:
+        f.write("# sc3d-train predict: marching cubes of the predicted occupancy\n")
+        if len(faces) == 0:
+            f.write("# empty prediction: no voxel reached the threshold\n")
+        f.writelines(f"v {x:.5f} {y:.5f} {z:.5f}\n" for x, y, z in vertices)
+        f.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces)
+
+
+def plot_prediction(path: Path, image: np.ndarray, mask: np.ndarray, silhouette: np.ndarray,
+                    azimuth: float, elevation: float) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(7.5, 2.8))
+    for ax, img, title in zip(axes, (image, mask, silhouette),
+                              ("input", "predicted mask", f"voxels at az {azimuth:.0f}, el {elevation:.0f}")):
+        ax.imshow(img, cmap=None if img.ndim == 3 else "gray", vmin=0, vmax=1)
+        ax.set_title(title, fontsize=8)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+@torch.no_grad()
+def predict(checkpoint: Path, images: list[Path], out: Path, device: str = PredictConfig.device,
+            threshold: float = PredictConfig.threshold, pose_from: str = PredictConfig.pose_from) -> list[dict]:
+    """Predict every image (all are checked before the model runs); returns one dict per image
+    (the content of its JSON file)."""
+    from sc3d_data.io.binvox import write_binvox
+    from sc3d_train.evaluation.evaluate import voxel_silhouette
+
+    if not images:
+        raise ImageError("no input images given")
+    dev = torch.device("cuda" if device == "auto" and torch.cuda.is_available() else
+                       "cpu" if device == "auto" else device)
+    model, cfg, _ = load_model(checkpoint, dev)
+    size = cfg.model.image_size
+    arrays = [load_image(Path(p), size, cfg.background) for p in images]
+    K = np.asarray(cfg.intrinsics if cfg.intrinsics is not None else _default_K(size), dtype=np.float64)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    results, used = [], set()
+    for path, arr in zip(images, arrays):
+        name = Path(path).stem
+        while name in used:
+            name += "_"
+        used.add(name)
+        x = torch.from_numpy(arr.transpose(2, 0, 1).copy())[None].to(dev)
+        res = model(x)
+        if pose_from == "search":  # test-time self-consistency, as in `eval`
+            from sc3d_train.paper.pose_search import self_consistent_pose
+
+            res.azimuth, res.elevation = self_consistent_pose(
+                res, torch.as_tensor(K, dtype=torch.float32, device=dev)[None],
+                torch.tensor([float(cfg.camera_distance)], device=dev), model.pose_grid,
+                cfg.loss_weights)
+        probs = torch.sigmoid(res.voxel_logits.float())[0].cpu().numpy()
+        mask = torch.sigmoid(res.mask_logits.float())[0].cpu().numpy()
+        az, el = float(res.azimuth[0]), float(res.elevation[0])
+        voxels = probs >= threshold
+        files = {k: out / f"{name}.{k}" for k in ("binvox", "npz", "obj", "json", "png")}
+        write_binvox(files["binvox"], voxels)
+        np.savez_compressed(files["npz"], probabilities=probs.astype(np.float32), voxels=voxels,
+                            mask=mask.astype(np.float32), azimuth=az, elevation=el, threshold=threshold)
+        write_obj(files["obj"], *voxel_mesh(probs, threshold))
+        sil = voxel_silhouette(voxels, az, el, cfg.camera_distance, K, size)
+        plot_prediction(files["png"], arr, mask, sil, az, el)
+        info = {"image": str(path), "checkpoint": str(checkpoint), "azimuth_deg": az, "elevation_deg": el, "pose_from": pose_from,
+                "camera_distance": cfg.camera_distance, "threshold": threshold,
+                "occupied_voxels": int(voxels.sum()), "files": {k: str(v) for k, v in files.items()}}
+        files["json"].write_text(json.dumps(info, indent=1))
+        results.append(info)
+    return results
+
+
+def _default_K(size: int) -> np.ndarray:
+    from sc3d_data.geometry.camera import intrinsics
+
+    return intrinsics(size)

@@ -1,0 +1,232 @@
+"""Checkpoints of ``sc3d-train fit``: what they hold, how they are written, and how a model
+is rebuilt from one (for ``--resume``, ``eval`` and ``predict``).
+
+A checkpoint (``torch.save`` dict) holds ``model`` (state dict of the unwrapped network),
+``optimizer``, ``scaler`` (AMP GradScaler or None), ``rng`` (one entry per DDP rank: torch CPU,
+CUDA, numpy and python states), ``step`` (optimiser steps done), ``config`` (the
+:class:`~sc3d_train.settings.config.RunConfig` as plain data: nested dicts of numbers, strings and lists,
+the model config and loss weights inside; :func:`checkpoint_config` rebuilds the typed
+dataclasses, so checkpoints of earlier versions, which stored the same dict, still load), ``data_position``
+(phase, phase start and samples consumed by each rank in that phase) and ``format_version``.
+Files are written under a temporary name and renamed, so ``step_XXXXXX.pt`` and ``last.pt``
+are always complete; a write that fails (disk full) removes its temporary file and raises
+``CheckpointError`` naming the file, and ``resume_checkpoint`` picks the newest complete
+checkpoint (``last.pt`` or a newer ``step_XXXXXX.pt``).
+
+Loading never runs code from the file: ``torch.load(weights_only=True)`` with an allow-list of
+exactly the non-tensor types a checkpoint holds (``CHECKPOINT_GLOBALS``: the numpy array and
+dtype types of numpy's RNG state). A file needing anything else is refused with a clear
+message; nothing in it is executed.
+"""
+from __future__ import annotations
+
+import os
+import pickle
+import random
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from sc3d_train.settings.config import RunConfig
+
+FORMAT_VERSION = 1
+
+
+def _numpy_globals() -> list:
+    """The numpy callables/types ``np.random.get_state()`` pickles to (an ndarray of uint32)."""
+    try:
+        from numpy._core.multiarray import _reconstruct
+    except ImportError:  # numpy < 2
+        from numpy.core.multiarray import _reconstruct
+    types = [_reconstruct, np.ndarray, np.dtype]
+    types += [type(np.dtype(t)) for t in (np.uint32, np.int64, np.float64, np.float32, np.uint8, np.bool_)]
+    return types
+
+
+#: the only non-tensor globals ``load_checkpoint`` lets the unpickler build
+CHECKPOINT_GLOBALS = _numpy_globals()
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be used (missing, corrupt, or from another configuration)."""
+
+
+def checkpoint_dir(run_dir: Path) -> Path:
+    return Path(run_dir) / "checkpoints"
+
+
+def step_path(run_dir: Path, step: int) -> Path:
+    return checkpoint_dir(run_dir) / f"step_{step:06d}.pt"
+
+
+def last_path(run_dir: Path) -> Path:
+    return checkpoint_dir(run_dir) / "last.pt"
+
+
+def best_path(run_dir: Path) -> Path:
+    """The run's best checkpoint on its validation split (:mod:`sc3d_train.loop.validation`)."""
+    return checkpoint_dir(run_dir) / "best.pt"
+
+
+def run_checkpoint(path: Path, pick: str = "best") -> Path:
+    """The checkpoint file that ``path`` names: ``path`` itself when it is a file; for a run folder
+    ``checkpoints/best.pt`` (``pick="best"``; ``last.pt`` where the run kept no best, e.g. with
+    validation off) or ``checkpoints/last.pt`` (``pick="last"``)."""
+    path = Path(path)
+    if path.is_dir():
+        from sc3d_train.settings.command_config import CHECKPOINT_PICKS
+
+        if pick not in CHECKPOINT_PICKS:
+            raise ValueError(f"pick must be one of {CHECKPOINT_PICKS}, got {pick!r}")
+        best = best_path(path)
+        return best if pick == "best" and best.is_file() else last_path(path)
+    return path
+
+
+def rng_state() -> dict:
+    """This process's RNG states (torch CPU, CUDA when present, numpy, python)."""
+    return {"torch": torch.get_rng_state(),
+            "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
+            "numpy": np.random.get_state(), "python": random.getstate()}
+
+
+def set_rng_state(state: dict) -> None:
+    torch.set_rng_state(state["torch"])
+    if state.get("cuda") is not None and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])
+    np.random.set_state(state["numpy"])
+    random.setstate(state["python"])
+
+
+def save_best(run_dir: Path, payload: dict) -> Path:
+    """Write ``payload`` (``model``, ``step``, ``config``, ``validation``: no optimiser or RNG, it
+    is not resumed from) as ``checkpoints/best.pt``, atomically."""
+    path = best_path(run_dir)
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        torch.save({"format_version": FORMAT_VERSION, **payload}, tmp)
+        os.replace(tmp, path)
+    except (OSError, RuntimeError) as e:
+        tmp.unlink(missing_ok=True)
+        raise CheckpointError(f"{path}: cannot write checkpoint ({' '.join(str(e).split())})") from e
+    return path
+
+
+def save_checkpoint(run_dir: Path, payload: dict) -> Path:
+    """Write ``payload`` as ``checkpoints/step_XXXXXX.pt`` and copy it to ``last.pt``
+    (both atomically). Returns the step file."""
+    path = step_path(run_dir, payload["step"])
+    payload = {"format_version": FORMAT_VERSION, **payload}
+    tmp = path.with_name(path.name + ".tmp")
+    last = last_path(run_dir)
+    tmp_last = last.with_name(last.name + ".tmp")
+    target = path
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        torch.save(payload, tmp)
+        os.replace(tmp, path)
+        target = last
+        shutil.copyfile(path, tmp_last)
+        os.replace(tmp_last, last)
+    except (OSError, RuntimeError) as e:  # torch.save reports a full disk as RuntimeError
+        for t in (tmp, tmp_last):
+            try:
+                t.unlink()
+            except OSError:
+                pass
+        reason = e.strerror if isinstance(e, OSError) and e.strerror else " ".join(str(e).split())
+        kept = f"; {path} is complete" if target == last else ""
+        raise CheckpointError(f"{target}: cannot write checkpoint ({reason}){kept}; "
+                              f"free space and rerun with --resume") from e
+    return path
+
+
+def load_checkpoint(path: Path, map_location="cpu") -> dict:
+    """Read a checkpoint with a clear error for a missing or foreign file."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: checkpoint not found")
+    try:
+        with torch.serialization.safe_globals(CHECKPOINT_GLOBALS):
+            ckpt = torch.load(path, map_location=map_location, weights_only=True)
+    except pickle.UnpicklingError as e:  # weights_only refused a global: nothing was run
+        first = " ".join(str(e).split("\n")[-1].split())[:200]
+        raise CheckpointError(f"{path}: refused: the file holds Python objects outside the checkpoint "
+                              f"allow-list (not written by this sc3d-train, or crafted); not loaded ({first})") from e
+    except Exception as e:  # noqa: BLE001 - any other failure means "not ours" or truncated
+        raise CheckpointError(f"{path}: not a readable checkpoint ({type(e).__name__}: "
+                              f"{' '.join(str(e).split())[:200]})") from e
+    if not isinstance(ckpt, dict) or "model" not in ckpt or "config" not in ckpt:
+        raise CheckpointError(f"{path}: not an sc3d-train checkpoint (no model/config)")
+    return ckpt
+
+
+def resume_checkpoint(run_dir: Path) -> tuple[Path, dict]:
+    """``(path, checkpoint)`` of the newest complete checkpoint of a run: ``last.pt`` unless a
+    ``step_XXXXXX.pt`` with a higher step exists (``last.pt`` not updated because the disk
+    filled up, say); unreadable files are passed over. ``CheckpointError`` when none is left."""
+    folder = checkpoint_dir(run_dir)
+    steps = sorted(((int(m.group(1)), p) for p in folder.glob("step_*.pt")
+                    if (m := re.fullmatch(r"step_(\d+)\.pt", p.name))), reverse=True)
+    errors, last = [], None
+    if last_path(run_dir).is_file():
+        try:
+            last = load_checkpoint(last_path(run_dir))
+        except CheckpointError as e:
+            errors.append(str(e))
+    for step, p in steps:
+        if last is not None and int(last.get("step", -1)) >= step:
+            break
+        try:
+            return p, load_checkpoint(p)
+        except CheckpointError as e:
+            errors.append(str(e))
+    if last is not None:
+        return last_path(run_dir), last
+    raise CheckpointError(f"{last_path(run_dir)}: checkpoint not found"
+                          + (f" (and no complete step_*.pt: {errors[0]})" if errors else ""))
+
+
+def checkpoint_config(path: Path, ckpt: dict) -> RunConfig:
+    """The typed run config stored in checkpoint ``ckpt`` (read from ``path``)."""
+    try:
+        return RunConfig.from_dict(ckpt["config"])
+    except ValueError as e:
+        raise CheckpointError(f"{path}: its config is not one this version reads ({e})") from e
+
+
+def build_model(run_config: RunConfig):
+    """The network described by ``run_config.model`` (a :class:`~sc3d_train.settings.config.ModelConfig`)."""
+    from sc3d_train.paper.model import SelfConsistencyNet
+
+    return SelfConsistencyNet(run_config.model)
+
+
+def state_dict_mismatch(expected: dict, found: dict) -> str:
+    """A short description of how ``found`` differs from ``expected`` (empty when they match)."""
+    missing = [k for k in expected if k not in found]
+    unexpected = [k for k in found if k not in expected]
+    shapes = [k for k in expected if k in found and tuple(expected[k].shape) != tuple(found[k].shape)]
+    parts = []
+    for label, keys in (("missing", missing), ("unexpected", unexpected), ("shape differs", shapes)):
+        if keys:
+            parts.append(f"{len(keys)} {label}, e.g. {keys[0]}")
+    return "; ".join(parts)
+
+
+def load_model(path: Path, device="cpu"):
+    """``(model in eval mode on device, RunConfig, checkpoint dict)`` from a checkpoint file;
+    a clear error when the weights do not fit the stored configuration."""
+    ckpt = load_checkpoint(path)
+    cfg = checkpoint_config(path, ckpt)
+    model = build_model(cfg)
+    problems = state_dict_mismatch(model.state_dict(), ckpt["model"])
+    if problems:
+        raise CheckpointError(f"{path}: weights do not match the model config stored in it "
+                              f"({problems}; a different config or version of sc3d_train.paper.model?)")
+    model.load_state_dict(ckpt["model"])
+    return model.to(device).eval(), cfg, ckpt

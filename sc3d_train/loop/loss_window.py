@@ -1,0 +1,44 @@
+"""The finiteness check of ``fit`` without a host sync per step: each step's total loss is
+written into a small device buffer (a copy kernel, no read-back), and the buffer is read once
+per check (every ``log_every`` steps, before every checkpoint and at the end), where the first
+non-finite step of the window is found exactly."""
+from __future__ import annotations
+
+import torch
+
+from sc3d_train.loop.runtime import DistInfo, all_min
+
+
+class LossWindow:
+    """The total losses ``[size]`` (float32) of the steps since the last :meth:`check`, on
+    ``device``; ``size`` must be at least the number of steps between two checks."""
+
+    def __init__(self, size: int, device: torch.device):
+        self.totals = torch.zeros(size, dtype=torch.float32, device=device)
+        self.first_step: int | None = None  # the step held in slot 0
+        self.count = 0
+
+    def record(self, step: int, total: torch.Tensor) -> None:
+        """Keep the total loss (a 0-dim tensor on the device) of optimiser step ``step``."""
+        if self.first_step is None:
+            self.first_step = step
+        if self.count >= self.totals.numel():
+            raise RuntimeError(f"loss window of {self.totals.numel()} steps is full: check it more often")
+        self.totals[self.count] = total.detach()
+        self.count += 1
+
+    def check(self, dist: DistInfo) -> tuple[int, float] | None:
+        """``(step, loss)`` of the first step of the window whose loss was not finite on some
+        rank (the loss is this rank's), or None; empties the window. One read-back (and one
+        all-reduce over the ranks)."""
+        if self.count == 0:
+            return None
+        values = self.totals[:self.count]
+        finite = all_min(torch.isfinite(values).float(), dist).cpu()
+        first, n = self.first_step, self.count
+        self.first_step, self.count = None, 0
+        bad = (finite < 1).nonzero()
+        if not len(bad):
+            return None
+        i = int(bad[0, 0])
+        return first + i, float(values[i])

@@ -1,0 +1,146 @@
+"""The training log of a run: ``metrics.csv`` (one row per logged step), TensorBoard scalars
+(``tb/``) and the ``curves.png`` plot; and two of the measures it logs: the time the loop waits
+for data (:class:`DataWaitClock`) and the GPU's utilisation (:func:`gpu_utilisation`)."""
+from __future__ import annotations
+
+import csv
+import math
+import time
+from pathlib import Path
+
+CSV_NAME = "metrics.csv"
+
+
+class MetricsLog:
+    """Scalars to ``metrics.csv`` (one row per logged step) and TensorBoard (``tb/``).
+    On resume, rows at or after the resume step (written after the checkpoint by the
+    interrupted run) are dropped first, so the CSV has each step once."""
+
+    def __init__(self, run_dir: Path, start_step: int, enabled: bool = True):
+        self.path = Path(run_dir) / CSV_NAME
+        self.enabled = enabled
+        self.rows: list[dict] = []
+        if not enabled:
+            return
+        if start_step > 0 and self.path.is_file():
+            with open(self.path, newline="") as f:
+                self.rows = [r for r in csv.DictReader(f) if int(r["step"]) < start_step]
+        self.fields = list(self.rows[0].keys()) if self.rows else None
+        if self.fields is not None:
+            for r in self.rows[1:]:
+                self.fields += [k for k in r if k not in self.fields]
+        self._rewrite()
+        from torch.utils.tensorboard import SummaryWriter
+
+        self.tb = SummaryWriter(str(Path(run_dir) / "tb"), purge_step=start_step or None)
+
+    def _rewrite(self):
+        if self.fields is None:
+            self.path.write_text("")
+            return
+        with open(self.path, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=self.fields)
+            w.writeheader()
+            w.writerows(self.rows)
+
+    def log(self, step: int, values: dict) -> None:
+        if not self.enabled:
+            return
+        row = {"step": step, **values}
+        self.rows.append(row)
+        new = [k for k in row if k not in (self.fields or [])]
+        if new:  # first row, or a phase that logs more terms: widen the header, rewrite the file
+            self.fields = (self.fields or []) + new
+            self._rewrite()
+        else:
+            with open(self.path, "a", newline="") as f:
+                csv.DictWriter(f, fieldnames=self.fields, extrasaction="ignore").writerow(row)
+        for k, v in values.items():
+            if isinstance(v, (int, float)):
+                self.tb.add_scalar(k if "/" in k else f"train/{k}", v, step)
+
+    def close(self):
+        if self.enabled:
+            self.tb.close()
+
+
+class DataWaitClock:
+    """Wall-clock ``seconds`` the training loop spent blocked in ``next`` on the batch
+    iterators it wrapped (:meth:`wrap`): the ``data_wait`` share logged by ``fit``."""
+
+    def __init__(self):
+        self.seconds = 0.0
+
+    def wrap(self, batches):
+        """``batches``, each ``next`` timed into :attr:`seconds`."""
+        while True:
+            t0 = time.perf_counter()
+            try:
+                batch = next(batches)
+            except StopIteration:
+                return
+            finally:
+                self.seconds += time.perf_counter() - t0
+            yield batch
+
+
+def gpu_utilisation(device) -> float | None:
+    """The device's utilisation over the driver's last sample period (0-1; NVML via
+    ``torch.cuda.utilization``), None off CUDA or without NVML."""
+    if device.type != "cuda":
+        return None
+    import torch
+
+    try:
+        return torch.cuda.utilization(device) / 100.0
+    except Exception:  # noqa: BLE001 - pynvml missing or the driver does not report it
+        return None
+
+
+def plot_curves(csv_path: Path, png_path: Path) -> None:
+    """Loss terms (log scale) and samples/s against the step, from ``metrics.csv``; with a
+    ``validation.csv`` beside it (:mod:`sc3d_train.loop.validation`), a third panel: validation IoU@0.4
+    and share within 30 degrees against the step, the best checkpoint's step marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with open(csv_path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        return
+    val_path = Path(csv_path).with_name("validation.csv")
+    val = []
+    if val_path.is_file():
+        with open(val_path, newline="") as f:
+            val = list(csv.DictReader(f))
+    steps = [int(r["step"]) for r in rows]
+    fig, axes = plt.subplots(1, 3 if val else 2, figsize=(16 if val else 11, 4))
+    ax, ax2 = axes[0], axes[1]
+    for key in ("total", "l3d", "l2d", "lsc", "kl", "pose", "u_lsc", "u_pose"):
+        if any(r.get(key) not in ("", None) for r in rows):
+            vals = [float(r[key]) if r.get(key) not in ("", None) else math.nan for r in rows]
+            if any(v > 0 for v in vals if not math.isnan(v)):
+                ax.plot(steps, vals, label=key)
+    ax.set_yscale("log")
+    ax.set_xlabel("step")
+    ax.set_title("training losses")
+    ax.legend(fontsize=8)
+    ax2.plot(steps, [float(r["samples_per_s"]) for r in rows])
+    ax2.set_xlabel("step")
+    ax2.set_title("samples/s")
+    if val:
+        ax3, vsteps = axes[2], [int(r["step"]) for r in val]
+        for key, label in (("val_iou", "IoU@0.4"), ("val_rot_acc30", "rotation within 30 deg")):
+            ax3.plot(vsteps, [float(r[key]) for r in val], marker="o", label=label)
+        best = [int(r["step"]) for r in val if r["best"] == "1"]
+        if best:
+            ax3.axvline(best[-1], color="gray", linestyle=":", label=f"best.pt (step {best[-1]})")
+        ax3.set_ylim(0, 1)
+        ax3.set_xlabel("step")
+        ax3.set_title("validation (objects never trained on)")
+        ax3.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=80)
+    plt.close(fig)

@@ -1,0 +1,121 @@
+"""Where a training process runs: torchrun ranks, the device, mixed precision, seeds, and the
+few collective operations the loop needs (no-ops on one process)."""
+from __future__ import annotations
+
+import atexit
+import os
+import random
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from sc3d_train.settings.config import RunConfig
+
+
+@dataclass
+class DistInfo:
+    rank: int = 0
+    world_size: int = 1
+    local_rank: int = 0
+
+    @property
+    def is_main(self) -> bool:
+        return self.rank == 0
+
+
+def setup_distributed(device_name: str) -> DistInfo:
+    """Join the torchrun process group when ``WORLD_SIZE > 1`` (NCCL on CUDA, else gloo)."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return DistInfo()
+    import torch.distributed as dist
+
+    info = DistInfo(int(os.environ["RANK"]), world, int(os.environ.get("LOCAL_RANK", "0")))
+    if not dist.is_initialized():
+        use_cuda = torch.cuda.is_available() and device_name != "cpu"
+        dist.init_process_group("nccl" if use_cuda else "gloo")
+        atexit.register(teardown_distributed)  # once, when this process exits (several fits may share the group)
+    return info
+
+
+def teardown_distributed() -> None:
+    """Leave the process group :func:`setup_distributed` joined, if any (registered with
+    ``atexit`` there). A rank that exits with its gloo group still alive can abort in the
+    group's threads at interpreter exit ("terminate called without an active exception")."""
+    import torch.distributed as dist
+
+    if dist.is_available() and dist.is_initialized():
+        dist.destroy_process_group()
+
+
+def resolve_device(name: str, dist: DistInfo) -> torch.device:
+    """``auto``: CUDA (this rank's local GPU) when available, else CPU."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda":
+        name = f"cuda:{dist.local_rank}"
+    device = torch.device(name)
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            raise RuntimeError(f"device {name} requested but CUDA is not available")
+        count = torch.cuda.device_count()
+        if device.index is not None and device.index >= count:
+            raise RuntimeError(
+                f"rank {dist.rank} (local rank {dist.local_rank}) needs {name}, but this machine has "
+                f"{count} GPU{'s' * (count != 1)}: start at most {count} process{'es' * (count != 1)} "
+                f"per machine (torchrun --nproc_per_node {count}) or train on the CPU (--device cpu)")
+        torch.cuda.set_device(device)
+    return device
+
+
+def resolve_amp(cfg: RunConfig, device: torch.device) -> torch.dtype | None:
+    """The autocast dtype: ``auto`` is bf16 on CUDA GPUs that support it, else fp16 on CUDA,
+    and off (fp32) on the CPU."""
+    if cfg.amp == "off" or (cfg.amp == "auto" and device.type != "cuda"):
+        return None
+    if cfg.amp == "bf16" or (cfg.amp == "auto" and torch.cuda.is_bf16_supported()):
+        return torch.bfloat16
+    return torch.float16
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % 2 ** 32)
+    torch.manual_seed(seed)
+
+
+
+def channels_last_on(cfg: RunConfig, device: torch.device) -> bool:
+    """``channels_last``: ``on``, or ``auto`` on CUDA."""
+    return cfg.channels_last == "on" or (cfg.channels_last == "auto" and device.type == "cuda")
+
+
+def all_min(t: torch.Tensor, info: DistInfo) -> torch.Tensor:
+    """The minimum of ``t`` over the ranks (in place)."""
+    if info.world_size > 1:
+        import torch.distributed as dist
+
+        dist.all_reduce(t, op=dist.ReduceOp.MIN)
+    return t
+
+
+def all_mean(t: torch.Tensor, info: DistInfo) -> torch.Tensor:
+    """The mean of ``t`` over the ranks."""
+    if info.world_size > 1:
+        import torch.distributed as dist
+
+        dist.all_reduce(t)
+        t = t / info.world_size
+    return t
+
+
+def all_gather(obj, info: DistInfo) -> list:
+    """``[obj of rank 0, obj of rank 1, ...]`` (picklable objects)."""
+    if info.world_size == 1:
+        return [obj]
+    import torch.distributed as dist
+
+    out = [None] * info.world_size
+    dist.all_gather_object(out, obj)
+    return out

@@ -1,0 +1,58 @@
+"""What a run does at a given optimiser step: its phase, learning rate, batch split and data
+position (pure functions of the :class:`~sc3d_train.settings.config.RunConfig` and the step).
+
+Phases: ``"supervised"`` (every step of ``supervised`` / ``labeled-only`` / ``true-pose-masks``
+runs, the first ``pretrain_steps`` of ``semi``) and ``"unsupervised"`` (the mixed phase of
+``semi``)."""
+from __future__ import annotations
+
+import math
+
+from sc3d_train.settings.config import RunConfig
+
+
+def phase_at(cfg: RunConfig, step: int) -> str:
+    """``"supervised"`` or ``"unsupervised"``: the loss used at optimiser step ``step``."""
+    if cfg.mode == "semi" and step >= cfg.pretrain_steps:
+        return "unsupervised"
+    return "supervised"
+
+
+def phase_start(cfg: RunConfig, step: int) -> int:
+    """The first step of the phase that ``step`` belongs to."""
+    return cfg.pretrain_steps if phase_at(cfg, step) == "unsupervised" else 0
+
+
+def lr_at(cfg: RunConfig, step: int) -> float:
+    """The learning rate at ``step``: ``lr`` (``semi_lr`` in the unsupervised phase when set),
+    constant or, with ``lr_schedule="cosine"``, annealed over the phase from that value to
+    ``lr_min_ratio`` times it."""
+    base = cfg.lr
+    if phase_at(cfg, step) == "unsupervised" and cfg.semi_lr is not None:
+        base = cfg.semi_lr
+    if cfg.lr_schedule != "cosine":
+        return base
+    start = phase_start(cfg, step)
+    end = cfg.pretrain_steps if cfg.mode == "semi" and step < cfg.pretrain_steps else cfg.steps
+    t = (step - start) / max(end - start, 1)
+    return base * (cfg.lr_min_ratio + (1 - cfg.lr_min_ratio) * 0.5 * (1 + math.cos(math.pi * t)))
+
+
+def batch_split(cfg: RunConfig, local_batch: int) -> tuple[int, int]:
+    """``(labelled, unlabelled)`` samples per rank of an unsupervised-phase batch."""
+    labeled = int(round(local_batch * cfg.semi_labeled_share))
+    if cfg.semi_labeled_share > 0:
+        labeled = min(max(labeled, 1), local_batch - 1)
+    return labeled, local_batch - labeled
+
+
+def data_position(cfg: RunConfig, step: int, local_batch: int) -> dict:
+    """Samples of this phase's streams consumed by each rank before ``step`` (saved in every
+    checkpoint and checked at resume)."""
+    phase = phase_at(cfg, step)
+    start = phase_start(cfg, step)
+    if phase == "unsupervised":
+        labeled, unlabeled = batch_split(cfg, local_batch)
+        return {"phase": phase, "phase_start": start, "samples_per_rank": (step - start) * unlabeled,
+                "labeled_samples_per_rank": (step - start) * labeled}
+    return {"phase": phase, "phase_start": start, "samples_per_rank": (step - start) * local_batch}

@@ -1,0 +1,300 @@
+"""``sc3d-train fit``: supervised, semi-supervised and labelled-only training of the
+self-consistency network (paper Sec. 3.3) on sc3d shards.
+
+Phases (see :class:`~sc3d_train.settings.config.RunConfig`):
+
+* ``supervised`` (all training objects) and ``labeled-only`` (the seeded labelled subset only):
+  ``supervised_loss`` (L_3D + L_2D + L_sc on ground-truth voxels/masks with the *predicted*
+  pose + KL) at ``lr``.
+* ``semi``: ``pretrain_steps`` steps as ``labeled-only`` (a checkpoint is written at the phase
+  boundary), then mixed batches at ``semi_lr`` (default ``lr``): ``semi_labeled_share`` of each
+  batch labelled images with ``supervised_loss``, the rest unlabelled training objects with
+  ``unsupervised_loss`` (L_sc on predicted voxels and masks + KL + pose search on the
+  predictions), two forward passes (BatchNorm statistics of the labelled images only); the Adam
+  moments carry over. Logged: the labelled terms under their names, the unlabelled ones prefixed
+  ``u_``.
+
+Pose: the pose head is a classifier over a candidate grid (:mod:`sc3d_train.paper.pose`); its target
+for a labelled image is the candidate with the lowest L_sc between the image's ground-truth voxels
+and mask, searched once per object before training (:func:`~sc3d_train.paper.pose_search.dataset_pose_targets`),
+and for an unlabelled image the same search between the predicted voxels and mask.
+The labelled objects of ``semi`` / ``labeled-only`` are listed in ``RUN_DIR/labeled_objects.txt``.
+
+The ground-truth pose (``azimuth``, ``elevation``, ``R``, ``t``) is removed from every training
+batch before the model and the losses see it; in the unsupervised phase the voxels and masks
+are removed too. The camera's intrinsics and distance (fixed by the dataset) stay.
+
+Run on one device or with ``torchrun`` (DDP, env ``RANK``/``WORLD_SIZE``/``LOCAL_RANK``; NCCL
+on CUDA, gloo on CPU); the global batch is split evenly over ranks. Everything that decides the
+trajectory (weights, optimiser, AMP scaler, every RNG, step, data position) is checkpointed, so
+``--resume`` continues exactly: the loss at step N equals the uninterrupted run's.
+
+Modules: :mod:`~sc3d_train.loop.schedule` (phase, lr, data position of a step), :mod:`~sc3d_train.loop.phase_step`
+(batches and losses of a step), :mod:`~sc3d_train.loop.train_step` (the step, eager or compiled; on one
+CUDA device with CUDA graphs by default), :mod:`~sc3d_train.data.device_prefetch` (the next batch copied
+to the GPU on a side stream), :mod:`~sc3d_train.loop.loss_window` (the finiteness check without a host
+sync per step), :mod:`~sc3d_train.loop.runtime` (ranks, device, AMP), :mod:`~sc3d_train.loop.metrics_log`
+(metrics.csv, TensorBoard, curves), :mod:`~sc3d_train.loop.streams` (datasets and loaders of each
+phase), :mod:`~sc3d_train.loop.checkpoint`, :mod:`~sc3d_train.loop.validation` (the val split, ``best.pt``):
+this one holds the loop.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from sc3d_train.loop.checkpoint import (CheckpointError, build_model, checkpoint_config, last_path,
+                                        resume_checkpoint, rng_state, save_checkpoint, set_rng_state,
+                                        state_dict_mismatch)
+from sc3d_train.settings.config import CONFIG_NAME, RunConfig
+from sc3d_train.data.dataset import ShardDataset
+from sc3d_train.data.device_prefetch import DevicePrefetcher
+from sc3d_train.loop.loss_window import LossWindow
+from sc3d_train.loop.metrics_log import DataWaitClock, MetricsLog, gpu_utilisation, plot_curves
+from sc3d_train.loop.phase_step import training_batch
+from sc3d_train.loop.runtime import (DistInfo, all_gather, all_mean, all_min, channels_last_on, resolve_amp,
+                                     resolve_device, seed_everything, setup_distributed)
+from sc3d_train.loop.schedule import batch_split, data_position, lr_at, phase_at
+from sc3d_train.loop.streams import labeled_dataset, phase_loaders, run_datasets, write_labeled_objects
+from sc3d_train.loop.train_step import TrainStep, compile_plan
+from sc3d_train.loop.validation import Validator
+from sc3d_train.paper.pose import PoseGrid
+from sc3d_train.paper.pose_search import dataset_pose_targets
+
+
+class TrainingDiverged(RuntimeError):
+    """The loss became NaN/inf; the message names the step and the last good checkpoint."""
+
+
+@dataclass
+class Training:
+    """What one process trains with: the network (and its DDP wrapper ``train_model``), Adam,
+    the AMP scaler and dtype, the labelled (and unlabelled) datasets and the pose targets."""
+
+    cfg: RunConfig
+    dist: DistInfo
+    device: torch.device
+    local_batch: int
+    model: torch.nn.Module
+    train_model: torch.nn.Module
+    optimizer: torch.optim.Optimizer
+    scaler: object
+    amp_dtype: torch.dtype | None
+    channels_last: bool
+    datasets: dict
+    pose_targets: torch.Tensor | None
+
+    @property
+    def run_dir(self) -> Path:
+        return Path(self.cfg.out)
+
+    @property
+    def labeled(self) -> ShardDataset:
+        return labeled_dataset(self.datasets)
+
+
+def prepare(cfg: RunConfig) -> Training:
+    """Datasets (every data error surfaces here, before any work), pose targets, the seeded
+    model, Adam and AMP of this process."""
+    dist_info = setup_distributed(cfg.device)
+    device = resolve_device(cfg.device, dist_info)
+    if cfg.batch_size % dist_info.world_size:
+        raise ValueError(f"batch size {cfg.batch_size} is not divisible by {dist_info.world_size} ranks")
+    local_batch = cfg.batch_size // dist_info.world_size
+    weights, grid = cfg.loss_weights, PoseGrid.of(cfg.model)
+    mixed = cfg.mode == "semi" and cfg.semi_labeled_share > 0
+    if mixed and min(batch_split(cfg, local_batch)) < 1:
+        raise ValueError(f"batch {local_batch} per rank is too small to mix labelled and unlabelled images")
+
+    datasets = run_datasets(cfg)
+    pose_targets = None
+    if weights.wpose and cfg.mode != "true-pose-masks" and (cfg.mode != "semi" or cfg.pretrain_steps > 0 or mixed):
+        pose_targets = dataset_pose_targets(labeled_dataset(datasets), grid, weights.ray, weights.proj,
+                                            weights.search_mask_size, weights.search_samples,
+                                            device).reshape(-1).to(device)
+
+    seed_everything(cfg.seed)
+    model = build_model(cfg).to(device)
+    amp_dtype = resolve_amp(cfg, device)
+    channels_last = channels_last_on(cfg, device)
+    if channels_last:
+        model = model.to(memory_format=torch.channels_last)
+    optimizer = torch.optim.Adam(model.parameters(), lr=lr_at(cfg, 0), fused=device.type == "cuda")
+    scaler = torch.amp.GradScaler("cuda") if amp_dtype == torch.float16 else None
+    return Training(cfg, dist_info, device, local_batch, model, model, optimizer, scaler, amp_dtype,
+                    channels_last, datasets, pose_targets)
+
+
+def restore(t: Training) -> tuple[int, Path]:
+    """Load the run's newest complete checkpoint into ``t`` after checking that it belongs to
+    this config, data position and number of ranks. Returns ``(step, checkpoint file)``."""
+    cfg = t.cfg
+    ckpt_file, ckpt = resume_checkpoint(t.run_dir)
+    diffs = checkpoint_config(ckpt_file, ckpt).differences(cfg)
+    if diffs:
+        raise CheckpointError(f"{ckpt_file}: the run config differs from the checkpoint's: " + "; ".join(diffs))
+    problems = state_dict_mismatch(t.model.state_dict(), ckpt["model"])
+    if problems:
+        raise CheckpointError(f"{ckpt_file}: weights do not match the run's model ({problems})")
+    t.model.load_state_dict(ckpt["model"])
+    t.optimizer.load_state_dict(ckpt["optimizer"])
+    if t.scaler is not None and ckpt.get("scaler"):
+        t.scaler.load_state_dict(ckpt["scaler"])
+    step = int(ckpt["step"])
+    expected = data_position(cfg, step, t.local_batch)
+    if ckpt["data_position"] != expected:
+        raise CheckpointError(f"{ckpt_file}: data position {ckpt['data_position']} != {expected}")
+    states = ckpt["rng"]
+    if len(states) != t.dist.world_size:
+        raise CheckpointError(f"{ckpt_file}: saved with {len(states)} ranks, now {t.dist.world_size}")
+    set_rng_state(states[t.dist.rank])
+    return step, ckpt_file
+
+
+def wrap_ddp(t: Training) -> None:
+    """Under torchrun, ``t.train_model`` becomes the DDP wrapper of ``t.model``."""
+    if t.dist.world_size > 1:
+        from torch.nn.parallel import DistributedDataParallel as DDP
+
+        # the unsupervised phase gives the mask decoder no gradient (its mask is detached)
+        t.train_model = DDP(t.model, device_ids=[t.device.index] if t.device.type == "cuda" else None,
+                            find_unused_parameters=t.cfg.mode == "semi")
+
+
+def save(t: Training, step_done: int, log: MetricsLog) -> Path | None:
+    """Checkpoint after ``step_done`` steps (every rank's RNG state; written by rank 0, which
+    also redraws ``curves.png``). Returns the file on rank 0."""
+    states = all_gather(rng_state(), t.dist)
+    if not t.dist.is_main:
+        return None
+    path = save_checkpoint(t.run_dir, {
+        "model": t.model.state_dict(), "optimizer": t.optimizer.state_dict(),
+        "scaler": t.scaler.state_dict() if t.scaler is not None else None, "rng": states,
+        "step": step_done, "config": t.cfg.to_dict(),
+        "data_position": data_position(t.cfg, step_done, t.local_batch)})
+    plot_curves(log.path, t.run_dir / "curves.png")
+    return path
+
+
+def device_batches(t: Training, loaders: dict, wait: DataWaitClock) -> dict:
+    """The phase's loaders (``phase_loaders``) as iterators over device training batches, each
+    next batch prefetched on a side CUDA stream (:class:`DevicePrefetcher`), waits timed by
+    ``wait``."""
+    def to_device(batch, phase):
+        phase = t.cfg.mode if t.cfg.mode == "true-pose-masks" else phase
+        return training_batch(batch, phase, t.device, t.channels_last, t.pose_targets)
+
+    return {p: DevicePrefetcher(wait.wrap(it), lambda b, p=p: to_device(b, p), t.device) for p, it in loaders.items()}
+
+
+def train_step(t: Training, step_fn: TrainStep, batches: dict, step: int, window: LossWindow) -> dict:
+    """One optimiser step at ``step``'s learning rate on the next batch of each of ``batches``
+    (:func:`device_batches`); its total loss goes to ``window`` (no host sync). Returns the
+    losses (tensors on the device)."""
+    for group in t.optimizer.param_groups:
+        group["lr"] = lr_at(t.cfg, step)
+    losses = step_fn({p: next(it) for p, it in batches.items()})
+    window.record(step, losses["total"])
+    return losses
+
+
+def check_finite(t: Training, window: LossWindow, last_good: str | None) -> None:
+    """:class:`TrainingDiverged` naming the first step of ``window`` whose loss was not finite
+    (on any rank) and the last good checkpoint (every checkpoint is written after a check)."""
+    bad = window.check(t.dist)
+    if bad is not None:
+        step, value = bad
+        raise TrainingDiverged(
+            f"loss is {value} at step {step} (phase {phase_at(t.cfg, step)}); "
+            f"last good checkpoint: {last_good or 'none (no checkpoint written yet)'}")
+
+
+def mean_scalars(t: Training, losses: dict) -> dict:
+    """The scalar losses as floats, averaged over the ranks."""
+    scalars = {k: v.detach().float() for k, v in losses.items() if torch.is_tensor(v) and v.ndim == 0}
+    return dict(zip(scalars, all_mean(torch.stack(list(scalars.values())), t.dist).tolist()))
+
+
+def fit(cfg: RunConfig, resume: bool = False) -> dict:
+    """Train according to ``cfg`` (see module doc). Returns a summary dict: ``step``,
+    ``last_losses``, ``samples_per_s``, ``checkpoint`` (path of last.pt), ``best`` (the
+    validation record of best.pt, or None).
+
+    Raises :class:`TrainingDiverged` on a non-finite loss, ``DataError`` / ``CheckpointError``
+    on bad inputs, before any training step."""
+    t = prepare(cfg)
+    start_step, last_good = 0, None
+    if resume:
+        start_step, ckpt_file = restore(t)
+        last_good = str(last_path(t.run_dir))
+        if start_step >= cfg.steps:
+            return {"step": start_step, "last_losses": {}, "samples_per_s": 0.0, "checkpoint": str(ckpt_file),
+                    "best": None}
+    else:
+        torch.manual_seed(cfg.seed + 1000003 * t.dist.rank)  # per-rank noise (reparameterisation)
+    wrap_ddp(t)
+    step_fn = TrainStep(t.model, t.train_model, t.optimizer, t.scaler, t.amp_dtype, cfg,
+                        compile_plan(cfg, t.device, t.dist.world_size), say=print if t.dist.is_main else lambda _: None)
+    window = LossWindow(cfg.log_every, t.device)
+    if t.dist.is_main:
+        t.run_dir.mkdir(parents=True, exist_ok=True)
+        cfg.save(t.run_dir / CONFIG_NAME)
+        if cfg.mode in ("semi", "labeled-only"):
+            write_labeled_objects(t.run_dir / "labeled_objects.txt", t.labeled)
+    log = MetricsLog(t.run_dir, start_step, enabled=t.dist.is_main)
+    validator = Validator.for_run(cfg, t.device, start_step, t.dist.is_main, getattr(log, "tb", None))
+    progress = None
+    if t.dist.is_main and cfg.progress:
+        from sc3d_data.pipeline.run.progress import progress_bar
+
+        progress = progress_bar(total=cfg.steps, initial=start_step, unit="step", desc="train")
+
+    phase, loaders, last_losses = None, {}, {}
+    t_log, n_log, rate, wait = time.perf_counter(), 0, 0.0, DataWaitClock()
+    try:
+        for step in range(start_step, cfg.steps):
+            if phase_at(cfg, step) != phase:
+                phase = phase_at(cfg, step)
+                loaders = device_batches(t, phase_loaders(t, step), wait)
+            losses = train_step(t, step_fn, loaders, step, window)
+            n_log += cfg.batch_size
+            done = step + 1
+            log_now = done % cfg.log_every == 0 or done == cfg.steps
+            boundary = cfg.mode == "semi" and done == cfg.pretrain_steps
+            save_now = done % cfg.checkpoint_every == 0 or done == cfg.steps or boundary
+            if log_now or save_now:  # the only host syncs of the loop: every log_every steps at most
+                check_finite(t, window, last_good)
+            if log_now:
+                if t.device.type == "cuda":
+                    torch.cuda.synchronize()
+                now = time.perf_counter()
+                wait_share = wait.seconds / max(now - t_log, 1e-9)
+                rate, t_log, n_log, wait.seconds = n_log / max(now - t_log, 1e-9), now, 0, 0.0
+                last_losses = mean_scalars(t, losses)
+                gpu = gpu_utilisation(t.device)
+                log.log(step, {"phase": phase, **last_losses, "lr": lr_at(cfg, step),
+                               "samples_per_s": round(rate, 2), "data_wait": round(wait_share, 4),
+                               **({"gpu_util": gpu} if gpu is not None else {})})
+                if progress is not None:
+                    progress.set_postfix(loss=f"{last_losses['total']:.4f}", phase=phase,
+                                         samples_s=f"{rate:.1f}", data_wait=f"{100 * wait_share:.0f}%")
+            if progress is not None:
+                progress.update(1)
+            if validator is not None and validator.due(done):
+                validator.run(t.model, done)
+            if save_now:
+                path = save(t, done, log)
+                last_good = str(path) if path else last_good
+    except KeyboardInterrupt:
+        if t.dist.is_main:
+            print(f"\ninterrupted; last good checkpoint: {last_good or 'none'} (resume with --resume)")
+        raise
+    finally:
+        if progress is not None:
+            progress.close()
+        log.close()
+    return {"step": cfg.steps, "last_losses": last_losses, "samples_per_s": rate,
+            "checkpoint": str(last_path(t.run_dir)), "best": validator.best if validator else None}

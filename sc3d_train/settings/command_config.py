@@ -1,0 +1,61 @@
+"""Settings of ``sc3d-train eval``, ``predict`` and ``claims``: their defaults and help, written
+once here; the command-line options are generated from these fields (``cli/config_options.py``)
+and the library functions take their keyword defaults from them (e.g.
+``evaluate(..., batch_size=EvalConfig.batch_size)``). No heavy imports."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from sc3d_train.settings.config import DEVICE_HELP
+from sc3d_train.settings.config_io import setting
+
+#: where the pose of a prediction comes from
+POSE_SOURCES = ("search", "head")
+CLAIMS_PRESETS = ("cpu", "paper")
+#: which checkpoint of a run folder is read (``sc3d_train.loop.checkpoint.run_checkpoint``)
+CHECKPOINT_PICKS = ("best", "last")
+PICK_HELP = ("Checkpoint of a run folder: best (checkpoints/best.pt, the best validation of fit; last.pt "
+             "where the run kept none) or last.")
+
+
+@dataclass
+class InferenceConfig:
+    """Settings shared by ``eval`` and ``predict``."""
+
+    pose_from: str = setting("search", "search: the pose head's elevation and the azimuth whose "
+                             "projection of the predicted voxels best matches the predicted mask "
+                             "(test-time self-consistency); head: the pose head alone.",
+                             choices=POSE_SOURCES, option="--pose")
+    device: str = setting("auto", DEVICE_HELP)
+
+
+@dataclass
+class EvalConfig(InferenceConfig):
+    """``sc3d-train eval``."""
+
+    split: str = setting("test", "Split of the shards to evaluate.")
+    pick: str = setting("best", PICK_HELP, choices=CHECKPOINT_PICKS)
+    batch_size: int = setting(64, "Images per forward pass.")
+    examples: int = setting(2, "Objects per category shown in predictions.png (views 3 and 15 of each).")
+
+
+@dataclass
+class PredictConfig(InferenceConfig):
+    """``sc3d-train predict``."""
+
+    threshold: float = setting(0.5, "Occupancy threshold of the saved voxels and mesh.")
+
+
+@dataclass
+class ClaimsConfig:
+    """``sc3d-train claims``."""
+
+    eval_split: str = setting("test", "Split of --eval-shards to evaluate.")
+    preset: str = setting("cpu", "cpu: tiny network, 700 steps of 32 (~30-40 min on 2 cores for ~200 "
+                          "objects); paper: full width, 20000 steps of 48, for a GPU.",
+                          choices=CLAIMS_PRESETS)
+    device: str = setting("auto", DEVICE_HELP)
+    workers: int = setting(0, "DataLoader workers per run.")
+    pick: str = setting("best", PICK_HELP, choices=CHECKPOINT_PICKS)
+    seeds: int = setting(1, "Seeds per run (seed, seed + 1, ...): each cell of claims.md becomes mean +- "
+                         "standard deviation over them.")
