@@ -76,7 +76,7 @@ def test_too_few_val_objects_log_figures_but_keep_no_best(sample_shards, tmp_pat
     """The sample shards hold 2 val objects (< the default --val-min-objects 5): fit still writes
     the validation rows, marks none best, keeps no best.pt, says so, and eval of the run folder
     reads last.pt."""
-    from sc3d_train.data import ShardDataset
+    from sc3d_train.data.dataset import ShardDataset
 
     assert ShardDataset(sample_shards, "val").num_objects == 2
     run = tmp_path / "run"
