@@ -13,7 +13,9 @@ Every view of every object of the split is one test image (24 per object by defa
   also counts azimuths within 30 degrees of the true azimuth + 180 (front/back confusion).
   The evaluated pose is, by default, the test-time self-consistent one (``pose_from="search"``:
   the azimuth whose projection of the predicted voxels best matches the predicted mask, at the
-  elevation of the pose head; no label) or the pose head's alone (``"head"``).
+  elevation of the pose head; no label) or the pose head's alone (``"head"``). The default is
+  :data:`~sc3d_train.command_config.DEFAULT_POSE_SOURCE`, the same for :func:`evaluate`,
+  :func:`predict_dataset`, ``predict`` and the command line.
 
 Per category: the mean over that category's images. ``mean``: the unweighted mean of the
 per-category values (the paper's "Mean" column). ``overall``: pooled over all images.
@@ -31,16 +33,12 @@ import torch
 
 from sc3d_data.formats.shapenet import category_label
 from sc3d_train.checkpoint import load_model, run_checkpoint
-from sc3d_train.command_config import POSE_SOURCES, EvalConfig
+from sc3d_train.command_config import DEFAULT_POSE_SOURCE, EvalConfig, check_pose_source
 from sc3d_train.data import ShardDataset
 from sc3d_train.pose import pose_errors
 from sc3d_train.config import LossWeights
 
 VOXEL_THRESHOLDS = (0.4, 0.5)
-#: where the evaluated pose comes from: ``search`` (default) the azimuth whose projection of the
-#: predicted voxels best matches the predicted mask, at the head's elevation (test-time
-#: self-consistency, :func:`sc3d_train.pose_search.self_consistent_pose`); ``head`` the pose
-#: head's soft-argmax alone
 MASK_THRESHOLD = 0.5
 
 
@@ -54,18 +52,25 @@ def iou(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 @torch.no_grad()
 def predict_dataset(model, dataset: ShardDataset, device, batch_size: int = 64,
-                    keep: int = 2, keep_views: tuple[int, ...] = (3, 15), pose_from: str = "head",
-                    loss_weights=None, indices=None):
+                    keep: int = 2, keep_views: tuple[int, ...] = (3, 15),
+                    pose_from: str = DEFAULT_POSE_SOURCE, loss_weights=None, indices=None):
     """Run ``model`` over every view of ``dataset`` (or its items ``indices``, object * V + view,
     when given). Returns ``(rows, examples)``: one dict per
     image (category, model_id, view, iou_0.4, iou_0.5, mask_iou, azimuth/elevation predicted and
     true, rotation_error) and, for the first ``keep`` objects of every category, views
     ``keep_views`` (default 3 and 15: opposite sides) with input, masks, voxels and poses (numpy)
-    for the figure."""
+    for the figure.
+
+    ``pose_from`` (one of :data:`~sc3d_train.command_config.POSE_SOURCES`): ``"search"`` (the
+    default of every entry point, :data:`~sc3d_train.command_config.DEFAULT_POSE_SOURCE`) the
+    test-time self-consistent pose, searched with ``loss_weights`` (None: the defaults of
+    :class:`~sc3d_train.config.LossWeights`); ``"head"`` the pose head alone (cheaper; voxel and
+    mask IoU do not depend on it)."""
     from sc3d_data.geometry.camera import look_at_rotation
     from sc3d_train.pose import rotation_error_deg
     from sc3d_train.self_consistency import area_downsample
 
+    check_pose_source(pose_from)
     kept_objects: dict[str, list[str]] = defaultdict(list)
 
     if indices is None:
@@ -241,8 +246,6 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     if dataset.info["voxel_resolution"] != cfg.model.voxel_resolution:
         raise ValueError(f"{shards}: voxels are {dataset.info['voxel_resolution']}^3 but the checkpoint "
                          f"predicts {cfg.model.voxel_resolution}^3")
-    if pose_from not in POSE_SOURCES:
-        raise ValueError(f"pose_from must be one of {POSE_SOURCES}, got {pose_from!r}")
     rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
                                  loss_weights=cfg.loss_weights)
     summary = summarize(rows)

@@ -57,8 +57,9 @@ def test_fit_writes_the_run_and_learns(trained_run, sample_shards):
     ds = ShardDataset(sample_shards, "train", image_size=64)
     torch.manual_seed(0)
     untrained = build_model(cfg).eval()
-    trained_iou = summarize(predict_dataset(model, ds, "cpu", 96)[0])["overall"]["voxel_iou_0.4"]
-    untrained_iou = summarize(predict_dataset(untrained, ds, "cpu", 96)[0])["overall"]["voxel_iou_0.4"]
+    # the voxels do not depend on the pose: the head's (no search) is enough and cheaper
+    trained_iou = summarize(predict_dataset(model, ds, "cpu", 96, pose_from="head")[0])["overall"]["voxel_iou_0.4"]
+    untrained_iou = summarize(predict_dataset(untrained, ds, "cpu", 96, pose_from="head")[0])["overall"]["voxel_iou_0.4"]
     mask_loss = np.array([float(r["l2d"]) for r in rows])
     assert_learnt(("loss, last 20 / first 10 steps", total[-20:].mean() / total[:10].mean(), "<", 0.5),
                   ("mask loss, last 20 / first 10 steps", mask_loss[-20:].mean() / mask_loss[:10].mean(), "<", 0.75),
