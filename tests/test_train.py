@@ -222,13 +222,17 @@ def test_nan_loss_stops_with_step_and_checkpoint(sample_shards, tmp_path):
     assert sorted(p.name for p in (out / "checkpoints").glob("step_*.pt")) == ["step_000002.pt"]
 
 
-def test_ddp_two_cpu_ranks_resume_exactly(sample_shards, tmp_path):
+def test_ddp_two_cpu_ranks_supervised_then_semi_keep_the_same_weights(sample_shards, tmp_path):
     """torchrun with 2 processes (gloo on the CPU, ``--device cpu`` also on a GPU machine: on one
     with a single GPU the default ``auto`` would give rank 1 a ``cuda:1`` that does not exist)
-    and the same command: the run completes, only rank 0 reports and writes, and the checkpoint
-    holds both ranks' RNG states. (Exact resume under DDP was checked by hand: 2 steps +
-    --resume to 4 logs the losses of 4 steps at once; one launch here keeps the suite's time
-    budget.)"""
+    and the same command, a ``--semi`` run: 2 supervised steps, then 2 mixed steps whose
+    unlabelled pass runs outside the DDP wrapper (``phase_step.step_losses``). The run completes,
+    so at each checkpoint (steps 2 and 4) both ranks held the same weights
+    (``runtime.check_same_weights`` stops the run otherwise: with both passes outside the wrapper
+    it stopped at step 4); only rank 0 reports and writes, and the checkpoint holds both ranks'
+    RNG states and the mixed phase's data position. (Exact resume under DDP was checked by hand:
+    2 steps + --resume to 4 logs the losses of 4 steps at once; one launch here keeps the suite's
+    time budget.)"""
     import os
     import subprocess
     import sys
@@ -250,14 +254,58 @@ def test_ddp_two_cpu_ranks_resume_exactly(sample_shards, tmp_path):
         return r.stdout
 
     whole = tmp_path / "whole"
-    out = torchrun("--shards", sample_shards, "--out", whole, "--steps", 4)
+    out = torchrun("--shards", sample_shards, "--out", whole, "--steps", 4,
+                   "--semi", "--labeled-fraction", "0.5", "--pretrain-steps", 2)
     assert out.count("done: step 4") == 1  # only rank 0 reports
     rows = read_csv(whole / "metrics.csv")
-    assert [int(r["step"]) for r in rows] == [0, 1, 2, 3]
+    assert [(int(r["step"]), r["phase"]) for r in rows] == [(0, "supervised"), (1, "supervised"),
+                                                            (2, "unsupervised"), (3, "unsupervised")]
     assert all(np.isfinite(float(r["total"])) for r in rows)
+    assert all(np.isfinite(float(r["u_lsc"])) for r in rows[2:])  # the unlabelled pass ran
     ckpt = torch.load(whole / "checkpoints" / "last.pt", weights_only=False)
-    assert len(ckpt["rng"]) == 2 and ckpt["data_position"]["samples_per_rank"] == 4 * 2
+    assert len(ckpt["rng"]) == 2 and ckpt["step"] == 4
+    # per rank, 2 mixed steps of 1 labelled + 1 unlabelled image (batch 4 over 2 ranks, share 0.5)
+    assert ckpt["data_position"] == {"phase": "unsupervised", "phase_start": 2, "samples_per_rank": 2,
+                                     "labeled_samples_per_rank": 2}
     assert (whole / "checkpoints" / "step_000002.pt").is_file()
+
+
+def _check_weights_on_rank(rank: int, store: str, results: str) -> None:
+    """One rank of :func:`test_check_same_weights_names_the_rank_and_the_parameter_that_differ`."""
+    import torch.distributed as dist
+
+    from sc3d_train.runtime import DistInfo, RanksDiverged, check_same_weights
+
+    torch.set_num_threads(1)
+    dist.init_process_group("gloo", init_method=f"file://{store}", rank=rank, world_size=2)
+    try:
+        torch.manual_seed(0)
+        model = torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.Linear(4, 2))
+        info = DistInfo(rank, 2, rank)
+        check_same_weights(model, info, 1)  # the same seed: the same weights, no error
+        if rank == 1:
+            with torch.no_grad():
+                model[1].bias[0] += 1e-6  # far below one Adam step at lr 1e-3
+        try:
+            check_same_weights(model, info, 2)
+            message = "no error"
+        except RanksDiverged as e:
+            message = str(e)
+        Path(f"{results}.{rank}").write_text(message)
+    finally:
+        dist.destroy_process_group()
+
+
+def test_check_same_weights_names_the_rank_and_the_parameter_that_differ(tmp_path):
+    """Two gloo processes with the same weights pass; after rank 1 moves one bias by 1e-6, both
+    ranks raise, naming rank 1, the step and the parameter."""
+    import torch.multiprocessing as mp
+
+    mp.start_processes(_check_weights_on_rank, args=(str(tmp_path / "store"), str(tmp_path / "result")), nprocs=2,
+                       start_method="fork")  # forked: no second import of torch
+    expected = ("after step 2 rank(s) [1] hold weights that differ from rank 0's in 1 of 4 parameter tensors "
+                "(first: 1.bias): a gradient was not averaged across ranks")
+    assert [(tmp_path / f"result.{r}").read_text() for r in (0, 1)] == [expected, expected]
 
 
 def test_semi_resume_across_the_phase_boundary_equals_uninterrupted(sample_shards, tmp_path):
