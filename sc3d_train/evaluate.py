@@ -73,7 +73,7 @@ def predict_dataset(model, dataset: ShardDataset, device, batch_size: int = 64,
     check_pose_source(pose_from)
     kept_objects: dict[str, list[str]] = defaultdict(list)
 
-    if indices is None:
+    if indices is None:  # read in this process (no workers): a broken shard raises its one-line DataError
         loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, shuffle=False)
     else:
         loader = (dataset.get_batch(indices[i:i + batch_size]) for i in range(0, len(indices), batch_size))

@@ -204,6 +204,38 @@ def test_bad_inputs_fail_before_training(sample_shards, tmp_path):
     assert not (tmp_path / "run" / "checkpoints").exists()
 
 
+def test_a_broken_shard_is_named_in_one_line_with_and_without_loader_workers(sample_shards, tmp_path):
+    """A flipped byte inside an image chunk of an unlabelled training object of a ``--semi`` run
+    (HDF5's Fletcher-32 check fails; only the loader reads that object: the pose targets read
+    the labelled ones, and a loader with workers reads item 0 in the main process to size its
+    ring, so not object 0): ``fit`` stops with exit code 1 and the same one line naming the shard
+    file, the row, the problem and the object, with ``--workers 0`` (read in the main process)
+    and ``--workers 2`` (read in a loader worker; before issue 23 the line was PyTorch's "Caught
+    DataError in DataLoader worker process N" followed by the worker's traceback)."""
+    from sc3d_train.data import ShardDataset
+
+    bad = tmp_path / "bad"
+    shutil.copytree(sample_shards, bad)
+    ref = ShardDataset(bad, "train", subset="unlabeled", labeled_fraction=0.5, seed=0,
+                       require_voxels=False).objects[-1]
+    with h5py.File(ref.shard) as f:
+        chunk = f["images"].id.get_chunk_info_by_coord((ref.row, 5, 0, 0, 0))
+    with open(ref.shard, "r+b") as fh:
+        fh.seek(chunk.byte_offset + chunk.size // 2)
+        byte = fh.read(1)
+        fh.seek(chunk.byte_offset + chunk.size // 2)
+        fh.write(bytes([byte[0] ^ 0xFF]))
+    with h5py.File(ref.shard) as f, pytest.raises(OSError) as hdf5:  # HDF5's own words for it
+        f["images"][ref.row, 5]
+    expected = (f"Error: {ref.shard}: row {ref.row} cannot be read ({hdf5.value}); see `sc3d-data info "
+                f"--verify` (object {ref.model_id})")
+    for workers in (0, 2):
+        r = run_cli(main, ["fit", "--shards", bad, "--out", tmp_path / f"run{workers}", "--steps", "6",
+                           "--batch-size", "4", *TINY, "--semi", "--labeled-fraction", "0.5",
+                           "--pretrain-steps", "0", "--seed", "0", "--workers", workers], expect_exit=1)
+        assert r.output.splitlines()[1:] == [expected], (workers, r.output)
+
+
 def test_nan_loss_stops_with_step_and_checkpoint(sample_shards, tmp_path):
     """Weights corrupted with NaN in the checkpoint: the resumed run stops and names its first
     step (the loss is read back every --log-every steps, here after steps 2 and 3: the message
