@@ -6,7 +6,7 @@ Randomness lives in :class:`ViewSampler` only (``numpy`` generator seeded by ``(
 so the stream of (object, view) pairs is a pure function of the seed and the position; resuming
 at sample ``k`` reproduces the stream exactly. Batch keys: ``sc3d_train.data``.
 
-Errors: a broken shard (a failing HDF5 checksum, a truncated file, a bad decoded cache) raises
+Errors: a broken shard (a chunk whose HDF5 checksum fails, a decoded-cache file cut short) raises
 the same exception, with the same one-line message naming the file and the problem, whatever
 ``workers``: a worker sends such an error (:data:`DATA_ERRORS`) back in its batch's place
 (:class:`WorkerError`) and the loader raises it as itself when the stream reaches that batch,

@@ -134,8 +134,9 @@ def check_same_weights(model: torch.nn.Module, info: DistInfo, step: int) -> Non
     parameter whose gradient skipped the all-reduce (e.g. from a forward pass outside the DDP
     wrapper that DDP did not see) differs after one step. Compared per parameter tensor: the
     float64 sum and sum of squares (2 numbers per tensor gathered, not the weights), equal up to
-    a relative 1e-10 (summation order; a skipped all-reduce moves them by ~lr). Buffers
-    (BatchNorm statistics) are rank-local by design and not compared."""
+    a relative 1e-10 (summation order; one Adam step without the all-reduce moves an element by
+    about the learning rate). Buffers (BatchNorm running statistics) are not compared: each rank
+    updates them from its own images, and DDP sends rank 0's at every forward."""
     if info.world_size == 1:
         return
     names = [n for n, _ in model.named_parameters()]
