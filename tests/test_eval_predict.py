@@ -146,3 +146,43 @@ def test_eval_refuses_shards_of_another_image_size(trained_run, tmp_path):
     r = run_cli(main, ["fit", "--out", trained_run, "--resume", "--shards", small, "--steps", "200"],
                 expect_exit=1)
     assert "cannot change on --resume" in r.output and "--shards" in r.output
+
+
+def test_every_entry_point_takes_the_pose_from_the_one_default_the_search(sample_shards):
+    """One default for where the pose comes from (``DEFAULT_POSE_SOURCE``, the test-time search
+    that the command line has always given): the configs, the library functions and the
+    commands' ``--pose`` all read it, and a ``predict_dataset`` call without ``pose_from`` gives
+    the searched pose, not the head's (issue 23: it gave the head's). The network is untrained
+    (seeded), where the head's soft-argmax and the search disagree on most views."""
+    import inspect
+
+    import click
+
+    from sc3d_train.settings.command_config import DEFAULT_POSE_SOURCE, EvalConfig, PredictConfig
+    from sc3d_train.settings.config import ModelConfig
+    from sc3d_train.data.dataset import ShardDataset
+    from sc3d_train.evaluation.evaluate import evaluate
+    from sc3d_train.paper.metrics import predict_dataset
+    from sc3d_train.paper.model import SelfConsistencyNet
+    from sc3d_train.evaluation.predict import predict
+
+    assert DEFAULT_POSE_SOURCE == "search"  # docs/training.md: `--pose search` (default)
+    ctx = click.Context(main)
+    found = {"EvalConfig": EvalConfig().pose_from, "PredictConfig": PredictConfig().pose_from}
+    for fn in (evaluate, predict, predict_dataset):
+        found[fn.__name__] = inspect.signature(fn).parameters["pose_from"].default
+    for name in ("eval", "predict"):
+        found[f"sc3d-train {name} --pose"] = {p.name: p.default for p in main.get_command(ctx, name).params}["pose_from"]
+    assert found == dict.fromkeys(found, DEFAULT_POSE_SOURCE)
+
+    torch.manual_seed(0)
+    model = SelfConsistencyNet(ModelConfig.tiny()).eval()
+    dataset = ShardDataset(sample_shards, "val", image_size=64)
+    views = [0, 5, 9, 14, 19, 24, 29, 33]  # of the first two val objects
+
+    def azimuths(**kw):
+        return [r["azimuth_pred"] for r in predict_dataset(model, dataset, "cpu", keep=0, indices=views, **kw)[0]]
+
+    searched, head = azimuths(pose_from="search"), azimuths(pose_from="head")
+    assert sum(a != b for a, b in zip(searched, head)) >= len(views) // 2  # the two sources differ here
+    assert azimuths() == searched

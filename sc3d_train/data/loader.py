@@ -5,10 +5,19 @@ through shared memory (:func:`make_loader`).
 Randomness lives in :class:`ViewSampler` only (``numpy`` generator seeded by ``(seed, epoch)``),
 so the stream of (object, view) pairs is a pure function of the seed and the position; resuming
 at sample ``k`` reproduces the stream exactly. Batch keys: ``sc3d_train.data.dataset``.
+
+Errors: a broken shard (a chunk whose HDF5 checksum fails, a decoded-cache file cut short) raises
+the same exception, with the same one-line message naming the file and the problem, whatever
+``workers``: a worker sends such an error (:data:`DATA_ERRORS`) back in its batch's place
+(:class:`WorkerError`) and the loader raises it as itself when the stream reaches that batch,
+not inside PyTorch's "Caught ... in DataLoader worker process N. Original Traceback ..." text.
+Any other error in a worker (a bug) keeps PyTorch's wrapper, whose text holds the worker's
+traceback.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Iterator
 
 import numpy as np
@@ -17,7 +26,8 @@ from torch.utils.data import Dataset, Sampler
 
 from sc3d_train.data.batch_transfer import PackedBatch, RingBatch, SharedRing, pack, unpack
 from sc3d_train.data.batch_format import BINARY_KEYS, compact_tensors
-from sc3d_train.data.dataset import ShardDataset
+from sc3d_data.io.shards import ShardError
+from sc3d_train.data.dataset import DataError, ShardDataset
 
 
 #: batches per loader task with workers: the DataLoader's per-task cost in the main process
@@ -26,6 +36,18 @@ from sc3d_train.data.dataset import ShardDataset
 BATCHES_PER_TASK = 4
 #: tasks each worker keeps ready (DataLoader ``prefetch_factor``): 2 tasks = 8 batches
 TASKS_AHEAD = 2
+#: errors of the data that name the file and the problem (``fit`` reports them in one line):
+#: a worker sends them back as themselves (module doc)
+DATA_ERRORS = (DataError, ShardError)
+
+
+@dataclass
+class WorkerError:
+    """A :data:`DATA_ERRORS` exception that a loader worker met assembling a batch, sent in that
+    batch's place (the exception pickled: its type and message); :class:`BatchLoader` raises
+    ``error`` when the stream reaches it."""
+
+    error: Exception
 
 
 class ViewSampler(Sampler):
@@ -99,12 +121,19 @@ class _RingBatches(Dataset):
 
     def __getitem__(self, key: tuple[int, list[list[int]]]) -> list:
         """A list of ``RingBatch`` (or ``PackedBatch`` where one did not fit), or in-process
-        of ``(arrays, strings)``, one per batch of the task."""
+        of ``(arrays, strings)``, one per batch of the task; in a worker, a batch that raised
+        one of :data:`DATA_ERRORS` ends the list with its :class:`WorkerError`."""
         first, batches = key
+        in_process = torch.utils.data.get_worker_info() is None  # nothing to send
         out = []
         for seq, indices in enumerate(batches, first):
-            arrays, strings = self.dataset.compact_batch(indices)
-            in_process = torch.utils.data.get_worker_info() is None  # nothing to send
+            try:
+                arrays, strings = self.dataset.compact_batch(indices)
+            except DATA_ERRORS as e:
+                if in_process:
+                    raise
+                out.append(WorkerError(e))  # the stream stops at this batch
+                break
             out.append((arrays, strings) if in_process else self.ring.put(seq, arrays, strings, bits=BINARY_KEYS))
         return out
 
@@ -140,6 +169,8 @@ class BatchLoader(torch.utils.data.DataLoader):
             self.dataset.ring = ring  # the workers this iteration starts take this ring with them
         for task in super().__iter__():
             for item in task:
+                if isinstance(item, WorkerError):
+                    raise item.error  # as --workers 0 raises it (module doc)
                 if isinstance(item, RingBatch):
                     item = ring.take(item), item.other
                 elif isinstance(item, PackedBatch):  # did not fit its slot: sent the usual way

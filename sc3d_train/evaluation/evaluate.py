@@ -13,7 +13,9 @@ Every view of every object of the split is one test image (24 per object by defa
   also counts azimuths within 30 degrees of the true azimuth + 180 (front/back confusion).
   The evaluated pose is, by default, the test-time self-consistent one (``pose_from="search"``:
   the azimuth whose projection of the predicted voxels best matches the predicted mask, at the
-  elevation of the pose head; no label) or the pose head's alone (``"head"``).
+  elevation of the pose head; no label) or the pose head's alone (``"head"``). The default is
+  :data:`~sc3d_train.settings.command_config.DEFAULT_POSE_SOURCE`, the same for :func:`evaluate`,
+  :func:`~sc3d_train.paper.metrics.predict_dataset`, ``predict`` and the command line.
 
 Per category: the mean over that category's images. ``mean``: the unweighted mean of the
 per-category values (the paper's "Mean" column). ``overall``: pooled over all images.
@@ -30,14 +32,9 @@ import torch
 
 from sc3d_data.formats.shapenet import category_label
 from sc3d_train.loop.checkpoint import load_model, run_checkpoint
-from sc3d_train.settings.command_config import POSE_SOURCES, EvalConfig
+from sc3d_train.settings.command_config import EvalConfig
 from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.paper.metrics import MASK_THRESHOLD, VOXEL_THRESHOLDS, predict_dataset, summarize
-
-#: where the evaluated pose comes from: ``search`` (default) the azimuth whose projection of the
-#: predicted voxels best matches the predicted mask, at the head's elevation (test-time
-#: self-consistency, :func:`sc3d_train.paper.pose_search.self_consistent_pose`); ``head`` the pose
-#: head's soft-argmax alone
 
 TABLE_COLUMNS = (("images", "n", "{:d}"), ("voxel_iou_0.4", "IoU@.4", "{:.3f}"),
                  ("voxel_iou_0.5", "IoU@.5", "{:.3f}"), ("mask_iou", "maskIoU", "{:.3f}"),
@@ -140,8 +137,6 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     if dataset.info["voxel_resolution"] != cfg.model.voxel_resolution:
         raise ValueError(f"{shards}: voxels are {dataset.info['voxel_resolution']}^3 but the checkpoint "
                          f"predicts {cfg.model.voxel_resolution}^3")
-    if pose_from not in POSE_SOURCES:
-        raise ValueError(f"pose_from must be one of {POSE_SOURCES}, got {pose_from!r}")
     rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
                                  loss_weights=cfg.loss_weights)
     summary = summarize(rows)

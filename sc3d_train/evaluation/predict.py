@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from sc3d_train.loop.checkpoint import load_model
-from sc3d_train.settings.command_config import PredictConfig
+from sc3d_train.settings.command_config import PredictConfig, check_pose_source
 
 ACCEPTED_MODES = ("RGB", "RGBA", "LA", "L", "P")
 
@@ -119,10 +119,12 @@ def plot_prediction(path: Path, image: np.ndarray, mask: np.ndarray, silhouette:
 def predict(checkpoint: Path, images: list[Path], out: Path, device: str = PredictConfig.device,
             threshold: float = PredictConfig.threshold, pose_from: str = PredictConfig.pose_from) -> list[dict]:
     """Predict every image (all are checked before the model runs); returns one dict per image
-    (the content of its JSON file)."""
+    (the content of its JSON file). ``pose_from``: ``"search"`` (the default of every entry
+    point, :data:`~sc3d_train.settings.command_config.DEFAULT_POSE_SOURCE`) or ``"head"``, as in ``eval``."""
     from sc3d_data.io.binvox import write_binvox
     from sc3d_train.evaluation.evaluate import voxel_silhouette
 
+    check_pose_source(pose_from)
     if not images:
         raise ImageError("no input images given")
     dev = torch.device("cuda" if device == "auto" and torch.cuda.is_available() else

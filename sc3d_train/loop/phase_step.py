@@ -59,7 +59,17 @@ def step_losses(batches: dict, model: torch.nn.Module, train_model: torch.nn.Mod
     device batches, ``{"supervised": ...}``, ``{"unsupervised": ...}`` or both (the mixed phase
     of ``semi``); ``train_model`` is ``model`` or its DDP wrapper. Unlabelled terms are logged
     with the prefix ``u_``. A batch's ``noise [B, shape_dim]``, when present, is the network's
-    reparameterisation draw (``sc3d_train.loop.train_step.draw_noise``)."""
+    reparameterisation draw (``sc3d_train.loop.train_step.draw_noise``).
+
+    Under DDP the mixed phase's unlabelled pass runs on ``model``, not on its wrapper, and its
+    gradient is still averaged over the ranks: both passes use the same parameters, and the one
+    ``backward`` of their summed ``total`` sums both passes' contributions into each parameter's
+    gradient accumulator, which runs once; DDP all-reduces the gradient in a hook after that
+    accumulator, i.e. the whole gradient. This needs every parameter the unlabelled pass trains
+    to be used by the labelled pass too (it is: that pass runs the whole network). Every
+    checkpoint checks that the ranks hold the same weights
+    (:func:`~sc3d_train.loop.runtime.check_same_weights`; measured, 2 gloo ranks: equal as is, and
+    both passes on ``model`` diverge at the first checkpoint)."""
     if len(batches) == 2:
         # two passes, so that BatchNorm never normalises labelled images with statistics of
         # unlabelled ones; the unlabelled pass leaves the running statistics alone (eval

@@ -1,5 +1,6 @@
-"""Where a training process runs: torchrun ranks, the device, mixed precision, seeds, and the
-few collective operations the loop needs (no-ops on one process)."""
+"""Where a training process runs: torchrun ranks, the device, mixed precision, seeds, the few
+collective operations the loop needs (no-ops on one process) and the check that every rank
+holds the same weights (:func:`check_same_weights`)."""
 from __future__ import annotations
 
 import atexit
@@ -119,3 +120,33 @@ def all_gather(obj, info: DistInfo) -> list:
     out = [None] * info.world_size
     dist.all_gather_object(out, obj)
     return out
+
+
+class RanksDiverged(RuntimeError):
+    """Under DDP a rank's weights differ from rank 0's: a gradient was not averaged (a bug, so
+    it keeps its traceback)."""
+
+
+def check_same_weights(model: torch.nn.Module, info: DistInfo, step: int) -> None:
+    """Raise :class:`RanksDiverged` on every rank when some rank's parameters differ from rank
+    0's after ``step`` steps (no-op on one process). DDP all-reduces every gradient, so each
+    rank takes the same Adam step from the same weights and the parameters stay equal: a
+    parameter whose gradient skipped the all-reduce (e.g. from a forward pass outside the DDP
+    wrapper that DDP did not see) differs after one step. Compared per parameter tensor: the
+    float64 sum and sum of squares (2 numbers per tensor gathered, not the weights), equal up to
+    a relative 1e-10 (summation order; one Adam step without the all-reduce moves an element by
+    about the learning rate). Buffers (BatchNorm running statistics) are not compared: each rank
+    updates them from its own images, and DDP sends rank 0's at every forward."""
+    if info.world_size == 1:
+        return
+    names = [n for n, _ in model.named_parameters()]
+    stats = torch.stack([torch.stack([p.detach().double().sum(), p.detach().double().square().sum()])
+                         for p in model.parameters()]).cpu()
+    gathered = all_gather(stats, info)
+    ranks = [r for r, g in enumerate(gathered) if not torch.allclose(g, gathered[0], rtol=1e-10, atol=1e-12)]
+    if ranks:
+        bad = [n for i, n in enumerate(names)
+               if any(not torch.allclose(gathered[r][i], gathered[0][i], rtol=1e-10, atol=1e-12) for r in ranks)]
+        raise RanksDiverged(f"after step {step} rank(s) {ranks} hold weights that differ from rank 0's in "
+                            f"{len(bad)} of {len(names)} parameter tensors (first: {bad[0]}): a gradient "
+                            f"was not averaged across ranks")

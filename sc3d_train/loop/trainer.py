@@ -56,7 +56,7 @@ from sc3d_train.loop.loss_window import LossWindow
 from sc3d_train.loop.metrics_log import DataWaitClock, MetricsLog, gpu_utilisation, plot_curves
 from sc3d_train.loop.phase_step import training_batch
 from sc3d_train.loop.runtime import (DistInfo, all_gather, all_mean, all_min, channels_last_on, resolve_amp,
-                                     resolve_device, seed_everything, setup_distributed)
+                                     check_same_weights, resolve_device, seed_everything, setup_distributed)
 from sc3d_train.loop.schedule import batch_split, data_position, lr_at, phase_at
 from sc3d_train.loop.streams import labeled_dataset, phase_loaders, run_datasets, write_labeled_objects
 from sc3d_train.loop.train_step import TrainStep, compile_plan
@@ -155,18 +155,18 @@ def restore(t: Training) -> tuple[int, Path]:
 
 
 def wrap_ddp(t: Training) -> None:
-    """Under torchrun, ``t.train_model`` becomes the DDP wrapper of ``t.model``."""
-    if t.dist.world_size > 1:
-        from torch.nn.parallel import DistributedDataParallel as DDP
-
-        # the unsupervised phase gives the mask decoder no gradient (its mask is detached)
-        t.train_model = DDP(t.model, device_ids=[t.device.index] if t.device.type == "cuda" else None,
-                            find_unused_parameters=t.cfg.mode == "semi")
+    """Under torchrun, ``t.train_model`` becomes the DDP wrapper of ``t.model`` (the unlabelled
+    pass of the mixed phase runs on ``t.model``: ``phase_step.step_losses`` says why that is right)."""
+    if t.dist.world_size > 1:  # the unsupervised phase gives the mask decoder no gradient (its mask is detached)
+        t.train_model = torch.nn.parallel.DistributedDataParallel(
+            t.model, device_ids=[t.device.index] if t.device.type == "cuda" else None,
+            find_unused_parameters=t.cfg.mode == "semi")
 
 
 def save(t: Training, step_done: int, log: MetricsLog) -> Path | None:
-    """Checkpoint after ``step_done`` steps (every rank's RNG state; written by rank 0, which
-    also redraws ``curves.png``). Returns the file on rank 0."""
+    """Checkpoint after ``step_done`` steps (every rank's RNG state; written by rank 0, which also
+    redraws ``curves.png``) once every rank holds the same weights (``check_same_weights``)."""
+    check_same_weights(t.model, t.dist, step_done)
     states = all_gather(rng_state(), t.dist)
     if not t.dist.is_main:
         return None

@@ -4,7 +4,10 @@ Every ``val_every`` steps and after the last step, rank 0 evaluates the network 
 gradient) on ``val_views`` evenly spaced views of every object of the ``val_split`` of the
 training shards: objects fit never trains on (:class:`~sc3d_train.settings.config.RunConfig` refuses the
 training split, and the test split, whose objects stay unseen by ``fit``). The figures are
-``eval``'s, means over categories (its "mean" row), pose from the test-time search (its default):
+``eval``'s, means over categories (its "mean" row), pose from ``eval``'s default source
+(:data:`~sc3d_train.settings.command_config.DEFAULT_POSE_SOURCE`, the test-time search), passed by name
+at the call: ``best.pt`` is chosen by the pose ``eval`` then reports, not by the cheaper head
+pose (validation reads few views, so the search's extra cost stays small):
 
 * ``val_iou``: voxel IoU@0.4;
 * ``val_rot_median``: median rotation error (degrees);
@@ -44,6 +47,7 @@ import numpy as np
 import torch
 
 from sc3d_train.loop.checkpoint import best_path, load_checkpoint, save_best
+from sc3d_train.settings.command_config import DEFAULT_POSE_SOURCE
 from sc3d_train.settings.config import RunConfig
 from sc3d_train.data.dataset import DataError, ShardDataset
 
@@ -136,7 +140,8 @@ class Validator:
         with torch.random.fork_rng(devices=devices):
             model.eval()
             try:
-                rows, _ = predict_dataset(model, self.dataset, self.device, keep=0, pose_from="search",
+                rows, _ = predict_dataset(model, self.dataset, self.device, keep=0,
+                                          pose_from=DEFAULT_POSE_SOURCE,  # eval's pose (module doc)
                                           loss_weights=self.cfg.loss_weights, indices=self.indices)
             finally:
                 model.train(was_training)

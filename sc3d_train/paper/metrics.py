@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from sc3d_train.paper.pose import pose_errors
+from sc3d_train.settings.command_config import DEFAULT_POSE_SOURCE, check_pose_source
 from sc3d_train.settings.config import LossWeights
 
 VOXEL_THRESHOLDS = (0.4, 0.5)
@@ -36,21 +37,29 @@ def iou(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 @torch.no_grad()
 def predict_dataset(model, dataset, device, batch_size: int = 64,
-                    keep: int = 2, keep_views: tuple[int, ...] = (3, 15), pose_from: str = "head",
-                    loss_weights=None, indices=None):
+                    keep: int = 2, keep_views: tuple[int, ...] = (3, 15),
+                    pose_from: str = DEFAULT_POSE_SOURCE, loss_weights=None, indices=None):
     """Run ``model`` over every view of ``dataset`` (a :class:`~sc3d_train.data.dataset.ShardDataset`)
     (or its items ``indices``, object * V + view, when given). Returns ``(rows, examples)``: one dict per
     image (category, model_id, view, iou_0.4, iou_0.5, mask_iou, azimuth/elevation predicted and
     true, rotation_error) and, for the first ``keep`` objects of every category, views
     ``keep_views`` (default 3 and 15: opposite sides) with input, masks, voxels and poses (numpy)
-    for the figure."""
+    for the figure.
+
+    ``pose_from`` (one of :data:`~sc3d_train.settings.command_config.POSE_SOURCES`): ``"search"``
+    (the default of every entry point,
+    :data:`~sc3d_train.settings.command_config.DEFAULT_POSE_SOURCE`) the test-time self-consistent
+    pose, searched with ``loss_weights`` (None: the defaults of
+    :class:`~sc3d_train.settings.config.LossWeights`); ``"head"`` the pose head alone (cheaper;
+    voxel and mask IoU do not depend on it)."""
     from sc3d_data.geometry.camera import look_at_rotation
     from sc3d_train.paper.pose import rotation_error_deg
     from sc3d_train.paper.self_consistency import area_downsample
 
+    check_pose_source(pose_from)
     kept_objects: dict[str, list[str]] = defaultdict(list)
 
-    if indices is None:
+    if indices is None:  # read in this process (no workers): a broken shard raises its one-line DataError
         loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, shuffle=False)
     else:
         loader = (dataset.get_batch(indices[i:i + batch_size]) for i in range(0, len(indices), batch_size))

@@ -9,8 +9,16 @@ from dataclasses import dataclass
 from sc3d_train.settings.config import DEVICE_HELP
 from sc3d_train.settings.config_io import setting
 
-#: where the pose of a prediction comes from
+#: where the pose of a prediction comes from: ``search`` the azimuth whose projection of the
+#: predicted voxels best matches the predicted mask, at the pose head's elevation (test-time
+#: self-consistency, :func:`sc3d_train.paper.pose_search.self_consistent_pose`; no label read), ``head``
+#: the pose head's soft-argmax alone
 POSE_SOURCES = ("search", "head")
+#: the one default of every entry point (``eval``, ``predict``, ``evaluate()``, ``predict()``,
+#: ``evaluate.predict_dataset`` and so ``fit``'s validation): the paper's test-time
+#: self-consistency, what the command line has always given. A caller that wants the cheaper
+#: head pose passes ``pose_from="head"`` where it calls.
+DEFAULT_POSE_SOURCE = "search"
 CLAIMS_PRESETS = ("cpu", "paper")
 #: which checkpoint of a run folder is read (``sc3d_train.loop.checkpoint.run_checkpoint``)
 CHECKPOINT_PICKS = ("best", "last")
@@ -18,11 +26,18 @@ PICK_HELP = ("Checkpoint of a run folder: best (checkpoints/best.pt, the best va
              "where the run kept none) or last.")
 
 
+def check_pose_source(pose_from: str) -> str:
+    """``pose_from`` when it is one of :data:`POSE_SOURCES`, else ``ValueError`` naming them."""
+    if pose_from not in POSE_SOURCES:
+        raise ValueError(f"pose_from must be one of {POSE_SOURCES}, got {pose_from!r}")
+    return pose_from
+
+
 @dataclass
 class InferenceConfig:
     """Settings shared by ``eval`` and ``predict``."""
 
-    pose_from: str = setting("search", "search: the pose head's elevation and the azimuth whose "
+    pose_from: str = setting(DEFAULT_POSE_SOURCE, "search: the pose head's elevation and the azimuth whose "
                              "projection of the predicted voxels best matches the predicted mask "
                              "(test-time self-consistency); head: the pose head alone.",
                              choices=POSE_SOURCES, option="--pose")
