@@ -11,7 +11,9 @@ Modules, one job each:
 - ``local_pool`` / ``ray_executor``: the two executors;
 - ``slurm_executor``: a job array of parts through submitit, then ``merge`` (render, import;
   ``voxelize --meshes`` parts share one folder);
-- ``render_run``: the render driver (chunks, shards and index in plan order);
+- ``render_run``: the render driver (plan, executor, summary);
+- ``shard_output``: the one chunk loop and index writer of every job that writes shards
+  (render, import, voxelize SHARDS), holding the output lock;
 - ``resume``: what an existing index lets a rerun keep;
 - ``merge``: part folders -> one dataset;
 - ``voxel_job``: ``sc3d-data voxelize SHARDS``; ``voxel_meshes``: ``voxelize --meshes``;
