@@ -21,8 +21,8 @@ A job that writes shards hands its per-object results over in plan order and get
 
 Decisions:
 
-- Index writes. Each write rewrites the whole JSON (ShapeNet's 51,000 objects: 14 MB, 0.3 to
-  1.2 s), so writing after every chunk costs time that grows with the square of the objects.
+- Index writes. Each write rewrites the whole JSON (ShapeNet's 51,000 objects: 14 MB, 1.2 s
+  measured on a loaded 2-core machine), so writing after every chunk costs time that grows with the square of the objects.
   The index is rewritten after every chunk while it lists up to :data:`LAZY_OBJECTS` objects;
   beyond, after a chunk only once :data:`LAZY_FACTOR` times the last write's duration has
   passed since it, so writing stays about 1/20 of the run. The last chunk's write, and a write
