@@ -170,7 +170,7 @@ def profile_pipeline(meshes: Path, workers: int, views: int, voxelize: bool = Tr
     from multiprocessing import connection
 
     import sc3d_data.pipeline.executors.local_pool as pool
-    import sc3d_data.pipeline.jobs.render_run as rp
+    import sc3d_data.pipeline.jobs.shard_output as rp
     from sc3d_data.pipeline.jobs.render_run import RenderConfig, render_dataset
 
     main_acc: dict[str, float] = {}

@@ -5,7 +5,9 @@ import numpy as np
 import trimesh
 from scipy import ndimage
 
-from sc3d_data.voxel import _kernels as K
+from sc3d_data.voxel._fill_kernel import fill_holes_kernel
+from sc3d_data.voxel._ray_kernel import rays_kernel
+from sc3d_data.voxel._winding_kernels import winding_exact_kernel, winding_kernel
 from sc3d_data.voxel.voxelize import winding_numbers
 
 
@@ -30,7 +32,7 @@ def test_fill_holes_kernel_equals_scipy():
             occ = rng.random((G, G, G)) < p
             if 0 < p < 0.1:
                 occ = ndimage.binary_dilation(occ)
-            np.testing.assert_array_equal(K.fill_holes_kernel(occ), ndimage.binary_fill_holes(occ))
+            np.testing.assert_array_equal(fill_holes_kernel(occ), ndimage.binary_fill_holes(occ))
 
 
 def test_rays_kernel_counts_the_nonzero_crossings():
@@ -40,10 +42,10 @@ def test_rays_kernel_counts_the_nonzero_crossings():
         vi, f = (m.vertices + 0.5) * 16, np.ascontiguousarray(faces)
         crossings = np.zeros((6, 16, 16, 16), dtype=np.int32)
         nonzero = np.zeros((16, 16, 16), dtype=np.uint8)
-        K.rays_kernel(vi, f, 16, crossings, nonzero)
+        rays_kernel(vi, f, 16, crossings, nonzero)
         np.testing.assert_array_equal(nonzero, (crossings != 0).sum(0))
         alone = np.zeros((16, 16, 16), dtype=np.uint8)  # without the crossing counts
-        K.rays_kernel(vi, f, 16, np.zeros((6, 0, 0, 0), dtype=np.int32), alone)
+        rays_kernel(vi, f, 16, np.zeros((6, 0, 0, 0), dtype=np.int32), alone)
         np.testing.assert_array_equal(alone, nonzero)
         if len(faces) == 12:  # closed box: all six rays from inside, none from outside
             assert set(np.unique(nonzero)) == {0, 6}
@@ -69,8 +71,8 @@ def test_winding_without_expansions_equals_the_sum_of_solid_angles():
         dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
         radii = np.r_[rng.uniform(0.05, 0.295, 30), rng.uniform(0.305, 0.8, 30)]
         pts = np.vstack([(dirs * radii[:, None] + 0.5) * G, (m.vertices[:1] + 0.5) * G])
-        fast = K.winding_kernel(vi, f, pts, float(G), 1e9)
-        exact = K.winding_exact_kernel(vi[f], pts)
+        fast = winding_kernel(vi, f, pts, float(G), 1e9)
+        exact = winding_exact_kernel(vi[f], pts)
         np.testing.assert_allclose(fast, exact, rtol=0, atol=1e-12)
         if len(faces) == len(m.faces):  # closed: +-1 inside, 0 outside, to round-off
             sign = 1.0 if faces is m.faces else -1.0
@@ -88,17 +90,17 @@ def test_block_walk_decides_each_point_as_alone():
     vi = c + np.stack([np.cos(ang), np.sin(ang), np.zeros(3)], axis=1)
     f = np.array([[0, 1, 2]])
     pts = c + np.array([[0.0, 0.0, 1.9], [0.0, 0.0, 2.1]])
-    together = K.winding_kernel(vi, f, pts, 32.0, 2.0)
-    alone = np.array([K.winding_kernel(vi, f, p[None], 32.0, 2.0)[0] for p in pts])
+    together = winding_kernel(vi, f, pts, 32.0, 2.0)
+    alone = np.array([winding_kernel(vi, f, p[None], 32.0, 2.0)[0] for p in pts])
     np.testing.assert_allclose(together, alone, rtol=0, atol=1e-15)
-    exact = K.winding_exact_kernel(vi[f], pts)
+    exact = winding_exact_kernel(vi[f], pts)
     assert abs(together[0] - exact[0]) < 1e-14  # near: the exact solid angle
     assert 1e-7 < abs(together[1] - exact[1]) < 1e-3  # far: the expansion, close to exact
     # a larger cloud near a sphere's surface: many blocks, clusters of every kind
     m = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
     vi, f = (m.vertices + 0.5) * 32, np.ascontiguousarray(m.faces[m.triangles_center[:, 1] < 0.15])
     cloud = np.random.default_rng(3).uniform(4, 28, (300, 3))
-    together = K.winding_kernel(vi, f, cloud, 32.0, 2.0)
-    alone = np.array([K.winding_kernel(vi, f, p[None], 32.0, 2.0)[0] for p in cloud])
+    together = winding_kernel(vi, f, cloud, 32.0, 2.0)
+    alone = np.array([winding_kernel(vi, f, p[None], 32.0, 2.0)[0] for p in cloud])
     np.testing.assert_allclose(together, alone, rtol=0, atol=1e-13)
-    assert K.winding_kernel(vi, f, np.zeros((0, 3)), 32.0, 2.0).shape == (0,)
+    assert winding_kernel(vi, f, np.zeros((0, 3)), 32.0, 2.0).shape == (0,)

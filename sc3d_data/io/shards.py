@@ -303,12 +303,13 @@ def _write_encoded(f: h5py.File, name: str, arrays: list[EncodedArray]) -> None:
             dset.id.write_direct_chunk((row,) + offset, chunk)
 
 
-def replace_dataset_atomically(path: Path, name: str, data: np.ndarray) -> str:
+def replace_dataset_atomically(path: Path, name: str, data: np.ndarray, update_index: bool = True) -> str:
     """Add (or replace) the per-object dataset ``name`` in an existing shard without ever leaving
     a half-written file named ``*.h5``: the shard is copied to ``NAME.tmp``, modified, and
     renamed over the original. Returns the new file's SHA-256, which is also recorded at once
     in the folder's ``index.json`` when that lists the shard (the index never describes the
-    old bytes of a rewritten shard)."""
+    old bytes of a rewritten shard), unless ``update_index=False`` (a caller that writes the
+    index itself: ``voxelize``)."""
     import shutil
 
     path = Path(path)
@@ -332,7 +333,7 @@ def replace_dataset_atomically(path: Path, name: str, data: np.ndarray) -> str:
     except ValueError:
         _unlink_quietly(tmp)
         raise
-    if index_path(path.parent).is_file():
+    if update_index and index_path(path.parent).is_file():
         index = load_index(path.parent)
         listed = [e for e in index["shards"] if isinstance(e, dict) and e.get("file") == path.name]
         for entry in listed:

@@ -13,7 +13,8 @@ Three sub-packages, lowest first; a module imports its own folder and the folder
   ``slurm_executor`` (a job array of parts through submitit);
 - ``jobs``: what happens to one object and the run of a job over its plan: ``render_job`` and
   ``render_run`` (``sc3d-data render``), ``r2n2_job`` (``import-r2n2``), ``voxel_job``
-  (``voxelize SHARDS``) and ``voxel_meshes`` (``voxelize --meshes``), each with its SLURM entry.
+  (``voxelize SHARDS``) and ``voxel_meshes`` (``voxelize --meshes``), each with its SLURM entry;
+  ``shard_output``: the one chunk loop and index writer of every job that writes shards.
 
 Adding an executor touches ``executors/`` only; adding a job, ``jobs/`` (and its CLI command).
 """

@@ -35,8 +35,10 @@ the grid) except that all triangles count for winding numbers. The winding-numbe
 walk the octree in blocks of nearby voxel centres, deciding a cluster once for the whole
 block where it is clearly near or far and point by point otherwise, and sum the exact solid
 angles as the argument of a complex product; both give every point the same value as the
-plain per-point evaluation up to round-off (``_kernels._winding_queries``). The kernels live
-in ``_kernels.py`` (numba, compiled on first use and cached in ``__pycache__``).
+plain per-point evaluation up to round-off (``_winding_kernels._winding_queries``). The
+kernels live in one private module per family (numba, compiled on first use and cached in
+``__pycache__``): ``_surface_kernel`` (rule 1), ``_ray_kernel`` (the six rays),
+``_winding_kernels`` (rule 2) and ``_fill_kernel`` (rule 3).
 """
 from __future__ import annotations
 
@@ -46,7 +48,10 @@ import numpy as np
 
 from sc3d_data.geometry.voxel_grid import centre_grid, world_to_index
 
-from . import _kernels as _k
+from ._fill_kernel import fill_holes_kernel
+from ._ray_kernel import rays_kernel
+from ._surface_kernel import surface_kernel
+from ._winding_kernels import BETA, winding_exact_kernel, winding_kernel
 
 #: a voxel centre is inside when |winding number| reaches this
 WINDING_THRESHOLD = 0.5
@@ -77,7 +82,7 @@ def surface_voxels(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32
     v, f = _check_triangles(vertices, faces)
     G = int(resolution)
     grid = np.zeros((G, G, G), dtype=bool)
-    _k.surface_kernel(_voxel_vertices(v, G), f, G, grid)
+    surface_kernel(_voxel_vertices(v, G), f, G, grid)
     return grid
 
 
@@ -97,15 +102,15 @@ def winding_numbers(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
     """Generalized winding number ``[P]`` of a triangle soup at ``points [P, 3]`` (about 1 inside
     a closed outward-oriented mesh, 0 outside). Fast winding number (Barill et al. 2018: exact
     solid angles of triangles near a point, second-order expansions of octree clusters farther
-    than ``_kernels.BETA`` times their radius); ``exact=True`` sums all solid angles."""
+    than ``_winding_kernels.BETA`` times their radius); ``exact=True`` sums all solid angles."""
     v, f = _check_triangles(vertices, faces)
     q = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     if len(q) == 0:
         return np.zeros(0)
     vi = _voxel_vertices(v, 1)
     if exact:
-        return _k.winding_exact_kernel(vi[f], q + 0.5)
-    return _k.winding_kernel(vi, f, q + 0.5, 1.0, _k.BETA)
+        return winding_exact_kernel(vi[f], q + 0.5)
+    return winding_kernel(vi, f, q + 0.5, 1.0, BETA)
 
 
 def axis_ray_crossings(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32) -> np.ndarray:
@@ -121,7 +126,7 @@ def axis_ray_crossings(vertices: np.ndarray, faces: np.ndarray, resolution: int 
     v, f = _check_triangles(vertices, faces)
     G = int(resolution)
     out = np.zeros((6, G, G, G), dtype=np.int32)
-    _k.rays_kernel(_voxel_vertices(v, G), f, G, out, np.zeros((G, G, G), dtype=np.uint8))
+    rays_kernel(_voxel_vertices(v, G), f, G, out, np.zeros((G, G, G), dtype=np.uint8))
     return out
 
 
@@ -148,26 +153,26 @@ def voxelize_triangles(vertices: np.ndarray, faces: np.ndarray, resolution: int 
 
     vi = _voxel_vertices(v, G)
     surface = np.zeros((G, G, G), dtype=bool)
-    _k.surface_kernel(vi, f, G, surface)
+    surface_kernel(vi, f, G, surface)
     lap("surface")
     nonzero = np.zeros((G, G, G), dtype=np.uint8)  # rays with a non-zero crossing count, 0..6
-    _k.rays_kernel(vi, f, G, np.zeros((6, 0, 0, 0), dtype=np.int32), nonzero)
+    rays_kernel(vi, f, G, np.zeros((6, 0, 0, 0), dtype=np.int32), nonzero)
     lap("rays")
     # rule 3 applied early: voxels enclosed by surface and six-ray-inside voxels end up occupied
     # whatever the winding numbers say (filling is monotone), so they need no query
-    occupied = _k.fill_holes_kernel(surface | (nonzero == 6))
+    occupied = fill_holes_kernel(surface | (nonzero == 6))
     ambiguous = ~occupied & (nonzero > 0)
     lap("enclosed")
     pts = np.argwhere(ambiguous).astype(np.float64) + 0.5  # voxel centres, voxel units
     added = False
     if len(pts):
-        inside = np.abs(_k.winding_kernel(vi, f, pts, float(G), _k.BETA)) >= WINDING_THRESHOLD
+        inside = np.abs(winding_kernel(vi, f, pts, float(G), BETA)) >= WINDING_THRESHOLD
         occupied[ambiguous] = inside
         added = bool(inside.any())
     lap("winding")
     if timings is not None:
         timings["winding_points"] = timings.get("winding_points", 0) + len(pts)
     # ``occupied`` is already hole-free unless winding numbers added voxels (filling is idempotent)
-    out = _k.fill_holes_kernel(occupied) if added else occupied
+    out = fill_holes_kernel(occupied) if added else occupied
     lap("fill")
     return out

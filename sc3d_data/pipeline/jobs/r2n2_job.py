@@ -11,10 +11,11 @@ out), in plan order whatever order the results come in. A model that fails (bad 
 per-model time limit ``--timeout``, a worker killed) is recorded in the index's ``failures``
 with the reason and the others are imported.
 
-Resume: the index is rewritten atomically after every shard. A rerun with the same settings
-and ``--part`` keeps the chunks whose shard is intact (size and SHA-256 as in the index:
-``resume.resume_state``, the code ``render`` resumes with) and imports the rest, so a crash or
-Ctrl-C loses no finished shard; other settings are refused (``--overwrite`` starts afresh).
+Resume: the index is rewritten atomically after every shard (the chunk loop and index writer
+``render`` uses: ``shard_output.py``). A rerun with the same settings and ``--part`` keeps the
+chunks whose shard is intact (size and SHA-256 as in the index: ``resume.resume_state``) and
+imports the rest, so a crash or Ctrl-C loses no finished shard; other settings are refused
+(``--overwrite`` starts afresh).
 """
 from __future__ import annotations
 
@@ -143,12 +144,9 @@ def import_r2n2(config: ImportConfig, progress: Callable[[int], None] | None = N
     "failures"}`` (``done``: imported by this run; ``failures``: those of this run and of
     discovery). ``ValueError`` / ``FileNotFoundError`` / ``ShardError`` with one line naming
     the folder or file (another ``--part`` or other settings in ``out``, missing input, ...)."""
-    from sc3d_data.io.outlock import exclusive_lock
-    from sc3d_data.pipeline.run.resume import check_out
+    from sc3d_data.pipeline.jobs.shard_output import locked_output
 
-    out = Path(config.out)
-    check_out(out)
-    with exclusive_lock(out, "sc3d-data import-r2n2"):
+    with locked_output(Path(config.out), "sc3d-data import-r2n2", config.overwrite) as out:
         return _import_locked(config, out, progress)
 
 
@@ -156,83 +154,26 @@ def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
     import os
     import time
 
-    from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, add_shard_to_index, load_index
-    from sc3d_data.io.shards import write_index as write_index_file
-    from sc3d_data.pipeline.executors.executor import finished_chunks, start_executor
-    from sc3d_data.pipeline.run.resume import (check_resume, clean_tmp, empty_state, remaining, remove_listed_outputs,
-                                               resume_state)
+    from sc3d_data.pipeline.executors.executor import start_executor
+    from sc3d_data.pipeline.jobs.shard_output import NewShards, ShardIndex
 
     t0 = time.monotonic()
-    if config.overwrite:
-        remove_listed_outputs(out)
-    clean_tmp(out)
-    settings = config.settings()
     tasks, split_desc, part, problems, skipped = plan_models(config)
-    K = max(1, int(config.objects_per_shard))
-    state = empty_state()
-    if (out / INDEX_NAME).is_file():
-        old = load_index(out)
-        check_resume(out, old, settings, {}, part)
-        state = resume_state(out, old, False, K, tasks)
-    shards, objects, failures, empty = state["shards"], state["objects"], state["failures"], state["empty_chunks"]
-    pos_of = {(t.category, t.model_id): t.pos for t in tasks}
-    if any(pos_of.get((o["category"], o["model_id"]), -K) // K != o["chunk"] for o in objects):
-        raise ValueError(f"{out}: its shards do not hold this plan's chunks (the collection changed, or an "
-                         "older sc3d made them); use another --out or --overwrite")
-    todo, resumed = remaining(tasks, state, K)
-    problems = [dict(p, category="", model_id="") for p in problems]
-    new_failures: list[dict] = []
-
-    def write_index(complete: bool) -> None:
-        write_index_file(out, complete=complete, settings=settings, split=split_desc, shards=shards,
-                         objects=objects, failures=problems + sorted(failures, key=lambda f: f.get("pos", -1)),
-                         skipped=skipped, warnings=[], empty_chunks=empty, extra={"part": part})
-
-    pool, n_done, bar = None, 0, None
+    index = ShardIndex(out, config.settings(), split_desc, extra={"part": part},
+                       problems=[dict(p, category="", model_id="") for p in problems], skipped=skipped)
+    run = NewShards.resume(index, tasks, max(1, int(config.objects_per_shard)))
+    pool, n_workers = None, 1
     try:
-        write_index(not todo)
-        if todo and progress is None and config.progress:
-            from sc3d_data.pipeline.run.progress import progress_bar
-
-            bar = progress_bar(total=len(todo), unit="obj", desc="import-r2n2")
-            progress = bar.update
-        if todo:
-            n_workers = max(1, min(config.workers or os.cpu_count() or 1, len(todo)))
+        if run.todo:
+            n_workers = max(1, min(config.workers or os.cpu_count() or 1, len(run.todo)))
             pool = start_executor(config, n_workers, IMPORT)
-            for c, results, last in finished_chunks(pool, todo, K, n_workers, progress):
-                records = _chunk_records(c, results, new_failures)
-                n_done += len(records)
-                if records:
-                    name = SHARD_PATTERN.format(c)
-                    add_shard_to_index(shards, objects, name, c, records,
-                                       sha256=pool.write_shard(out / name, records, settings))
-                else:
-                    empty.append(c)
-                failures.extend(f for f in new_failures if f["chunk"] == c)
-                write_index(complete=last)
+        run.run(pool, n_workers, progress, bar="import-r2n2" if config.progress else None)
     finally:
         if pool is not None:
             pool.close()
-        if bar is not None:
-            bar.close()
-        clean_tmp(out)
-    return {"done": n_done,
-            "resumed": resumed, "failed": len(failures) + len(problems), "skipped": len(skipped),
-            "planned": len(tasks), "seconds": time.monotonic() - t0, "out": str(out),
-            "failures": problems + new_failures}
-
-
-def _chunk_records(c: int, results: list, failures: list) -> list:
-    """The ``ObjectRecord`` s of chunk ``c`` in plan order from its ``(task, status, payload)``
-    results (``executor.finished_chunks``); its failures are appended to ``failures``."""
-    records = []
-    for t, status, payload in results:
-        if status == "ok":
-            records.append(payload[0])
-        else:
-            failures.append({"source": t.path, "category": t.category, "model_id": t.model_id, "reason": payload,
-                             "chunk": c, "pos": t.pos})
-    return records
+    return {"done": run.done, "resumed": run.resumed, "failed": len(index.failures) + len(index.problems),
+            "skipped": len(skipped), "planned": len(tasks), "seconds": time.monotonic() - t0, "out": str(out),
+            "failures": index.problems + run.new_failures}
 
 
 def import_part(config) -> dict:

@@ -8,10 +8,12 @@ Shards (``voxelize_shards``)
     ``sc3d_data.voxel.voxelize.voxelize_triangles``. The ``voxels`` dataset ``[N, G, G, G]`` is added
     to each shard atomically (``shards.replace_dataset_atomically``), one shard at a time.
     Resume: a shard that already holds ``voxels`` at the requested resolution is skipped
-    (``overwrite=True`` redoes it). The index's ``bytes``/``sha256`` of a shard are updated
-    right after it is rewritten (``replace_dataset_atomically``), and the run holds the folder's write lock
-    (``sc3d_data.io.outlock``). An object that fails (mesh missing or unreadable) gets an
-    all-empty grid so the shard stays rectangular, and is recorded in the index under
+    (``overwrite=True`` redoes it). The objects run on the local pool (``executor.py``:
+    ``workers`` processes; a worker that dies costs its object; no time limit) and the shards
+    are the chunks of the loop ``render`` and ``import-r2n2`` write with
+    (``shard_output.py``): the index's ``bytes``/``sha256`` of a shard are written right after
+    it is rewritten, and the run holds the folder's write lock. An object that fails (mesh
+    missing or unreadable) gets an all-empty grid so the shard stays rectangular, and is recorded in the index under
     ``failures`` with ``"stage": "voxelize"``, its shard, row and reason. The index also gets
     ``"voxels": {"resolution": G, "occupancy": ...}``.
 
@@ -20,14 +22,15 @@ Meshes (``voxelize --meshes``): ``voxel_meshes.py``.
 from __future__ import annotations
 
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from sc3d_data.io.shards import load_index, replace_dataset_atomically, shard_files, write_json_atomic, index_path
+from sc3d_data.io.shards import index_path, replace_dataset_atomically
 from sc3d_data.io.shard_reader import read_strings
+from sc3d_data.pipeline.executors.job import ExecOptions, Job
+from sc3d_data.pipeline.run.plan import Task
 
 OCCUPANCY_RULE = ("surface-touching voxels + voxel centres with |winding number| >= 0.5 "
                   "+ enclosed voxels (sc3d_data/voxel/voxelize.py)")
@@ -60,23 +63,38 @@ def voxelize_canonical(vertices: np.ndarray, faces: np.ndarray, to_canonical: np
     return voxelize_triangles(apply_transform(vertices, to_canonical), faces, resolution)
 
 
-def _job(args):
-    source, to_canonical, resolution, max_faces = args
+@dataclass
+class VoxelizeShardsConfig(ExecOptions):
+    """What the workers of ``voxelize SHARDS`` need (``ExecOptions``: ``workers``; no per-object
+    time limit by default, as ``voxelize SHARDS`` never had one): the resolution ``G`` and
+    the dataset's face limit (index settings ``max_faces``)."""
+
+    resolution: int = 32
+    max_faces: int | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class RowTask(Task):
+    """One object of a shard: ``path`` its mesh file (``resolve_source``), ``source`` as the
+    shard records it, ``row`` its row, ``to_canonical`` its stored 4x4 transform."""
+
+    source: str = ""
+    row: int = 0
+    to_canonical: np.ndarray | None = None
+
+
+def voxelize_row_task(config: VoxelizeShardsConfig, backend: str, task: RowTask):
+    """The job of one shard row (``executor.Job``, run by a worker): ``(pos, "ok", (voxels
+    [G, G, G] bool, []))`` or ``(pos, "fail", reason)``."""
     limit_threads()
     try:
-        return "ok", voxelize_source(source, to_canonical, resolution, max_faces)
-    except Exception as e:  # recorded per object, never aborts the shard
-        return "failed", f"{type(e).__name__}: {e}"
+        voxels = voxelize_source(task.path, task.to_canonical, config.resolution, config.max_faces)
+        return task.pos, "ok", (voxels, [])
+    except Exception as e:  # noqa: BLE001 - recorded per object, never aborts the shard
+        return task.pos, "fail", f"{type(e).__name__}: {e}"
 
 
-def _map(jobs, workers: int):
-    if workers <= 1 or len(jobs) <= 1:
-        return [_job(j) for j in jobs]
-    from sc3d_data.pipeline.executors.local_pool import worker_context
-
-    with ProcessPoolExecutor(max_workers=workers, mp_context=worker_context(None),
-                             initializer=limit_threads) as ex:
-        return list(ex.map(_job, jobs, chunksize=1))
+VOXELIZE_ROW = Job("voxelize", voxelize_row_task)
 
 
 def resolve_source(source: str, meshes_root: str | None) -> str:
@@ -113,71 +131,97 @@ class VoxelizeSummary:
 def voxelize_shards(shard_dir: Path, resolution: int = 32, workers: int = 1, overwrite: bool = False,
                     progress: bool = False) -> VoxelizeSummary:
     """Add ``voxels [N, G, G, G]`` to every shard of ``shard_dir`` (module doc)."""
-    from sc3d_data.io.outlock import exclusive_lock
+    from sc3d_data.pipeline.jobs.shard_output import locked_output
 
-    with exclusive_lock(Path(shard_dir), "sc3d-data voxelize"):
-        return _voxelize_shards_locked(shard_dir, resolution, workers, overwrite, progress)
+    with locked_output(Path(shard_dir), "sc3d-data voxelize", create=False):
+        return _voxelize_shards_locked(Path(shard_dir), resolution, workers, overwrite, progress)
 
 
-def _voxelize_shards_locked(shard_dir, resolution, workers, overwrite, progress) -> VoxelizeSummary:
+def _read_rows(path: Path, resolution: int) -> tuple[bool, list, list, list, np.ndarray]:
+    """``(has voxels at resolution, sources, model ids, categories, to_canonical [N, 4, 4])``
+    of the shard ``path``; one line naming it when it is missing or broken."""
     from sc3d_data.io.shards import ShardError, io_reason
     from sc3d_data.io.shard_reader import open_shard
 
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: listed in {index_path(path.parent)} but missing")
+    with open_shard(path) as f:
+        if "to_canonical" not in f or "source" not in f:
+            raise ValueError(f"{path}: no to_canonical/source datasets; cannot find the meshes")
+        try:
+            has = "voxels" in f and f["voxels"].shape[1:] == (resolution,) * 3
+            return has, read_strings(f["source"]), read_strings(f["model_id"]), read_strings(f["category"]), \
+                f["to_canonical"][()]
+        except (OSError, KeyError, RuntimeError) as e:
+            raise ShardError(f"{path}: broken shard ({io_reason(e)}); see `sc3d-data info --verify`") from e
+
+
+def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, progress) -> VoxelizeSummary:
+    """The shards are the chunks of ``shard_output.write_chunks``: row ``r`` of the ``c``-th
+    shard listed is plan position ``c * K + r`` (``K`` = the most rows of a shard)."""
+    import math
+
+    from sc3d_data.io.shards import shard_path
+    from sc3d_data.pipeline.executors.executor import start_executor
+    from sc3d_data.pipeline.jobs.shard_output import ShardIndex, write_chunks
+
     t0 = time.monotonic()
-    shard_dir = Path(shard_dir)
-    index = load_index(shard_dir)
-    max_faces = index.get("settings", {}).get("max_faces")
-    meshes_root = index.get("settings", {}).get("meshes")
+    index = ShardIndex.load(shard_dir, lazy=False)
+    settings = index.settings
+    paths = [shard_path(shard_dir, s["file"]) for s in index.shards]
+    rows = [_read_rows(path, resolution) for path in paths]
+    K = max([1] + [len(r[1]) for r in rows])
     summary = VoxelizeSummary()
-    paths = shard_files(shard_dir)
-    failures = [f for f in index.get("failures", []) if f.get("stage") != "voxelize"]
-    old_voxel_failures = [f for f in index.get("failures", []) if f.get("stage") == "voxelize"]
+    base = [f for f in index.failures if f.get("stage") != "voxelize"]
+    by_shard = [[f for f in index.failures if f.get("stage") == "voxelize" and f.get("shard") == p.name]
+                for p in paths]  # the voxelize failures of each shard, kept for a skipped shard
+    todo = []
+    for c, (has, sources, ids, cats, to_canonical) in enumerate(rows):
+        if has and not overwrite:
+            summary.shards_skipped += 1
+            continue
+        todo += [RowTask(c * K + r, resolve_source(s, settings.get("meshes")), cats[r], ids[r], "", s, r, T)
+                 for r, (s, T) in enumerate(zip(sources, to_canonical))]
     bar = None
     if progress:
         from sc3d_data.pipeline.run.progress import progress_bar
 
         bar = progress_bar(total=len(paths), unit="shard", desc="voxelize")
-    new_failures = []
-    for path in paths:
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: listed in {index_path(shard_dir)} but missing")
-        with open_shard(path) as f:
-            if "to_canonical" not in f or "source" not in f:
-                raise ValueError(f"{path}: no to_canonical/source datasets; cannot find the meshes")
-            try:
-                has = "voxels" in f and f["voxels"].shape[1:] == (resolution,) * 3
-                sources = read_strings(f["source"])
-                ids = read_strings(f["model_id"])
-                cats = read_strings(f["category"])
-                to_canonical = f["to_canonical"][()]
-            except (OSError, KeyError, RuntimeError) as e:
-                raise ShardError(f"{path}: broken shard ({io_reason(e)}); see `sc3d-data info --verify`") from e
-        if has and not overwrite:
-            summary.shards_skipped += 1
-            new_failures += [x for x in old_voxel_failures if x.get("shard") == path.name]
-        else:
-            results = _map([(resolve_source(s, meshes_root), T, resolution, max_faces)
-                            for s, T in zip(sources, to_canonical)], workers)
-            grids = np.zeros((len(sources),) + (resolution,) * 3, dtype=np.uint8)
-            for row, (status, payload) in enumerate(results):
-                if status == "ok":
-                    grids[row] = payload
-                else:
-                    new_failures.append({"stage": "voxelize", "source": sources[row], "category": cats[row],
-                                         "model_id": ids[row], "shard": path.name, "row": row,
-                                         "reason": payload})
-                    summary.failed += 1
-            replace_dataset_atomically(path, "voxels", grids)  # also updates the index checksum
-            summary.shards_done += 1
-            summary.objects += len(sources)
+        bar.update(summary.shards_skipped)
+
+    def store(c: int, results: list, last: bool) -> None:
+        path = paths[c]
+        grids = np.zeros((len(rows[c][1]),) + (resolution,) * 3, dtype=np.uint8)
+        by_shard[c] = []
+        for t, status, payload in results:
+            if status == "ok":
+                grids[t.row] = payload[0]
+            else:
+                by_shard[c].append({"stage": "voxelize", "source": t.source, "category": t.category,
+                                    "model_id": t.model_id, "shard": path.name, "row": t.row, "reason": payload})
+        index.shards[c]["sha256"] = replace_dataset_atomically(path, "voxels", grids, update_index=False)
+        index.shards[c]["bytes"] = path.stat().st_size
+        index.failures = base + [f for fails in by_shard for f in fails]
+        summary.shards_done += 1
+        summary.objects += len(grids)
+        summary.failed += len(by_shard[c])
         if bar is not None:
             bar.update(1)
-    if bar is not None:
-        bar.close()
-    index = load_index(shard_dir)  # re-read: only our keys change
-    index["failures"] = failures + new_failures
-    index["voxels"] = {"resolution": resolution, "occupancy": OCCUPANCY_RULE,
-                       "failed": len(new_failures)}
-    write_json_atomic(index_path(shard_dir), index)
+
+    config = VoxelizeShardsConfig(resolution=resolution, max_faces=settings.get("max_faces"), workers=workers,
+                                  timeout_s=math.inf)
+    n_workers = max(1, min(workers, len(todo)))
+    pool = start_executor(config, n_workers, VOXELIZE_ROW) if todo else None
+    try:
+        write_chunks(index, pool, todo, K, n_workers, store)
+    finally:
+        if pool is not None:
+            pool.close()
+        if bar is not None:
+            bar.close()
+    index.failures = base + [f for fails in by_shard for f in fails]
+    index.extra["voxels"] = {"resolution": resolution, "occupancy": OCCUPANCY_RULE,
+                             "failed": sum(map(len, by_shard))}
+    index.write()
     summary.seconds = time.monotonic() - t0
     return summary

@@ -1,11 +1,17 @@
-"""numba kernels of sc3d_data.voxel.voxelize (compiled once, cached in __pycache__).
+"""numba kernels of rule 2 of ``sc3d_data.voxel.voxelize``: generalized winding numbers at
+query points, fast (Barill et al. 2018, as libigl's fast winding number: a loose octree of
+triangle clusters with second-order expansions of their fields, walked by blocks of query
+points) and exact (the sum of all solid angles, the tests' reference).
 
-Length: one module because numba compiles these kernels together and they call each other
-(winding-number tree build, traversal, surface rasterisation, flood fill).
+Meshes come as vertices ``vi [n, 3]`` float64 in the units of a grid spanning ``[0, G]^3`` and
+faces ``f [m, 3]`` int64, read in place: no ``[m, 3, 3]`` array of corners is built, which on
+a large mesh would be a fresh allocation of megabytes per call.
 
-Meshes come as vertices ``vi [n, 3]`` float64 in voxel units (the grid spans [0, G]^3) and
-faces ``f [m, 3]`` int64, read in place: no ``[m, 3, 3]`` array of corners is built, which
-on a large mesh would be a fresh allocation of megabytes per call.
+Length: one module because the tree build, the cluster expansions, the block walk and the
+exact solid angles call each other, and numba's on-disk cache (``cache=True``) is checked
+against the source file of the cached kernel only: a kernel that called a helper in another
+file would go on running its stale compiled copy after that file changed. Each family of
+kernels (surface, rays, fill, winding numbers) is therefore one self-contained file.
 """
 from __future__ import annotations
 
@@ -14,176 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
-#: half-width of a voxel cube in voxel units, grown slightly so touching counts under round-off
-HALF = 0.5 + 1e-6
 
-
-@njit(cache=True, nogil=True)
-def surface_kernel(vi, f, G, grid):
-    """Marks in ``grid [G, G, G]`` every voxel whose closed cube (half-size HALF) overlaps a
-    triangle (``vi [n, 3]``, ``f [m, 3]``): the separating-axis test of Akenine-Moeller."""
-    for t in range(f.shape[0]):
-        x0, y0, z0 = vi[f[t, 0], 0], vi[f[t, 0], 1], vi[f[t, 0], 2]
-        x1, y1, z1 = vi[f[t, 1], 0], vi[f[t, 1], 1], vi[f[t, 1], 2]
-        x2, y2, z2 = vi[f[t, 2], 0], vi[f[t, 2], 1], vi[f[t, 2], 2]
-        mnx, mny, mnz = min(x0, x1, x2), min(y0, y1, y2), min(z0, z1, z2)
-        mxx, mxy, mxz = max(x0, x1, x2), max(y0, y1, y2), max(z0, z1, z2)
-        if mxx < -1e-6 or mxy < -1e-6 or mxz < -1e-6 or mnx > G + 1e-6 or mny > G + 1e-6 or mnz > G + 1e-6:
-            continue
-        lx = min(max(int(math.floor(mnx - 1e-6)), 0), G - 1)
-        ly = min(max(int(math.floor(mny - 1e-6)), 0), G - 1)
-        lz = min(max(int(math.floor(mnz - 1e-6)), 0), G - 1)
-        hx = min(max(int(math.floor(mxx + 1e-6)), 0), G - 1)
-        hy = min(max(int(math.floor(mxy + 1e-6)), 0), G - 1)
-        hz = min(max(int(math.floor(mxz + 1e-6)), 0), G - 1)
-        count = (hx - lx + 1) * (hy - ly + 1) * (hz - lz + 1)
-        if count <= 2:
-            # one voxel, or two: the triangle crosses the plane between them and touches both
-            for i in range(lx, hx + 1):
-                for j in range(ly, hy + 1):
-                    for k in range(lz, hz + 1):
-                        grid[i, j, k] = True
-            continue
-        e0x, e0y, e0z = x1 - x0, y1 - y0, z1 - z0
-        e1x, e1y, e1z = x2 - x1, y2 - y1, z2 - z1
-        e2x, e2y, e2z = x0 - x2, y0 - y2, z0 - z2
-        nx = e0y * e1z - e0z * e1y
-        ny = e0z * e1x - e0x * e1z
-        nz = e0x * e1y - e0y * e1x
-        rn = HALF * (abs(nx) + abs(ny) + abs(nz)) + 1e-12
-        for i in range(lx, hx + 1):
-            cx = i + 0.5
-            for j in range(ly, hy + 1):
-                cy = j + 0.5
-                for k in range(lz, hz + 1):
-                    if grid[i, j, k]:
-                        continue
-                    cz = k + 0.5
-                    # plane of the triangle vs box
-                    if abs(nx * (x0 - cx) + ny * (y0 - cy) + nz * (z0 - cz)) > rn:
-                        continue
-                    ax, ay, az = x0 - cx, y0 - cy, z0 - cz
-                    bx, by, bz = x1 - cx, y1 - cy, z1 - cz
-                    qx, qy, qz = x2 - cx, y2 - cy, z2 - cz
-                    ok = True
-                    for e in range(3):
-                        if e == 0:
-                            ex, ey, ez = e0x, e0y, e0z
-                        elif e == 1:
-                            ex, ey, ez = e1x, e1y, e1z
-                        else:
-                            ex, ey, ez = e2x, e2y, e2z
-                        # axis e x X: projections ez*y - ey*z
-                        p0, p1, p2 = ez * ay - ey * az, ez * by - ey * bz, ez * qy - ey * qz
-                        r = HALF * (abs(ez) + abs(ey)) + 1e-12
-                        if min(p0, p1, p2) > r or max(p0, p1, p2) < -r:
-                            ok = False
-                            break
-                        # axis e x Y: ex*z - ez*x
-                        p0, p1, p2 = ex * az - ez * ax, ex * bz - ez * bx, ex * qz - ez * qx
-                        r = HALF * (abs(ex) + abs(ez)) + 1e-12
-                        if min(p0, p1, p2) > r or max(p0, p1, p2) < -r:
-                            ok = False
-                            break
-                        # axis e x Z: ey*x - ex*y
-                        p0, p1, p2 = ey * ax - ex * ay, ey * bx - ex * by, ey * qx - ex * qy
-                        r = HALF * (abs(ey) + abs(ex)) + 1e-12
-                        if min(p0, p1, p2) > r or max(p0, p1, p2) < -r:
-                            ok = False
-                            break
-                    if ok:
-                        grid[i, j, k] = True
-
-
-@njit(cache=True, nogil=True)
-def _axis_histogram(vi, f, G, a, hist):
-    """Rasterises the triangles (``vi``, ``f``) along axis ``a`` (0 x, 1 y, 2 z): for the
-    ray line through voxel centres (ib + 0.5, ic + 0.5) of the other two axes b = a + 1,
-    c = a + 2 (mod 3), ``hist [G, G, G + 1]`` (zeroed here) gets at [ib, ic, n] the signed
-    crossings (+1 where the triangle's normal points along +a) that lie between the centres
-    n - 1 and n along a (n = 0: below the first centre, n = G: above the last)."""
-    b = (a + 1) % 3
-    c = (a + 2) % 3
-    hist[:] = 0
-    for t in range(f.shape[0]):
-        b0, b1, b2 = vi[f[t, 0], b], vi[f[t, 1], b], vi[f[t, 2], b]
-        c0, c1, c2 = vi[f[t, 0], c], vi[f[t, 1], c], vi[f[t, 2], c]
-        area = (b1 - b0) * (c2 - c0) - (c1 - c0) * (b2 - b0)
-        if abs(area) <= 1e-12:
-            continue
-        lb = min(max(int(math.ceil(min(b0, b1, b2) - 0.5)), 0), G)
-        lc = min(max(int(math.ceil(min(c0, c1, c2) - 0.5)), 0), G)
-        hb = min(max(int(math.floor(max(b0, b1, b2) - 0.5)), -1), G - 1)
-        hc = min(max(int(math.floor(max(c0, c1, c2) - 0.5)), -1), G - 1)
-        if hb < lb or hc < lc:
-            continue
-        sgn = 1 if area > 0 else -1
-        d0, d1, d2 = vi[f[t, 0], a], vi[f[t, 1], a], vi[f[t, 2], a]
-        for ib in range(lb, hb + 1):
-            qb = ib + 0.5
-            for ic in range(lc, hc + 1):
-                qc = ic + 0.5
-                w0 = (b2 - b1) * (qc - c1) - (c2 - c1) * (qb - b1)
-                w1 = (b0 - b2) * (qc - c2) - (c0 - c2) * (qb - b2)
-                w2 = (b1 - b0) * (qc - c0) - (c1 - c0) * (qb - b0)
-                if sgn > 0:
-                    if w0 < 0 or w1 < 0 or w2 < 0:
-                        continue
-                elif w0 > 0 or w1 > 0 or w2 > 0:
-                    continue
-                d = (w0 * d0 + w1 * d1 + w2 * d2) / area
-                below = min(max(int(math.ceil(d - 0.5)), 0), G)
-                hist[ib, ic, below] += sgn
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _column_counts(hist, ib, ic, G, col):
-    """Signed crossing counts of the rays along +a and -a from the G voxel centres of the
-    column (ib, ic) of ``hist`` (``_axis_histogram``): ``col[0, ia]`` (+a) and ``col[1, ia]``
-    (-a), with ``col [2, G]`` int32."""
-    total = 0
-    for ia in range(G + 1):
-        total += hist[ib, ic, ia]
-    prefix = 0
-    for ia in range(G):
-        prefix += hist[ib, ic, ia]  # crossings at or below this centre
-        col[0, ia] = total - prefix
-        col[1, ia] = -prefix
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _voxel_of(a, ia, ib, ic):
-    """Grid index (x, y, z) of the voxel at ``ia`` along axis ``a`` in column (ib, ic)."""
-    if a == 0:
-        return ia, ib, ic
-    if a == 1:
-        return ic, ia, ib
-    return ib, ic, ia
-
-
-@njit(cache=True, nogil=True)
-def rays_kernel(vi, f, G, crossings, nonzero):
-    """Signed crossing counts of the six axis rays (+x, -x, +y, -y, +z, -z) from every voxel
-    centre (see ``axis_ray_crossings``): written into ``crossings [6, G, G, G]`` int32 if it
-    has that shape (pass ``[6, 0, 0, 0]`` to skip them), and the number of rays with a non-zero
-    count added into ``nonzero [G, G, G]`` uint8 (zeroed by the caller)."""
-    full = crossings.shape[1] == G
-    hist = np.empty((G, G, G + 1), dtype=np.int32)
-    col = np.empty((2, G), dtype=np.int32)
-    for a in range(3):
-        _axis_histogram(vi, f, G, a, hist)
-        for ib in range(G):
-            for ic in range(G):
-                _column_counts(hist, ib, ic, G, col)
-                for ia in range(G):
-                    x, y, z = _voxel_of(a, ia, ib, ic)
-                    if full:
-                        crossings[2 * a, x, y, z] = col[0, ia]
-                        crossings[2 * a + 1, x, y, z] = col[1, ia]
-                    nonzero[x, y, z] += (col[0, ia] != 0) + (col[1, ia] != 0)
-
-
-#: octree depth of the winding-number tree: leaves are 1/32 of the grid cube per axis
 TREE_DEPTH = 5
 #: index pairs (j, k) of the symmetric second moments
 _JJ = np.array([0, 1, 2, 0, 0, 1])
@@ -710,43 +547,4 @@ def winding_exact_kernel(tri, pts):
         for t in range(tri.shape[0]):
             w += _solid_angle(tri, t, px, py, pz)
         out[p] = w / (4.0 * math.pi)
-    return out
-
-
-@njit(cache=True, nogil=True)
-def fill_holes_kernel(occ):
-    """``occ`` plus every empty voxel that no 6-connected path of empty voxels links to the
-    grid's border (``scipy.ndimage.binary_fill_holes`` with its default structure). Flood fill
-    from the border's empty voxels over a copy of the grid padded by one "outside" voxel per
-    side, so that neighbours are plain offsets of a flat index with no bounds checks."""
-    X, Y, Z = occ.shape
-    Yp, Zp = Y + 2, Z + 2
-    sy, sx = Zp, Yp * Zp
-    state = np.full((X + 2) * sx, 2, dtype=np.uint8)  # 0 empty, 1 occupied, 2 outside
-    stack = np.empty(X * Y * Z, dtype=np.int64)
-    top = 0
-    for i in range(X):
-        for j in range(Y):
-            for k in range(Z):
-                f = (i + 1) * sx + (j + 1) * sy + k + 1
-                if occ[i, j, k]:
-                    state[f] = 1
-                elif i == 0 or j == 0 or k == 0 or i == X - 1 or j == Y - 1 or k == Z - 1:
-                    stack[top] = f  # border voxel: outside (state stays 2)
-                    top += 1
-                else:
-                    state[f] = 0
-    while top > 0:
-        top -= 1
-        f = stack[top]
-        for n in (f - 1, f + 1, f - sy, f + sy, f - sx, f + sx):
-            if state[n] == 0:
-                state[n] = 2
-                stack[top] = n
-                top += 1
-    out = np.empty(occ.shape, dtype=np.bool_)
-    for i in range(X):
-        for j in range(Y):
-            for k in range(Z):
-                out[i, j, k] = state[(i + 1) * sx + (j + 1) * sy + k + 1] != 2
     return out
