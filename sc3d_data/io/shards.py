@@ -37,7 +37,8 @@ source         [N]                   str      path of the source mesh
 
 File attributes: ``schema_version``, ``sc3d_version``, ``settings`` (JSON of every setting).
 Files are written under ``NAME.tmp`` and renamed when complete, so a file named ``*.h5`` is
-always complete; the index is rewritten atomically after each shard.
+always complete; the index is rewritten atomically (after each shard up to 10,000 objects:
+``sc3d_data.pipeline.jobs.shard_output``).
 
 Integrity: every numeric dataset carries HDF5's Fletcher-32 checksum per chunk (a flipped byte
 makes the read of that object fail instead of returning wrong numbers), and the index records

@@ -11,7 +11,7 @@ out), in plan order whatever order the results come in. A model that fails (bad 
 per-model time limit ``--timeout``, a worker killed) is recorded in the index's ``failures``
 with the reason and the others are imported.
 
-Resume: the index is rewritten atomically after every shard (the chunk loop and index writer
+Resume: the index is rewritten atomically after every shard (lazily past 10,000 objects; the chunk loop and index writer
 ``render`` uses: ``shard_output.py``). A rerun with the same settings and ``--part`` keeps the
 chunks whose shard is intact (size and SHA-256 as in the index: ``resume.resume_state``) and
 imports the rest, so a crash or Ctrl-C loses no finished shard; other settings are refused

@@ -1,6 +1,7 @@
 """Resume of ``sc3d-data render``: what an existing ``index.json`` in ``--out`` lets a run keep.
 
-The index is rewritten atomically after every shard. A rerun with the same settings (and the
+The index is rewritten atomically after every shard (past 10,000 objects less often:
+``jobs/shard_output.py``). A rerun with the same settings (and the
 same ``--part``) skips chunks that are complete (their shard is listed, exists and matches the
 size and SHA-256 in the index: a truncated or corrupted shard is rendered again) and, with
 ``retry_failed``, renders the recorded failures of complete chunks again and rewrites their
