@@ -26,7 +26,8 @@ Randomness
     the run's seed, the optimiser step, the rank and the batch's slot in the step: the same step
     draws the same numbers whatever ran before, so ``--resume`` stays exact and the global RNG
     (reparameterisation noise) is never touched. The draws are made on the device with fixed
-    shapes and no host reads, so the step stays free of host syncs.
+    shapes, and every constant is made there too (no host-to-device copy, which would wait for
+    the device; no host read), so the step stays free of host syncs.
 """
 from __future__ import annotations
 
@@ -55,8 +56,9 @@ def key_foreground(images: torch.Tensor, background_rgb) -> torch.Tensor:
     training may not read (the unlabelled images of ``semi``). On sc3d renders (no
     anti-aliasing) this equals the stored mask wherever no object pixel has exactly the
     background's colour."""
-    bg = torch.tensor([float(c) for c in background_rgb], device=images.device).view(1, 3, 1, 1)
-    return ((images * 255.0).round() != bg).any(dim=1)
+    values = (images * 255.0).round()
+    r, g, b = (float(c) for c in background_rgb)
+    return (values[:, 0] != r) | (values[:, 1] != g) | (values[:, 2] != b)
 
 
 def augment_generator(seed: int, step: int, rank: int = 0, slot: int = 0,
@@ -85,8 +87,7 @@ def draw_params(batch: int, generator: torch.Generator, device: torch.device | s
 
 def _luma(x: torch.Tensor) -> torch.Tensor:
     """Grey level ``[B, 1, H, W]`` of ``x [B, 3, H, W]``."""
-    w = torch.tensor(LUMA, dtype=x.dtype, device=x.device).view(1, 3, 1, 1)
-    return (x * w).sum(1, keepdim=True)
+    return x[:, 0:1] * LUMA[0] + x[:, 1:2] * LUMA[1] + x[:, 2:3] * LUMA[2]
 
 
 def _ramp(batch_angle: torch.Tensor, h: int, w: int) -> torch.Tensor:
@@ -105,7 +106,8 @@ def _hue_rotation(angle_turns: torch.Tensor) -> torch.Tensor:
     a = 2 * math.pi * angle_turns
     c, s = torch.cos(a).view(-1, 1, 1), torch.sin(a).view(-1, 1, 1)
     eye = torch.eye(3, device=a.device, dtype=torch.float32)
-    k = torch.tensor([[0.0, -1.0, 1.0], [1.0, 0.0, -1.0], [-1.0, 1.0, 0.0]], device=a.device) / math.sqrt(3.0)
+    # the cross-product matrix of the unit grey axis: [[0, -1, 1], [1, 0, -1], [-1, 1, 0]] / sqrt(3)
+    k = (torch.roll(eye, 1, dims=0) - torch.roll(eye, -1, dims=0)) / math.sqrt(3.0)
     return eye + s * k + (1 - c) * (k @ k)
 
 
