@@ -9,7 +9,8 @@ from contextlib import contextmanager
 
 import torch
 
-from sc3d_train.settings.config import LossWeights
+from sc3d_train.data.augment import augment_generator, augment_images, key_foreground
+from sc3d_train.settings.config import LossWeights, RunConfig
 from sc3d_train.data.batch_format import expand_batch
 from sc3d_train.paper.losses import supervised_loss, true_pose_mask_loss, unsupervised_loss
 
@@ -34,6 +35,24 @@ def training_batch(batch: dict, phase: str, device: torch.device, channels_last:
         out["pose_target"] = pose_targets[out["index"].to(pose_targets.device)]
     if channels_last:
         out["images"] = out["images"].contiguous(memory_format=torch.channels_last)
+    return out
+
+
+def augment_step(batches: dict, cfg: RunConfig, step: int, rank: int = 0) -> dict:
+    """The device batches of optimiser step ``step`` (``{"supervised": ..., "unsupervised": ...}``,
+    one or both) with their ``images`` augmented (``sc3d_train.data.augment``) when ``cfg.augment``;
+    nothing else of a batch changes. The object's pixels are the stored ``masks`` where the batch
+    holds them (labelled images) and, in an unlabelled batch (its masks are labels it may not
+    read), the pixels whose colour differs from the shards' background ``cfg.background``. The
+    draws depend on (seed, step, rank, phase) only. Without ``cfg.augment``: ``batches``."""
+    if not cfg.augment:
+        return batches
+    out = {}
+    for slot, (phase, batch) in enumerate(sorted(batches.items())):
+        images = batch["images"]
+        fg = batch["masks"] if "masks" in batch else key_foreground(images, cfg.background)
+        g = augment_generator(cfg.seed, step, rank, slot, images.device)
+        out[phase] = {**batch, "images": augment_images(images, fg, g)}
     return out
 
 

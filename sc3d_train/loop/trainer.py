@@ -54,7 +54,7 @@ from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.data.device_prefetch import DevicePrefetcher
 from sc3d_train.loop.loss_window import LossWindow
 from sc3d_train.loop.metrics_log import DataWaitClock, MetricsLog, gpu_utilisation, plot_curves
-from sc3d_train.loop.phase_step import training_batch
+from sc3d_train.loop.phase_step import augment_step, training_batch
 from sc3d_train.loop.runtime import (DistInfo, all_gather, all_mean, all_min, channels_last_on, resolve_amp,
                                      check_same_weights, resolve_device, seed_everything, setup_distributed)
 from sc3d_train.loop.schedule import batch_split, data_position, lr_at, phase_at
@@ -192,11 +192,11 @@ def device_batches(t: Training, loaders: dict, wait: DataWaitClock) -> dict:
 
 def train_step(t: Training, step_fn: TrainStep, batches: dict, step: int, window: LossWindow) -> dict:
     """One optimiser step at ``step``'s learning rate on the next batch of each of ``batches``
-    (:func:`device_batches`); its total loss goes to ``window`` (no host sync). Returns the
-    losses (tensors on the device)."""
+    (:func:`device_batches`; images augmented with ``--augment``); its total loss goes to ``window``
+    (no host sync). Returns the losses (tensors on the device)."""
     for group in t.optimizer.param_groups:
         group["lr"] = lr_at(t.cfg, step)
-    losses = step_fn({p: next(it) for p, it in batches.items()})
+    losses = step_fn(augment_step({p: next(it) for p, it in batches.items()}, t.cfg, step, t.dist.rank))
     window.record(step, losses["total"])
     return losses
 

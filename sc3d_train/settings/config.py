@@ -167,6 +167,9 @@ class RunConfig(_Plain):
                                "constant: the paper's.", choices=("cosine", "constant"))
     lr_min_ratio: float = setting(0.1, "End of the cosine schedule, as a share of the phase's lr.")
     seed: int = setting(0, "Seed of the weights, the labelled subset and the data order.")
+    augment: bool = setting(False, "Augment the training images (labelled and unlabelled), never the labels: "
+                            "colour jitter and shading of the object, a random background "
+                            "(sc3d_train.data.augment; seeded by seed and step).")
     # modes and the semi-supervised phases
     mode: str = setting("supervised", "supervised, semi (--semi), labeled-only (--labeled-only) "
                        "or true-pose-masks (the claims ablation).", cli=False, choices=MODES)
