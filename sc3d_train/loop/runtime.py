@@ -142,11 +142,11 @@ def check_same_weights(model: torch.nn.Module, info: DistInfo, step: int) -> Non
     names = [n for n, _ in model.named_parameters()]
     stats = torch.stack([torch.stack([p.detach().double().sum(), p.detach().double().square().sum()])
                          for p in model.parameters()]).cpu()
-    gathered = all_gather(stats, info)
-    ranks = [r for r, g in enumerate(gathered) if not torch.allclose(g, gathered[0], rtol=1e-10, atol=1e-12)]
+    gathered = torch.stack(all_gather(stats, info))  # [ranks, tensors, 2]
+    differs = ~torch.isclose(gathered, gathered[0], rtol=1e-10, atol=1e-12).all(-1)  # [ranks, tensors]
+    ranks = differs.any(1).nonzero().flatten().tolist()
     if ranks:
-        bad = [n for i, n in enumerate(names)
-               if any(not torch.allclose(gathered[r][i], gathered[0][i], rtol=1e-10, atol=1e-12) for r in ranks)]
+        bad = [names[i] for i in differs.any(0).nonzero().flatten().tolist()]
         raise RanksDiverged(f"after step {step} rank(s) {ranks} hold weights that differ from rank 0's in "
                             f"{len(bad)} of {len(names)} parameter tensors (first: {bad[0]}): a gradient "
                             f"was not averaged across ranks")

@@ -152,7 +152,6 @@ def import_r2n2(config: ImportConfig, progress: Callable[[int], None] | None = N
 
 def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
     import os
-    import time
 
     from sc3d_data.pipeline.executors.executor import start_executor
     from sc3d_data.pipeline.jobs.shard_output import NewShards, ShardIndex
