@@ -24,7 +24,8 @@ difference exceeds two standard deviations of the difference of the means
 (:func:`~sc3d_train.evaluation.claims_report.check_claims`).
 
 Outputs: ``OUT/claims.md`` (IoU@0.4 per category and mean, in the paper's layout; pose errors per
-category; the two ablations), ``OUT/claims.json`` (every number) and ``OUT/claims.png``.
+category; the two ablations; two reference rows that read no image:
+:mod:`~sc3d_train.evaluation.shape_baselines`), ``OUT/claims.json`` (every number) and ``OUT/claims.png``.
 """
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 from sc3d_train.evaluation.claims_report import RUNS, aggregate, write_report
+from sc3d_train.evaluation.shape_baselines import shape_baselines
 from sc3d_train.settings.command_config import ClaimsConfig
 from sc3d_train.settings.config import ModelConfig, RunConfig
 from sc3d_train.settings.config_io import defaults_of
@@ -149,6 +151,7 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path,
             if seconds is not None:
                 timings[f"{name}/seed-{seed}"] = seconds
     results = {name: aggregate(by_seed) for name, by_seed in per_seed.items()}
+    results.update(shape_baselines(train_shards, eval_shards, eval_split))  # reference rows: read no image
     report = write_report(results, out, preset=asdict(p), seeds=seed_values, pick=pick, eval_split=eval_split,
                           train_shards=str(train_shards), eval_shards=str(eval_shards), timings=timings)
     echo(f"wrote {out / 'claims.md'}, {out / 'claims.json'}, {out / 'claims.png'}")

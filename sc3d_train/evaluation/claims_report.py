@@ -11,6 +11,10 @@ from pathlib import Path
 import numpy as np
 
 RUNS = ("sup-3tube", "sup-1tube", "labeled-only", "semi", "ray", "ray-proj")
+#: reference rows that read no image (:mod:`sc3d_train.evaluation.shape_baselines`): no seeds, no pose
+REFERENCES = ("mean-shape", "nearest-shape")
+#: rows without a pose estimate
+NO_POSE = ("ray", "ray-proj", *REFERENCES)
 
 
 def _stats(values: list) -> dict:
@@ -70,7 +74,9 @@ def _row(res: dict, cats: list[str], key: str, fmt: str, scale: float = 1.0) -> 
 
 
 TITLES = {"sup-3tube": "Ours (Sup), 3 tubes", "sup-1tube": "Ours (Sup), 1 tube", "labeled-only": "labelled only",
-          "semi": "Ours (Semi)", "ray": "Ray (true pose)", "ray-proj": "Ray + Projection (true pose)"}
+          "semi": "Ours (Semi)", "ray": "Ray (true pose)", "ray-proj": "Ray + Projection (true pose)",
+          "mean-shape": "*reference:* category mean shape (no image)",
+          "nearest-shape": "*reference:* nearest training shape (oracle)"}
 
 
 def format_report(results: dict) -> str:
@@ -82,13 +88,18 @@ def format_report(results: dict) -> str:
     cats = _categories(results)
     names = [category_label(c).split(" (")[0] for c in cats]
     head = "| run | " + " | ".join(names) + " | Mean |\n|---|" + "---|" * (len(cats) + 1) + "\n"
-    seeds = sorted({len(r.get("seeds", [0])) for r in results.values()})
+    seeds = sorted({len(r["seeds"]) for r in results.values() if "seeds" in r})
     over = f" (mean ± standard deviation over {seeds[0]} seeds)" if seeds and seeds[-1] > 1 else ""
     out = [f"### Reconstruction: voxel IoU@0.4 (%) on held-out objects{over}\n\n", head]
-    for name in RUNS:
+    for name in RUNS + REFERENCES:
         if name in results:
             out.append(f"| {TITLES[name]} | " + " | ".join(_row(results[name], cats, "voxel_iou_0.4", "{:.1f}", 100))
                        + " |\n")
+    if any(name in results for name in REFERENCES):
+        out.append("\nReference rows read no image: the training objects' occupancy frequency per category "
+                   "(thresholded at 0.4), and for each held-out object the training object of its category "
+                   "closest to its ground truth (a bound for any method that retrieves a training shape; it "
+                   "reads the answer). A model near the first row has learnt its categories' average shape.\n")
     out.append("\n### Pose (no pose labels in training): median rotation error (deg) / share within 30 deg"
                f"{over}\n\n")
     out.append(head)
@@ -158,7 +169,7 @@ def plot_report(results: dict, path: Path) -> None:
             vals = [np.nan if v is None else v for v in vals]
             std = res.get("std", {})
             err = [std.get("per_category", {}).get(c, {}).get(key) for c in cats] + [std.get("mean", {}).get(key)]
-            if key.startswith("pose") and name in ("ray", "ray-proj"):
+            if key.startswith("pose") and name in NO_POSE:
                 continue
             ax.bar(x + k * width, vals, width, label=name, yerr=[0 if e is None else e for e in err], capsize=2)
     for ax, title in zip(axes, ("voxel IoU@0.4 (held-out objects)", "share of views with rotation error <= 30 deg")):
