@@ -15,7 +15,8 @@ from sc3d_train.settings.command_config import ClaimsConfig
 @click.option("--eval-shards", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Shards to evaluate on (objects never trained on; may be the same folder).")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
-              help="Study folder: runs/NAME/seed-S (each run and its eval), claims.md, claims.json, claims.png.")
+              help="Study folder: runs/NAME/seed-S (each run; its evaluation in eval/, with --pick last "
+              "eval-last/), claims.md, claims.json, claims.png (--pick last: claims-last.*).")
 @click.option("--runs", default=None, help="Comma-separated subset of: sup-3tube, sup-1tube, "
               "labeled-only, semi, ray, ray-proj [all].")
 @config_options(ClaimsConfig)

@@ -47,6 +47,14 @@ def test_claims_trains_every_run_and_writes_the_tables(sample_shards, tmp_path):
     again = []
     run_all(sample_shards, sample_shards, out, preset, eval_split="test", device="cpu", echo=again.append)
     assert sum("done before" in line for line in again) == len(RUNS)
+    # --pick last on the same study: last.pt is evaluated (into eval-last/), not best.pt's figures
+    # read back, and reported beside the best pick's claims.md
+    before = report
+    run_all(sample_shards, sample_shards, out, preset, eval_split="test", device="cpu", runs=["semi"],
+            pick="last", echo=again.append)
+    last = json.loads((out / "runs" / "semi" / "seed-0" / "eval-last" / "metrics.json").read_text())
+    assert last["checkpoint"].endswith("last.pt")
+    assert (out / "claims-last.md").is_file() and (out / "claims.md").read_text() == before
 
 
 def test_claims_cli_refuses_unknown_runs(sample_shards, tmp_path):

@@ -100,8 +100,21 @@ def seed_list(preset: ClaimsPreset, seeds: int) -> list[int]:
 
 
 def run_folder(out: Path, name: str, seed: int) -> Path:
-    """``OUT/runs/NAME/seed-S``: the ``fit`` run of ``name`` with ``seed`` (its eval in ``eval/``)."""
+    """``OUT/runs/NAME/seed-S``: the ``fit`` run of ``name`` with ``seed`` (its evaluation in
+    :func:`eval_folder`)."""
     return Path(out) / "runs" / name / f"seed-{seed}"
+
+
+def eval_folder(run_dir: Path, pick: str) -> Path:
+    """Where the evaluation of ``run_dir``'s ``pick`` checkpoint goes: ``eval/`` for ``best`` (the
+    default), ``eval-last/`` for ``last``, so that a study read back with the other pick evaluates
+    that checkpoint instead of reusing the first pick's figures."""
+    return Path(run_dir) / ("eval" if pick == "best" else f"eval-{pick}")
+
+
+def report_stem(pick: str) -> str:
+    """``claims`` (``claims.md``, ``.json``, ``.png``) for ``best``; ``claims-last`` for ``last``."""
+    return "claims" if pick == "best" else f"claims-{pick}"
 
 
 def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path, eval_shards: Path, out: Path,
@@ -114,7 +127,7 @@ def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path
     from sc3d_train.loop.trainer import fit
 
     run_dir = run_folder(out, name, seed)
-    metrics_file = run_dir / "eval" / "metrics.json"
+    metrics_file = eval_folder(run_dir, pick) / "metrics.json"
     if metrics_file.is_file():
         echo(f"{name} seed {seed}: done before, reading {metrics_file}")
         return json.loads(metrics_file.read_text()), None
@@ -124,7 +137,7 @@ def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path
         run_config(name, p, train_shards, run_dir, device, workers, seed)
     echo(f"{name} seed {seed}: {cfg.mode}, {cfg.steps} steps of {cfg.batch_size}" + (" (resuming)" if resume else ""))
     fit(cfg, resume=resume)
-    res = evaluate(run_checkpoint(run_dir, pick), eval_shards, eval_split, run_dir / "eval", device)
+    res = evaluate(run_checkpoint(run_dir, pick), eval_shards, eval_split, eval_folder(run_dir, pick), device)
     seconds = time.perf_counter() - t0
     echo(f"    {name} seed {seed} (step {res['step']}): mean IoU@0.4 {res['mean']['voxel_iou_0.4']:.3f}, median "
          f"rotation error {res['mean']['pose_rotation_median']:.1f} deg ({seconds / 60:.1f} min)")
@@ -152,8 +165,9 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path,
                 timings[f"{name}/seed-{seed}"] = seconds
     results = {name: aggregate(by_seed) for name, by_seed in per_seed.items()}
     results.update(shape_baselines(train_shards, eval_shards, eval_split))  # reference rows: read no image
-    report = write_report(results, out, preset=asdict(p), seeds=seed_values, pick=pick, eval_split=eval_split,
+    stem = report_stem(pick)
+    report = write_report(results, out, stem, preset=asdict(p), seeds=seed_values, pick=pick, eval_split=eval_split,
                           train_shards=str(train_shards), eval_shards=str(eval_shards), timings=timings)
-    echo(f"wrote {out / 'claims.md'}, {out / 'claims.json'}, {out / 'claims.png'}")
+    echo(f"wrote {out / (stem + '.md')}, {out / (stem + '.json')}, {out / (stem + '.png')}")
     echo(report)
     return results

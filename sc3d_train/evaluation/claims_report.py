@@ -183,14 +183,14 @@ def plot_report(results: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def write_report(results: dict, out: Path, **meta) -> str:
-    """``claims.md`` (:func:`format_report`), ``claims.json`` (``meta``; per run the means, ``std``,
-    ``seeds`` and ``per_seed`` blocks; ``claims``: :func:`check_claims`) and ``claims.png``."""
+def write_report(results: dict, out: Path, stem: str = "claims", **meta) -> str:
+    """``STEM.md`` (:func:`format_report`), ``STEM.json`` (``meta``; per run the means, ``std``,
+    ``seeds`` and ``per_seed`` blocks; ``claims``: :func:`check_claims`) and ``STEM.png``."""
     text = format_report(results)
-    (Path(out) / "claims.md").write_text(text)
+    (Path(out) / f"{stem}.md").write_text(text)
     keys = ("per_category", "mean", "overall", "std", "seeds", "per_seed")
     slim = {k: {key: v[key] for key in keys if key in v} for k, v in results.items()}
-    (Path(out) / "claims.json").write_text(json.dumps({"meta": meta, "results": slim, "claims": check_claims(results)},
-                                                      indent=1, default=str))
-    plot_report(results, Path(out) / "claims.png")
+    (Path(out) / f"{stem}.json").write_text(json.dumps({"meta": meta, "results": slim, "claims": check_claims(results)},
+                                                       indent=1, default=str))
+    plot_report(results, Path(out) / f"{stem}.png")
     return text
