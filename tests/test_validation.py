@@ -97,3 +97,20 @@ def test_validation_refuses_the_training_and_test_splits(sample_shards, tmp_path
         r = run_cli(main, ["fit", "--shards", sample_shards, "--out", tmp_path / split, "--steps", 1, *TINY,
                            "--val-split", split], expect_exit=1)
         assert "never trained on" in r.output and "--val-every 0" in r.output
+
+
+def test_semi_keeps_best_from_its_mixed_phase_only(sample_shards, tmp_path):
+    """A semi run validates during pretraining (rows logged) but best.pt comes from the mixed
+    phase: with 4 pretraining steps of 6, validated every step, rows 1-4 are never best (the
+    first row would be best under any rule that looks at scores alone) and best.pt's step is 5 or 6."""
+    from sc3d_train.loop.checkpoint import load_checkpoint
+
+    run = tmp_path / "semi"
+    run_cli(main, ["fit", "--shards", sample_shards, "--out", run, "--steps", 6, *TINY, "--semi", "--pretrain-steps", 4,
+                   "--labeled-fraction", 0.5, "--val-every", 1, "--val-min-objects", 1, "--checkpoint-every", 6])
+    rows = read_csv(run / "validation.csv")
+    assert [int(r["step"]) for r in rows] == list(range(1, 7))
+    assert [r["best"] for r in rows[:4]] == ["0"] * 4 and rows[4]["best"] == "1"
+    scores = [float(r["val_score"]) for r in rows[4:]]
+    best = load_checkpoint(run / "checkpoints" / "best.pt")
+    assert best["step"] == 5 + scores.index(max(scores))

@@ -31,6 +31,13 @@ and ``checkpoints/best.pt`` (model, config, step and the validation record: what
 ``best.pt``'s record is the best to beat (exact resume retraces the same weights). The torch RNG
 state is restored after each validation, so the trajectory does not depend on ``val_every``.
 
+**Only the last phase's weights.** A ``semi`` run validates during its labelled pretraining too
+(the curves show it), but ``best.pt`` is chosen among the checkpoints of its mixed phase
+(:func:`in_last_phase`): a pretraining checkpoint has seen no unlabelled image, and keeping one
+would report a labelled-only network under the semi run's name. This happened: in the 3-seed
+claims study (docs/training.md) one semi seed's ``best.pt`` was step 100 of 350 pretraining steps,
+its airplane median rotation error 60 degrees against 15 at its last step.
+
 **Too few validation objects.** With fewer than ``val_min_objects`` (5) objects in the split the
 figures are still computed and logged (``best`` stays 0), but no ``best.pt`` is kept: ``eval`` and
 ``claims`` then read ``last.pt``. Why: a score on a handful of objects follows noise, not the
@@ -47,6 +54,7 @@ import numpy as np
 import torch
 
 from sc3d_train.loop.checkpoint import best_path, load_checkpoint, save_best
+from sc3d_train.loop.schedule import phase_at
 from sc3d_train.settings.command_config import DEFAULT_POSE_SOURCE
 from sc3d_train.settings.config import RunConfig
 from sc3d_train.data.dataset import DataError, ShardDataset
@@ -61,6 +69,12 @@ def view_indices(num_objects: int, num_views: int, views: int) -> list[int]:
     ``[0, 6, 12, 18, 24, 30, 36, 42]``."""
     chosen = sorted({int(k * num_views // views) for k in range(min(views, num_views))})
     return [o * num_views + v for o in range(num_objects) for v in chosen]
+
+
+def in_last_phase(cfg: RunConfig, done: int) -> bool:
+    """Whether the weights after ``done`` steps come from the run's last phase (module doc):
+    always for one-phase runs; for ``semi``, once a mixed step has been taken."""
+    return phase_at(cfg, done - 1) == phase_at(cfg, cfg.steps - 1)
 
 
 def score(figures: dict, select_by: str) -> float:
@@ -149,8 +163,8 @@ class Validator:
         figures = {"val_iou": mean["voxel_iou_0.4"], "val_rot_median": mean["pose_rotation_median"],
                    "val_rot_acc30": mean["pose_rotation_acc30"]}
         figures["val_score"] = score(figures, self.cfg.select_by)
-        better = self.selects and (self.best is None or figures["val_score"] > self.best["val_score"]
-                                   or not np.isfinite(self.best["val_score"]))
+        better = self.selects and in_last_phase(self.cfg, done) and (
+            self.best is None or figures["val_score"] > self.best["val_score"] or not np.isfinite(self.best["val_score"]))
         if better:
             self.best = {"step": done, "select_by": self.cfg.select_by, "split": self.cfg.val_split,
                          "images": len(rows), **figures}
