@@ -11,7 +11,7 @@ from sc3d_cli.train import main
 from tests.conftest import run_cli
 
 
-def test_claims_trains_every_run_and_writes_the_tables(sample_shards, tmp_path):
+def test_claims_trains_every_run_and_writes_the_tables(sample_shards, tmp_path, monkeypatch):
     from sc3d_train.evaluation.claims import RUNS, ClaimsPreset, run_all
     from sc3d_train.evaluation.claims_report import REFERENCES
 
@@ -55,6 +55,19 @@ def test_claims_trains_every_run_and_writes_the_tables(sample_shards, tmp_path):
     last = json.loads((out / "runs" / "semi" / "seed-0" / "eval-last" / "metrics.json").read_text())
     assert last["checkpoint"].endswith("last.pt")
     assert (out / "claims-last.md").is_file() and (out / "claims.md").read_text() == before
+    # reference rows that cannot be made (fault injected: e.g. eval categories with no training
+    # objects) cost the report nothing but those rows, and say why
+    import sc3d_train.evaluation.claims as claims_module
+    from sc3d_train.data.dataset import DataError
+
+    def fail(*args, **kwargs):
+        raise DataError("E: no held-out category has training objects")
+
+    monkeypatch.setattr(claims_module, "shape_baselines", fail)
+    said = []
+    results = run_all(sample_shards, sample_shards, out, preset, eval_split="test", device="cpu", echo=said.append)
+    assert set(results) == set(RUNS) and "no reference rows: E: no held-out category" in "\n".join(said)
+    assert "nearest training shape" not in (out / "claims.md").read_text()
 
 
 def test_claims_cli_refuses_unknown_runs(sample_shards, tmp_path):
