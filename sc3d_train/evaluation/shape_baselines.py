@@ -25,7 +25,7 @@ import numpy as np
 from sc3d_data.io.shard_reader import ShardReader
 from sc3d_train.data.dataset import DataError, scan_objects
 
-#: held-out objects x training objects compared at once by the oracle (bounds its memory)
+#: rows of ``a`` per matrix product in :func:`iou_matrix` (bounds its float32 copies' memory)
 _CHUNK = 256
 
 
@@ -84,9 +84,10 @@ def baselines_of(train: dict[str, np.ndarray], held_out: dict[str, np.ndarray],
 def shape_baselines(train_shards: Path, eval_shards: Path, eval_split: str = "test",
                     train_split: str = "train", threshold: float = 0.4) -> dict[str, dict]:
     """:func:`baselines_of` the ``train_split`` objects of ``train_shards`` and the
-    ``eval_split`` objects of ``eval_shards``."""
+    ``eval_split`` objects of ``eval_shards`` (a ``DataError`` names the folder and split)."""
+    train = read_voxels(Path(train_shards), train_split)  # its errors name the folder already
+    held_out = read_voxels(Path(eval_shards), eval_split)
     try:
-        return baselines_of(read_voxels(Path(train_shards), train_split),
-                            read_voxels(Path(eval_shards), eval_split), threshold)
+        return baselines_of(train, held_out, threshold)
     except DataError as e:
         raise DataError(f"{eval_shards} ({eval_split}) against {train_shards} ({train_split}): {e}") from e
