@@ -103,7 +103,7 @@ def format_report(results: dict) -> str:
     out.append("\n### Pose (no pose labels in training): median rotation error (deg) / share within 30 deg"
                f"{over}\n\n")
     out.append(head)
-    for name in ("sup-3tube", "sup-1tube", "labeled-only", "semi"):
+    for name in (n for n in RUNS if n not in NO_POSE):
         if name in results:
             med = _row(results[name], cats, "pose_rotation_median", "{:.1f}")
             acc = _row(results[name], cats, "pose_rotation_acc30", "{:.2f}")
