@@ -172,7 +172,8 @@ class NewShards:
     one line each; their chunks are done again) and, after :meth:`run`, the objects it wrote
     (``done``) and its ``new_failures``. ``attempts`` (plan position -> attempts so far; None:
     failures carry no count), ``old_settings`` and ``old_files`` (the resumed index's settings
-    and shard file names, intact or not) come from the resume."""
+    and shard file names, intact or not) and ``pos_of`` (each task's plan position by
+    ``(category, model_id)``) come from the resume."""
 
     index: ShardIndex
     tasks: list
@@ -184,6 +185,7 @@ class NewShards:
     attempts: dict | None = None
     old_settings: dict = field(default_factory=dict)
     old_files: set[str] = field(default_factory=set)
+    pos_of: dict = field(default_factory=dict)  # (category, model_id) -> plan position of tasks
     done: int = 0
     new_failures: list[dict] = field(default_factory=list)
 
@@ -210,7 +212,7 @@ class NewShards:
         todo, resumed = remaining(tasks, state, K)
         run = cls(index, tasks, K, todo, resumed, state["retry"], state["broken"],
                   state["attempts"] if count_attempts else None, (old or {}).get("settings", {}),
-                  {s["file"] for s in (old or {}).get("shards", [])})
+                  {s["file"] for s in (old or {}).get("shards", [])}, pos_of)
         run.check_unlisted()
         return run
 
@@ -279,8 +281,7 @@ class NewShards:
         if kept and not records:
             return
         if kept:  # a re-tried chunk: its shard's objects plus the new ones, in plan order
-            pos_of = {(t.category, t.model_id): t.pos for t in self.tasks}
-            records += [(pos_of[(r.category, r.model_id)], r)
+            records += [(self.pos_of[(r.category, r.model_id)], r)
                         for r in read_records(shard_path(index.out, kept[0]["file"]))]
             index.shards.remove(kept[0])
             index.objects[:] = [o for o in index.objects if o.get("chunk") != c]
