@@ -1,0 +1,43 @@
+"""Hostile inputs, round three: one test per defect found by the third attack on ``sc3d-data``
+(F1: a 16-bit grey texture). Real renderer, HDF5 and worker processes; every fixture is built
+here. Expected values come from the fixtures (an 8-bit twin of a texture), never from the code
+under test."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+from PIL import Image
+
+from sc3d_cli.data import main as data_main
+from conftest import run_cli
+from test_faults import CUBE_F, CUBE_V, FAST
+
+
+def _textured_cube(folder: Path, name: str, texture: Image.Image) -> None:
+    """``folder/name.obj`` (+ ``.mtl``, ``.png``): the unit cube, white material, ``texture``."""
+    texture.save(folder / f"{name}.png")
+    lines = [f"mtllib {name}.mtl", "usemtl m"] + [f"v {x} {y} {z}" for x, y, z in CUBE_V]
+    lines += [f"vt {x} {y}" for x, y, _ in CUBE_V] + ["f " + " ".join(f"{i + 1}/{i + 1}" for i in f) for f in CUBE_F]
+    (folder / f"{name}.obj").write_text("\n".join(lines) + "\n")
+    (folder / f"{name}.mtl").write_text(f"newmtl m\nKd 1 1 1\nmap_Kd {name}.png\n")
+
+
+# ----------------------------------------------------------------------------- F1
+def test_f1_a_16_bit_grey_texture_renders_as_its_8_bit_twin(tmp_path):
+    """A 16-bit grey PNG (PIL mode I;16, values 0-65535) was clipped to 255 by PIL's convert:
+    a dark texture rendered white with exit 0. Its 8-bit twin (value / 257) is the reference."""
+    folder = tmp_path / "m" / "chair"
+    folder.mkdir(parents=True)
+    wide = Image.fromarray(np.full((16, 16), 20000, np.uint16))
+    assert wide.mode == "I;16"
+    _textured_cube(folder, "grey16", wide)
+    _textured_cube(folder, "grey8", Image.new("L", (16, 16), round(20000 / 257)))   # 78
+    _textured_cube(folder, "white", Image.new("L", (16, 16), 255))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    with h5py.File(out / "shard-00000.h5") as f:
+        images = dict(zip([m.decode() for m in f["model_id"][()]], f["images"][()]))
+    assert not np.array_equal(images["grey8"], images["white"])     # the fixture can tell them apart
+    np.testing.assert_array_equal(images["grey16"], images["grey8"])
