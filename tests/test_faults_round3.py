@@ -1,7 +1,7 @@
 """Hostile inputs, round three: one test per defect found by the third attack on ``sc3d-data``
-(F1: a 16-bit grey texture). Real renderer, HDF5 and worker processes; every fixture is built
-here. Expected values come from the fixtures (an 8-bit twin of a texture), never from the code
-under test."""
+(F1: a 16-bit grey texture; F2: camera and axis options). Real renderer, HDF5 and worker
+processes; every fixture is built here. Expected values come from the fixtures (an 8-bit twin
+of a texture, the option given), never from the code under test."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -12,7 +12,7 @@ from PIL import Image
 
 from sc3d_cli.data import main as data_main
 from conftest import run_cli
-from test_faults import CUBE_F, CUBE_V, FAST
+from test_faults import CUBE_F, CUBE_V, FAST, obj_text
 
 
 def _textured_cube(folder: Path, name: str, texture: Image.Image) -> None:
@@ -41,3 +41,32 @@ def test_f1_a_16_bit_grey_texture_renders_as_its_8_bit_twin(tmp_path):
         images = dict(zip([m.decode() for m in f["model_id"][()]], f["images"][()]))
     assert not np.array_equal(images["grey8"], images["white"])     # the fixture can tell them apart
     np.testing.assert_array_equal(images["grey16"], images["grey8"])
+
+
+# ----------------------------------------------------------------------------- F2
+def test_f2_camera_and_axis_options_that_cannot_work_are_refused_once_naming_the_option(tmp_path):
+    """``--fov 0``, ``--distance -2``, ``--up +Y --front +Y``... were accepted and every mesh then
+    failed, blamed on itself ("silhouette is empty ... outlier vertex"); ``--distance 0`` rendered
+    from inside the object with exit 0. Now one line naming the option, before any work."""
+    meshes = tmp_path / "m" / "chair"
+    meshes.mkdir(parents=True)
+    (meshes / "cube.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    cases = {("--fov", "0"): "--fov 0.0: must be between 0 and 180", ("--fov", "180"): "--fov 180.0: must be between",
+             ("--fov", "nan"): "--fov nan: must be", ("--distance", "0"): "--distance 0.0: must be a positive",
+             ("--distance", "-2"): "--distance -2.0: must be", ("--elevations", "30,nan"): "--elevations 30.0,nan: must be",
+             ("--up", "Q"): "--up Q: axis must be one of", ("--front", "+Y"): "--up +Y and --front +Y must be perpendicular",
+             ("--up", "+Z"): "--up +Z with --front auto: auto takes +Z as the front"}
+    for (option, value), message in cases.items():
+        out = tmp_path / f"out{option}{value}"
+        res = run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST, option, value],
+                      expect_exit=1)
+        lines = res.output.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(f"Error: {message}"), res.output
+        assert not (out / "index.json").exists()                    # refused before any mesh was tried
+    vox = tmp_path / "vox"
+    res = run_cli(data_main, ["voxelize", "--meshes", tmp_path / "m", "--out", vox, "--no-progress", "--up", "+X",
+                              "--front", "-X"], expect_exit=1)
+    assert "--up +X and --front -X must be perpendicular axes" in res.output
+    assert not (vox / "failures.json").exists()
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", tmp_path / "zup", *FAST, "--up", "+Z",
+                        "--front", "-Y"])                              # a Z-up export with its front given

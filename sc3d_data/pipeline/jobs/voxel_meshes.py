@@ -101,6 +101,9 @@ def voxelize_meshes(config: VoxelMeshesConfig) -> VoxelizeSummary:
     from sc3d_data.pipeline.run.partition import part_of
     from sc3d_data.formats.discover import discover_meshes
 
+    from sc3d_data.geometry.normalize import check_axes
+
+    check_axes(config.up, config.front)
     t0 = time.monotonic()
     out, part = Path(config.out), config.part
     entries, problems = discover_meshes(Path(config.meshes))
