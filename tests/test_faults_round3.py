@@ -1,9 +1,11 @@
 """Hostile inputs, round three: one test per defect found by the third attack on ``sc3d-data``
-(F1: a 16-bit grey texture; F2: camera and axis options). Real renderer, HDF5 and worker
-processes; every fixture is built here. Expected values come from the fixtures (an 8-bit twin
-of a texture, the option given), never from the code under test."""
+(F1: a 16-bit grey texture; F2: camera and axis options; F3: ``voxelize --meshes`` when nothing
+was voxelized). Real renderer, HDF5 and worker processes; every fixture is built here. Expected
+values come from the fixtures (an 8-bit twin of a texture, the option given), never from the
+code under test."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import h5py
@@ -70,3 +72,30 @@ def test_f2_camera_and_axis_options_that_cannot_work_are_refused_once_naming_the
     assert not (vox / "failures.json").exists()
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", tmp_path / "zup", *FAST, "--up", "+Z",
                         "--front", "-Y"])                              # a Z-up export with its front given
+
+
+# ----------------------------------------------------------------------------- F3
+def test_f3_voxelize_meshes_fails_when_nothing_was_voxelized_and_counts_every_failure(tmp_path):
+    """``voxelize --meshes`` on an empty folder, or on one whose every mesh failed, said "wrote 0
+    .binvox files ... 0 failed" or "1 failed" with exit 0 (a script went on with no voxels), and
+    its count left out what discovery found wrong (a ShapeNet model folder without its mesh),
+    which ``failures.json`` lists and ``render`` counts."""
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    res = run_cli(data_main, ["voxelize", "--meshes", empty, "--out", tmp_path / "v0", "--no-progress"], expect_exit=1)
+    assert res.output.strip() == f"Error: --meshes {empty}: no mesh files found (looked for .obj, .glb, .gltf, .ply, .off, .stl)"
+
+    meshes = tmp_path / "m"
+    (meshes / "chair").mkdir(parents=True)
+    (meshes / "chair" / "garbage.obj").write_text("not a mesh\n")
+    (meshes / "02691156" / "model_without_mesh").mkdir(parents=True)
+    vox = tmp_path / "v1"
+    res = run_cli(data_main, ["voxelize", "--meshes", meshes, "--out", vox, "--no-progress"], expect_exit=1)
+    assert "wrote 0 .binvox files" in res.output and "2 failed" in res.output
+    assert res.output.strip().splitlines()[-1] == f"Error: no .binvox was written: all 2 failed (reasons in {vox}/failures.json)"
+    assert len(json.loads((vox / "failures.json").read_text())) == 2
+
+    (meshes / "chair" / "cube.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    res = run_cli(data_main, ["voxelize", "--meshes", meshes, "--out", vox, "--no-progress"])
+    assert "wrote 1 .binvox files" in res.output and "2 failed" in res.output
+    assert (vox / "chair" / "cube.binvox").is_file()
