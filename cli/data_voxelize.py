@@ -53,6 +53,9 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
             s = voxelize_shards(shards, resolution, workers or os.cpu_count() or 1, overwrite, progress)
             click.echo(f"voxelized {s.objects} objects in {s.shards_done} shards ({s.shards_skipped} shards "
                        f"already done), {s.failed} failed, {s.seconds:.1f} s")
+            if s.failed and s.failed == s.objects:
+                raise click.ClickException(f"no object was voxelized: all {s.failed} failed (their grids are empty; "
+                                           f"reasons: `sc3d-data info {shards}`)")
         else:
             config = VoxelMeshesConfig(meshes=meshes, out=out, resolution=resolution, normalize=normalize, up=up,
                                        front=front, workers=workers, overwrite=overwrite, progress=progress,

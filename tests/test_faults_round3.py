@@ -1,8 +1,8 @@
-"""Hostile inputs, round three: one test per defect found by the third attack on ``sc3d-data``
-(F1: a 16-bit grey texture; F2: camera and axis options; F3: ``voxelize --meshes`` when nothing
-was voxelized). Real renderer, HDF5 and worker processes; every fixture is built here. Expected
-values come from the fixtures (an 8-bit twin of a texture, the option given), never from the
-code under test."""
+"""Hostile inputs, round three: one test per defect found by the third attack on ``sc3d-data`` (F1:
+a 16-bit grey texture; F2: camera and axis options; F3: ``voxelize --meshes`` when nothing was
+voxelized; F4: ``voxelize SHARDS`` without the meshes). Real renderer, HDF5 and worker processes;
+every fixture is built here. Expected values come from the fixtures (an 8-bit twin of a texture,
+the option given), never from the code under test."""
 from __future__ import annotations
 
 import json
@@ -53,10 +53,14 @@ def test_f2_camera_and_axis_options_that_cannot_work_are_refused_once_naming_the
     meshes = tmp_path / "m" / "chair"
     meshes.mkdir(parents=True)
     (meshes / "cube.obj").write_text(obj_text(CUBE_V, CUBE_F))
-    cases = {("--fov", "0"): "--fov 0.0: must be between 0 and 180", ("--fov", "180"): "--fov 180.0: must be between",
-             ("--fov", "nan"): "--fov nan: must be", ("--distance", "0"): "--distance 0.0: must be a positive",
-             ("--distance", "-2"): "--distance -2.0: must be", ("--elevations", "30,nan"): "--elevations 30.0,nan: must be",
-             ("--up", "Q"): "--up Q: axis must be one of", ("--front", "+Y"): "--up +Y and --front +Y must be perpendicular",
+    cases = {("--fov", "0"): "--fov 0.0: must be between 0 and 180",
+             ("--fov", "180"): "--fov 180.0: must be between",
+             ("--fov", "nan"): "--fov nan: must be",
+             ("--distance", "0"): "--distance 0.0: must be a positive",
+             ("--distance", "-2"): "--distance -2.0: must be",
+             ("--elevations", "30,nan"): "--elevations 30.0,nan: must be",
+             ("--up", "Q"): "--up Q: axis must be one of",
+             ("--front", "+Y"): "--up +Y and --front +Y must be perpendicular",
              ("--up", "+Z"): "--up +Z with --front auto: auto takes +Z as the front"}
     for (option, value), message in cases.items():
         out = tmp_path / f"out{option}{value}"
@@ -99,3 +103,36 @@ def test_f3_voxelize_meshes_fails_when_nothing_was_voxelized_and_counts_every_fa
     res = run_cli(data_main, ["voxelize", "--meshes", meshes, "--out", vox, "--no-progress"])
     assert "wrote 1 .binvox files" in res.output and "2 failed" in res.output
     assert (vox / "chair" / "cube.binvox").is_file()
+
+
+# ----------------------------------------------------------------------------- F4
+def test_f4_voxelize_shards_without_their_meshes_changes_nothing_and_fails(tmp_path):
+    """Shards copied without their meshes (or meshes moved): ``voxelize OUT --resolution 16``
+    replaced every object's good grid by an empty one and exited 0 ("voxelized 2 objects ...,
+    2 failed"). Now it refuses in one line and the shards keep their bytes; when the meshes are
+    there but every one fails, the grids are empty as documented and the exit is 1."""
+    meshes = tmp_path / "m" / "chair"
+    meshes.mkdir(parents=True)
+    for name in ("a", "b"):
+        (meshes / f"{name}.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST, "--voxelize"])
+    shard = out / "shard-00000.h5"
+    before = shard.read_bytes()
+    with h5py.File(shard) as f:
+        assert f["voxels"].shape == (2, 32, 32, 32)
+        assert f["voxels"][()].any(axis=(1, 2, 3)).all()              # both cubes have solid grids
+
+    (tmp_path / "m").rename(tmp_path / "elsewhere")
+    res = run_cli(data_main, ["voxelize", out, "--resolution", "16", "--no-progress"], expect_exit=1)
+    assert res.output.strip().splitlines() == [
+        f"Error: {out}: none of the 2 source meshes its shards record exists (first: {meshes / 'a.obj'}, also looked "
+        f"for under {tmp_path / 'm'}); no shard was changed: voxelize where the meshes are"]
+    assert shard.read_bytes() == before
+
+    (tmp_path / "elsewhere").rename(tmp_path / "m")
+    for name in ("a", "b"):
+        (meshes / f"{name}.obj").write_text("not a mesh\n")
+    res = run_cli(data_main, ["voxelize", out, "--resolution", "16", "--no-progress"], expect_exit=1)
+    assert res.output.strip().splitlines()[-1] == (f"Error: no object was voxelized: all 2 failed (their grids are "
+                                                   f"empty; reasons: `sc3d-data info {out}`)")
