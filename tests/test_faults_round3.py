@@ -1,11 +1,13 @@
 """Hostile inputs, round three: one test per defect found by the third attack on ``sc3d-data`` (F1:
 a 16-bit grey texture; F2: camera and axis options; F3: ``voxelize --meshes`` when nothing was
-voxelized; F4: ``voxelize SHARDS`` without the meshes). Real renderer, HDF5 and worker processes;
-every fixture is built here. Expected values come from the fixtures (an 8-bit twin of a texture,
-the option given), never from the code under test."""
+voxelized; F4: ``voxelize SHARDS`` without the meshes; F5: a warning naming no file). Real
+renderer, HDF5 and worker processes; every fixture is built here. Expected values come from the
+fixtures (an 8-bit twin of a texture, the option given), never from the code under test."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import h5py
@@ -136,3 +138,25 @@ def test_f4_voxelize_shards_without_their_meshes_changes_nothing_and_fails(tmp_p
     res = run_cli(data_main, ["voxelize", out, "--resolution", "16", "--no-progress"], expect_exit=1)
     assert res.output.strip().splitlines()[-1] == (f"Error: no object was voxelized: all 2 failed (their grids are "
                                                    f"empty; reasons: `sc3d-data info {out}`)")
+
+
+# ----------------------------------------------------------------------------- F5
+def test_f5_an_inf_vertex_prints_no_stray_warning_only_the_failure_naming_the_file(tmp_path):
+    """A mesh with an infinite coordinate made every worker print numpy's two-line
+    ``RuntimeWarning: invalid value encountered in matmul`` (``meshes.py:78``, inf x 0), naming
+    no file, into the output of ``render`` and ``voxelize --meshes``. The failure (a used inf
+    vertex) is recorded naming the file, an unused one renders; nothing else is printed."""
+    chair = tmp_path / "m" / "chair"
+    chair.mkdir(parents=True)
+    (chair / "cube.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    (chair / "unused_inf.obj").write_text(obj_text(CUBE_V + [[float("inf")] * 3], CUBE_F))
+    (chair / "used_inf.obj").write_text(obj_text(CUBE_V + [[float("inf"), 0, 0]], CUBE_F + [[8, 0, 1]]))
+    cli = [sys.executable, "-c", "import sc3d_cli.data as d; d.main()"]
+    for args in (["render", "--meshes", tmp_path / "m", "--out", tmp_path / "out", *FAST],
+                 ["voxelize", "--meshes", tmp_path / "m", "--out", tmp_path / "vox", "--no-progress"]):
+        res = subprocess.run(cli + [str(a) for a in args], capture_output=True, text=True, timeout=300)
+        assert res.returncode == 0, res.stderr
+        assert res.stderr == "", res.stderr
+        assert "2 .binvox" in res.stdout or "done 2," in res.stdout
+    (failure,) = json.loads((tmp_path / "out" / "index.json").read_text())["failures"]
+    assert failure["reason"] == f"{chair / 'used_inf.obj'}: 1 vertices with NaN/inf coordinates"
