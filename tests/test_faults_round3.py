@@ -1,11 +1,13 @@
 """Hostile inputs, round three: one test per defect found by the third attack on ``sc3d-data`` (F1:
 a 16-bit grey texture; F2: camera and axis options; F3: ``voxelize --meshes`` when nothing was
-voxelized; F4: ``voxelize SHARDS`` without the meshes; F5: a warning naming no file). Real
-renderer, HDF5 and worker processes; every fixture is built here. Expected values come from the
-fixtures (an 8-bit twin of a texture, the option given), never from the code under test."""
+voxelized; F4: ``voxelize SHARDS`` without the meshes; F5: a warning naming no file; F6:
+``renderings.txt`` naming images outside the model). Real renderer, HDF5 and worker processes;
+every fixture is built here. Expected values come from the fixtures (an 8-bit twin of a texture,
+the option given, a red image), never from the code under test."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -160,3 +162,32 @@ def test_f5_an_inf_vertex_prints_no_stray_warning_only_the_failure_naming_the_fi
         assert "2 .binvox" in res.stdout or "done 2," in res.stdout
     (failure,) = json.loads((tmp_path / "out" / "index.json").read_text())["failures"]
     assert failure["reason"] == f"{chair / 'used_inf.obj'}: 1 vertices with NaN/inf coordinates"
+
+
+# ----------------------------------------------------------------------------- F6
+def test_f6_import_r2n2_refuses_a_renderings_list_naming_images_outside_the_model(tmp_path):
+    """``renderings.txt`` names the view PNGs; a line ``/elsewhere/secret.png`` or
+    ``../../../secret.png`` was joined to the model's folder as it stood, so the import read
+    any PNG on the machine into the shards, with exit 0. Now that model fails naming the file
+    and line, and the other models are imported."""
+    from test_import_r2n2 import synthesize
+
+    renderings, voxels, _ = synthesize(tmp_path / "r2n2", seed=3)
+    secret = tmp_path / "elsewhere" / "secret.png"
+    secret.parent.mkdir()
+    Image.new("RGBA", (137, 137), (255, 0, 0, 255)).save(secret)
+    models = sorted(p for p in renderings.glob("*/*") if p.is_dir())
+    lists = [m / "rendering" / "renderings.txt" for m in models[:2]]
+    for lst, bad in zip(lists, (str(secret), os.path.relpath(secret, lists[1].parent))):
+        lines = lst.read_text().splitlines()
+        lst.write_text("\n".join([lines[0], bad] + lines[2:]) + "\n")
+    out = tmp_path / "out"
+    res = run_cli(data_main, ["import-r2n2", "--renderings", renderings, "--voxels", voxels, "--out", out,
+                              "--no-progress"])
+    assert f"imported {len(models) - 2} of {len(models)} models" in res.output and "2 failed" in res.output
+    reasons = sorted(f["reason"] for f in json.loads((out / "index.json").read_text())["failures"])
+    assert [r.split(": line 2: ")[0] for r in reasons] == [str(lst) for lst in lists]
+    assert all("is a path, not a file name in" in r and r.endswith("; refused") for r in reasons)
+    with h5py.File(out / "shard-00000.h5") as f:
+        red = (f["images"][()] == [255, 0, 0]).all(-1).all((-1, -2))     # [N, V]: a view that is all red
+    assert not red.any()
