@@ -1,9 +1,9 @@
 """Hostile inputs, round three: one test per defect found by the third attack on ``sc3d-data`` (F1:
 a 16-bit grey texture; F2: camera and axis options; F3: ``voxelize --meshes`` when nothing was
 voxelized; F4: ``voxelize SHARDS`` without the meshes; F5: a warning naming no file; F6:
-``renderings.txt`` naming images outside the model). Real renderer, HDF5 and worker processes;
-every fixture is built here. Expected values come from the fixtures (an 8-bit twin of a texture,
-the option given, a red image), never from the code under test."""
+``renderings.txt`` naming images outside the model; F7: a binvox header scale). Real renderer,
+HDF5 and worker processes; every fixture is built here. Expected values come from the fixtures
+(an 8-bit twin of a texture, the option given, a red image), never from the code under test."""
 from __future__ import annotations
 
 import json
@@ -191,3 +191,29 @@ def test_f6_import_r2n2_refuses_a_renderings_list_naming_images_outside_the_mode
     with h5py.File(out / "shard-00000.h5") as f:
         red = (f["images"][()] == [255, 0, 0]).all(-1).all((-1, -2))     # [N, V]: a view that is all red
     assert not red.any()
+
+
+# ----------------------------------------------------------------------------- F7
+def test_f7_import_r2n2_refuses_a_binvox_header_with_a_scale_that_places_no_grid(tmp_path):
+    """A ``model.binvox`` whose header says ``scale -0.9`` (or nan, 0) was imported with exit 0:
+    the grid size became the divisor of ``to_canonical`` and of every camera distance, so the
+    object was mirrored and its cameras stood behind it (``check`` then failed with "part of
+    the voxel grid is behind the camera", naming no object). Now that model fails naming the
+    file and its header values; the others are imported."""
+    import re
+
+    from test_import_r2n2 import synthesize
+
+    renderings, voxels, _ = synthesize(tmp_path / "r2n2", seed=3)
+    files = sorted(voxels.glob("*/*/model.binvox"))[:2]
+    for path, bad in zip(files, ("-0.9", "nan")):
+        raw = path.read_bytes()
+        header, data = raw.split(b"\ndata\n", 1)
+        path.write_bytes(re.sub(rb"scale \S+", b"scale " + bad.encode(), header) + b"\ndata\n" + data)
+    out = tmp_path / "out"
+    res = run_cli(data_main, ["import-r2n2", "--renderings", renderings, "--voxels", voxels, "--out", out,
+                              "--no-progress"])
+    assert "imported 1 of 3 models" in res.output and "2 failed" in res.output
+    reasons = sorted(f["reason"] for f in json.loads((out / "index.json").read_text())["failures"])
+    assert [r.split(": header scale ")[0] for r in reasons] == [str(p) for p in files]
+    assert [r.split(": header scale ")[1].split(" ")[0] for r in reasons] == ["-0.9", "nan"]
