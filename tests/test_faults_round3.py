@@ -1,9 +1,10 @@
 """Hostile inputs, round three: one test per defect found by the third attack on ``sc3d-data`` (F1:
 a 16-bit grey texture; F2: camera and axis options; F3: ``voxelize --meshes`` when nothing was
 voxelized; F4: ``voxelize SHARDS`` without the meshes; F5: a warning naming no file; F6:
-``renderings.txt`` naming images outside the model; F7: a binvox header scale). Real renderer,
-HDF5 and worker processes; every fixture is built here. Expected values come from the fixtures
-(an 8-bit twin of a texture, the option given, a red image), never from the code under test."""
+``renderings.txt`` naming images outside the model; F7: a binvox header scale; F8:
+``import-r2n2`` when every model failed). Real renderer, HDF5 and worker processes; every
+fixture is built here. Expected values come from the fixtures (an 8-bit twin of a texture, the
+option given, a red image), never from the code under test."""
 from __future__ import annotations
 
 import json
@@ -217,3 +218,19 @@ def test_f7_import_r2n2_refuses_a_binvox_header_with_a_scale_that_places_no_grid
     reasons = sorted(f["reason"] for f in json.loads((out / "index.json").read_text())["failures"])
     assert [r.split(": header scale ")[0] for r in reasons] == [str(p) for p in files]
     assert [r.split(": header scale ")[1].split(" ")[0] for r in reasons] == ["-0.9", "nan"]
+
+
+# ----------------------------------------------------------------------------- F8
+def test_f8_import_r2n2_exits_1_when_every_model_failed(tmp_path):
+    """``import-r2n2`` whose every model failed (here: each ``rendering_metadata.txt`` emptied)
+    printed "imported 0 of 3 models ... 3 failed" and exited 0, where ``render`` exits 1 ("no
+    object was rendered: all N failed"); a script went on with an empty dataset."""
+    from test_import_r2n2 import synthesize
+
+    renderings, voxels, _ = synthesize(tmp_path / "r2n2", seed=3)
+    for meta in renderings.glob("*/*/rendering/rendering_metadata.txt"):
+        meta.write_text("")
+    res = run_cli(data_main, ["import-r2n2", "--renderings", renderings, "--voxels", voxels, "--out",
+                              tmp_path / "out", "--no-progress"], expect_exit=1)
+    assert "imported 0 of 3 models" in res.output
+    assert res.output.strip().splitlines()[-1] == "Error: no model was imported: all 3 failed"
