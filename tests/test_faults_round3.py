@@ -2,9 +2,10 @@
 a 16-bit grey texture; F2: camera and axis options; F3: ``voxelize --meshes`` when nothing was
 voxelized; F4: ``voxelize SHARDS`` without the meshes; F5: a warning naming no file; F6:
 ``renderings.txt`` naming images outside the model; F7: a binvox header scale; F8:
-``import-r2n2`` when every model failed). Real renderer, HDF5 and worker processes; every
-fixture is built here. Expected values come from the fixtures (an 8-bit twin of a texture, the
-option given, a red image), never from the code under test."""
+``import-r2n2`` when every model failed; F9: report files of ``check``/``preview`` over the
+dataset). Real renderer, HDF5 and worker processes; every fixture is built here. Expected values
+come from the fixtures (an 8-bit twin of a texture, the option given, a red image), never from
+the code under test."""
 from __future__ import annotations
 
 import json
@@ -234,3 +235,32 @@ def test_f8_import_r2n2_exits_1_when_every_model_failed(tmp_path):
                               tmp_path / "out", "--no-progress"], expect_exit=1)
     assert "imported 0 of 3 models" in res.output
     assert res.output.strip().splitlines()[-1] == "Error: no model was imported: all 3 failed"
+
+
+# ----------------------------------------------------------------------------- F9
+def test_f9_reports_of_check_and_preview_never_overwrite_the_dataset_they_read(tmp_path):
+    """``check OUT --json OUT/index.json`` replaced the index by the report (exit 0; the dataset
+    then read as empty and INCOMPLETE), ``preview OUT --out OUT/shard-00000.h5`` truncated the
+    shard to 0 bytes (PIL opens the file before finding no HDF5 writer) and printed a
+    traceback, as did any extension PIL or matplotlib cannot write. Now each is one line and
+    the dataset keeps its bytes."""
+    meshes = tmp_path / "m" / "chair"
+    meshes.mkdir(parents=True)
+    (meshes / "cube.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST, "--voxelize"])
+    index, shard = out / "index.json", out / "shard-00000.h5"
+    before = {p: p.read_bytes() for p in (index, shard)}
+    for args, message in (
+            (["check", out, "--json", index], f"Error: --json {index}: that is the dataset's own index.json"),
+            (["check", out, "--png", shard], f"Error: --png {shard}: that is the dataset's own shard-00000.h5"),
+            (["preview", out, "--out", shard], f"Error: --out {shard}: that is the dataset's own shard-00000.h5"),
+            (["preview", out, "--out", out / ".." / out.name / "index.json"], "Error: --out"),
+            (["preview", out, "--out", tmp_path / "sheet.txt"], f"Error: --out {tmp_path / 'sheet.txt'}: unknown file"),
+            (["check", out, "--png", tmp_path / "worst.txt"], f"Error: --png {tmp_path / 'worst.txt'}: Format 'txt'")):
+        res = run_cli(data_main, [*args, "--no-progress"] if args[0] == "check" else args, expect_exit=1)
+        assert res.output.strip().splitlines()[-1].startswith(message), res.output
+        assert "Traceback" not in res.output
+    assert {p: p.read_bytes() for p in before} == before
+    run_cli(data_main, ["check", out, "--json", out / "check.json", "--no-progress"])   # beside the data: fine
+    assert json.loads((out / "check.json").read_text())["passed"]
