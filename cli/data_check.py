@@ -37,24 +37,35 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
     shards = shards_opt or shards_arg
     if shards is None:
         raise click.UsageError("give the shard directory (SHARDS or --shards)")
+    from sc3d_data.io.shards import one_line, refuse_dataset_file
+
+    png = Path(png) if png else Path(shards) / "check_worst.png"
     try:
+        for option, path in (("--png", png), ("--json", json_out)):
+            if path:
+                refuse_dataset_file(Path(shards), Path(path), option)
         report = check_shards(Path(shards), min_iou=min_iou, min_coverage=min_coverage, progress=progress,
                               min_near=min_near)
     except (FileNotFoundError, ValueError, OSError) as e:
-        from sc3d_data.io.shards import one_line
-
         raise click.ClickException(one_line(e))
     if not report.objects:
         raise click.ClickException(f"{shards}: no objects to check")
     click.echo(report.text(worst))
-    png_path = write_worst_png(Path(shards), report, Path(png) if png else Path(shards) / "check_worst.png",
-                               n=min(worst, 8))
+    try:
+        png_path = write_worst_png(Path(shards), report, png, n=min(worst, 8))
+    except OSError as e:  # a folder that cannot be made or written (the message names the file)
+        raise click.ClickException(one_line(e))
+    except ValueError as e:  # matplotlib: a format it cannot write
+        raise click.ClickException(f"--png {png}: {one_line(e)}")
     click.echo(f"worst views: {png_path}")
     if json_out:
-        Path(json_out).write_text(json.dumps(
-            {"min_iou": min_iou, "min_coverage": min_coverage, "min_near": min_near, "passed": report.passed, "per_category": report.per_category(),
-             "objects": [{"category": o.category, "model_id": o.model_id, "shard": o.shard, "row": o.row,
-                          "mean_iou": o.mean_iou, "mean_coverage": o.mean_coverage, "mean_near": o.mean_near,
-                          "near": o.near.round(4).tolist(), "iou": o.iou.round(4).tolist(),
-                          "coverage": o.coverage.round(4).tolist()} for o in report.objects]}, indent=1))
+        try:
+            Path(json_out).write_text(json.dumps(
+                {"min_iou": min_iou, "min_coverage": min_coverage, "min_near": min_near, "passed": report.passed, "per_category": report.per_category(),
+                 "objects": [{"category": o.category, "model_id": o.model_id, "shard": o.shard, "row": o.row,
+                              "mean_iou": o.mean_iou, "mean_coverage": o.mean_coverage, "mean_near": o.mean_near,
+                              "near": o.near.round(4).tolist(), "iou": o.iou.round(4).tolist(),
+                              "coverage": o.coverage.round(4).tolist()} for o in report.objects]}, indent=1))
+        except OSError as e:
+            raise click.ClickException(one_line(e))
     sys.exit(0 if report.passed else 1)

@@ -66,3 +66,5 @@ def import_r2n2(renderings, voxels, out, image_size, background, categories, spl
     click.echo(f"imported {summary['done']} of {summary['planned']} models into {summary['out']} "
                f"({summary['resumed']} already there, {summary['failed']} failed, {summary['skipped']} skipped; "
                f"{summary['seconds']:.1f} s); details in index.json")
+    if summary["failed"] and not summary["done"] and not summary["resumed"]:
+        raise click.ClickException(f"no model was imported: all {summary['failed']} failed")

@@ -20,12 +20,18 @@ def preview(shard_dir: Path, out: Path, max_objects: int, views: int, scale: int
 
     from sc3d_data.qa.preview import contact_sheet
 
+    from sc3d_data.io.shards import one_line, refuse_dataset_file
+
     try:
+        refuse_dataset_file(shard_dir, out, "--out")
         sheet = contact_sheet(shard_dir, max_objects, views, scale)
     except (FileNotFoundError, ValueError) as e:
-        from sc3d_data.io.names import printable
-
-        raise click.ClickException(printable(e, keep_newlines=True))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(sheet).save(out)
+        raise click.ClickException(one_line(e))
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        Image.fromarray(sheet).save(out)
+    except OSError as e:  # a folder that cannot be made or written (the message names the file)
+        raise click.ClickException(one_line(e))
+    except ValueError as e:  # PIL: an extension it cannot write
+        raise click.ClickException(f"--out {out}: {one_line(e)}")
     click.echo(f"wrote {out} ({sheet.shape[1]}x{sheet.shape[0]})")

@@ -49,7 +49,7 @@ def _rgb(text: str) -> tuple[int, int, int]:
 @click.option("--background", default="255,255,255", show_default=True, help="Background colour R,G,B.")
 @click.option("--depth/--no-depth", default=False, show_default=True, help="Also store depth maps.")
 @click.option("--normalize", type=click.Choice(["fit", "diagonal"]), default="fit", show_default=True)
-@click.option("--up", default="+Y", show_default=True, help="Source axis that is up (e.g. +Z).")
+@click.option("--up", default="+Y", show_default=True, help="Source axis that is up (e.g. +Z, with --front -Y).")
 @click.option("--front", default="auto", show_default=True,
               help="Source axis the object's front faces (e.g. -X); turned to +Z. auto: +X for ShapeNetCore "
                    "v1 model.obj, -Z for v2 model_normalized.obj, +Z for other meshes.")

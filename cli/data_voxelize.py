@@ -37,7 +37,7 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
     array (--executor), with a per-mesh --timeout."""
     from sc3d_data.pipeline.jobs.voxel_meshes import voxelize_on_slurm
     from sc3d_data.pipeline.jobs.voxel_job import voxelize_shards
-    from sc3d_data.pipeline.jobs.voxel_meshes import VoxelMeshesConfig, voxelize_meshes
+    from sc3d_data.pipeline.jobs.voxel_meshes import VoxelMeshesConfig, failures_name, voxelize_meshes
 
     if (shards is None) == (meshes is None):
         raise click.UsageError("give either SHARDS or --meshes DIR --out DIR2")
@@ -53,6 +53,9 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
             s = voxelize_shards(shards, resolution, workers or os.cpu_count() or 1, overwrite, progress)
             click.echo(f"voxelized {s.objects} objects in {s.shards_done} shards ({s.shards_skipped} shards "
                        f"already done), {s.failed} failed, {s.seconds:.1f} s")
+            if s.failed and s.failed == s.objects:
+                raise click.ClickException(f"no object was voxelized: all {s.failed} failed (their grids are empty; "
+                                           f"reasons: `sc3d-data info {shards}`)")
         else:
             config = VoxelMeshesConfig(meshes=meshes, out=out, resolution=resolution, normalize=normalize, up=up,
                                        front=front, workers=workers, overwrite=overwrite, progress=progress,
@@ -60,6 +63,9 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
             s = run_scaled(config, slurm, lambda c: voxelize_meshes(c).as_dict(), voxelize_on_slurm)
             click.echo(f"wrote {s['done']} .binvox files to {out} ({s['resumed']} already there), "
                        f"{s['failed']} failed, {s['seconds']:.1f} s")
+            if s["failed"] and not s["done"] and not s["resumed"]:
+                raise click.ClickException(f"no .binvox was written: all {s['failed']} failed (reasons in "
+                                           f"{os.path.join(out, failures_name(part))})")
     except (ValueError, RuntimeError, OSError) as e:  # bad shard/index, lock held, disk full: one line
         from sc3d_data.io.shards import one_line
 

@@ -200,6 +200,11 @@ def discover_meshes(root, categories=None, category_override=None
     return entries, problems
 
 
+def no_meshes_found(root) -> ValueError:
+    """The error of a ``--meshes`` folder holding nothing named like a mesh (one line, exit 1)."""
+    return ValueError(f"--meshes {root}: no mesh files found (looked for {', '.join(MESH_EXTENSIONS)})")
+
+
 def categories_of(entries: Iterable[MeshEntry]) -> list[str]:
     """Sorted distinct categories of ``entries``."""
     return sorted({e.category for e in entries})

@@ -115,12 +115,19 @@ def read_rendering_metadata(path: Path, num_views: int = R2N2_NUM_VIEWS) -> list
 
 
 def read_rendering_list(rendering_dir: Path, num_views: int = R2N2_NUM_VIEWS) -> list[str]:
-    """PNG names of the views in order: ``renderings.txt`` when present, else ``00.png``..."""
+    """PNG names of the views in order: ``renderings.txt`` when present, else ``00.png``...
+    A line that is not a plain file name (a path: ``/abs.png``, ``../x.png``, ``a/b.png``) is
+    refused with ``ValueError`` naming the file and line, so the list cannot make the import
+    read an image from outside the model's ``rendering/`` folder."""
     lst = Path(rendering_dir) / "renderings.txt"
     if lst.is_file():
-        names = [ln.strip() for ln in lst.read_text(errors="replace").splitlines() if ln.strip()]
+        lines = [(k, ln.strip()) for k, ln in enumerate(lst.read_text(errors="replace").splitlines(), 1)]
+        names = [name for _, name in lines if name]
         if len(names) != num_views:
             raise ValueError(f"{lst}: {len(names)} names, expected {num_views}")
+        for k, name in lines:
+            if name and (Path(name).name != name or name == ".."):
+                raise ValueError(f"{lst}: line {k}: {name!r} is a path, not a file name in {rendering_dir}; refused")
         return names
     return [f"{i:02d}.png" for i in range(num_views)]
 

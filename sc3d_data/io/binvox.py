@@ -30,6 +30,7 @@ writes that header by default.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -82,6 +83,9 @@ def _parse_header(f, path) -> tuple[tuple[int, int, int], tuple[float, ...], flo
         raise ValueError(f"{path}: header has no 'dim D D D' line")
     if len(set(dims)) != 1 or dims[0] < 1:
         raise ValueError(f"{path}: only cubic grids are supported, got dim {dims}")
+    if not (0 < scale < math.inf and all(map(math.isfinite, translate))):
+        raise ValueError(f"{path}: header scale {scale} / translate {' '.join(map(str, translate))}: the scale must "
+                         "be a positive number and the translation finite (the grid's place in the mesh's frame)")
     return dims, translate, scale
 
 

@@ -75,7 +75,8 @@ def scene_triangles(scene) -> tuple[np.ndarray, np.ndarray]:
         if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
             continue
         v = np.asarray(geom.vertices, dtype=np.float64)
-        v = v @ transform[:3, :3].T + transform[:3, 3]
+        with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf: validate_triangles names the file
+            v = v @ transform[:3, :3].T + transform[:3, 3]
         verts.append(v)
         faces.append(np.asarray(geom.faces, dtype=np.int64) + offset)
         offset += len(v)

@@ -430,6 +430,16 @@ def shard_path(shard_dir: Path, name: str) -> Path:
     return path
 
 
+def refuse_dataset_file(shard_dir: Path, path: Path, option: str) -> None:
+    """``ValueError`` naming ``option`` when ``path``, a report a command is about to write into
+    (``check --png/--json``, ``preview --out``), is the dataset's own ``index.json`` or an
+    ``.h5`` file in its folder: writing it would destroy finished output."""
+    target = Path(path).resolve()
+    if target.parent == Path(shard_dir).resolve() and (target.name == INDEX_NAME or target.suffix.lower() == ".h5"):
+        raise ValueError(f"{option} {path}: that is the dataset's own {target.name} in {shard_dir}; refused "
+                         "(write the report elsewhere)")
+
+
 def load_index(shard_dir: Path) -> dict:
     """Read ``index.json`` of a shard directory; a clear error if it is missing or broken."""
     p = index_path(shard_dir)

@@ -208,6 +208,19 @@ def mesh_parts(scene, to_canonical: np.ndarray):
                None if uv is None else np.ascontiguousarray(uv, np.float32), base, image)
 
 
+def eight_bit(image):
+    """``image`` (a PIL texture) with 8 bits per channel. 16-bit grey PNGs open as mode
+    ``I;16`` (``I`` in older Pillow), whose values run 0-65535; PIL's ``convert`` clips them at
+    255, which would draw any such texture white, so they are scaled by 255/65535 here. Every
+    other mode is returned as it is (16-bit RGB(A) PNGs already open as 8-bit ``RGB(A)``)."""
+    if not (image.mode == "I" or image.mode.startswith("I;16")):
+        return image
+    from PIL import Image
+
+    grey = np.clip(np.rint(np.asarray(image, dtype=np.float64) / 257.0), 0, 255).astype(np.uint8)
+    return Image.fromarray(grey, "L")
+
+
 class MeshRenderer:
     """Renders objects at the cameras of ``views`` with one persistent offscreen context.
 
@@ -319,6 +332,7 @@ class MeshRenderer:
 
     def _texture(self, image):
         GL = self.gl
+        image = eight_bit(image)
         factor = math.ceil(max(image.size) / max(MAX_TEXTURE_SIZE, 8 * self.S))
         if factor > 1:  # box filter, as the first mipmap levels would be: saves memory and upload time
             image = image.reduce(factor)

@@ -90,6 +90,15 @@ class RenderConfig:
                              f"with {views} views")
         if not 2 <= self.voxel_resolution <= MAX_VOXEL_RESOLUTION:
             raise ValueError(f"--voxel-resolution {self.voxel_resolution}: must be 2 to {MAX_VOXEL_RESOLUTION}")
+        if not 0 < self.fov_deg < 180:
+            raise ValueError(f"--fov {self.fov_deg}: must be between 0 and 180 degrees")
+        if not 0 < self.distance < math.inf:
+            raise ValueError(f"--distance {self.distance}: must be a positive number")
+        if not all(math.isfinite(e) for e in self.elevations):
+            raise ValueError(f"--elevations {','.join(map(str, self.elevations))}: must be finite numbers")
+        from sc3d_data.geometry.normalize import check_axes
+
+        check_axes(self.up, self.front)
         if not self.timeout_s > 0:
             raise ValueError(f"--timeout {self.timeout_s}: must be > 0 seconds")
         if self.objects_per_shard < 1 or self.max_faces < 1 or self.max_file_mib < 1:

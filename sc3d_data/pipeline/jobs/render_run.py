@@ -31,7 +31,7 @@ import os
 import time
 from pathlib import Path
 
-from sc3d_data.io.meshes import MESH_SUFFIXES
+from sc3d_data.formats.discover import no_meshes_found
 from sc3d_data.pipeline.executors.executor import start_executor
 from sc3d_data.pipeline.executors.slurm_executor import SlurmOptions, run_array, summed_parts
 from sc3d_data.pipeline.jobs.render_job import RENDER, RenderConfig
@@ -63,8 +63,7 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
     settings = config.settings(None)
     plan = make_plan(config)
     if not plan.found_any:
-        raise ValueError(f"--meshes {config.meshes}: no mesh files found (looked for "
-                         f"{', '.join(MESH_SUFFIXES)})")
+        raise no_meshes_found(config.meshes)
     defaults = {k: getattr(RenderConfig, k) for k in RenderConfig.__dataclass_fields__ if hasattr(RenderConfig, k)}
     index = ShardIndex(out, settings, plan.split_desc, extra={"part": plan.part}, problems=plan.problems,
                        skipped=plan.skipped)

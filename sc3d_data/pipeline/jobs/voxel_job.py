@@ -15,7 +15,9 @@ Shards (``voxelize_shards``)
     it is rewritten, and the run holds the folder's write lock. An object that fails (mesh
     missing or unreadable) gets an all-empty grid so the shard stays rectangular, and is recorded in the index under
     ``failures`` with ``"stage": "voxelize"``, its shard, row and reason. The index also gets
-    ``"voxels": {"resolution": G, "occupancy": ...}``.
+    ``"voxels": {"resolution": G, "occupancy": ...}``. When none of the source meshes exists
+    (shards moved without their meshes) nothing is changed: one line names the folder, and no
+    shard's grids are replaced by empty ones.
 
 Meshes (``voxelize --meshes``): ``voxel_meshes.py``.
 """
@@ -182,6 +184,10 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
             continue
         todo += [RowTask(c * K + r, resolve_source(s, settings.get("meshes")), cats[r], ids[r], "", s, r, T)
                  for r, (s, T) in enumerate(zip(sources, to_canonical))]
+    if todo and not any(Path(t.path).is_file() for t in todo):
+        raise ValueError(f"{shard_dir}: none of the {len(todo)} source meshes its shards record exists (first: "
+                         f"{todo[0].source}, also looked for under {settings.get('meshes')}); no shard was changed: "
+                         "voxelize where the meshes are")
     bar = None
     if progress:
         from sc3d_data.pipeline.run.progress import progress_bar

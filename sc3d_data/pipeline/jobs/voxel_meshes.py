@@ -99,11 +99,16 @@ def voxelize_meshes(config: VoxelMeshesConfig) -> VoxelizeSummary:
     limit ``config.timeout_s``)."""
     from sc3d_data.pipeline.executors.executor import start_executor
     from sc3d_data.pipeline.run.partition import part_of
-    from sc3d_data.formats.discover import discover_meshes
+    from sc3d_data.formats.discover import discover_meshes, no_meshes_found
 
+    from sc3d_data.geometry.normalize import check_axes
+
+    check_axes(config.up, config.front)
     t0 = time.monotonic()
     out, part = Path(config.out), config.part
     entries, problems = discover_meshes(Path(config.meshes))
+    if not entries and not problems:
+        raise no_meshes_found(config.meshes)
     out.mkdir(parents=True, exist_ok=True)
     summary = VoxelizeSummary()
     if not part.whole:
@@ -116,6 +121,7 @@ def voxelize_meshes(config: VoxelMeshesConfig) -> VoxelizeSummary:
         else:
             todo.append(Task(len(todo), str(e.path), e.category, e.model_id, ""))
     failures = [dict(p) for p in problems]
+    summary.failed = sum(1 for p in problems if not p.get("skipped"))  # counted as render counts them
     if todo:
         import os
 
@@ -139,9 +145,14 @@ def voxelize_meshes(config: VoxelMeshesConfig) -> VoxelizeSummary:
             if bar is not None:
                 bar.close()
     failures.sort(key=lambda f: f["source"])
-    write_json_atomic(out / ("failures.json" if part.whole else f"failures.{part.dirname()}.json"), failures)
+    write_json_atomic(out / failures_name(part), failures)
     summary.seconds = time.monotonic() - t0
     return summary
+
+
+def failures_name(part: Part) -> str:
+    """The file under ``--out`` listing the failures of ``part``: ``failures.json`` for a whole run."""
+    return "failures.json" if part.whole else f"failures.{part.dirname()}.json"
 
 
 def voxelize_part(config) -> dict:
