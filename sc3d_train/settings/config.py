@@ -213,13 +213,16 @@ class RunConfig(_Plain):
     # nested configs
     model: ModelConfig = setting(help="Architecture.", cli=False, default_factory=ModelConfig)
     loss_weights: LossWeights = setting(help="Loss weights.", cli=False, default_factory=LossWeights)
-    # dataset facts copied from the shards (checked against the data at resume / eval time)
+    # dataset facts copied from the shards (--resume refuses shards that changed; eval checks the
+    # image size and voxel resolution)
     image_size: int = setting(64, "Image size of the shards.", cli=False)
     num_views: int = setting(24, "Views per object in the shards.", cli=False)
     background: list = setting(help="Background RGB of the shards.", cli=False,
                                default_factory=lambda: [255, 255, 255])
     intrinsics: list | None = setting(None, "K [3][3] in pixels at image_size.", cli=False)
     camera_distance: float = setting(2.0, "Camera distance of the shards (world units).", cli=False)
+    objects_sha256: str | None = setting(None, "SHA-256 of the sorted category/model_id of the training split's "
+                                         "objects (--resume refuses shards whose objects changed).", cli=False)
 
     def __post_init__(self):
         check_choices(self)
