@@ -77,3 +77,38 @@ def test_f2_a_bad_or_missing_device_is_one_line_naming_the_option(sample_shards,
             assert message in res.output.strip().splitlines()[-1], (name, res.output)
             assert "Traceback" not in res.output and len(res.output.strip().splitlines()) <= 2, res.output
         assert not any((tmp_path / d).exists() for d in ("run", "eval", "pred")), name
+
+
+# ----------------------------------------------------------------------------- F3
+@pytest.mark.parametrize("option, value, message", [
+    ("--log-every", 0, "log_every (--log-every) must be >= 1, got 0"),
+    ("--checkpoint-every", 0, "checkpoint_every (--checkpoint-every) must be >= 1, got 0"),
+    ("--seed", -1, "seed (--seed) must be in [0, 2^63), got -1"),
+    ("--seed", 10 ** 20, "seed (--seed) must be in [0, 2^63)"),
+    ("--lr", "nan", "lr (--lr) must be a positive finite number, got nan"),
+    ("--lr", -1, "lr (--lr) must be a positive finite number, got -1.0"),
+    ("--lr-min-ratio", -1, "lr_min_ratio (--lr-min-ratio) must be in [0, 1]"),
+    ("--workers", -3, "workers (--workers) must be >= 0, got -3"),
+])
+def test_f3_out_of_range_settings_are_refused_in_one_line_before_any_work(sample_shards, tmp_path, option,
+                                                                          value, message):
+    """Settings out of range used to reach the loop: ``--log-every 0`` and ``--checkpoint-every
+    0`` ended in a traceback (``ZeroDivisionError``) after the data was read; ``--seed -1``,
+    ``--lr nan`` and ``--workers -3`` in a message of numpy / torch naming no option;
+    ``--lr-min-ratio -1`` trained with exit 0 while the cosine schedule drove the learning rate
+    below zero (gradient ascent at the end). Now one line naming the option, no run folder."""
+    run = tmp_path / "run"
+    res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, "--steps", 2, *TINY, option, value],
+                  expect_exit=1)
+    assert message in one_line(res.output), res.output
+    assert not run.exists()
+
+
+def test_f3_a_config_file_with_a_zero_ray_sample_count_is_refused_naming_the_file(sample_shards, tmp_path):
+    """``loss_weights: {num_samples: 0}`` trained with exit 0 on empty rays (L_proj stuck at
+    e - 1); ``search_mask_size: 0`` ended in a ``ZeroDivisionError`` traceback."""
+    for key in ("num_samples", "search_mask_size"):
+        config = tmp_path / f"{key}.yaml"
+        config.write_text(f"shards: {sample_shards}\nout: {tmp_path / key}\nloss_weights: {{{key}: 0}}\n")
+        res = run_cli(train_main, ["fit", "--config", config, *TINY, "--steps", 2], expect_exit=1)
+        assert f"{config}: loss_weights: {key} must be >= 1, got 0" in one_line(res.output), res.output
