@@ -112,3 +112,19 @@ def test_f3_a_config_file_with_a_zero_ray_sample_count_is_refused_naming_the_fil
         config.write_text(f"shards: {sample_shards}\nout: {tmp_path / key}\nloss_weights: {{{key}: 0}}\n")
         res = run_cli(train_main, ["fit", "--config", config, *TINY, "--steps", 2], expect_exit=1)
         assert f"{config}: loss_weights: {key} must be >= 1, got 0" in one_line(res.output), res.output
+
+
+# ----------------------------------------------------------------------------- F4
+def test_f4_semi_pretraining_default_follows_the_steps_given_on_the_command_line(sample_shards, tmp_path):
+    """A config file with ``mode: semi`` and no ``pretrain_steps`` had its default (steps // 2)
+    taken from the file's steps (or the default 2000) before ``--steps`` replaced them: ``--steps
+    4`` was refused with "pretrain steps 1000 not in [0, steps=4]" (a number the user never
+    wrote) and ``--steps 40`` on a file of 20 pretrained 10 steps, not 20. The default now
+    follows the run's own steps, as on the command line."""
+    config = tmp_path / "semi.yaml"
+    config.write_text(f"shards: {sample_shards}\nout: {tmp_path / 'run'}\nmode: semi\nlabeled_fraction: 0.5\n")
+    run_cli(train_main, ["fit", "--config", config, *TINY, "--steps", 4])
+    assert "pretrain_steps: 2\n" in (tmp_path / "run" / "config.yaml").read_text()
+    config.write_text(config.read_text().replace("/run\n", "/run2\n") + "steps: 20\n")
+    run_cli(train_main, ["fit", "--config", config, *TINY, "--steps", 6])
+    assert "pretrain_steps: 3\n" in (tmp_path / "run2" / "config.yaml").read_text()

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from sc3d_train.settings.config import RESUMABLE_FIELDS, TINY_MODEL, RunConfig
+from sc3d_train.settings.config_io import load_yaml
 
 
 def resolve_config(options: dict, model_options: dict | None = None, resume: bool = False,
@@ -27,7 +28,11 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     tiny = model_options.pop("tiny", False)
     if resume:
         return _resumed(options, model_options)
-    plain = RunConfig.load(config_file).to_dict() if config_file is not None else {}
+    plain = {}
+    if config_file is not None:
+        plain = RunConfig.load(config_file).to_dict()
+        if load_yaml(config_file).get("pretrain_steps") is None:  # loading set it from the file's steps:
+            plain["pretrain_steps"] = None                          # [steps // 2] of this run's steps instead
     plain.update(options)
     if plain.get("out") is None or plain.get("shards") is None:
         raise ValueError("a new run needs --shards and --out (or a --config file that names them)")
