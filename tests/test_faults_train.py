@@ -3,6 +3,7 @@ that were rendered again, ...). Real shards, training and checkpoints; every fix
 here (the sample shards of ``conftest.py`` are rendered from the bundled meshes)."""
 from __future__ import annotations
 
+import json
 import shutil
 
 import h5py
@@ -128,3 +129,31 @@ def test_f4_semi_pretraining_default_follows_the_steps_given_on_the_command_line
     config.write_text(config.read_text().replace("/run\n", "/run2\n") + "steps: 20\n")
     run_cli(train_main, ["fit", "--config", config, *TINY, "--steps", 6])
     assert "pretrain_steps: 3\n" in (tmp_path / "run2" / "config.yaml").read_text()
+
+
+# ----------------------------------------------------------------------------- F5
+def test_f5_claims_never_reports_runs_of_other_settings_or_an_evaluation_of_another_split(sample_shards, tmp_path):
+    """``claims`` read back every (run, seed) whose ``eval/metrics.json`` existed, whatever it held:
+    a rerun into the same ``--out`` with another preset reported the old runs under the new
+    preset's settings, and one with another ``--eval-split`` or ``--eval-shards`` reported the old
+    split's figures as the new one's, exit 0. Now an evaluation of another split or shards is
+    redone, and a run trained with other settings is refused in one line naming its folder."""
+    from sc3d_train.evaluation.claims import ClaimsPreset, run_all
+    from sc3d_train.loop.checkpoint import CheckpointError
+
+    preset = ClaimsPreset(steps=2, batch_size=4, lr=1e-3, tiny=True, extra={"val_every": 0, "base_channels": 4})
+    out, metrics = tmp_path / "claims", tmp_path / "claims" / "runs" / "sup-3tube" / "seed-0" / "eval" / "metrics.json"
+    lines = []
+    run_all(sample_shards, sample_shards, out, preset, eval_split="test", device="cpu", runs=["sup-3tube"],
+            echo=lines.append)
+    assert json.loads(metrics.read_text())["split"] == "test"
+    run_all(sample_shards, sample_shards, out, preset, eval_split="val", device="cpu", runs=["sup-3tube"],
+            echo=lines.append)
+    assert json.loads(metrics.read_text())["split"] == "val"
+    assert json.loads((out / "claims.json").read_text())["meta"]["eval_split"] == "val"
+    other = ClaimsPreset(steps=2, batch_size=4, lr=5e-4, tiny=True, extra={"val_every": 0, "base_channels": 4})
+    with pytest.raises(CheckpointError) as e:
+        run_all(sample_shards, sample_shards, out, other, eval_split="val", device="cpu", runs=["sup-3tube"],
+                echo=lines.append)
+    assert f"{out / 'runs' / 'sup-3tube' / 'seed-0'}: cannot change on --resume: --lr 0.0005 (run has 0.001)" in str(e.value)
+    assert "give another --out" in str(e.value) and "\n" not in str(e.value)
