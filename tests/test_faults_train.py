@@ -157,3 +157,19 @@ def test_f5_claims_never_reports_runs_of_other_settings_or_an_evaluation_of_anot
                 echo=lines.append)
     assert f"{out / 'runs' / 'sup-3tube' / 'seed-0'}: cannot change on --resume: --lr 0.0005 (run has 0.001)" in str(e.value)
     assert "give another --out" in str(e.value) and "\n" not in str(e.value)
+
+
+# ----------------------------------------------------------------------------- F6
+@pytest.mark.parametrize("threshold", ["nan", "-1", "1.5"])
+def test_f6_predict_refuses_a_threshold_that_is_no_probability_before_writing(sample_shards, tiny_run, tmp_path,
+                                                                                threshold):
+    """``predict --threshold nan`` ended in a traceback from marching cubes ("No surface found"),
+    ``-1`` in scikit-image's "Surface level must be within volume data range" naming no option
+    (after the output folder was made); now one line naming ``--threshold``, nothing written."""
+    image = tmp_path / "view.png"
+    with h5py.File(next(sample_shards.glob("*.h5")), "r") as f:
+        Image.fromarray(f["images"][0, 0]).save(image)
+    res = run_cli(train_main, ["predict", "--checkpoint", tiny_run / "checkpoints" / "last.pt", image,
+                               "--out", tmp_path / "pred", "--threshold", threshold], expect_exit=1)
+    assert "--threshold must be an occupancy probability in [0, 1]" in one_line(res.output)
+    assert not (tmp_path / "pred").exists()

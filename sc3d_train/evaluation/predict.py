@@ -127,6 +127,8 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
     check_pose_source(pose_from)
     if not images:
         raise ImageError("no input images given")
+    if not 0.0 <= threshold <= 1.0:  # also NaN
+        raise ValueError(f"--threshold must be an occupancy probability in [0, 1], got {threshold}")
     from sc3d_train.loop.runtime import resolve_device
 
     dev = resolve_device(device)
