@@ -173,3 +173,23 @@ def test_f6_predict_refuses_a_threshold_that_is_no_probability_before_writing(sa
                                "--out", tmp_path / "pred", "--threshold", threshold], expect_exit=1)
     assert "--threshold must be an occupancy probability in [0, 1]" in one_line(res.output)
     assert not (tmp_path / "pred").exists()
+
+
+# ----------------------------------------------------------------------------- F7
+def test_f7_a_new_run_is_refused_beside_checkpoints_of_another_run(sample_shards, tmp_path):
+    """A folder whose run lost its ``last.pt`` (deleted, or its write failed on a full disk) took
+    a new ``fit`` with exit 0, leaving the old run's ``step_*.pt`` and ``best.pt`` beside the new
+    config: ``eval RUN`` then evaluated the old run's ``best.pt`` as the new run's, and ``--resume``
+    picked the old, newer ``step_*.pt`` and was refused. Now the new run is refused in one line
+    naming the files, and the folder is left as it was."""
+    run = tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, "--steps", 4, *TINY, "--seed", 5,
+                         "--val-every", 2, "--val-min-objects", 1])
+    (run / "checkpoints" / "last.pt").unlink()
+    config = (run / "config.yaml").read_text()
+    res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, "--steps", 2, *TINY, "--seed", 1],
+                  expect_exit=1)
+    assert (f"{run}: already holds checkpoints of a run (best.pt, step_000004.pt) but no last.pt; "
+            f"use --resume to continue it") in one_line(res.output)
+    assert (run / "config.yaml").read_text() == config
+    assert sorted(f.name for f in (run / "checkpoints").iterdir()) == ["best.pt", "step_000004.pt"]

@@ -43,6 +43,10 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     if (out / "checkpoints" / "last.pt").is_file():
         raise CheckpointError(f"{out}: already holds a run (checkpoints/last.pt); use --resume "
                               f"to continue it or choose another --out")
+    stale = sorted(f.name for f in (out / "checkpoints").glob("*.pt"))
+    if stale:  # a run without last.pt (deleted, or its write failed): eval/--resume would read these
+        raise CheckpointError(f"{out}: already holds checkpoints of a run ({', '.join(stale)}) but no "
+                              f"last.pt; use --resume to continue it, or choose another --out")
     facts = shard_facts(Path(plain["shards"]), plain.get("split", "train"))
     model = dict(plain.get("model", {}))
     if tiny:
