@@ -3,7 +3,8 @@ each on held-out shards, and write the paper's tables (markdown) and one figure.
 
 Runs (each a normal ``fit`` run folder under ``OUT/runs/NAME/seed-S`` per seed and its evaluation
 of ``best.pt`` (``--pick last``: ``last.pt``) under ``.../eval``; a rerun skips (run, seed) pairs
-whose evaluation exists and resumes a half-trained one, so the command resumes):
+whose evaluation of the same split and shards exists and resumes a half-trained one, so the
+command resumes; a run folder of other settings is refused):
 
 =================  ============================================================================
 ``sup-3tube``       supervised, all training objects, 3-tube voxel decoder (the paper's model)
@@ -69,9 +70,11 @@ PRESETS = {
 
 
 def run_config(name: str, preset: ClaimsPreset, shards: Path, out: Path, device: str = ClaimsConfig.device,
-               workers: int = ClaimsConfig.workers, seed: int | None = None) -> RunConfig:
+               workers: int = ClaimsConfig.workers, seed: int | None = None, resume: bool = False) -> RunConfig:
     """The :class:`RunConfig` of run ``name`` (one of :data:`RUNS`) with ``seed`` (None: the
-    preset's). The ablations at the true pose train no pose, so their ``best.pt`` is picked by IoU."""
+    preset's). The ablations at the true pose train no pose, so their ``best.pt`` is picked by IoU.
+    ``resume``: the config saved in ``out``, refused (``CheckpointError``) when that run was trained
+    with other settings or on shards that changed since (``resolve_config(resume=True)``)."""
     from sc3d_train.loop.resolve import resolve_config
 
     options = dict(shards=str(Path(shards).resolve()), out=str(out), steps=preset.steps,
@@ -87,8 +90,8 @@ def run_config(name: str, preset: ClaimsPreset, shards: Path, out: Path, device:
     model_fields = {f.name for f in fields(ModelConfig)}
     for k, v in preset.extra.items():
         (model_options if k in model_fields else options)[k] = v
-    cfg = resolve_config(options, model_options)
-    if name == "ray":
+    cfg = resolve_config(options, model_options, resume=resume)
+    if name == "ray" and not resume:
         cfg = replace(cfg, loss_weights=replace(cfg.loss_weights, proj=0.0))
     return cfg
 
@@ -123,19 +126,25 @@ def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path
     """The eval metrics of run ``name`` with ``seed``: read back when its evaluation exists,
     else trained (resumed from its ``last.pt`` when there is one) and evaluated on ``pick``.
     Returns ``(metrics, seconds spent or None when read back)``."""
-    from sc3d_train.loop.checkpoint import run_checkpoint
+    from sc3d_train.loop.checkpoint import CheckpointError, run_checkpoint
     from sc3d_train.evaluation.evaluate import evaluate
     from sc3d_train.loop.trainer import fit
 
     run_dir = run_folder(out, name, seed)
     metrics_file = eval_folder(run_dir, pick) / "metrics.json"
-    if metrics_file.is_file():
+    saved = RunConfig.path_in(run_dir).is_file()  # a run of this study's settings, else refused
+    trained_steps = RunConfig.load(RunConfig.path_in(run_dir)).steps if saved else None
+    try:
+        cfg = run_config(name, p, train_shards, run_dir, device, workers, seed, resume=saved)
+    except CheckpointError as e:
+        raise CheckpointError(f"{e} [claims: {out} holds this study's runs; give another --out for other "
+                              f"settings or shards]") from e
+    if metrics_file.is_file() and trained_steps in (None, cfg.steps) and \
+            evaluated_on(metrics_file, eval_shards, eval_split):
         echo(f"{name} seed {seed}: done before, reading {metrics_file}")
         return json.loads(metrics_file.read_text()), None
     t0 = time.perf_counter()
     resume = (run_dir / "checkpoints" / "last.pt").is_file()
-    cfg = RunConfig.load(RunConfig.path_in(run_dir)) if resume else \
-        run_config(name, p, train_shards, run_dir, device, workers, seed)
     echo(f"{name} seed {seed}: {cfg.mode}, {cfg.steps} steps of {cfg.batch_size}" + (" (resuming)" if resume else ""))
     fit(cfg, resume=resume)
     res = evaluate(run_checkpoint(run_dir, pick), eval_shards, eval_split, eval_folder(run_dir, pick), device)
@@ -143,6 +152,12 @@ def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path
     echo(f"    {name} seed {seed} (step {res['step']}): mean IoU@0.4 {res['mean']['voxel_iou_0.4']:.3f}, median "
          f"rotation error {res['mean']['pose_rotation_median']:.1f} deg ({seconds / 60:.1f} min)")
     return res, seconds
+
+
+def evaluated_on(metrics_file: Path, shards: Path, split: str) -> bool:
+    """Whether the evaluation in ``metrics_file`` is of ``split`` of ``shards`` (else it is redone)."""
+    saved = json.loads(Path(metrics_file).read_text())
+    return saved.get("split") == split and Path(saved.get("shards", "")).resolve() == Path(shards).resolve()
 
 
 def run_all(train_shards: Path, eval_shards: Path, out: Path,

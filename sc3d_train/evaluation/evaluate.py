@@ -128,8 +128,9 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     ``out/predictions.png`` (``out`` None: ``RUN_DIR/eval_SPLIT``, :func:`default_output_dir`);
     ``examples`` objects per category are drawn. Returns the metrics dict (also holding
     ``table``, the text table, and ``out``)."""
-    dev = torch.device("cuda" if device == "auto" and torch.cuda.is_available() else
-                       "cpu" if device == "auto" else device)
+    from sc3d_train.loop.runtime import resolve_device
+
+    dev = resolve_device(device)
     checkpoint = run_checkpoint(checkpoint, pick)
     model, cfg, ckpt = load_model(checkpoint, dev)
     dataset = ShardDataset(shards, split, subset="all", mask_size=cfg.model.mask_size,

@@ -127,8 +127,11 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
     check_pose_source(pose_from)
     if not images:
         raise ImageError("no input images given")
-    dev = torch.device("cuda" if device == "auto" and torch.cuda.is_available() else
-                       "cpu" if device == "auto" else device)
+    if not 0.0 <= threshold <= 1.0:  # also NaN
+        raise ValueError(f"--threshold must be an occupancy probability in [0, 1], got {threshold}")
+    from sc3d_train.loop.runtime import resolve_device
+
+    dev = resolve_device(device)
     model, cfg, _ = load_model(checkpoint, dev)
     size = cfg.model.image_size
     arrays = [load_image(Path(p), size, cfg.background) for p in images]

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from sc3d_train.settings.config import RESUMABLE_FIELDS, TINY_MODEL, RunConfig
+from sc3d_train.settings.config_io import load_yaml
 
 
 def resolve_config(options: dict, model_options: dict | None = None, resume: bool = False,
@@ -21,13 +22,17 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     are read from the shards. ``resume``: the run's saved config, where ``options`` may change
     only :data:`~sc3d_train.settings.config.RESUMABLE_FIELDS` and ``model_options`` nothing."""
     from sc3d_train.loop.checkpoint import CheckpointError
-    from sc3d_train.data.dataset import DataError, background_of, scan_objects
+    from sc3d_train.data.dataset import DataError
 
     model_options = dict(model_options or {})
     tiny = model_options.pop("tiny", False)
     if resume:
         return _resumed(options, model_options)
-    plain = RunConfig.load(config_file).to_dict() if config_file is not None else {}
+    plain = {}
+    if config_file is not None:
+        plain = RunConfig.load(config_file).to_dict()
+        if load_yaml(config_file).get("pretrain_steps") is None:  # loading set it from the file's steps:
+            plain["pretrain_steps"] = None                          # [steps // 2] of this run's steps instead
     plain.update(options)
     if plain.get("out") is None or plain.get("shards") is None:
         raise ValueError("a new run needs --shards and --out (or a --config file that names them)")
@@ -38,16 +43,62 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     if (out / "checkpoints" / "last.pt").is_file():
         raise CheckpointError(f"{out}: already holds a run (checkpoints/last.pt); use --resume "
                               f"to continue it or choose another --out")
-    _, info = scan_objects(Path(plain["shards"]))
-    if info["voxel_resolution"] is None:
-        raise DataError(f"{plain['shards']}: shards have no voxels; run `sc3d-data voxelize` first")
+    stale = sorted(f.name for f in (out / "checkpoints").glob("*.pt"))
+    if stale:  # a run without last.pt (deleted, or its write failed): eval/--resume would read these
+        raise CheckpointError(f"{out}: already holds checkpoints of a run ({', '.join(stale)}) but no "
+                              f"last.pt; use --resume to continue it, or choose another --out")
+    facts = shard_facts(Path(plain["shards"]), plain.get("split", "train"))
     model = dict(plain.get("model", {}))
     if tiny:
         model.update(TINY_MODEL)
-    model.update(model_options, image_size=info["image_size"], voxel_resolution=info["voxel_resolution"])
-    plain.update(model=model, image_size=info["image_size"], num_views=info["num_views"],
-                 background=background_of(info), intrinsics=info["K"], camera_distance=info["distance"])
+    model.update(model_options, image_size=facts.pop("model.image_size"),
+                 voxel_resolution=facts.pop("model.voxel_resolution"))
+    plain.update(model=model, **facts)
     return RunConfig.from_dict(plain)
+
+
+def shard_facts(shards: Path, split: str) -> dict:
+    """What a run takes from its shards, keyed like :func:`run_facts`: the model's image size
+    and voxel resolution, the dataset facts (views, background, intrinsics, camera distance) and
+    ``objects_sha256``, the SHA-256 of the sorted ``category/model_id`` of the objects of
+    ``split`` (the objects the run trains on). ``DataError`` when the shards have no voxels."""
+    import hashlib
+
+    from sc3d_train.data.dataset import DataError, background_of, scan_objects
+
+    refs, info = scan_objects(Path(shards))
+    if info["voxel_resolution"] is None:
+        raise DataError(f"{shards}: shards have no voxels; run `sc3d-data voxelize` first")
+    objects = "\n".join(sorted(f"{r.category}/{r.model_id}" for r in refs if r.split == split))
+    return {"model.image_size": info["image_size"], "model.voxel_resolution": info["voxel_resolution"],
+            "image_size": info["image_size"], "num_views": info["num_views"], "background": background_of(info),
+            "intrinsics": info["K"], "camera_distance": info["distance"],
+            "objects_sha256": hashlib.sha256(objects.encode()).hexdigest()}
+
+
+def run_facts(cfg: RunConfig) -> dict:
+    """The facts that run ``cfg`` took from its shards when it started (:func:`shard_facts`)."""
+    return {"model.image_size": cfg.model.image_size, "model.voxel_resolution": cfg.model.voxel_resolution,
+            "image_size": cfg.image_size, "num_views": cfg.num_views, "background": cfg.background,
+            "intrinsics": cfg.intrinsics, "camera_distance": cfg.camera_distance,
+            "objects_sha256": cfg.objects_sha256}
+
+
+def check_same_shards(cfg: RunConfig, out: Path) -> None:
+    """``CheckpointError`` when the shards of run ``cfg`` (folder ``out``) no longer hold the data
+    the run started on (re-rendered at another size, camera, background or with other training
+    objects): a resumed run would continue on other data. Facts a run of an earlier version did
+    not record (``None``) are not compared."""
+    from sc3d_train.loop.checkpoint import CheckpointError
+
+    now = shard_facts(Path(cfg.shards), cfg.split)
+    changed = [k for k, v in run_facts(cfg).items() if v is not None and v != now[k]]
+    if changed:
+        names = ", ".join(f"the objects of split {cfg.split!r}" if k == "objects_sha256" else f"{k} {run_facts(cfg)[k]!r} -> {now[k]!r}"
+                          for k in changed)
+        raise CheckpointError(f"{cfg.shards}: the shards changed since run {out} started ({names}); --resume "
+                              f"continues only on the data the run started on: train a new run on them "
+                              f"(--config {RunConfig.path_in(out)} --out NEW_DIR)")
 
 
 def _resumed(options: dict, model_options: dict) -> RunConfig:
@@ -73,4 +124,5 @@ def _resumed(options: dict, model_options: dict) -> RunConfig:
             changed.append(f"--{k.replace('_', '-')} {v!r} (run has {getattr(cfg.model, k)!r})")
     if changed:
         raise CheckpointError(f"{out}: cannot change on --resume: " + ", ".join(changed))
+    check_same_shards(cfg, out)
     return cfg

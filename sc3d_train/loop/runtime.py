@@ -6,12 +6,13 @@ from __future__ import annotations
 import atexit
 import os
 import random
+import re
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from sc3d_train.settings.config import RunConfig
+from sc3d_train.settings.config import DEVICE_HELP, RunConfig
 
 
 @dataclass
@@ -50,8 +51,13 @@ def teardown_distributed() -> None:
         dist.destroy_process_group()
 
 
-def resolve_device(name: str, dist: DistInfo) -> torch.device:
-    """``auto``: CUDA (this rank's local GPU) when available, else CPU."""
+def resolve_device(name: str, dist: DistInfo | None = None) -> torch.device:
+    """The device of ``--device name`` (``fit``, ``eval``, ``predict``, ``claims``): ``auto`` is CUDA
+    (this rank's local GPU) when available, else CPU. ``ValueError`` naming the option when
+    ``name`` is none of auto, cpu, cuda, cuda:N or asks for a GPU this machine lacks."""
+    dist = dist or DistInfo()
+    if not re.fullmatch(r"auto|cpu|cuda(:\d+)?", name):
+        raise ValueError(f"--device {name!r}: not a device; use {DEVICE_HELP}")
     if name == "auto":
         name = "cuda" if torch.cuda.is_available() else "cpu"
     if name == "cuda":
@@ -59,10 +65,11 @@ def resolve_device(name: str, dist: DistInfo) -> torch.device:
     device = torch.device(name)
     if device.type == "cuda":
         if not torch.cuda.is_available():
-            raise RuntimeError(f"device {name} requested but CUDA is not available")
+            raise ValueError(f"--device {name}: CUDA is not available here (torch sees no GPU); "
+                             f"use --device cpu or auto")
         count = torch.cuda.device_count()
         if device.index is not None and device.index >= count:
-            raise RuntimeError(
+            raise ValueError(
                 f"rank {dist.rank} (local rank {dist.local_rank}) needs {name}, but this machine has "
                 f"{count} GPU{'s' * (count != 1)}: start at most {count} process{'es' * (count != 1)} "
                 f"per machine (torchrun --nproc_per_node {count}) or train on the CPU (--device cpu)")

@@ -15,6 +15,7 @@ in :mod:`sc3d_train.settings.command_config`. This module imports nothing heavy 
 """
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -141,6 +142,12 @@ class LossWeights(_Plain):
                                               cli=False)
     unlabeled_search_samples: int = setting(16, "Samples per ray of that search.", cli=False)
 
+    def __post_init__(self) -> None:
+        for name in ("num_samples", "search_mask_size", "search_samples", "unlabeled_search_mask_size",
+                     "unlabeled_search_samples"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+
 
 @dataclass
 class RunConfig(_Plain):
@@ -213,13 +220,16 @@ class RunConfig(_Plain):
     # nested configs
     model: ModelConfig = setting(help="Architecture.", cli=False, default_factory=ModelConfig)
     loss_weights: LossWeights = setting(help="Loss weights.", cli=False, default_factory=LossWeights)
-    # dataset facts copied from the shards (checked against the data at resume / eval time)
+    # dataset facts copied from the shards (--resume refuses shards that changed; eval checks the
+    # image size and voxel resolution)
     image_size: int = setting(64, "Image size of the shards.", cli=False)
     num_views: int = setting(24, "Views per object in the shards.", cli=False)
     background: list = setting(help="Background RGB of the shards.", cli=False,
                                default_factory=lambda: [255, 255, 255])
     intrinsics: list | None = setting(None, "K [3][3] in pixels at image_size.", cli=False)
     camera_distance: float = setting(2.0, "Camera distance of the shards (world units).", cli=False)
+    objects_sha256: str | None = setting(None, "SHA-256 of the sorted category/model_id of the training split's "
+                                         "objects (--resume refuses shards whose objects changed).", cli=False)
 
     def __post_init__(self):
         check_choices(self)
@@ -234,6 +244,19 @@ class RunConfig(_Plain):
                              f"the test objects (training split {self.split!r}; --val-every 0 turns validation off)")
         if self.val_every < 0 or self.val_views < 1 or self.val_min_objects < 1:
             raise ValueError("val_every must be >= 0, val_views and val_min_objects >= 1")
+        for name in ("log_every", "checkpoint_every"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} (--{name.replace('_', '-')}) must be >= 1, got {getattr(self, name)}")
+        if self.workers < 0:
+            raise ValueError(f"workers (--workers) must be >= 0, got {self.workers}")
+        if not 0 <= self.seed < 2 ** 63:
+            raise ValueError(f"seed (--seed) must be in [0, 2^63), got {self.seed}")
+        for name in ("lr", "semi_lr"):
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} (--{name.replace('_', '-')}) must be a positive finite number, got {value}")
+        if not 0.0 <= self.lr_min_ratio <= 1.0:
+            raise ValueError(f"lr_min_ratio (--lr-min-ratio) must be in [0, 1] (a share of the lr), got {self.lr_min_ratio}")
         if self.mode == "semi":
             if self.pretrain_steps is None:
                 self.pretrain_steps = self.steps // 2

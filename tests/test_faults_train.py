@@ -1,0 +1,195 @@
+"""Hostile inputs to ``sc3d-train``, round three: one test per finding F1-Fn (resume on shards
+that were rendered again, ...). Real shards, training and checkpoints; every fixture is built
+here (the sample shards of ``conftest.py`` are rendered from the bundled meshes)."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import h5py
+import pytest
+from PIL import Image
+
+from sc3d_cli.data import main as data_main
+from sc3d_cli.train import main as train_main
+from conftest import SAMPLE_MESHES, run_cli
+
+TINY = ["--tiny", "--base-channels", "4", "--batch-size", "4", "--no-progress", "--val-every", "0"]
+
+
+def one_line(output: str) -> str:
+    """The single line of a failed command's output (fails when there is more, e.g. a traceback)."""
+    lines = output.strip().splitlines()
+    assert len(lines) == 1, output
+    return lines[0]
+
+
+# ----------------------------------------------------------------------------- F1
+@pytest.mark.parametrize("render_again, changed", [(["--seed", "1"], "the objects of split 'train'"),
+                                                   (["--background", "0,0,0"], "background [255, 255, 255] -> [0, 0, 0]")])
+def test_f1_resume_refuses_shards_rendered_again_with_other_objects_or_camera(sample_shards, tmp_path,
+                                                                             render_again, changed):
+    """A run's shards rendered again in place (another split seed: other training objects;
+    another background, camera or size) used to be resumed silently: the run continued on other
+    data, config.yaml kept the old facts (which predict uses) and test objects could be trained
+    on. ``--resume`` now refuses in one line naming the shards and what changed, and the
+    run's checkpoint is left as it was."""
+    shards, run = tmp_path / "shards", tmp_path / "run"
+    shutil.copytree(sample_shards, shards)
+    run_cli(train_main, ["fit", "--shards", shards, "--out", run, "--steps", 2, *TINY])
+    before = (run / "checkpoints" / "last.pt").read_bytes()
+    run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", shards, "--voxelize", "--overwrite",
+                        "--workers", "2", "--no-progress", *render_again])
+    res = run_cli(train_main, ["fit", "--out", run, "--resume", "--steps", 4, "--no-progress"], expect_exit=1)
+    line = one_line(res.output)
+    assert f"{shards}: the shards changed since run {run} started ({changed})" in line, line
+    assert (run / "checkpoints" / "last.pt").read_bytes() == before
+    assert not (run / "checkpoints" / "step_000004.pt").exists()
+
+
+@pytest.fixture(scope="module")
+def tiny_run(sample_shards, tmp_path_factory):
+    """A 2-step run of the tiny network on the sample shards (its folder)."""
+    run = tmp_path_factory.mktemp("tiny_run") / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, "--steps", 2, *TINY])
+    return run
+
+
+# ----------------------------------------------------------------------------- F2
+def test_f2_a_bad_or_missing_device_is_one_line_naming_the_option(sample_shards, tiny_run, tmp_path):
+    """``--device gpu7`` (or ``meta``) and ``--device cuda`` on a machine without CUDA used to end
+    in a traceback (torch's "Invalid device string", "Torch not compiled with CUDA enabled") in
+    fit, eval and predict; now one line naming ``--device``, before any output is written."""
+    import torch
+
+    image = tmp_path / "view.png"
+    with h5py.File(next(sample_shards.glob("*.h5")), "r") as f:
+        Image.fromarray(f["images"][0, 0]).save(image)
+    commands = {"fit": ["fit", "--shards", sample_shards, "--out", tmp_path / "run", "--steps", 2, *TINY],
+                "eval": ["eval", "--checkpoint", tiny_run, "--shards", sample_shards, "--out", tmp_path / "eval"],
+                "predict": ["predict", "--checkpoint", tiny_run / "checkpoints" / "last.pt", image,
+                            "--out", tmp_path / "pred"]}
+    bad = {"gpu7": "--device 'gpu7': not a device; use auto", "meta": "--device 'meta': not a device"}
+    if not torch.cuda.is_available():
+        bad["cuda"] = "--device cuda:0: CUDA is not available here"
+    for name, args in commands.items():
+        for device, message in bad.items():
+            res = run_cli(train_main, [*args, "--device", device], expect_exit=1)
+            assert message in res.output.strip().splitlines()[-1], (name, res.output)
+            assert "Traceback" not in res.output and len(res.output.strip().splitlines()) <= 2, res.output
+        assert not any((tmp_path / d).exists() for d in ("run", "eval", "pred")), name
+
+
+# ----------------------------------------------------------------------------- F3
+@pytest.mark.parametrize("option, value, message", [
+    ("--log-every", 0, "log_every (--log-every) must be >= 1, got 0"),
+    ("--checkpoint-every", 0, "checkpoint_every (--checkpoint-every) must be >= 1, got 0"),
+    ("--seed", -1, "seed (--seed) must be in [0, 2^63), got -1"),
+    ("--seed", 10 ** 20, "seed (--seed) must be in [0, 2^63)"),
+    ("--lr", "nan", "lr (--lr) must be a positive finite number, got nan"),
+    ("--lr", -1, "lr (--lr) must be a positive finite number, got -1.0"),
+    ("--lr-min-ratio", -1, "lr_min_ratio (--lr-min-ratio) must be in [0, 1]"),
+    ("--workers", -3, "workers (--workers) must be >= 0, got -3"),
+])
+def test_f3_out_of_range_settings_are_refused_in_one_line_before_any_work(sample_shards, tmp_path, option,
+                                                                          value, message):
+    """Settings out of range used to reach the loop: ``--log-every 0`` and ``--checkpoint-every
+    0`` ended in a traceback (``ZeroDivisionError``) after the data was read; ``--seed -1``,
+    ``--lr nan`` and ``--workers -3`` in a message of numpy / torch naming no option;
+    ``--lr-min-ratio -1`` trained with exit 0 while the cosine schedule drove the learning rate
+    below zero (gradient ascent at the end). Now one line naming the option, no run folder."""
+    run = tmp_path / "run"
+    res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, "--steps", 2, *TINY, option, value],
+                  expect_exit=1)
+    assert message in one_line(res.output), res.output
+    assert not run.exists()
+
+
+def test_f3_a_config_file_with_a_zero_ray_sample_count_is_refused_naming_the_file(sample_shards, tmp_path):
+    """``loss_weights: {num_samples: 0}`` trained with exit 0 on empty rays (L_proj stuck at
+    e - 1); ``search_mask_size: 0`` ended in a ``ZeroDivisionError`` traceback."""
+    for key in ("num_samples", "search_mask_size"):
+        config = tmp_path / f"{key}.yaml"
+        config.write_text(f"shards: {sample_shards}\nout: {tmp_path / key}\nloss_weights: {{{key}: 0}}\n")
+        res = run_cli(train_main, ["fit", "--config", config, *TINY, "--steps", 2], expect_exit=1)
+        assert f"{config}: loss_weights: {key} must be >= 1, got 0" in one_line(res.output), res.output
+
+
+# ----------------------------------------------------------------------------- F4
+def test_f4_semi_pretraining_default_follows_the_steps_given_on_the_command_line(sample_shards, tmp_path):
+    """A config file with ``mode: semi`` and no ``pretrain_steps`` had its default (steps // 2)
+    taken from the file's steps (or the default 2000) before ``--steps`` replaced them: ``--steps
+    4`` was refused with "pretrain steps 1000 not in [0, steps=4]" (a number the user never
+    wrote) and ``--steps 40`` on a file of 20 pretrained 10 steps, not 20. The default now
+    follows the run's own steps, as on the command line."""
+    config = tmp_path / "semi.yaml"
+    config.write_text(f"shards: {sample_shards}\nout: {tmp_path / 'run'}\nmode: semi\nlabeled_fraction: 0.5\n")
+    run_cli(train_main, ["fit", "--config", config, *TINY, "--steps", 4])
+    assert "pretrain_steps: 2\n" in (tmp_path / "run" / "config.yaml").read_text()
+    config.write_text(config.read_text().replace("/run\n", "/run2\n") + "steps: 20\n")
+    run_cli(train_main, ["fit", "--config", config, *TINY, "--steps", 6])
+    assert "pretrain_steps: 3\n" in (tmp_path / "run2" / "config.yaml").read_text()
+
+
+# ----------------------------------------------------------------------------- F5
+def test_f5_claims_never_reports_runs_of_other_settings_or_an_evaluation_of_another_split(sample_shards, tmp_path):
+    """``claims`` read back every (run, seed) whose ``eval/metrics.json`` existed, whatever it held:
+    a rerun into the same ``--out`` with another preset reported the old runs under the new
+    preset's settings, and one with another ``--eval-split`` or ``--eval-shards`` reported the old
+    split's figures as the new one's, exit 0. Now an evaluation of another split or shards is
+    redone, and a run trained with other settings is refused in one line naming its folder."""
+    from sc3d_train.evaluation.claims import ClaimsPreset, run_all
+    from sc3d_train.loop.checkpoint import CheckpointError
+
+    preset = ClaimsPreset(steps=2, batch_size=4, lr=1e-3, tiny=True, extra={"val_every": 0, "base_channels": 4})
+    out, metrics = tmp_path / "claims", tmp_path / "claims" / "runs" / "sup-3tube" / "seed-0" / "eval" / "metrics.json"
+    lines = []
+    run_all(sample_shards, sample_shards, out, preset, eval_split="test", device="cpu", runs=["sup-3tube"],
+            echo=lines.append)
+    assert json.loads(metrics.read_text())["split"] == "test"
+    run_all(sample_shards, sample_shards, out, preset, eval_split="val", device="cpu", runs=["sup-3tube"],
+            echo=lines.append)
+    assert json.loads(metrics.read_text())["split"] == "val"
+    assert json.loads((out / "claims.json").read_text())["meta"]["eval_split"] == "val"
+    other = ClaimsPreset(steps=2, batch_size=4, lr=5e-4, tiny=True, extra={"val_every": 0, "base_channels": 4})
+    with pytest.raises(CheckpointError) as e:
+        run_all(sample_shards, sample_shards, out, other, eval_split="val", device="cpu", runs=["sup-3tube"],
+                echo=lines.append)
+    assert f"{out / 'runs' / 'sup-3tube' / 'seed-0'}: cannot change on --resume: --lr 0.0005 (run has 0.001)" in str(e.value)
+    assert "give another --out" in str(e.value) and "\n" not in str(e.value)
+
+
+# ----------------------------------------------------------------------------- F6
+@pytest.mark.parametrize("threshold", ["nan", "-1", "1.5"])
+def test_f6_predict_refuses_a_threshold_that_is_no_probability_before_writing(sample_shards, tiny_run, tmp_path,
+                                                                                threshold):
+    """``predict --threshold nan`` ended in a traceback from marching cubes ("No surface found"),
+    ``-1`` in scikit-image's "Surface level must be within volume data range" naming no option
+    (after the output folder was made); now one line naming ``--threshold``, nothing written."""
+    image = tmp_path / "view.png"
+    with h5py.File(next(sample_shards.glob("*.h5")), "r") as f:
+        Image.fromarray(f["images"][0, 0]).save(image)
+    res = run_cli(train_main, ["predict", "--checkpoint", tiny_run / "checkpoints" / "last.pt", image,
+                               "--out", tmp_path / "pred", "--threshold", threshold], expect_exit=1)
+    assert "--threshold must be an occupancy probability in [0, 1]" in one_line(res.output)
+    assert not (tmp_path / "pred").exists()
+
+
+# ----------------------------------------------------------------------------- F7
+def test_f7_a_new_run_is_refused_beside_checkpoints_of_another_run(sample_shards, tmp_path):
+    """A folder whose run lost its ``last.pt`` (deleted, or its write failed on a full disk) took
+    a new ``fit`` with exit 0, leaving the old run's ``step_*.pt`` and ``best.pt`` beside the new
+    config: ``eval RUN`` then evaluated the old run's ``best.pt`` as the new run's, and ``--resume``
+    picked the old, newer ``step_*.pt`` and was refused. Now the new run is refused in one line
+    naming the files, and the folder is left as it was."""
+    run = tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, "--steps", 4, *TINY, "--seed", 5,
+                         "--val-every", 2, "--val-min-objects", 1])
+    (run / "checkpoints" / "last.pt").unlink()
+    config = (run / "config.yaml").read_text()
+    res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, "--steps", 2, *TINY, "--seed", 1],
+                  expect_exit=1)
+    assert (f"{run}: already holds checkpoints of a run (best.pt, step_000004.pt) but no last.pt; "
+            f"use --resume to continue it") in one_line(res.output)
+    assert (run / "config.yaml").read_text() == config
+    assert sorted(f.name for f in (run / "checkpoints").iterdir()) == ["best.pt", "step_000004.pt"]
