@@ -193,3 +193,25 @@ def test_f7_a_new_run_is_refused_beside_checkpoints_of_another_run(sample_shards
             f"use --resume to continue it") in one_line(res.output)
     assert (run / "config.yaml").read_text() == config
     assert sorted(f.name for f in (run / "checkpoints").iterdir()) == ["best.pt", "step_000004.pt"]
+
+
+# ----------------------------------------------------------------------------- F8
+def test_f8_a_failed_first_checkpoint_says_to_start_again_not_to_resume(sample_shards, tmp_path):
+    """When the first checkpoint of a run cannot be written, no checkpoint of the run exists,
+    so the hint "rerun with --resume" (what a later failure rightly says) led to "checkpoint not
+    found". The message now says to start the run again, and the same command then works. The
+    write fails for real: a file stands where the ``checkpoints`` folder must go."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "checkpoints").write_text("not a folder")
+    args = ["fit", "--shards", sample_shards, "--out", run, "--steps", 2, *TINY]
+    res = run_cli(train_main, args, expect_exit=1)
+    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]  # after the run's start line
+    assert len(errors) == 1 and res.output.rstrip().endswith(errors[0]), res.output
+    line = errors[0]
+    assert f"{run / 'checkpoints' / 'step_000002.pt'}: cannot write checkpoint" in line
+    assert "start the run again (the same command" in line and "rerun with --resume" not in line
+    assert "checkpoint not found" in run_cli(train_main, ["fit", "--out", run, "--resume"], expect_exit=1).output
+    (run / "checkpoints").unlink()
+    run_cli(train_main, args)
+    assert (run / "checkpoints" / "last.pt").is_file()

@@ -140,8 +140,10 @@ def save_checkpoint(run_dir: Path, payload: dict) -> Path:
                 pass
         reason = e.strerror if isinstance(e, OSError) and e.strerror else " ".join(str(e).split())
         kept = f"; {path} is complete" if target == last else ""
-        raise CheckpointError(f"{target}: cannot write checkpoint ({reason}){kept}; "
-                              f"free space and rerun with --resume") from e
+        then = ("rerun with --resume" if target == last or last.is_file() else
+                "start the run again (the same command: no checkpoint of it was written, so --resume has "
+                "nothing to continue)")
+        raise CheckpointError(f"{target}: cannot write checkpoint ({reason}){kept}; free space and {then}") from e
     return path
 
 
