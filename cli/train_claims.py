@@ -25,7 +25,10 @@ def claims(train_shards, eval_shards, eval_split, out, preset, runs, device, wor
     ray+projection at the true pose) with --seeds seeds and equal budgets, evaluate each on
     held-out objects and write the paper's tables (mean ± standard deviation over the seeds).
     Rerunning resumes."""
+    from sc3d_data.io.outlock import LockError, exclusive_lock
+    from sc3d_data.io.shards import one_line
     from sc3d_train.loop.checkpoint import CheckpointError
+    from sc3d_train.loop.trainer import TrainingDiverged
     from sc3d_train.evaluation.claims import RUNS, run_all
     from sc3d_train.data.dataset import DataError
 
@@ -33,8 +36,9 @@ def claims(train_shards, eval_shards, eval_split, out, preset, runs, device, wor
     unknown = sorted(set(names or []) - set(RUNS))
     if unknown:
         raise click.UsageError(f"unknown runs {unknown}; choose from {', '.join(RUNS)}")
-    try:
-        run_all(train_shards, eval_shards, out, preset, eval_split, device, workers, names, echo=click.echo,
-                seeds=seeds, pick=pick)
-    except (DataError, CheckpointError, FileNotFoundError, ValueError) as e:
-        raise click.ClickException(str(e)) from e
+    try:  # one study per folder: its runs, evaluations and reports are written by this process only
+        with exclusive_lock(out, "sc3d-train claims", create=True):
+            run_all(train_shards, eval_shards, out, preset, eval_split, device, workers, names, echo=click.echo,
+                    seeds=seeds, pick=pick)
+    except (DataError, CheckpointError, TrainingDiverged, LockError, ValueError, OSError) as e:  # OSError: disk full
+        raise click.ClickException(one_line(e)) from e

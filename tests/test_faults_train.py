@@ -215,3 +215,20 @@ def test_f8_a_failed_first_checkpoint_says_to_start_again_not_to_resume(sample_s
     (run / "checkpoints").unlink()
     run_cli(train_main, args)
     assert (run / "checkpoints" / "last.pt").is_file()
+
+
+# ----------------------------------------------------------------------------- F9
+def test_f9_a_second_claims_into_the_same_study_folder_is_refused_in_one_line(sample_shards, tmp_path):
+    """``claims`` trains through ``fit``'s library call, which takes no lock, so two studies into
+    one ``--out`` trained the same run folders at once (one run's checkpoints over the other's).
+    ``claims`` now holds the study folder's write lock; a second one is refused in one line naming
+    the holder before any work, and the folder is left as it was."""
+    from sc3d_data.io.outlock import LOCK_NAME, exclusive_lock
+
+    out = tmp_path / "study"
+    with exclusive_lock(out, "sc3d-train claims", create=True):
+        res = run_cli(train_main, ["claims", "--train-shards", sample_shards, "--eval-shards", sample_shards,
+                                   "--out", out, "--runs", "sup-3tube"], expect_exit=1)
+        assert f"{out}: another process (PID" in one_line(res.output)
+        assert "sc3d-train claims) is writing to this folder" in res.output
+        assert [p.name for p in out.iterdir()] == [LOCK_NAME]

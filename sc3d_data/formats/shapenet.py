@@ -109,3 +109,26 @@ def resolve_front(front: str, path) -> str:
     if front.strip().lower() != AUTO_FRONT:
         return front
     return {1: SHAPENET_V1_FRONT, 2: SHAPENET_V2_FRONT}.get(shapenet_version(path), CANONICAL_FRONT)
+
+
+def check_axes(up: str, front: str) -> None:
+    """Raise ``ValueError`` naming the option when ``--up`` is not an axis, ``--front`` is neither
+    an axis nor ``auto``, or the two are not perpendicular, so that a typo fails once instead of
+    as one failure per mesh. ``auto`` takes +Z as the front of every mesh outside ShapeNet
+    (:func:`resolve_front`), so ``--up`` on the Z axis needs an explicit ``--front``."""
+    from sc3d_data.geometry.normalize import axis_vector, canonical_rotation
+
+    auto = front.strip().lower() == AUTO_FRONT
+    for option, axis in (("--up", up), ("--front", front)):
+        try:
+            axis_vector(CANONICAL_FRONT if auto and option == "--front" else axis)
+        except ValueError as e:
+            raise ValueError(f"{option} {axis}: {e}") from None
+    try:
+        canonical_rotation(up, CANONICAL_FRONT if auto else front)
+    except ValueError:
+        if not auto:
+            raise
+        raise ValueError(f"--up {up} with --front auto: auto takes {CANONICAL_FRONT} as the front of meshes "
+                         "that are not ShapeNet's, which is not perpendicular to it; give --front "
+                         "(e.g. --front -Y for a Z-up export)") from None

@@ -96,7 +96,7 @@ class RenderConfig:
             raise ValueError(f"--distance {self.distance}: must be a positive number")
         if not all(math.isfinite(e) for e in self.elevations):
             raise ValueError(f"--elevations {','.join(map(str, self.elevations))}: must be finite numbers")
-        from sc3d_data.geometry.normalize import check_axes
+        from sc3d_data.formats.shapenet import check_axes
 
         check_axes(self.up, self.front)
         if not self.timeout_s > 0:

@@ -101,7 +101,7 @@ def voxelize_meshes(config: VoxelMeshesConfig) -> VoxelizeSummary:
     from sc3d_data.pipeline.run.partition import part_of
     from sc3d_data.formats.discover import discover_meshes, no_meshes_found
 
-    from sc3d_data.geometry.normalize import check_axes
+    from sc3d_data.formats.shapenet import check_axes
 
     check_axes(config.up, config.front)
     t0 = time.monotonic()
