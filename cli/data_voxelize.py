@@ -51,7 +51,7 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
     try:
         if shards is not None:
             s = voxelize_shards(shards, resolution, workers or os.cpu_count() or 1, overwrite, progress)
-            click.echo(f"voxelized {s.objects} objects in {s.shards_done} shards ({s.shards_skipped} shards "
+            click.echo(f"voxelized {s.objects - s.failed} objects in {s.shards_done} shards ({s.shards_skipped} shards "
                        f"already done), {s.failed} failed, {s.seconds:.1f} s")
             if s.failed and s.failed == s.objects:
                 raise click.ClickException(f"no object was voxelized: all {s.failed} failed (their grids are empty; "
