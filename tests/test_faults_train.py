@@ -232,3 +232,33 @@ def test_f9_a_second_claims_into_the_same_study_folder_is_refused_in_one_line(sa
         assert f"{out}: another process (PID" in one_line(res.output)
         assert "sc3d-train claims) is writing to this folder" in res.output
         assert [p.name for p in out.iterdir()] == [LOCK_NAME]
+
+
+# ----------------------------------------------------------------------------- F10
+def test_f10_predict_turns_an_image_by_its_exif_orientation_and_refuses_an_animated_one(sample_shards, tiny_run,
+                                                                                        tmp_path):
+    """A camera stores a turned photo as unturned pixels plus an EXIF orientation tag; predict
+    read the raw pixels, so its input was not the image the user sees. Now the tag is applied:
+    a view stored upside down with orientation 3 ("rotate 180") predicts exactly what the upright
+    view predicts, and differs from the raw upside-down pixels (negative control). An animated
+    image used its first frame silently; it is now refused in one line."""
+    import numpy as np
+
+    with h5py.File(next(sample_shards.glob("*.h5")), "r") as f:
+        view = Image.fromarray(f["images"][0, 5])
+    upright, tagged, raw = tmp_path / "upright.png", tmp_path / "tagged.png", tmp_path / "raw.png"
+    view.save(upright)
+    exif = Image.Exif()
+    exif[0x0112] = 3  # Orientation: rotate 180
+    view.rotate(180).save(tagged, exif=exif)
+    view.rotate(180).save(raw)
+    ckpt = tiny_run / "checkpoints" / "last.pt"
+    run_cli(train_main, ["predict", "--checkpoint", ckpt, upright, tagged, raw, "--out", tmp_path / "pred"])
+    probs = {p: np.load(tmp_path / "pred" / f"{p}.npz")["probabilities"] for p in ("upright", "tagged", "raw")}
+    np.testing.assert_array_equal(probs["tagged"], probs["upright"])
+    assert not np.array_equal(probs["raw"], probs["upright"])
+
+    gif = tmp_path / "turning.gif"
+    view.save(gif, save_all=True, append_images=[view.rotate(90)], duration=100, loop=0)
+    res = run_cli(train_main, ["predict", "--checkpoint", ckpt, gif, "--out", tmp_path / "pred_gif"], expect_exit=1)
+    assert f"{gif}: an animated image of 2 frames; give one frame as a still image" in one_line(res.output)

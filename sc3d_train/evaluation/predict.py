@@ -16,7 +16,8 @@ Input images must have the training image size (no silent resizing: the camera i
 the framing of the training renders would no longer hold). Modes: RGB is used as is; RGBA, LA,
 L and P are converted to RGBA and alpha-composited onto the training data's background colour
 (stored in the checkpoint), so a transparent PNG looks like the renders; other modes (CMYK,
-16-bit, float, 1-bit) are refused.
+16-bit, float, 1-bit) are refused. An EXIF orientation tag (a camera's JPEG) is applied, so the
+image is used as viewers show it; an animated image (several frames) is refused.
 """
 from __future__ import annotations
 
@@ -40,7 +41,7 @@ def load_image(path: Path, image_size: int, background: list[int]) -> np.ndarray
     """``path`` -> float32 ``[S, S, 3]`` in [0, 1] (see module doc for modes and sizes)."""
     import warnings
 
-    from PIL import Image
+    from PIL import Image, ImageOps
 
     from sc3d_data.io.names import printable
 
@@ -55,9 +56,13 @@ def load_image(path: Path, image_size: int, background: list[int]) -> np.ndarray
     if img.size != (image_size, image_size):  # before decoding: an oversized image is never decoded
         raise ImageError(f"{printable(path)}: image is {img.size[0]}x{img.size[1]}, the model expects "
                          f"{image_size}x{image_size} (crop/resize it like the training renders)")
+    frames = getattr(img, "n_frames", 1)
+    if frames > 1:  # which frame is the view is not ours to guess
+        raise ImageError(f"{printable(path)}: an animated image of {frames} frames; give one frame as a still image")
     try:
         img.load()
-    except Exception as e:  # noqa: BLE001 - truncated or corrupt pixel data
+        img = ImageOps.exif_transpose(img)  # as viewers show it: a camera's orientation tag turns the pixels
+    except Exception as e:  # noqa: BLE001 - truncated or corrupt pixel data, a broken EXIF block
         raise ImageError(f"{printable(path)}: cannot read image ({type(e).__name__}: {e})") from e
     if img.mode not in ACCEPTED_MODES:
         raise ImageError(f"{path}: image mode {img.mode!r} not supported (use one of {ACCEPTED_MODES})")
