@@ -31,5 +31,8 @@ def eval_cmd(checkpoint, shards, out, pose_from, device, split, pick, batch_size
         raise click.ClickException(one_line(e)) from e
     click.echo(f"{result['checkpoint']} (step {result['step']}) on split {split!r} of {shards} (pose: {pose_from}):")
     click.echo(result["table"])
+    if result["differs_from_training"]:
+        click.echo(f"note: these shards differ from the checkpoint's training data: "
+                   f"{'; '.join(result['differs_from_training'])}; the figures measure the model across that change")
     out = Path(result["out"])
     click.echo(f"wrote {out / 'metrics.json'} and {out / 'predictions.png'}")

@@ -262,3 +262,29 @@ def test_f10_predict_turns_an_image_by_its_exif_orientation_and_refuses_an_anima
     view.save(gif, save_all=True, append_images=[view.rotate(90)], duration=100, loop=0)
     res = run_cli(train_main, ["predict", "--checkpoint", ckpt, gif, "--out", tmp_path / "pred_gif"], expect_exit=1)
     assert f"{gif}: an animated image of 2 frames; give one frame as a still image" in one_line(res.output)
+
+
+# ----------------------------------------------------------------------------- F11
+def test_f11_eval_notes_shards_that_differ_from_the_training_data(sample_shards, tiny_run, tmp_path):
+    """``eval`` of a checkpoint on shards rendered with another background and at an elevation its
+    pose grid does not hold (10-50 deg) printed figures like any other, with nothing to say
+    that they measure a domain shift (and a pose error with a floor). Now one note names each
+    difference and ``metrics.json`` keeps them; on shards like the training data there is none
+    (negative control)."""
+    meshes = tmp_path / "meshes"
+    shutil.copytree(SAMPLE_MESHES / "chair", meshes / "chair")
+    other = tmp_path / "black"
+    run_cli(data_main, ["render", "--meshes", meshes, "--out", other, "--voxelize", "--background", "0,0,0",
+                        "--elevations", "70", "--split", "random:0,0,1", "--no-progress"])
+    ckpt = tiny_run / "checkpoints" / "last.pt"
+    res = run_cli(train_main, ["eval", "--checkpoint", ckpt, "--shards", other, "--out", tmp_path / "e1"])
+    notes = [ln for ln in res.output.splitlines() if ln.startswith("note:")]
+    assert len(notes) == 1, res.output
+    assert "background [0, 0, 0] (trained on [255, 255, 255])" in notes[0]
+    assert "elevations [70.0] deg outside the pose grid's [10, 50]" in notes[0]
+    saved = json.loads((tmp_path / "e1" / "metrics.json").read_text())["differs_from_training"]
+    assert len(saved) == 2 and saved[0].startswith("background")
+
+    res = run_cli(train_main, ["eval", "--checkpoint", ckpt, "--shards", sample_shards, "--out", tmp_path / "e2"])
+    assert "note:" not in res.output
+    assert json.loads((tmp_path / "e2" / "metrics.json").read_text())["differs_from_training"] == []

@@ -138,6 +138,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     if dataset.info["voxel_resolution"] != cfg.model.voxel_resolution:
         raise ValueError(f"{shards}: voxels are {dataset.info['voxel_resolution']}^3 but the checkpoint "
                          f"predicts {cfg.model.voxel_resolution}^3")
+    differences = differences_from_training(cfg, dataset.info)
     rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
                                  loss_weights=cfg.loss_weights)
     summary = summarize(rows)
@@ -145,12 +146,39 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     out.mkdir(parents=True, exist_ok=True)
     result = {"checkpoint": str(checkpoint), "step": int(ckpt.get("step", -1)), "shards": str(shards),
               "split": split, "pose_from": pose_from, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
-              **summary}
+              "differs_from_training": differences, **summary}
     (out / "metrics.json").write_text(json.dumps(_finite(result), indent=1))
     plot_examples(kept, out / "predictions.png")
     result["table"] = format_table(summary)
     result["out"] = str(out)
     return result
+
+
+def differences_from_training(cfg, info: dict) -> list[str]:
+    """How the evaluated shards' images differ from those the checkpoint was trained on
+    (``cfg``: its run config; ``info``: ``ShardDataset.info``), one phrase each; empty when
+    they are alike. Background, intrinsics and camera distance change what the network sees;
+    elevations outside the pose grid's range cannot be predicted, so their pose error has a
+    floor. Not refused: evaluating across such a change (other renders, 3D-R2N2's imports) is a
+    legitimate experiment, but its figures must say so (``eval`` prints a note, and
+    ``metrics.json`` keeps the list under ``differs_from_training``)."""
+    from sc3d_train.data.dataset import background_of
+
+    found = []
+    background = background_of(info)
+    if list(cfg.background) != background:
+        found.append(f"background {background} (trained on {list(cfg.background)})")
+    if cfg.intrinsics is not None and not np.allclose(info["K"], cfg.intrinsics, rtol=1e-4):
+        fx, trained_fx = np.asarray(info["K"])[0, 0], np.asarray(cfg.intrinsics)[0, 0]
+        found.append(f"intrinsics K (focal length {fx:.1f} px, trained on {trained_fx:.1f} px)")
+    if not math.isclose(info["distance"], cfg.camera_distance, rel_tol=1e-4):
+        found.append(f"camera distance {info['distance']:g} (trained at {cfg.camera_distance:g})")
+    low, high = cfg.model.elevation_min, cfg.model.elevation_max
+    outside = sorted({float(e) for e in info.get("settings", {}).get("elevations") or [] if not low <= e <= high})
+    if outside:
+        found.append(f"elevations {outside} deg outside the pose grid's [{low:g}, {high:g}] (their pose error "
+                     f"has a floor)")
+    return found
 
 
 def _finite(obj):
