@@ -91,10 +91,10 @@ def check_same_shards(cfg: RunConfig, out: Path) -> None:
     not record (``None``) are not compared."""
     from sc3d_train.loop.checkpoint import CheckpointError
 
-    now = shard_facts(Path(cfg.shards), cfg.split)
-    changed = [k for k, v in run_facts(cfg).items() if v is not None and v != now[k]]
+    was, now = run_facts(cfg), shard_facts(Path(cfg.shards), cfg.split)
+    changed = [k for k, v in was.items() if v is not None and v != now[k]]
     if changed:
-        names = ", ".join(f"the objects of split {cfg.split!r}" if k == "objects_sha256" else f"{k} {run_facts(cfg)[k]!r} -> {now[k]!r}"
+        names = ", ".join(f"the objects of split {cfg.split!r}" if k == "objects_sha256" else f"{k} {was[k]!r} -> {now[k]!r}"
                           for k in changed)
         raise CheckpointError(f"{cfg.shards}: the shards changed since run {out} started ({names}); --resume "
                               f"continues only on the data the run started on: train a new run on them "
