@@ -288,3 +288,27 @@ def test_f11_eval_notes_shards_that_differ_from_the_training_data(sample_shards,
     res = run_cli(train_main, ["eval", "--checkpoint", ckpt, "--shards", sample_shards, "--out", tmp_path / "e2"])
     assert "note:" not in res.output
     assert json.loads((tmp_path / "e2" / "metrics.json").read_text())["differs_from_training"] == []
+
+
+# ----------------------------------------------------------------------------- F12
+def test_f12_resume_with_tiny_refuses_a_run_of_another_model(sample_shards, tiny_run, tmp_path):
+    """``fit --resume --tiny`` used to ignore ``--tiny``: a run of another network went on at its
+    own width while the command asked for the tiny one. ``--tiny`` on ``--resume`` is now held to
+    the run's model like any model option: refused in one line naming the fields that differ
+    (the tiny preset's ``shape_dim`` 32, ``pose_dim`` 8; hand-copied from ``TINY_MODEL``), and
+    accepted where the run is tiny (negative control: ``tiny_run`` is ``--tiny --base-channels 4``)."""
+    run = tmp_path / "small"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, "--steps", 2, "--base-channels", 4,
+                         "--shape-dim", 16, "--pose-dim", 4, "--batch-size", 4, "--no-progress", "--val-every", 0])
+    before = (run / "checkpoints" / "last.pt").read_bytes()
+    res = run_cli(train_main, ["fit", "--out", run, "--resume", "--tiny", "--base-channels", 4, "--steps", 3,
+                               "--no-progress"], expect_exit=1)
+    line = one_line(res.output)
+    assert "cannot change on --resume: --pose-dim 8 (from --tiny) (run has 4), --shape-dim 32 (from --tiny) (run has 16)" in line, line
+    assert (run / "checkpoints" / "last.pt").read_bytes() == before
+
+    copy = tmp_path / "tiny"
+    shutil.copytree(tiny_run, copy)
+    ok = run_cli(train_main, ["fit", "--out", copy, "--resume", "--tiny", "--base-channels", 4, "--steps", 3,
+                              "--no-progress"])
+    assert "step 3" in ok.output

@@ -27,7 +27,7 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     model_options = dict(model_options or {})
     tiny = model_options.pop("tiny", False)
     if resume:
-        return _resumed(options, model_options)
+        return _resumed(options, model_options, tiny)
     plain = {}
     if config_file is not None:
         plain = RunConfig.load(config_file).to_dict()
@@ -101,9 +101,10 @@ def check_same_shards(cfg: RunConfig, out: Path) -> None:
                               f"(--config {RunConfig.path_in(out)} --out NEW_DIR)")
 
 
-def _resumed(options: dict, model_options: dict) -> RunConfig:
+def _resumed(options: dict, model_options: dict, tiny: bool = False) -> RunConfig:
     """The saved config of run ``options["out"]`` with the resumable ``options`` applied;
-    ``CheckpointError`` listing any other option that differs from the run's."""
+    ``CheckpointError`` listing any other option that differs from the run's (``tiny``: the
+    tiny preset asked for, an error unless the run's model already is it)."""
     from sc3d_train.loop.checkpoint import CheckpointError
 
     out = Path(options["out"])
@@ -119,9 +120,11 @@ def _resumed(options: dict, model_options: dict) -> RunConfig:
             setattr(cfg, k, v)
         elif not same:
             changed.append(f"--{k.replace('_', '-')} {v!r} (run has {current!r})")
-    for k, v in sorted(model_options.items()):
+    asked = {**(TINY_MODEL if tiny else {}), **model_options}  # the tiny preset, then explicit options
+    for k, v in sorted(asked.items()):
         if v != getattr(cfg.model, k):
-            changed.append(f"--{k.replace('_', '-')} {v!r} (run has {getattr(cfg.model, k)!r})")
+            via = "" if k in model_options else " (from --tiny)"
+            changed.append(f"--{k.replace('_', '-')} {v!r}{via} (run has {getattr(cfg.model, k)!r})")
     if changed:
         raise CheckpointError(f"{out}: cannot change on --resume: " + ", ".join(changed))
     check_same_shards(cfg, out)
