@@ -82,12 +82,14 @@ def probe_backend(backend: str = "auto") -> tuple[str, str]:
 
 
 def exit_status(code: int) -> str:
-    """``exit status 1`` or ``killed by signal 11 (SIGSEGV)`` for a ``subprocess`` return code."""
+    """``exit status 1``, ``killed by signal 11 (SIGSEGV)`` or ``killed by signal 9 (SIGKILL: out
+    of memory or killed from outside)`` for a ``subprocess`` or ``multiprocessing`` exit code."""
     if code >= 0:
         return f"exit status {code}"
     import signal
 
     try:
-        return f"killed by signal {-code} ({signal.Signals(-code).name})"
+        name = signal.Signals(-code).name
     except ValueError:
         return f"killed by signal {-code}"
+    return f"killed by signal {-code} ({name}" + (": out of memory or killed from outside)" if name == "SIGKILL" else ")")

@@ -99,16 +99,6 @@ def _worker_main(conn, job: Job, config, backend: str, environ: dict | None = No
         job.drop()
 
 
-def _signal_name(signum: int) -> str:
-    import signal
-
-    try:
-        name = signal.Signals(signum).name
-    except ValueError:
-        return "unknown signal"
-    return name + (": out of memory or killed from outside" if name == "SIGKILL" else "")
-
-
 class _Worker:
     def __init__(self, ctx, job: Job, config, backend: str, slot: int = 0):
         self.conn, child = ctx.Pipe()
@@ -219,8 +209,9 @@ class WorkerPool:
                             raise RuntimeError(f"a {self.job.name} worker died while starting (exit code {code})")
                         todo.extend(self._replace(w)[::-1])
                         if task is not None:
-                            how = (f"killed by signal {-code} ({_signal_name(-code)})" if code and code < 0
-                                   else f"exited with code {code}")
+                            from sc3d_data.render.probe import exit_status
+
+                            how = exit_status(code) if code and code < 0 else f"exited with code {code}"
                             yield task.pos, "fail", f"{task.path}: {self.job.name} worker {how} while working on it"
                 elif w.tasks and time.monotonic() - w.started > timeout:
                     task = w.tasks[0]
