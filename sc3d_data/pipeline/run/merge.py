@@ -55,6 +55,20 @@ def _object_key(entry: dict) -> tuple[str, str] | None:
     return (entry["category"], entry["model_id"]) if entry.get("model_id") else None
 
 
+def _lost_objects(index: dict) -> list[dict]:
+    """The failures of ``index`` that stand for an object missing from its shards: those of the
+    render/import stage with an object id. A ``voxelize`` failure names an object that keeps
+    its row (with an empty grid), so it is no object of its own."""
+    return [f for f in index.get("failures", []) if _object_key(f) and f.get("stage") != "voxelize"]
+
+
+def _renamed_failures(failures: list[dict], names: dict[str, str]) -> list[dict]:
+    """``failures`` of one part with the ``shard`` of each ``voxelize`` failure renamed by
+    ``names`` (the part's shard file -> its merged name); the others unchanged."""
+    return [dict(f, shard=names.get(f.get("shard"), f.get("shard"))) if f.get("stage") == "voxelize" else f
+            for f in failures]
+
+
 def check_parts(dirs: list[Path]) -> list[dict]:
     """The parts' indexes, in part order, after every check of the module doc."""
     if not dirs:
@@ -93,7 +107,7 @@ def check_parts(dirs: list[Path]) -> list[dict]:
         if p["index"] in seen:
             raise MergeError(f"{d}: part {p['index']}/{n} is given twice (also {seen[p['index']]})")
         seen[p["index"]] = d
-        done = len(index.get("objects", [])) + sum(1 for f in index.get("failures", []) if _object_key(f))
+        done = len(index.get("objects", [])) + len(_lost_objects(index))
         if done != p["assigned"]:
             raise MergeError(f"{d}: part {p['index']}/{n} accounts for {done} of its {p['assigned']} objects")
     missing = sorted(set(range(n)) - set(seen))
@@ -102,7 +116,7 @@ def check_parts(dirs: list[Path]) -> list[dict]:
                          f"{', '.join(str(i) for i in sorted(seen))}); run them, then merge")
     owner: dict[tuple[str, str], Path] = {}
     for d, index in zip(dirs, indexes):
-        for e in index.get("objects", []) + index.get("failures", []):
+        for e in index.get("objects", []) + _lost_objects(index):
             key = _object_key(e)
             if key is None:
                 continue
@@ -153,7 +167,7 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
         shards, objects, failures, skipped, warnings = [], [], [], [], []
         counts = {"linked": 0, "copied": 0, "kept": 0}
         for index in parts:
-            src_dir = Path(index["_dir"])
+            src_dir, names = Path(index["_dir"]), {}
             for entry in index.get("shards", []):
                 name = SHARD_PATTERN.format(len(shards))
                 dst = out / name
@@ -163,8 +177,9 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
                     counts[_place(src_dir / entry["file"], dst, copy)] += 1
                 objects += [dict(o, shard=name, chunk=len(shards)) for o in index["objects"]
                             if o["shard"] == entry["file"]]
+                names[entry["file"]] = name
                 shards.append(dict(entry, file=name, chunk=len(shards)))
-            failures += index.get("failures", [])
+            failures += _renamed_failures(index.get("failures", []), names)
             skipped += index.get("skipped", [])
             warnings += index.get("warnings", [])
         for stale in {e["file"] for e in old.get("shards", [])} - {s["file"] for s in shards}:

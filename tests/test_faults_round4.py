@@ -1,0 +1,55 @@
+"""Hostile inputs, round four: one test per defect found by the fourth attack on the ``sc3d-data``
+command line (D1: ``merge`` of parts that ``voxelize`` ran on, one mesh failing). Real renderer,
+HDF5 and worker processes; every fixture is built here. Expected values come from the fixtures
+(which mesh was moved away, the shard bytes, the part a hash gives), never from the code under
+test."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from sc3d_cli.data import main as data_main
+from conftest import run_cli
+from test_faults import CUBE_F, CUBE_V, FAST, obj_text
+
+
+def _cubes(folder: Path, names: str) -> Path:
+    """``folder/chair/N.obj`` for each letter of ``names``: unit cubes; returns ``folder``."""
+    (folder / "chair").mkdir(parents=True)
+    for name in names:
+        (folder / "chair" / f"{name}.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    return folder
+
+
+# ----------------------------------------------------------------------------- D1
+def test_d1_merge_takes_parts_whose_voxelize_failed_on_one_mesh(tmp_path):
+    """Parts rendered without voxels, then ``sc3d-data voxelize PART`` on each (the workflow
+    docs/scale.md gives), one mesh of part 0 missing by then: that object keeps its row with an
+    empty grid and gets a ``"stage": "voxelize"`` failure. ``merge`` counted that failure as one
+    more object and refused for good ("part 0/2 accounts for 3 of its 2 objects"). Now it merges:
+    all objects, the voxelize failure kept and pointing at the merged shard that holds the
+    object (the part's shard name would name another part's shard)."""
+    meshes = _cubes(tmp_path / "m", "abch")     # part_of(chair, id, 2): b, h -> 0; a, c -> 1
+    parts = [tmp_path / "p0", tmp_path / "p1"]
+    for i, p in enumerate(parts):
+        run_cli(data_main, ["render", "--meshes", meshes, "--out", p, "--part", f"{i}/2", *FAST])
+    assert [o["model_id"] for o in json.loads((parts[0] / "index.json").read_text())["objects"]] == ["b", "h"]
+    (meshes / "chair" / "b.obj").rename(tmp_path / "b.obj")
+    for p in parts:
+        run_cli(data_main, ["voxelize", p, "--no-progress"])
+
+    out = tmp_path / "merged"
+    res = run_cli(data_main, ["merge", out, *parts])
+    assert "4 objects in 2 shards" in res.output
+    index = json.loads((out / "index.json").read_text())
+    assert sorted(o["model_id"] for o in index["objects"]) == ["a", "b", "c", "h"]
+    (fail,) = index["failures"]
+    assert fail["stage"] == "voxelize" and fail["model_id"] == "b"
+    with h5py.File(out / fail["shard"]) as f:
+        ids = [m.decode() for m in f["model_id"][()]]
+        grids = f["voxels"][()]
+    assert ids[fail["row"]] == "b" and not grids[fail["row"]].any()
+    assert all(grids[r].any() for r, m in enumerate(ids) if m != "b")
