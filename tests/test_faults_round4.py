@@ -1,18 +1,24 @@
 """Hostile inputs, round four: one test per defect found by the fourth attack on the ``sc3d-data``
-command line (D1: ``merge`` of parts that ``voxelize`` ran on, one mesh failing). Real renderer,
+command line (D1: ``merge`` of parts that ``voxelize`` ran on, one mesh failing; D2: a rerun
+after a retry run was stopped). Real renderer,
 HDF5 and worker processes; every fixture is built here. Expected values come from the fixtures
 (which mesh was moved away, the shard bytes, the part a hash gives), never from the code under
 test."""
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import h5py
 import numpy as np
 
 from sc3d_cli.data import main as data_main
-from conftest import run_cli
+from conftest import REPO, run_cli, write_hanging_gltf
 from test_faults import CUBE_F, CUBE_V, FAST, obj_text
 
 
@@ -53,3 +59,37 @@ def test_d1_merge_takes_parts_whose_voxelize_failed_on_one_mesh(tmp_path):
         grids = f["voxels"][()]
     assert ids[fail["row"]] == "b" and not grids[fail["row"]].any()
     assert all(grids[r].any() for r, m in enumerate(ids) if m != "b")
+
+
+# ----------------------------------------------------------------------------- D2
+def test_d2_a_rerun_after_a_stopped_retry_renders_the_object_again_instead_of_losing_it(tmp_path):
+    """A mesh that hangs failed (``--timeout 1``); the rerun, which retries recorded failures,
+    writes its index without that failure before it starts and was killed while retrying (a
+    kill or Ctrl-C). The next rerun counted the object as resumed: exit 0, index complete, the
+    object in neither ``objects`` nor ``failures`` (silently gone). Now an object of a kept
+    chunk that the index does not name is done again and recorded."""
+    meshes = _cubes(tmp_path / "m", "ab")
+    write_hanging_gltf(meshes / "chair")
+    out = tmp_path / "out"
+    args = ["render", "--meshes", meshes, "--out", out, *FAST]
+    run_cli(data_main, [*args, "--timeout", "1"])
+    assert [f["model_id"] for f in json.loads((out / "index.json").read_text())["failures"]] == ["hang"]
+
+    proc = subprocess.Popen([sys.executable, "-c", "from sc3d_cli.data import main; main()", *map(str, args),
+                             "--timeout", "60"], cwd=REPO, env=dict(os.environ, PYTHONPATH=str(REPO)),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 50
+        while json.loads((out / "index.json").read_text())["failures"] and time.monotonic() < deadline:
+            time.sleep(0.05)    # the retry run has written its index; it now waits on the hanging mesh
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    stopped = json.loads((out / "index.json").read_text())
+    assert not stopped["failures"] and not stopped["complete"]
+
+    res = run_cli(data_main, [*args, "--timeout", "1"])
+    assert "resumed 2" in res.output and "failed 1" in res.output
+    index = json.loads((out / "index.json").read_text())
+    assert sorted(o["model_id"] for o in index["objects"]) == ["a", "b"]
+    assert [f["model_id"] for f in index["failures"]] == ["hang"] and index["complete"]

@@ -92,9 +92,18 @@ def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[T
                 attempts[t.pos] = int(f.get("attempts", 1))
         failures = [f for f in failures if f.get("pos") not in retry]
         warnings = [w for w in warnings if w.get("source") not in {tasks[p].path for p in retry}]
+    retry |= unlisted_positions(tasks, K, done_chunks, objects + failures)
     return {"done_chunks": done_chunks, "shards": shards, "objects": objects, "failures": failures,
             "warnings": warnings, "retry": retry, "attempts": attempts, "broken": broken,
             "empty_chunks": [c for c in old.get("empty_chunks", []) if c in done_chunks]}
+
+
+def unlisted_positions(tasks: list[Task], K: int, done_chunks: set, listed: list[dict]) -> set[int]:
+    """Plan positions of kept chunks whose object the kept entries (``listed``: objects and
+    failures) do not name: a run stopped while retrying a failure has already dropped its
+    record, so keeping the chunk as done would lose the object silently. They are done again."""
+    names = {(e.get("category"), e.get("model_id")) for e in listed}
+    return {t.pos for t in tasks if t.pos // K in done_chunks and (t.category, t.model_id) not in names}
 
 
 def empty_state() -> dict:
