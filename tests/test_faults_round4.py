@@ -1,6 +1,6 @@
 """Hostile inputs, round four: one test per defect found by the fourth attack on the ``sc3d-data``
 command line (D1: ``merge`` of parts that ``voxelize`` ran on, one mesh failing; D2: a rerun
-after a retry run was stopped). Real renderer,
+after a retry run was stopped; D3: a rerun of ``render`` on shards that ``voxelize`` completed). Real renderer,
 HDF5 and worker processes; every fixture is built here. Expected values come from the fixtures
 (which mesh was moved away, the shard bytes, the part a hash gives), never from the code under
 test."""
@@ -93,3 +93,55 @@ def test_d2_a_rerun_after_a_stopped_retry_renders_the_object_again_instead_of_lo
     index = json.loads((out / "index.json").read_text())
     assert sorted(o["model_id"] for o in index["objects"]) == ["a", "b"]
     assert [f["model_id"] for f in index["failures"]] == ["hang"] and index["complete"]
+
+
+# ----------------------------------------------------------------------------- D3
+def _shard_voxels(out: Path) -> dict:
+    """``{model_id: voxels or None}`` over the shard files of ``out``."""
+    got = {}
+    for p in sorted(out.glob("shard-*.h5")):
+        with h5py.File(p) as f:
+            ids = [m.decode() for m in f["model_id"][()]]
+            grids = f["voxels"][()] if "voxels" in f else [None] * len(ids)
+        got.update(zip(ids, grids))
+    return got
+
+
+def test_d3_render_rerun_on_voxelized_shards_keeps_their_voxel_record_or_says_it_is_gone(tmp_path):
+    """``render`` (a and d fail), ``voxelize OUT`` (b's mesh missing: empty grid, a voxelize
+    failure), then the same ``render`` again. Before: a plain rerun dropped the index's
+    ``voxels`` record and b's failure (the empty grid no longer recorded); once a and d were
+    fixed, the rerun rewrote shard 0 with the retried a first and silently without the voxels of
+    b, then died on shard 1 with a ``KeyError: 'voxels'`` traceback (d last). Now the plain
+    rerun keeps both; the retry writes each shard without voxels, drops the record, says to run
+    ``voxelize`` again, and that gives every object its grid."""
+    meshes = _cubes(tmp_path / "m", "bc")
+    for name in "ad":
+        (meshes / "chair" / f"{name}.obj").write_text("not a mesh\n")
+    out = tmp_path / "out"
+    args = ["render", "--meshes", meshes, "--out", out, "--objects-per-shard", "2", *FAST]
+    run_cli(data_main, args)
+    (meshes / "chair" / "b.obj").rename(tmp_path / "b.obj")
+    run_cli(data_main, ["voxelize", out, "--no-progress"])
+    (tmp_path / "b.obj").rename(meshes / "chair" / "b.obj")
+    grids = _shard_voxels(out)
+    assert sorted(grids) == ["b", "c"] and not grids["b"].any() and grids["c"].any()
+
+    run_cli(data_main, args)                                       # a and d fail again
+    index = json.loads((out / "index.json").read_text())
+    assert index["voxels"]["resolution"] == 32
+    assert sorted((f.get("stage", "render"), f["model_id"]) for f in index["failures"]) == [
+        ("render", "a"), ("render", "d"), ("voxelize", "b")]
+
+    for name in "ad":
+        (meshes / "chair" / f"{name}.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    res = run_cli(data_main, args)
+    assert f"warning: {out / 'shard-00000.h5'}: written without the voxels" in res.output
+    assert f"run `sc3d-data voxelize {out}` again" in res.output
+    index = json.loads((out / "index.json").read_text())
+    assert "voxels" not in index and index["failures"] == [] and index["complete"]
+    assert _shard_voxels(out) == dict.fromkeys("abcd")
+
+    run_cli(data_main, ["voxelize", out, "--no-progress"])
+    grids = _shard_voxels(out)
+    assert sorted(grids) == ["a", "b", "c", "d"] and all(g.any() for g in grids.values())

@@ -83,7 +83,7 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
     views = run.done * len(config.elevations) * config.num_views
     return {"done": run.done, "resumed": run.resumed, "skipped": len(plan.skipped),
             "failed": len(index.failures) + len(index.problems), "retried": len(run.retry),
-            "repaired": len(run.repaired), "notes": run.repaired,
+            "repaired": len(run.repaired), "notes": run.repaired + run.notes,
             "seconds": seconds, "views": views, "views_per_s": views / seconds if seconds > 0 else 0.0,
             "out": str(out), "backend": settings["backend"], "workers": n_workers if run.todo else 0,
             "part": str(config.part), "executor": config.executor}

@@ -50,7 +50,8 @@ from sc3d_data.io.shards import (SHARD_PATTERN, ShardError, add_shard_to_index, 
                                  shard_path)
 from sc3d_data.io.shards import write_index as write_index_file
 from sc3d_data.pipeline.executors.executor import Executor, finished_chunks
-from sc3d_data.pipeline.run.resume import (check_resume, empty_state, remaining, resume_state, settings_differ)
+from sc3d_data.pipeline.run.resume import (check_resume, empty_state, remaining, resume_state, settings_differ,
+                                           voxels_after_rewrite)
 
 #: an index listing more objects than this is written lazily (module doc)
 LAZY_OBJECTS = 10_000
@@ -188,6 +189,7 @@ class NewShards:
     pos_of: dict = field(default_factory=dict)  # (category, model_id) -> plan position of tasks
     done: int = 0
     new_failures: list[dict] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # lines for the user (``resume.voxels_after_rewrite``)
 
     @classmethod
     def resume(cls, index: ShardIndex, tasks: list, chunk_size: int, defaults: dict | None = None,
@@ -209,6 +211,7 @@ class NewShards:
         for key in ("shards", "objects", "warnings", "empty_chunks"):
             setattr(index, key, state[key])
         index.failures = sorted(state["failures"], key=lambda f: f.get("pos", -1))
+        index.extra.update(state["extra"])
         todo, resumed = remaining(tasks, state, K)
         run = cls(index, tasks, K, todo, resumed, state["retry"], state["broken"],
                   state["attempts"] if count_attempts else None, (old or {}).get("settings", {}),
@@ -288,6 +291,7 @@ class NewShards:
         if c in index.empty_chunks:
             index.empty_chunks.remove(c)
         records = [r for _, r in sorted(records, key=lambda pr: pr[0])]
+        index.failures = voxels_after_rewrite(index, SHARD_PATTERN.format(c), records, self.notes)
         if records:
             name = SHARD_PATTERN.format(c)
             add_shard_to_index(index.shards, index.objects, name, c, records,

@@ -81,7 +81,9 @@ def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[T
             broken.append(problem + "; rendering its objects again")
     shards = [s for s in old.get("shards", []) if s["chunk"] in done_chunks]
     objects = [o for o in old.get("objects", []) if o.get("chunk") in done_chunks]
-    failures = [f for f in old.get("failures", []) if f.get("chunk") in done_chunks]
+    kept_files = {s["file"] for s in shards}
+    failures = [f for f in old.get("failures", []) if f.get("chunk") in done_chunks
+                or (f.get("stage") == "voxelize" and f.get("shard") in kept_files)]
     warnings = [w for w in old.get("warnings", []) if w.get("chunk") in done_chunks]
     retry, attempts = set(), {}
     if retry_failed:
@@ -95,7 +97,8 @@ def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[T
     retry |= unlisted_positions(tasks, K, done_chunks, objects + failures)
     return {"done_chunks": done_chunks, "shards": shards, "objects": objects, "failures": failures,
             "warnings": warnings, "retry": retry, "attempts": attempts, "broken": broken,
-            "empty_chunks": [c for c in old.get("empty_chunks", []) if c in done_chunks]}
+            "empty_chunks": [c for c in old.get("empty_chunks", []) if c in done_chunks],
+            "extra": {k: old[k] for k in ("voxels",) if k in old}}  # the record of `voxelize SHARDS`
 
 
 def unlisted_positions(tasks: list[Task], K: int, done_chunks: set, listed: list[dict]) -> set[int]:
@@ -109,7 +112,7 @@ def unlisted_positions(tasks: list[Task], K: int, done_chunks: set, listed: list
 def empty_state() -> dict:
     """The resume state of a fresh run (nothing kept)."""
     return {"done_chunks": set(), "shards": [], "objects": [], "failures": [], "warnings": [],
-            "retry": set(), "attempts": {}, "broken": [], "empty_chunks": []}
+            "retry": set(), "attempts": {}, "broken": [], "empty_chunks": [], "extra": {}}
 
 
 def remaining(tasks: list[Task], state: dict, K: int) -> tuple[list[Task], int]:
@@ -118,7 +121,7 @@ def remaining(tasks: list[Task], state: dict, K: int) -> tuple[list[Task], int]:
     hold (their recorded failures left out)."""
     done, retry = state["done_chunks"], state["retry"]
     todo = [t for t in tasks if t.pos // K not in done or t.pos in retry]
-    kept_failed = {(f.get("category"), f.get("model_id")) for f in state["failures"]}
+    kept_failed = {(f.get("category"), f.get("model_id")) for f in state["failures"] if f.get("stage") != "voxelize"}
     resumed = sum(1 for t in tasks if t.pos // K in done and t.pos not in retry
                   and (t.category, t.model_id) not in kept_failed)
     return todo, resumed
@@ -138,3 +141,39 @@ def check_resume(out: Path, old: dict, settings: dict, defaults: dict, part: dic
     if (old_part.get("index"), old_part.get("count")) != (part["index"], part["count"]):
         raise ValueError(f"{out}: holds part {old_part.get('index')}/{old_part.get('count')}, this run is part "
                          f"{part['index']}/{part['count']}; give each part its own --out")
+
+
+def uniform_arrays(records: list) -> list[str]:
+    """Leave out of every record of ``records`` the arrays that not all of them have with one
+    shape (a shard holds each array for all its objects); returns their names, sorted."""
+    shapes: dict[str, set] = {}
+    for r in records:
+        for k, a in r.arrays.items():
+            shapes.setdefault(k, set()).add(tuple(a.shape))
+    dropped = sorted(k for k, v in shapes.items() if len(v) > 1 or any(k not in r.arrays for r in records))
+    for r in records:
+        for k in dropped:
+            r.arrays.pop(k, None)
+    return dropped
+
+
+def voxels_after_rewrite(index, name: str, records: list, notes: list[str]) -> list[dict]:
+    """Before shard ``name`` of ``index`` (a ``jobs.shard_output.ShardIndex``) is written with
+    ``records``: arrays that not every record has alike (a kept shard rewritten with retried
+    objects: the ``voxels`` that ``voxelize SHARDS`` added to the kept objects, which a render
+    without them cannot give the new ones) are left out of all. When the shard then lacks the
+    voxels that the index's ``voxels`` record (of ``voxelize SHARDS``) promises, the record is
+    removed and a line for the user added to ``notes``. Returns the index's failures, with the
+    shard's ``voxelize`` failures following their object's new row, or gone with the voxels."""
+    dropped = uniform_arrays(records)
+    promised = index.extra.get("voxels", {}).get("resolution")
+    shapes = {tuple(r.arrays["voxels"].shape) if "voxels" in r.arrays else None for r in records}
+    if promised is not None and records and shapes != {(promised,) * 3}:
+        index.extra.pop("voxels")
+        notes.append(f"{index.out / name}: written without the voxels that `sc3d-data voxelize` had given its "
+                     f"objects; run `sc3d-data voxelize {index.out}` again")
+    row = {(r.category, r.model_id): i for i, r in enumerate(records)}
+    return [f if f.get("stage") != "voxelize" or f.get("shard") != name
+            else dict(f, row=row.get((f.get("category"), f.get("model_id")), f.get("row")))
+            for f in index.failures
+            if not ("voxels" in dropped and f.get("stage") == "voxelize" and f.get("shard") == name)]
