@@ -1,5 +1,6 @@
-"""Hostile inputs to ``sc3d-train``, round three: one test per finding F1-Fn (resume on shards
-that were rendered again, ...). Real shards, training and checkpoints; every fixture is built
+"""Hostile inputs to ``sc3d-train``, round three (and findings of round four that concern the
+training side: F12 ``--resume --tiny``, F13 objects whose voxelization failed): one test per
+finding F1-Fn (resume on shards that were rendered again, ...). Real shards, training and checkpoints; every fixture is built
 here (the sample shards of ``conftest.py`` are rendered from the bundled meshes)."""
 from __future__ import annotations
 
@@ -312,3 +313,43 @@ def test_f12_resume_with_tiny_refuses_a_run_of_another_model(sample_shards, tiny
     ok = run_cli(train_main, ["fit", "--out", copy, "--resume", "--tiny", "--base-channels", 4, "--steps", 3,
                               "--no-progress"])
     assert "step 3" in ok.output
+
+
+# ----------------------------------------------------------------------------- F13
+def test_f13_objects_whose_voxelization_failed_are_left_out_of_training_and_evaluation(tmp_path):
+    """``sc3d-data voxelize SHARDS`` gives a mesh it cannot voxelize (here: moved away) an empty
+    grid, so its shard stays rectangular, and records a ``"stage": "voxelize"`` failure. The
+    training side never read those failures: the object was trained and evaluated on with an
+    empty grid as its ground truth. Now every split leaves it out, and one note line on stderr
+    names it (once, though a run builds several datasets). Expected values come from the
+    fixture (which mesh was moved) and from the shard itself (its row holds an all-empty grid)."""
+    import h5py
+    import numpy as np
+    from test_faults import CUBE_F, CUBE_V, FAST, obj_text
+    from sc3d_train.data.dataset import ShardDataset, scan_objects
+
+    meshes, shards = tmp_path / "m", tmp_path / "s"
+    (meshes / "chair").mkdir(parents=True)
+    for name in "abcdefgh":
+        (meshes / "chair" / f"{name}.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    run_cli(data_main, ["render", "--meshes", meshes, "--out", shards, *FAST])
+    index = json.loads((shards / "index.json").read_text())
+    split_of = {o["model_id"]: o["split"] for o in index["objects"]}
+    gone = next(i for i in sorted(split_of) if split_of[i] == "train")
+    (meshes / "chair" / f"{gone}.obj").rename(tmp_path / "gone.obj")
+    run_cli(data_main, ["voxelize", shards, "--no-progress"])
+    (fail,) = json.loads((shards / "index.json").read_text())["failures"]
+    with h5py.File(shards / fail["shard"]) as f:
+        assert f["model_id"][fail["row"]].decode() == gone and not np.any(f["voxels"][fail["row"]])
+
+    res = run_cli(train_main, ["fit", "--shards", shards, "--out", tmp_path / "run", "--steps", 2, *TINY])
+    note = [line for line in res.output.splitlines() if line.startswith("note:")]
+    assert note == [f"note: {shards}: 1 object(s) left out, their voxelization failed and their grid is an "
+                    f"empty placeholder (index.json failures): 03001627/{gone}"], res.output
+
+    refs, info = scan_objects(shards)
+    assert sorted(r.model_id for r in refs) == sorted(set(split_of) - {gone})
+    assert info["left_out"] == [f"03001627/{gone}"]  # chair: ShapeNet synset 03001627
+    train = ShardDataset(shards, "train", mask_size=16)
+    assert gone not in {r.model_id for r in train.objects}
+    assert len(train.objects) == sum(1 for i, s in split_of.items() if s == "train" and i != gone)

@@ -60,8 +60,10 @@ class ObjectRef:
 def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
     """All objects of a shard directory (reading only string fields) and facts about the data:
     ``{"image_size", "num_views", "voxel_resolution" (None without voxels),
-    "files_without_voxels", "settings", "K" (3x3 list, pixels), "distance"}`` (camera of the
-    first view of the first object: all views share intrinsics and distance, SPEC). Clear errors for a missing/empty directory."""
+    "files_without_voxels", "settings", "K" (3x3 list, pixels), "distance", "left_out"}`` (camera of the
+    first view of the first object: all views share intrinsics and distance, SPEC). Objects whose
+    voxelization failed are left out (:func:`voxelize_failures`; ``left_out``: their
+    ``category/model_id``, also told once on stderr). Clear errors for a missing/empty directory."""
     shard_dir = Path(shard_dir)
     if not shard_dir.is_dir():
         raise DataError(f"{shard_dir}: shard directory does not exist")
@@ -74,6 +76,13 @@ def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
         raise DataError(str(e)) from e
     refs = [ObjectRef(str(sm.path), r, sm.model_id[r], sm.category[r], sm.split[r])
             for sm in summaries for r in range(sm.num_objects)]
+    failed = voxelize_failures(reader.index)
+    left_out = [r for r in refs if (Path(r.shard).name, r.row) in failed]
+    if left_out:
+        refs = [r for r in refs if (Path(r.shard).name, r.row) not in failed]
+        tell_once(f"note: {shard_dir}: {len(left_out)} object(s) left out, their voxelization failed and their "
+                  f"grid is an empty placeholder (index.json failures): "
+                  + ", ".join(f"{r.category}/{r.model_id}" for r in left_out[:3]) + (", ..." if len(left_out) > 3 else ""))
     image_sizes = {sm.image_size for sm in summaries}
     views = {sm.num_views for sm in summaries}
     vres = {sm.voxel_resolution for sm in summaries if sm.voxel_resolution is not None}
@@ -84,8 +93,31 @@ def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
     info = {"image_size": image_sizes.pop(), "num_views": views.pop(),
             "voxel_resolution": vres.pop() if len(vres) == 1 else None,
             "files_without_voxels": no_vox, "settings": reader.settings,
-            "K": camera["K"], "distance": camera["distance"]}
+            "K": camera["K"], "distance": camera["distance"],
+            "left_out": [f"{r.category}/{r.model_id}" for r in left_out]}
     return refs, info
+
+
+def voxelize_failures(index: dict) -> set[tuple[str, int]]:
+    """``{(shard file name, row)}`` of the objects whose grid ``sc3d-data voxelize SHARDS`` could
+    not make: they keep their row with an empty grid (the shard stays rectangular) and a
+    ``"stage": "voxelize"`` entry in the index's ``failures``. An empty grid is no ground truth,
+    so :func:`scan_objects` leaves these objects out of every split."""
+    return {(Path(str(f.get("shard"))).name, int(f["row"])) for f in index.get("failures", [])
+            if f.get("stage") == "voxelize" and isinstance(f.get("row"), int)}
+
+
+_TOLD: set[str] = set()
+
+
+def tell_once(line: str) -> None:
+    """Print ``line`` to stderr the first time this process is told it (datasets of one run are
+    made several times: training, labelled/unlabelled, validation)."""
+    import sys
+
+    if line not in _TOLD:
+        _TOLD.add(line)
+        print(line, file=sys.stderr, flush=True)
 
 
 def choose_labeled(refs: list[ObjectRef], fraction: float, seed: int) -> set[str]:
