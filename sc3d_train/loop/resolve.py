@@ -127,5 +127,6 @@ def _resumed(options: dict, model_options: dict, tiny: bool = False) -> RunConfi
             changed.append(f"--{k.replace('_', '-')} {v!r}{via} (run has {getattr(cfg.model, k)!r})")
     if changed:
         raise CheckpointError(f"{out}: cannot change on --resume: " + ", ".join(changed))
+    cfg = RunConfig.from_dict(cfg.to_dict())  # the new values pass the checks a new run's do
     check_same_shards(cfg, out)
     return cfg

@@ -1,0 +1,57 @@
+"""The fourth attack on ``sc3d-train`` (fit, eval, predict, claims as a user runs them): one
+test per finding T1-Tn. Real shards (the bundled sample meshes rendered through the CLI), real
+tiny training and checkpoints; no mocks."""
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+from sc3d_cli.train import main as train_main
+from conftest import run_cli
+
+TINY = ["--tiny", "--base-channels", "4", "--batch-size", "4", "--no-progress", "--val-every", "0"]
+
+
+def one_line(output: str) -> str:
+    """The single line of a failed command's output (fails when there is more, e.g. a traceback)."""
+    lines = output.strip().splitlines()
+    assert len(lines) == 1, output
+    return lines[0]
+
+
+def folder_bytes(folder):
+    """``{relative path: bytes}`` of every file under ``folder``."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def tiny_run(sample_shards, tmp_path_factory):
+    """A 2-step run of the tiny network on the sample shards (its folder)."""
+    run = tmp_path_factory.mktemp("tiny_run4") / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, "--steps", 2, *TINY])
+    return run
+
+
+# ----------------------------------------------------------------------------- T1
+@pytest.mark.parametrize("option, message", [
+    (["--steps", "0"], "steps and batch size must be positive"),
+    (["--steps", "4", "--log-every", "0"], "log_every (--log-every) must be >= 1, got 0"),
+    (["--steps", "4", "--checkpoint-every", "0"], "checkpoint_every (--checkpoint-every) must be >= 1, got 0"),
+    (["--steps", "4", "--workers", "-1"], "workers (--workers) must be >= 0, got -1"),
+    (["--steps", "4", "--val-every", "-5"], "val_every must be >= 0"),
+])
+def test_t1_resume_checks_the_options_it_may_change_like_a_new_run(tiny_run, tmp_path, option, message):
+    """``fit --resume`` set the options it may change (``--steps``, ``--log-every``,
+    ``--checkpoint-every``, ``--workers``, ``--val-every``) on the saved config without the range
+    checks a new run gets: ``--steps 0`` (or -3) exited 0 ("training ... for 0 steps"),
+    ``--log-every 0`` and ``--checkpoint-every 0`` ended in a traceback (a full loss window, a
+    modulo by zero), ``--workers -1`` in torch's DataLoader message naming no option, and
+    ``--val-every -5`` trained with validation on. Now each is refused in one line naming the
+    setting, before any step, and the run folder is left byte for byte as it was."""
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run, run)
+    before = folder_bytes(run)
+    res = run_cli(train_main, ["fit", "--out", run, "--resume", "--no-progress", *option], expect_exit=1)
+    assert message in one_line(res.output)
+    assert folder_bytes(run) == before
