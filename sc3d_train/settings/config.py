@@ -271,11 +271,12 @@ class RunConfig(_Plain):
         atomic_write_bytes(Path(path), dump_yaml(self.to_dict(), header).encode())
 
     @classmethod
-    def load(cls, path: Path) -> "RunConfig":
+    def load(cls, path: Path, paths: dict | None = None) -> "RunConfig":
         """The config in YAML (or, from earlier versions, JSON) file ``path``; ``ConfigError``
-        naming the file and the key when it is not a valid one."""
+        naming the file and the key when it is not a valid one. ``paths``: ``shards`` / ``out``
+        given elsewhere (``fit --shards/--out``), which replace the file's or stand in for them."""
         try:
-            return cls.from_dict(load_yaml(path))
+            return cls.from_dict({**load_yaml(path), **(paths or {})})
         except ConfigError as e:
             if str(e).startswith(f"{path}:"):
                 raise
