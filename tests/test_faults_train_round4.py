@@ -78,3 +78,31 @@ def test_t2_a_hand_written_config_without_shards_and_out_takes_them_from_the_com
     assert (run / "checkpoints" / "last.pt").is_file()
     res = run_cli(train_main, ["fit", "--config", config, "--shards", sample_shards, "--steps", 2], expect_exit=1)
     assert f"{config}: missing RunConfig keys ['out']" in one_line(res.output)
+
+
+# ----------------------------------------------------------------------------- T3
+def test_t3_predict_never_writes_its_picture_over_an_input_image(sample_shards, tiny_run, tmp_path):
+    """``predict imgs/view.png --out imgs`` (predictions beside the images) wrote its picture
+    ``NAME.png`` over the input: ``imgs/view.png`` became the 675x252 plot, the user's image was
+    gone, exit 0. So did ``imgs/view.jpg imgs/view.png`` (the .jpg's picture is ``view.png``).
+    Now both are refused in one line naming ``--out`` and the input, before anything is written;
+    the folder keeps its bytes, and the same images predict into another ``--out``."""
+    import h5py
+    from PIL import Image
+
+    imgs = tmp_path / "imgs"
+    imgs.mkdir()
+    with h5py.File(next(sample_shards.glob("*.h5")), "r") as f:
+        Image.fromarray(f["images"][0, 0]).save(imgs / "view.png")
+        Image.fromarray(f["images"][0, 5]).save(imgs / "view.jpg")
+    before = folder_bytes(imgs)
+    checkpoint = tiny_run / "checkpoints" / "last.pt"
+    for images in ([imgs / "view.png"], [imgs / "view.jpg", imgs / "view.png"]):
+        res = run_cli(train_main, ["predict", "--checkpoint", checkpoint, *images, "--out", imgs], expect_exit=1)
+        assert (f"--out {imgs}: its view.png (the prediction's .png) would overwrite the input image "
+                f"{imgs / 'view.png'}; choose another --out") in one_line(res.output)
+        assert folder_bytes(imgs) == before
+    run_cli(train_main, ["predict", "--checkpoint", checkpoint, imgs / "view.jpg", imgs / "view.png",
+                         "--out", tmp_path / "pred"])
+    assert sorted(p.name for p in (tmp_path / "pred").glob("*.png")) == ["view.png", "view_.png"]
+    assert folder_bytes(imgs) == before
