@@ -106,3 +106,25 @@ def test_t3_predict_never_writes_its_picture_over_an_input_image(sample_shards, 
                          "--out", tmp_path / "pred"])
     assert sorted(p.name for p in (tmp_path / "pred").glob("*.png")) == ["view.png", "view_.png"]
     assert folder_bytes(imgs) == before
+
+
+# ----------------------------------------------------------------------------- T4
+@pytest.mark.parametrize("weights, message", [
+    ("  w3d: -1\n", "loss_weights: w3d must be a finite weight >= 0, got -1.0"),
+    ("  wsc: .nan\n", "loss_weights: wsc must be a finite weight >= 0, got nan"),
+    ("  pos_weight: 0\n", "loss_weights: pos_weight must be a finite weight > 0, got 0.0"),
+])
+def test_t4_a_config_file_with_a_negative_or_nan_loss_weight_is_refused_naming_the_key(sample_shards, tmp_path,
+                                                                                   weights, message):
+    """A hand-edited config with ``loss_weights.w3d: -1`` trained with exit 0 a network that
+    ascends its 3D loss (the total fell to 3.26 from 6.79 while L_3D stayed), ``pos_weight: 0``
+    one that ignores every occupied voxel, and ``wsc: .nan`` ran to "loss is nan at step 0",
+    naming no key, after writing config.yaml. Now each is refused in one line naming the file
+    and the key, and no run folder is made."""
+    config = tmp_path / "weights.yaml"
+    config.write_text("loss_weights:\n" + weights)
+    run = tmp_path / "run"
+    res = run_cli(train_main, ["fit", "--config", config, "--shards", sample_shards, "--out", run, "--steps", 2,
+                               *TINY], expect_exit=1)
+    assert f"{config}: {message}" in one_line(res.output)
+    assert not run.exists()

@@ -16,7 +16,7 @@ in :mod:`sc3d_train.settings.command_config`. This module imports nothing heavy 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 from sc3d_train.settings.config_io import ConfigError, check_choices, dump_yaml, from_plain, load_yaml, setting
@@ -147,6 +147,10 @@ class LossWeights(_Plain):
                      "unlabeled_search_samples"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for f in (f for f in fields(self) if f.type == "float"):  # < 0 ascends its loss, NaN: all NaN
+            value, positive = getattr(self, f.name), f.name == "pos_weight"  # 0: no occupied voxel in L_3D
+            if not (math.isfinite(value) and (value > 0 if positive else value >= 0)):
+                raise ValueError(f"{f.name} must be a finite weight {'> 0' if positive else '>= 0'}, got {value}")
 
 
 @dataclass
