@@ -128,3 +128,47 @@ def test_t4_a_config_file_with_a_negative_or_nan_loss_weight_is_refused_naming_t
                                *TINY], expect_exit=1)
     assert f"{config}: {message}" in one_line(res.output)
     assert not run.exists()
+
+
+# ----------------------------------------------------------------------------- T5
+def test_t5_claims_refuses_to_evaluate_on_objects_its_runs_train_on(sample_shards, tmp_path):
+    """``claims --eval-split train`` (same shards), or ``--eval-shards`` rendered with another split
+    seed (``render --seed 1``: another test split, which holds objects of the first render's
+    train split), trained every run and wrote the paper's tables from objects the runs had
+    trained on, exit 0: figures labelled held-out that were not. Now the study is refused
+    before any training in one line naming the shards and the number of shared objects (counted
+    here from the two index.json files), and no study folder is made."""
+    import json
+
+    from sc3d_cli.data import main as data_main
+    from sc3d_train.data.dataset import DataError
+    from sc3d_train.evaluation.claims import ClaimsPreset, run_all
+    from conftest import SAMPLE_MESHES
+
+    other = tmp_path / "shards-seed1"
+    run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", other, "--voxelize", "--workers", "2",
+                        "--seed", "1", "--no-progress"])
+
+    def objects(shards, split):
+        index = json.loads((shards / "index.json").read_text())
+        return {(o["category"], o["model_id"]) for o in index["objects"] if o["split"] == split}
+
+    shared = objects(sample_shards, "train") & objects(other, "test")
+    assert shared and not objects(sample_shards, "train") & objects(sample_shards, "test")
+    preset = ClaimsPreset(steps=2, batch_size=4, lr=1e-3, tiny=True, extra={"val_every": 0, "base_channels": 4})
+    out = tmp_path / "study"
+    for eval_shards, split, count in ((sample_shards, "train", len(objects(sample_shards, "train"))),
+                                      (other, "test", len(shared))):
+        with pytest.raises(DataError) as e:
+            run_all(sample_shards, eval_shards, out, preset, eval_split=split, device="cpu", runs=["sup-3tube"],
+                    echo=lambda _: None)
+        assert (f"{eval_shards}: {count} object(s) of split {split!r} are 'train' objects of {sample_shards} "
+                f"that the runs train on") in str(e.value)
+        assert not out.exists()
+        res = run_cli(train_main, ["claims", "--train-shards", sample_shards, "--eval-shards", eval_shards,
+                                   "--eval-split", split, "--out", out, "--runs", "sup-3tube"], expect_exit=1)
+        assert "claims evaluates on objects never trained on" in one_line(res.output)
+        assert not out.exists()
+    from sc3d_train.evaluation.claims import check_held_out
+
+    check_held_out(sample_shards, sample_shards, "test", "train")  # the default study: held out
