@@ -172,3 +172,39 @@ def test_t5_claims_refuses_to_evaluate_on_objects_its_runs_train_on(sample_shard
     from sc3d_train.evaluation.claims import check_held_out
 
     check_held_out(sample_shards, sample_shards, "test", "train")  # the default study: held out
+
+
+# ----------------------------------------------------------------------------- T6
+@pytest.mark.parametrize("weights", ["int", "one weight an int"])
+def test_t6_a_checkpoint_whose_model_is_no_state_dict_is_refused_in_one_line(sample_shards, tiny_run, tmp_path,
+                                                                              weights):
+    """A ``.pt`` that loads under ``weights_only`` and holds a valid ``config`` but a ``model``
+    that is no state dict of tensors (another program's file, a hand-made one) ended ``eval`` and
+    ``predict`` in a traceback (``TypeError: argument of type 'int' is not iterable``,
+    ``AttributeError: 'int' object has no attribute 'shape'``). Now one line naming the file,
+    nothing written."""
+    import torch
+
+    from sc3d_train.loop.checkpoint import load_checkpoint
+
+    real = load_checkpoint(tiny_run / "checkpoints" / "last.pt")
+    model = 5 if weights == "int" else {**real["model"], next(iter(real["model"])): 5}
+    crafted = tmp_path / "crafted.pt"
+    torch.save({"model": model, "config": real["config"]}, crafted)
+    image = tmp_path / "view.png"
+    with h5py_file(sample_shards) as f:
+        from PIL import Image
+
+        Image.fromarray(f["images"][0, 0]).save(image)
+    for args in (["eval", "--checkpoint", crafted, "--shards", sample_shards, "--out", tmp_path / "ev"],
+                 ["predict", "--checkpoint", crafted, image, "--out", tmp_path / "pred"]):
+        res = run_cli(train_main, args, expect_exit=1)
+        assert f"{crafted}: not an sc3d-train checkpoint" in one_line(res.output)
+    assert not (tmp_path / "ev").exists() and not (tmp_path / "pred").exists()
+
+
+def h5py_file(shards):
+    """The first shard file of ``shards``, open for reading."""
+    import h5py
+
+    return h5py.File(next(shards.glob("*.h5")), "r")
