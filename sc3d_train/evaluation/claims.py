@@ -160,6 +160,21 @@ def evaluated_on(metrics_file: Path, shards: Path, split: str) -> bool:
     return saved.get("split") == split and Path(saved.get("shards", "")).resolve() == Path(shards).resolve()
 
 
+def check_held_out(train_shards: Path, eval_shards: Path, eval_split: str, train_split: str) -> None:
+    """``DataError`` when an object of ``eval_split`` of ``eval_shards`` (by category and model id)
+    is one of the ``train_split`` objects of ``train_shards`` that the runs train on: their
+    figures would not be of held-out objects (``--eval-split train``, or shards split otherwise)."""
+    from sc3d_train.data.dataset import scan_objects
+
+    trained = {(r.category, r.model_id) for r in scan_objects(Path(train_shards))[0] if r.split == train_split}
+    seen = sorted({(r.category, r.model_id) for r in scan_objects(Path(eval_shards))[0]
+                   if r.split == eval_split} & trained)
+    if seen:
+        raise DataError(f"{eval_shards}: {len(seen)} object(s) of split {eval_split!r} are {train_split!r} objects of "
+                        f"{train_shards} that the runs train on (e.g. {'/'.join(seen[0])}); claims evaluates on "
+                        f"objects never trained on: choose another --eval-split or --eval-shards")
+
+
 def run_all(train_shards: Path, eval_shards: Path, out: Path,
             preset: "str | ClaimsPreset" = ClaimsConfig.preset, eval_split: str = ClaimsConfig.eval_split,
             device: str = ClaimsConfig.device, workers: int = ClaimsConfig.workers, runs=None,
@@ -167,6 +182,7 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path,
     """Train and evaluate every run of ``preset`` with each of ``seeds`` seeds (skipping finished
     (run, seed) pairs); write the report. Returns ``{run name: aggregate}`` (:func:`aggregate`)."""
     p = PRESETS[preset] if isinstance(preset, str) else preset
+    check_held_out(train_shards, eval_shards, eval_split, p.extra.get("split", _FIT["split"]))
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     per_seed, timings = {}, {}

@@ -136,19 +136,17 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
         raise ValueError(f"--threshold must be an occupancy probability in [0, 1], got {threshold}")
     from sc3d_train.loop.runtime import resolve_device
 
+    out = Path(out)
+    outputs = output_files(images, out)
+    check_inputs_kept(images, outputs, out)
     dev = resolve_device(device)
     model, cfg, _ = load_model(checkpoint, dev)
     size = cfg.model.image_size
     arrays = [load_image(Path(p), size, cfg.background) for p in images]
     K = np.asarray(cfg.intrinsics if cfg.intrinsics is not None else _default_K(size), dtype=np.float64)
-    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    results, used = [], set()
-    for path, arr in zip(images, arrays):
-        name = Path(path).stem
-        while name in used:
-            name += "_"
-        used.add(name)
+    results = []
+    for path, arr, files in zip(images, arrays, outputs):
         x = torch.from_numpy(arr.transpose(2, 0, 1).copy())[None].to(dev)
         res = model(x)
         if pose_from == "search":  # test-time self-consistency, as in `eval`
@@ -162,7 +160,6 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
         mask = torch.sigmoid(res.mask_logits.float())[0].cpu().numpy()
         az, el = float(res.azimuth[0]), float(res.elevation[0])
         voxels = probs >= threshold
-        files = {k: out / f"{name}.{k}" for k in ("binvox", "npz", "obj", "json", "png")}
         write_binvox(files["binvox"], voxels)
         np.savez_compressed(files["npz"], probabilities=probs.astype(np.float32), voxels=voxels,
                             mask=mask.astype(np.float32), azimuth=az, elevation=el, threshold=threshold)
@@ -175,6 +172,32 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
         files["json"].write_text(json.dumps(info, indent=1))
         results.append(info)
     return results
+
+
+def output_files(images: list[Path], out: Path) -> list[dict]:
+    """Per image, ``{kind: out/NAME.kind}`` of the files :func:`predict` writes (binvox, npz, obj,
+    json, png): NAME is the image's stem, with ``_`` appended while an earlier image took it."""
+    used, outputs = set(), []
+    for path in images:
+        name = Path(path).stem
+        while name in used:
+            name += "_"
+        used.add(name)
+        outputs.append({k: Path(out) / f"{name}.{k}" for k in ("binvox", "npz", "obj", "json", "png")})
+    return outputs
+
+
+def check_inputs_kept(images: list[Path], outputs: list[dict], out: Path) -> None:
+    """``ImageError`` naming ``--out`` when a file of ``outputs`` (:func:`output_files`) is one of
+    the input ``images`` (``--out`` the images' folder: ``NAME.png`` would replace ``NAME.png``)."""
+    import os
+
+    inputs = {os.path.realpath(p): p for p in images}
+    for files in outputs:
+        for kind, path in files.items():
+            if os.path.realpath(path) in inputs:
+                raise ImageError(f"--out {out}: its {path.name} (the prediction's .{kind}) would overwrite "
+                                 f"the input image {inputs[os.path.realpath(path)]}; choose another --out")
 
 
 def _default_K(size: int) -> np.ndarray:

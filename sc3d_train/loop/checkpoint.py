@@ -164,6 +164,9 @@ def load_checkpoint(path: Path, map_location="cpu") -> dict:
                               f"{' '.join(str(e).split())[:200]})") from e
     if not isinstance(ckpt, dict) or "model" not in ckpt or "config" not in ckpt:
         raise CheckpointError(f"{path}: not an sc3d-train checkpoint (no model/config)")
+    weights = ckpt["model"]
+    if not isinstance(weights, dict) or not all(torch.is_tensor(v) for v in weights.values()):
+        raise CheckpointError(f"{path}: not an sc3d-train checkpoint (its model is no state dict of tensors)")
     return ckpt
 
 

@@ -30,7 +30,7 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
         return _resumed(options, model_options, tiny)
     plain = {}
     if config_file is not None:
-        plain = RunConfig.load(config_file).to_dict()
+        plain = RunConfig.load(config_file, given_paths(options)).to_dict()
         if load_yaml(config_file).get("pretrain_steps") is None:  # loading set it from the file's steps:
             plain["pretrain_steps"] = None                          # [steps // 2] of this run's steps instead
     plain.update(options)
@@ -55,6 +55,12 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
                  voxel_resolution=facts.pop("model.voxel_resolution"))
     plain.update(model=model, **facts)
     return RunConfig.from_dict(plain)
+
+
+def given_paths(options: dict) -> dict:
+    """``shards`` and ``out`` of ``options`` where given: with ``--config`` they replace the
+    file's, or stand in for them where a hand-written file leaves them out."""
+    return {k: options[k] for k in ("shards", "out") if options.get(k) is not None}
 
 
 def shard_facts(shards: Path, split: str) -> dict:
@@ -127,5 +133,6 @@ def _resumed(options: dict, model_options: dict, tiny: bool = False) -> RunConfi
             changed.append(f"--{k.replace('_', '-')} {v!r}{via} (run has {getattr(cfg.model, k)!r})")
     if changed:
         raise CheckpointError(f"{out}: cannot change on --resume: " + ", ".join(changed))
+    cfg = RunConfig.from_dict(cfg.to_dict())  # the new values pass the checks a new run's do
     check_same_shards(cfg, out)
     return cfg

@@ -16,7 +16,7 @@ in :mod:`sc3d_train.settings.command_config`. This module imports nothing heavy 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 from sc3d_train.settings.config_io import ConfigError, check_choices, dump_yaml, from_plain, load_yaml, setting
@@ -147,6 +147,10 @@ class LossWeights(_Plain):
                      "unlabeled_search_samples"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for f in (f for f in fields(self) if f.type == "float"):  # < 0 ascends its loss, NaN: all NaN
+            value, positive = getattr(self, f.name), f.name == "pos_weight"  # 0: no occupied voxel in L_3D
+            if not (math.isfinite(value) and (value > 0 if positive else value >= 0)):
+                raise ValueError(f"{f.name} must be a finite weight {'> 0' if positive else '>= 0'}, got {value}")
 
 
 @dataclass
@@ -271,11 +275,12 @@ class RunConfig(_Plain):
         atomic_write_bytes(Path(path), dump_yaml(self.to_dict(), header).encode())
 
     @classmethod
-    def load(cls, path: Path) -> "RunConfig":
+    def load(cls, path: Path, paths: dict | None = None) -> "RunConfig":
         """The config in YAML (or, from earlier versions, JSON) file ``path``; ``ConfigError``
-        naming the file and the key when it is not a valid one."""
+        naming the file and the key when it is not a valid one. ``paths``: ``shards`` / ``out``
+        given elsewhere (``fit --shards/--out``), which replace the file's or stand in for them."""
         try:
-            return cls.from_dict(load_yaml(path))
+            return cls.from_dict({**load_yaml(path), **(paths or {})})
         except ConfigError as e:
             if str(e).startswith(f"{path}:"):
                 raise
