@@ -353,3 +353,22 @@ def test_f13_objects_whose_voxelization_failed_are_left_out_of_training_and_eval
     train = ShardDataset(shards, "train", mask_size=16)
     assert gone not in {r.model_id for r in train.objects}
     assert len(train.objects) == sum(1 for i, s in split_of.items() if s == "train" and i != gone)
+
+
+# ----------------------------------------------------------------------------- F14
+def test_f14_eval_on_the_training_objects_says_the_figures_are_not_held_out(sample_shards, tiny_run, tmp_path):
+    """``eval --split train`` (a legitimate check of the training fit) printed its figures like
+    any held-out ones. It now adds one note line counting the evaluated objects the checkpoint
+    was trained on, and ``metrics.json`` keeps the count (``trained_on``); on the test split
+    there is none (negative control). Expected counts come from the shards' ``index.json``."""
+    objects = json.loads((sample_shards / "index.json").read_text())["objects"]
+    n_train = sum(1 for o in objects if o["split"] == "train")
+    res = run_cli(train_main, ["eval", "--checkpoint", tiny_run, "--shards", sample_shards, "--split", "train",
+                               "--out", tmp_path / "train", "--pose", "head", "--device", "cpu"])
+    assert (f"note: {n_train} of the {n_train} evaluated objects are objects the checkpoint was trained on: "
+            f"these figures are not of held-out objects") in res.output
+    assert json.loads((tmp_path / "train" / "metrics.json").read_text())["trained_on"] == n_train
+    res = run_cli(train_main, ["eval", "--checkpoint", tiny_run, "--shards", sample_shards, "--split", "test",
+                               "--out", tmp_path / "test", "--pose", "head", "--device", "cpu"])
+    assert "trained on" not in res.output
+    assert json.loads((tmp_path / "test" / "metrics.json").read_text())["trained_on"] == 0

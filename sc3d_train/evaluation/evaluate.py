@@ -139,6 +139,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
         raise ValueError(f"{shards}: voxels are {dataset.info['voxel_resolution']}^3 but the checkpoint "
                          f"predicts {cfg.model.voxel_resolution}^3")
     differences = differences_from_training(cfg, dataset.info)
+    trained_on = training_objects_among(cfg, dataset.objects)
     rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
                                  loss_weights=cfg.loss_weights)
     summary = summarize(rows)
@@ -146,7 +147,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     out.mkdir(parents=True, exist_ok=True)
     result = {"checkpoint": str(checkpoint), "step": int(ckpt.get("step", -1)), "shards": str(shards),
               "split": split, "pose_from": pose_from, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
-              "differs_from_training": differences, **summary}
+              "differs_from_training": differences, "trained_on": trained_on, **summary}
     (out / "metrics.json").write_text(json.dumps(_finite(result), indent=1))
     plot_examples(kept, out / "predictions.png")
     result["table"] = format_table(summary)
@@ -179,6 +180,21 @@ def differences_from_training(cfg, info: dict) -> list[str]:
         found.append(f"elevations {outside} deg outside the pose grid's [{low:g}, {high:g}] (their pose error "
                      f"has a floor)")
     return found
+
+
+def training_objects_among(cfg, objects) -> int:
+    """How many of ``objects`` (``ObjectRef``s being evaluated) are objects the run of ``cfg``
+    trained on: by category and model id, against the run's ``split`` of its shards (0 when
+    those shards are gone). ``eval --split train`` is a legitimate check of the training fit,
+    but its figures are not of held-out objects, and ``eval`` says so."""
+    from sc3d_train.data.dataset import DataError, scan_objects
+
+    try:
+        refs, _ = scan_objects(Path(cfg.shards))
+    except (DataError, OSError):
+        return 0
+    trained = {(r.category, r.model_id) for r in refs if r.split == cfg.split}
+    return sum(1 for r in objects if (r.category, r.model_id) in trained)
 
 
 def _finite(obj):
