@@ -128,3 +128,15 @@ def test_claims_with_two_seeds_reports_mean_and_standard_deviation(sample_shards
     (out / "runs" / "semi" / "seed-1" / "eval" / "metrics.json").unlink()
     again = study()
     assert again.count("done before") == 3 and "semi seed 1: semi, " in again and "(resuming)" in again
+
+
+def test_cpu_preset_pretrains_semi_for_200_steps_and_leaves_the_other_runs_alone(sample_shards, tmp_path):
+    """The cpu preset's semi run pretrains on its labelled objects for 200 of its 700 steps (the
+    setting adopted by the rule in docs/training.md); the other runs keep fit's settings (their
+    studies stay resumable): labelled-only has no pretraining phase (None)."""
+    from sc3d_train.evaluation.claims import PRESETS, run_config
+
+    semi = run_config("semi", PRESETS["cpu"], sample_shards, tmp_path / "semi")
+    only = run_config("labeled-only", PRESETS["cpu"], sample_shards, tmp_path / "only")
+    assert (semi.mode, semi.steps, semi.pretrain_steps) == ("semi", 700, 200)
+    assert (only.mode, only.steps, only.pretrain_steps) == ("labeled-only", 700, None)
