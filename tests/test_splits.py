@@ -88,3 +88,17 @@ def test_plain_list_and_several_files(tmp_path):
         assign_splits(es, split_file=bad)
     with pytest.raises(FileNotFoundError):
         assign_splits(es, split_file=tmp_path / "missing.txt")
+
+
+def test_a_byte_order_mark_is_not_part_of_the_first_id_or_split(tmp_path):
+    """A split file saved with a UTF-8 byte-order mark (Notepad's "UTF-8") used to give its first
+    line an id (or split name) starting with U+FEFF: that object matched nothing (named files) or
+    went to a split called '\\ufefftrain' (two-field files). Expected values: the ids written."""
+    from sc3d_data.formats.splits import read_split_lines
+
+    named = tmp_path / "chair_test.txt"
+    named.write_bytes("\ufeffabc\ndef\n".encode("utf-8"))
+    assert read_split_lines(named) == [(1, "test", "abc"), (2, "test", "def")]
+    pairs = tmp_path / "splits.txt"
+    pairs.write_bytes("\ufefftrain abc\nval def\n".encode("utf-8"))
+    assert read_split_lines(pairs) == [(1, "train", "abc"), (2, "val", "def")]

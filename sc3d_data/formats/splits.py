@@ -121,7 +121,8 @@ def read_split_lines(path: Path) -> list[tuple[int, str, str]]:
     m = _NAMED_FILE.search(path.name)
     named = m.group(1).lower() if m else None
     out = []
-    for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+    # utf-8-sig: a byte-order mark (Notepad writes one) is not part of the first id or split name
+    for lineno, line in enumerate(path.read_text(encoding="utf-8-sig", errors="replace").splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
