@@ -10,16 +10,19 @@ from sc3d_train.settings.command_config import PredictConfig
 
 
 @click.command()
-@click.option("--checkpoint", type=click.Path(dir_okay=False, path_type=Path), required=True)
+@click.option("--checkpoint", type=click.Path(path_type=Path), required=True,
+              help="A run folder of `sc3d-train fit` (its --pick checkpoint) or a checkpoint file "
+              "(e.g. RUN_DIR/checkpoints/last.pt).")
 @click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory [RUN_DIR/predictions beside the checkpoint].")
 @config_options(PredictConfig)
-def predict(checkpoint, images, out, pose_from, device, threshold):
+def predict(checkpoint, images, out, pose_from, device, threshold, pick):
     """Voxels (.binvox, .npz), mesh (.obj), pose (.json) and a picture (.png) per IMAGE."""
-    from sc3d_train.loop.checkpoint import CheckpointError
+    from sc3d_train.loop.checkpoint import CheckpointError, run_checkpoint
     from sc3d_train.evaluation.predict import ImageError, predict as run_predict
 
+    checkpoint = run_checkpoint(checkpoint, pick)
     if out is None:
         from sc3d_train.evaluation.evaluate import default_output_dir
 

@@ -372,3 +372,26 @@ def test_f14_eval_on_the_training_objects_says_the_figures_are_not_held_out(samp
                                "--out", tmp_path / "test", "--pose", "head", "--device", "cpu"])
     assert "trained on" not in res.output
     assert json.loads((tmp_path / "test" / "metrics.json").read_text())["trained_on"] == 0
+
+
+# ----------------------------------------------------------------------------- F15
+def test_f15_predict_takes_a_run_folder_like_eval(sample_shards, tiny_run, tmp_path):
+    """``eval --checkpoint RUN_DIR`` took a run folder, ``predict --checkpoint RUN_DIR`` refused it
+    (click: "is a directory"). ``predict`` now takes one too, with the same ``--pick``: the run's
+    ``checkpoints/best.pt``, or ``last.pt`` where it kept none (``tiny_run`` validates never).
+    Expected: the same probabilities as ``--checkpoint RUN_DIR/checkpoints/last.pt`` (the path
+    written by hand), written beside the run in ``RUN_DIR/predictions`` (the file's default)."""
+    import numpy as np
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run, run)
+    image = tmp_path / "view.png"
+    with h5py.File(sorted(sample_shards.glob("shard-*.h5"))[0]) as f:
+        Image.fromarray(f["images"][0, 0]).save(image)
+    run_cli(train_main, ["predict", "--checkpoint", run, image, "--device", "cpu"])
+    run_cli(train_main, ["predict", "--checkpoint", run / "checkpoints" / "last.pt", image, "--device", "cpu",
+                         "--out", tmp_path / "file"])
+    folder = np.load(run / "predictions" / "view.npz")["probabilities"]
+    assert np.array_equal(folder, np.load(tmp_path / "file" / "view.npz")["probabilities"])
+    res = run_cli(train_main, ["predict", "--checkpoint", run, image, "--pick", "nope"], expect_exit=2)
+    assert "--pick" in res.output

@@ -59,6 +59,7 @@ class PredictConfig(InferenceConfig):
     """``sc3d-train predict``."""
 
     threshold: float = setting(0.5, "Occupancy threshold of the saved voxels and mesh.")
+    pick: str = setting("best", PICK_HELP, choices=CHECKPOINT_PICKS)
 
 
 @dataclass
