@@ -16,8 +16,8 @@ command resumes; a run folder of other settings is refused):
 ``ray-proj``        the same with L_ray + L_proj
 =================  ============================================================================
 
-Presets (:data:`PRESETS`): ``cpu`` (the tiny network, 700 steps of 32: about 30-40 min for ~200
-training objects on 2 CPU cores) and ``paper`` (the paper's width and Adam 2e-4, batch 48, for
+Presets (:data:`PRESETS`): ``cpu`` (the tiny network, 700 steps of 32, the semi run's labelled
+pretraining 200 steps: about 40 min a seed for ~200 training objects on 2 CPU cores) and ``paper`` (the paper's width and Adam 2e-4, batch 48, for
 a GPU). Every run gets the same step budget and seeds: ``--seeds K`` trains each with seeds
 ``seed .. seed + K - 1``; every cell of the tables is then the mean ± sample standard deviation
 over the K evaluations, and each claim says whether it holds on the means and whether the

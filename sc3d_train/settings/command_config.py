@@ -67,8 +67,8 @@ class ClaimsConfig:
     """``sc3d-train claims``."""
 
     eval_split: str = setting("test", "Split of --eval-shards to evaluate.")
-    preset: str = setting("cpu", "cpu: tiny network, 700 steps of 32 (~30-40 min on 2 cores for ~200 "
-                          "objects); paper: full width, 20000 steps of 48, for a GPU.",
+    preset: str = setting("cpu", "cpu: tiny network, 700 steps of 32, semi pretraining 200 (~40 min a seed "
+                          "on 2 cores for ~200 objects); paper: full width, 20000 steps of 48, for a GPU.",
                           choices=CLAIMS_PRESETS)
     device: str = setting("auto", DEVICE_HELP)
     workers: int = setting(0, "DataLoader workers per run.")
