@@ -28,7 +28,7 @@ def predict(checkpoint, images, out, pose_from, device, threshold, pick):
 
         out = default_output_dir(checkpoint, "predictions")
     try:
-        results = run_predict(checkpoint, list(images), out, device, threshold, pose_from)
+        results = run_predict(checkpoint, list(images), out, device, threshold, pose_from, pick)
     except (ImageError, CheckpointError, ValueError, OSError) as e:
         from sc3d_data.io.shards import one_line
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from sc3d_train.loop.checkpoint import load_model
+from sc3d_train.loop.checkpoint import load_model, run_checkpoint
 from sc3d_train.settings.command_config import PredictConfig, check_pose_source
 
 ACCEPTED_MODES = ("RGB", "RGBA", "LA", "L", "P")
@@ -122,10 +122,13 @@ def plot_prediction(path: Path, image: np.ndarray, mask: np.ndarray, silhouette:
 
 @torch.no_grad()
 def predict(checkpoint: Path, images: list[Path], out: Path, device: str = PredictConfig.device,
-            threshold: float = PredictConfig.threshold, pose_from: str = PredictConfig.pose_from) -> list[dict]:
-    """Predict every image (all are checked before the model runs); returns one dict per image
-    (the content of its JSON file). ``pose_from``: ``"search"`` (the default of every entry
-    point, :data:`~sc3d_train.settings.command_config.DEFAULT_POSE_SOURCE`) or ``"head"``, as in ``eval``."""
+            threshold: float = PredictConfig.threshold, pose_from: str = PredictConfig.pose_from,
+            pick: str = PredictConfig.pick) -> list[dict]:
+    """Predict every image (all are checked before the model runs) with ``checkpoint`` (a file,
+    or a run folder: its ``pick`` checkpoint, :func:`~sc3d_train.loop.checkpoint.run_checkpoint`);
+    returns one dict per image (the content of its JSON file). ``pose_from``: ``"search"`` (the
+    default of every entry point, :data:`~sc3d_train.settings.command_config.DEFAULT_POSE_SOURCE`)
+    or ``"head"``, as in ``eval``."""
     from sc3d_data.io.binvox import write_binvox
     from sc3d_train.evaluation.evaluate import voxel_silhouette
 
@@ -136,6 +139,7 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
         raise ValueError(f"--threshold must be an occupancy probability in [0, 1], got {threshold}")
     from sc3d_train.loop.runtime import resolve_device
 
+    checkpoint = run_checkpoint(checkpoint, pick)
     out = Path(out)
     outputs = output_files(images, out)
     check_inputs_kept(images, outputs, out)
