@@ -23,6 +23,7 @@ import json
 import os
 import re
 import struct
+import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -108,6 +109,14 @@ def _obj_refs(path: Path, root: Path, report: MaterialReport) -> list[tuple[str,
     return refs
 
 
+def gltf_uri_path(folder: Path, uri: str) -> Path:
+    """The file a glTF ``uri`` names relative to ``folder``: glTF URIs are percent-encoded
+    (Blender writes ``my%20tex.png`` for ``my tex.png``), so the decoded name, unless only the
+    name as written exists."""
+    literal, decoded = folder / uri, folder / urllib.parse.unquote(uri)
+    return literal if literal.exists() and not decoded.exists() else decoded
+
+
 def _gltf_refs(path: Path) -> tuple[list[tuple[str, Path]], list[tuple[str, bytes]]]:
     """``(external images [(name, path)], embedded images [(name, bytes)])`` of a GLTF/GLB."""
     raw = path.read_bytes()
@@ -126,7 +135,7 @@ def _gltf_refs(path: Path) -> tuple[list[tuple[str, Path]], list[tuple[str, byte
     external, embedded = [], []
     for i, image in enumerate(doc.get("images", [])):
         if "uri" in image and not image["uri"].startswith("data:"):
-            external.append((f"texture image {i} ({image['uri']})", path.parent / image["uri"]))
+            external.append((f"texture image {i} ({image['uri']})", gltf_uri_path(path.parent, image["uri"])))
         elif "bufferView" in image and binary is not None:
             view = doc["bufferViews"][image["bufferView"]]
             start = view.get("byteOffset", 0)
@@ -179,7 +188,8 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn")
 def make_resolver(path: Path, root: Path | None):
     """A trimesh resolver for mesh ``path`` that serves files inside :func:`texture_root` (names
     relative to the mesh's folder, ``..`` allowed while inside; like trimesh's own it also tries
-    the name without options and the bare file name) and records every name it could not serve."""
+    the name without options and the bare file name, each also percent-decoded as glTF URIs are)
+    and records every name it could not serve."""
     from trimesh.resolvers import Resolver
 
     class _RootResolver(Resolver):
@@ -189,7 +199,8 @@ def make_resolver(path: Path, root: Path | None):
 
         def _candidates(self, name: str) -> list[str]:
             stripped = map_file_name(name.strip())
-            return list(dict.fromkeys([name.strip(), stripped, stripped.lstrip("/"), os.path.basename(stripped)]))
+            names = [name.strip(), stripped, stripped.lstrip("/"), os.path.basename(stripped)]
+            return list(dict.fromkeys(names + [urllib.parse.unquote(n) for n in names]))  # glTF URIs
 
         def get(self, name: str) -> bytes:
             first = (self.parent / map_file_name(name.strip())).resolve()
