@@ -160,8 +160,15 @@ def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path
 
 
 def evaluated_on(metrics_file: Path, shards: Path, split: str) -> bool:
-    """Whether the evaluation in ``metrics_file`` is of ``split`` of ``shards`` (else it is redone)."""
-    saved = json.loads(Path(metrics_file).read_text())
+    """Whether the evaluation in ``metrics_file`` is a finished one (readable JSON, its
+    ``predictions.png`` beside it) of ``split`` of ``shards`` (else it is redone: an evaluation
+    cut short, e.g. by a kill or a full disk, is done again on the rerun)."""
+    try:
+        saved = json.loads(Path(metrics_file).read_text())
+    except (OSError, ValueError):
+        return False
+    if not isinstance(saved, dict) or not Path(metrics_file).with_name("predictions.png").is_file():
+        return False
     return saved.get("split") == split and Path(saved.get("shards", "")).resolve() == Path(shards).resolve()
 
 
