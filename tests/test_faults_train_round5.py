@@ -47,3 +47,48 @@ def test_t1_claims_redoes_an_evaluation_that_was_cut_short(sample_shards, tmp_pa
     study()
     assert (evald / "metrics.json").read_bytes() == whole
     assert json.loads((out / "claims.json").read_text())["meta"]["eval_split"] == "test"
+
+
+# ----------------------------------------------------------------------------- T2
+def test_t2_resume_drops_a_best_checkpoint_of_steps_it_trains_again(sample_shards, tmp_path):
+    """``best.pt`` is written at each validation, the checkpoint only every ``--checkpoint-every``
+    steps, so a run stopped between them (killed, or its checkpoint write failed on a full disk)
+    has a ``best.pt`` of a later step than ``last.pt``. ``--resume`` kept it as the best to beat:
+    resumed with ``--steps 6`` (a cosine schedule, so other weights from the resumed step on), the
+    6-step run reported and kept ``best.pt`` of step 8, weights of no step of it, and ``eval RUN``
+    evaluated those. Now that ``best.pt`` is removed and the best chosen again from the resumed
+    step: ``best.pt`` holds the weights of a step of the resumed run (equal to that step's
+    checkpoint, written with ``--checkpoint-every 1``), the step ``validation.csv`` marks best.
+    An exact resume (same ``--steps``) still ends with the uninterrupted run's ``best.pt``."""
+    import csv
+
+    import torch
+
+    from sc3d_cli.train import main as train_main
+    from conftest import run_cli
+
+    run = tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, "--steps", 8, "--tiny", "--base-channels", 4,
+                         "--batch-size", 4, "--no-progress", "--val-every", 1, "--val-min-objects", 1,
+                         "--checkpoint-every", 4, "--lr", 0.01, "--select-by", "iou"])
+    whole_best = torch.load(run / "checkpoints" / "best.pt", weights_only=False)
+    assert whole_best["step"] > 4  # the precondition: a best after the checkpoint resumed from
+    for name, steps in (("short", 6), ("exact", 8)):
+        again = tmp_path / name
+        shutil.copytree(run, again)
+        (again / "checkpoints" / "step_000008.pt").unlink()  # as a failed or killed checkpoint at step 8 leaves
+        shutil.copyfile(again / "checkpoints" / "step_000004.pt", again / "checkpoints" / "last.pt")
+        res = run_cli(train_main, ["fit", "--out", again, "--resume", "--steps", steps, "--checkpoint-every", 1,
+                                   "--no-progress"])
+        best = torch.load(again / "checkpoints" / "best.pt", weights_only=False)
+        with open(again / "validation.csv", newline="") as f:
+            marked = [int(r["step"]) for r in csv.DictReader(f) if r["best"] == "1"]
+        assert best["step"] <= steps and marked[-1] == best["step"], (best["step"], marked)
+        assert f"best on 'val' (iou): step {best['step']}," in res.output
+        that_step = torch.load(again / "checkpoints" / f"step_{best['step']:06d}.pt", weights_only=False)
+        for k, v in that_step["model"].items():
+            assert torch.equal(best["model"][k], v), k
+        if name == "exact":
+            assert best["step"] == whole_best["step"]
+            for k, v in whole_best["model"].items():
+                assert torch.equal(best["model"][k], v), k

@@ -28,7 +28,10 @@ Files in the run folder: ``validation.csv`` (one row per validation: ``step`` = 
 figures, ``seconds`` it took, ``best`` 1 where it became the best), TensorBoard scalars ``val/*``
 and ``checkpoints/best.pt`` (model, config, step and the validation record: what ``eval`` and
 ``claims`` read by default). On ``--resume`` the rows after the resumed step are dropped and
-``best.pt``'s record is the best to beat (exact resume retraces the same weights). The torch RNG
+``best.pt``'s record is the best to beat; a ``best.pt`` of a step after the resumed one (kept by
+the interrupted run from steps now trained again, on another schedule where ``--steps`` changed:
+weights of no step of the resumed run) is removed, and the best is chosen again from there
+(exact resume retraces the same weights and keeps the same step). The torch RNG
 state is restored after each validation, so the trajectory does not depend on ``val_every``.
 
 **Only the last phase's weights.** A ``semi`` run validates during its labelled pretraining too
@@ -100,6 +103,17 @@ def validation_dataset(cfg: RunConfig) -> ShardDataset | None:
         raise
 
 
+def resumed_best(run_dir: Path, start_step: int) -> dict | None:
+    """The validation record of ``run_dir``'s ``best.pt`` to beat when resuming at ``start_step``
+    (module doc); a ``best.pt`` of a later step, from steps the resume trains again, is removed
+    and None returned."""
+    best = load_checkpoint(best_path(run_dir)).get("validation")
+    if best is not None and int(best.get("step", 0)) > start_step:
+        best_path(run_dir).unlink()
+        return None
+    return best
+
+
 class Validator:
     """Validation of one run on rank 0 (module doc). ``due(done)`` says when, ``run`` does it."""
 
@@ -120,7 +134,7 @@ class Validator:
         #: whether this split is large enough to pick best.pt (module doc: too few objects)
         self.selects = dataset.num_objects >= cfg.val_min_objects
         if start_step > 0 and best_path(self.run_dir).is_file():
-            self.best = load_checkpoint(best_path(self.run_dir)).get("validation")
+            self.best = resumed_best(self.run_dir, start_step)
 
     @classmethod
     def for_run(cls, cfg: RunConfig, device: torch.device, start_step: int, is_main: bool,
