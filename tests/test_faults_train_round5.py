@@ -92,3 +92,40 @@ def test_t2_resume_drops_a_best_checkpoint_of_steps_it_trains_again(sample_shard
             assert best["step"] == whole_best["step"]
             for k, v in whole_best["model"].items():
                 assert torch.equal(best["model"][k], v), k
+
+
+# ----------------------------------------------------------------------------- T3
+def test_t3_resume_with_another_number_of_ranks_says_so(sample_shards, tmp_path):
+    """A run trained under ``torchrun --nproc_per_node 2`` and resumed without torchrun (1 rank)
+    was refused with ``data position {... 'samples_per_rank': 4} != {... 8}``: the per-rank batch
+    differs, and the data position was compared before the number of ranks, so the message that
+    names the cause (``saved with 2 ranks, now 1``) was never reached. Now the rank count is
+    checked first and the line says how many ranks to resume with; the run folder is left as it
+    was."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from sc3d_cli.train import main as train_main
+    from conftest import run_cli
+
+    script = Path(sys.executable).parent / "sc3d-train"
+    if not script.is_file():
+        pytest.skip(f"{script} not installed")
+    run = tmp_path / "run"
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2", str(script),
+           "fit", "--shards", str(sample_shards), "--out", str(run), "--steps", "2", "--device", "cpu", "--tiny",
+           "--base-channels", "4", "--batch-size", "4", "--no-progress", "--val-every", "0"]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
+    def files():  # the lock file records the PID of its last holder: not the run's
+        return {p: p.read_bytes() for p in sorted(run.rglob("*")) if p.is_file() and p.name != ".sc3d.lock"}
+
+    before = files()
+    res = run_cli(train_main, ["fit", "--out", run, "--resume", "--steps", 4, "--device", "cpu", "--no-progress"],
+                  expect_exit=1)
+    line = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    assert len(line) == 1 and res.output.rstrip().endswith(line[0]), res.output
+    assert f"{run / 'checkpoints' / 'last.pt'}: saved with 2 ranks, now 1; resume with 2" in line[0]
+    assert files() == before
