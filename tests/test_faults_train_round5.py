@@ -129,3 +129,37 @@ def test_t3_resume_with_another_number_of_ranks_says_so(sample_shards, tmp_path)
     assert len(line) == 1 and res.output.rstrip().endswith(line[0]), res.output
     assert f"{run / 'checkpoints' / 'last.pt'}: saved with 2 ranks, now 1; resume with 2" in line[0]
     assert files() == before
+
+
+# ----------------------------------------------------------------------------- T4
+def test_t4_tensorboard_keeps_the_validation_of_the_resumed_step(sample_shards, tmp_path):
+    """A resumed run's TensorBoard writer purges the events from the resumed step on (the
+    interrupted run logged them after its checkpoint); but the validation at that step ran before
+    the checkpoint, is kept in ``validation.csv`` and is not run again, so ``tb/`` lost it:
+    ``val/*`` of a 4-step run resumed at step 2 held step 4 alone. Now the resumed step's row is
+    logged again: ``val/*`` and ``train/*`` hold the uninterrupted run's steps and values."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from sc3d_cli.train import main as train_main
+    from conftest import run_cli
+
+    def scalars(run):
+        ea = EventAccumulator(str(run / "tb"))
+        ea.Reload()
+        return {tag: [(e.step, round(e.value, 5)) for e in ea.Scalars(tag)] for tag in ea.Tags()["scalars"]}
+
+    run = tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, "--steps", 4, "--tiny", "--base-channels", 4,
+                         "--batch-size", 4, "--no-progress", "--log-every", 1, "--val-every", 2,
+                         "--val-min-objects", 1, "--checkpoint-every", 2])
+    whole = scalars(run)
+    assert [s for s, _ in whole["val/iou"]] == [2, 4]
+    again = tmp_path / "again"
+    shutil.copytree(run, again)
+    (again / "checkpoints" / "step_000004.pt").unlink()  # as a run stopped after step 2's checkpoint leaves
+    shutil.copyfile(again / "checkpoints" / "step_000002.pt", again / "checkpoints" / "last.pt")
+    run_cli(train_main, ["fit", "--out", again, "--resume", "--no-progress"])
+    resumed = scalars(again)
+    assert {t: [s for s, _ in v] for t, v in resumed.items()} == {t: [s for s, _ in v] for t, v in whole.items()}
+    for tag in ("val/iou", "val/rot_median", "val/rot_acc30", "val/score", "train/total", "train/l3d"):
+        assert [v for _, v in resumed[tag]] == pytest.approx([v for _, v in whole[tag]], abs=1e-5), tag

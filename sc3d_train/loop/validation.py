@@ -130,6 +130,9 @@ class Validator:
             w = csv.DictWriter(f, fieldnames=FIELDS)
             w.writeheader()
             w.writerows(rows)
+        for r in rows:  # TensorBoard's resume purge (from start_step on) took the resumed step's own row
+            if int(r["step"]) >= start_step > 0:
+                self._to_tb({k: float(r[k]) for k in FIELDS[1:5]}, int(r["step"]))
         self.best = None
         #: whether this split is large enough to pick best.pt (module doc: too few objects)
         self.selects = dataset.num_objects >= cfg.val_min_objects
@@ -188,7 +191,11 @@ class Validator:
                "seconds": round(time.perf_counter() - t0, 3), "best": int(better)}
         with open(self.path, "a", newline="") as f:
             csv.DictWriter(f, fieldnames=FIELDS).writerow(row)
+        self._to_tb(figures, done)
+        return row
+
+    def _to_tb(self, figures: dict, done: int) -> None:
+        """The ``val_*`` figures of the validation after ``done`` steps as TensorBoard ``val/*``."""
         if self.tb is not None:
             for k, v in figures.items():
                 self.tb.add_scalar(f"val/{k[4:]}", v, done)
-        return row
