@@ -163,3 +163,45 @@ def test_t4_tensorboard_keeps_the_validation_of_the_resumed_step(sample_shards, 
     assert {t: [s for s, _ in v] for t, v in resumed.items()} == {t: [s for s, _ in v] for t, v in whole.items()}
     for tag in ("val/iou", "val/rot_median", "val/rot_acc30", "val/score", "train/total", "train/l3d"):
         assert [v for _, v in resumed[tag]] == pytest.approx([v for _, v in whole[tag]], abs=1e-5), tag
+
+
+# ----------------------------------------------------------------------------- T5
+def test_t5_claims_resumes_a_run_cut_short_near_where_it_stopped(sample_shards, tmp_path):
+    """``claims`` says a rerun resumes a half-trained run, but it trained every run with
+    ``checkpoint_every = steps``: no checkpoint before the last step, so a run stopped before it
+    (killed, or its checkpoint write failed on a full disk) was trained again from step 0 (a cpu
+    preset run: minutes lost per run). Here the write of the last step's checkpoint fails for
+    real (a folder stands where its temporary file goes). Now a claims run checkpoints every tenth of its
+    steps, and the rerun resumes from step 7 of 8: its weights and figures equal an uninterrupted
+    study's; the finished run keeps ``last.pt`` and drops the intermediate ``step_*.pt``."""
+    import torch
+
+    from sc3d_train.evaluation.claims import ClaimsPreset, run_all
+    from sc3d_train.loop.checkpoint import CheckpointError
+
+    preset = ClaimsPreset(steps=8, batch_size=4, lr=1e-3, tiny=True, extra={"val_every": 0, "base_channels": 4})
+
+    def study(out, echo=None):
+        return run_all(sample_shards, sample_shards, out, preset, eval_split="test", device="cpu",
+                       runs=["sup-3tube"], echo=echo or (lambda _: None))
+
+    whole = tmp_path / "whole"
+    study(whole)
+    out = tmp_path / "cut"
+    ckpts = out / "runs" / "sup-3tube" / "seed-0" / "checkpoints"
+    (ckpts / "step_000008.pt.tmp" / "obstacle").mkdir(parents=True)  # the last checkpoint cannot be written
+    with pytest.raises(CheckpointError):
+        study(out)
+    shutil.rmtree(ckpts / "step_000008.pt.tmp")
+    lines = []
+    study(out, lines.append)
+    assert "sup-3tube seed 0: supervised, 8 steps of 4 (resuming)" in lines
+    assert sorted(p.name for p in ckpts.iterdir()) == ["last.pt", "step_000008.pt"]
+    a, b = (torch.load(d / "runs" / "sup-3tube" / "seed-0" / "checkpoints" / "last.pt", weights_only=False)
+            for d in (whole, out))
+    assert a["step"] == b["step"] == 8
+    for k, v in a["model"].items():
+        assert torch.equal(v, b["model"][k]), k
+    ma, mb = (json.loads((d / "runs" / "sup-3tube" / "seed-0" / "eval" / "metrics.json").read_text())
+              for d in (whole, out))
+    assert ma["mean"] == mb["mean"] and ma["per_category"] == mb["per_category"]
