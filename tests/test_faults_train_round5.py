@@ -205,3 +205,46 @@ def test_t5_claims_resumes_a_run_cut_short_near_where_it_stopped(sample_shards, 
     ma, mb = (json.loads((d / "runs" / "sup-3tube" / "seed-0" / "eval" / "metrics.json").read_text())
               for d in (whole, out))
     assert ma["mean"] == mb["mean"] and ma["per_category"] == mb["per_category"]
+
+
+# ----------------------------------------------------------------------------- T6
+def test_t6_resume_drops_a_log_row_that_a_crash_cut_short(sample_shards, tmp_path):
+    """A crash (power loss, a full disk) while ``fit`` appends a row to ``metrics.csv`` or
+    ``validation.csv`` leaves the row cut short, with no line end: ``11,supervised,...`` cut to
+    ``1``. ``--resume`` read it back as a row of step 1 (before the resumed step 10, so kept):
+    ``metrics.csv`` held step 1 twice, one row empty, and drawing ``curves.png`` at the next
+    checkpoint failed (``could not convert string to float: ''``, exit 1). Now the cut row is
+    dropped: the logs hold each step once with the uninterrupted run's values, exit 0."""
+    import csv
+
+    from sc3d_cli.train import main as train_main
+    from conftest import run_cli
+
+    def rows(path):
+        with open(path, newline="") as f:
+            return list(csv.DictReader(f))
+
+    run = tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, "--steps", 12, "--tiny", "--base-channels", 4,
+                         "--batch-size", 4, "--no-progress", "--log-every", 1, "--checkpoint-every", 10,
+                         "--val-every", 4, "--val-min-objects", 1])
+    again = tmp_path / "again"
+    shutil.copytree(run, again)
+    (again / "checkpoints" / "step_000012.pt").unlink()  # stopped after the checkpoint at step 10
+    shutil.copyfile(again / "checkpoints" / "step_000010.pt", again / "checkpoints" / "last.pt")
+    for name in ("metrics.csv", "validation.csv"):
+        data = (again / name).read_bytes().rstrip(b"\r\n")
+        (again / name).write_bytes(data[: data.rindex(b"\n") + 2])  # the last row cut after its first byte
+    assert (again / "metrics.csv").read_bytes().endswith(b"\n1") and (again / "validation.csv").read_bytes().endswith(b"\n1")
+    run_cli(train_main, ["fit", "--out", again, "--resume", "--no-progress"])
+    for name, columns in (("metrics.csv", ("step", "phase", "total", "l3d", "kl")),
+                          ("validation.csv", ("step", "val_iou", "val_rot_median", "best"))):
+        got, want = rows(again / name), rows(run / name)
+        assert [int(r["step"]) for r in got] == [int(r["step"]) for r in want], name
+        for g, w in zip(got, want):
+            for c in columns:
+                if c in ("step", "phase", "best"):
+                    assert g[c] == w[c], (name, c)
+                else:
+                    assert float(g[c]) == pytest.approx(float(w[c]), abs=1e-4), (name, c)
+    assert (again / "curves.png").stat().st_size > 0

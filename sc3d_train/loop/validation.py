@@ -57,6 +57,7 @@ import numpy as np
 import torch
 
 from sc3d_train.loop.checkpoint import best_path, load_checkpoint, save_best
+from sc3d_train.loop.metrics_log import complete_rows
 from sc3d_train.loop.schedule import phase_at
 from sc3d_train.settings.command_config import DEFAULT_POSE_SOURCE
 from sc3d_train.settings.config import RunConfig
@@ -124,8 +125,7 @@ class Validator:
         self.path = self.run_dir / VAL_CSV
         rows = []
         if start_step > 0 and self.path.is_file():
-            with open(self.path, newline="") as f:
-                rows = [r for r in csv.DictReader(f) if int(r["step"]) <= start_step]
+            rows = [r for r in complete_rows(self.path) if int(r["step"]) <= start_step]
         with open(self.path, "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=FIELDS)
             w.writeheader()
