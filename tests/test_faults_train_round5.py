@@ -248,3 +248,27 @@ def test_t6_resume_drops_a_log_row_that_a_crash_cut_short(sample_shards, tmp_pat
                 else:
                     assert float(g[c]) == pytest.approx(float(w[c]), abs=1e-4), (name, c)
     assert (again / "curves.png").stat().st_size > 0
+
+
+# ----------------------------------------------------------------------------- T7
+@pytest.mark.parametrize("option, message", [
+    (["--batch-size", "0"], "batch_size (--batch-size) must be >= 1, got 0"),
+    (["--batch-size", "-3"], "batch_size (--batch-size) must be >= 1, got -3"),
+    (["--examples", "-1"], "examples (--examples) must be >= 0, got -1"),
+])
+def test_t7_eval_refuses_a_batch_size_or_example_count_out_of_range(sample_shards, tmp_path, option, message):
+    """``eval --batch-size 0`` (or -3) ended in torch's DataLoader message ("batch_size should be
+    a positive integer value"), naming no option, and ``--examples -1`` exited 0 with a
+    predictions.png of no example. Now each is refused in one line naming the option, before the
+    checkpoint is read, and no output folder is made."""
+    from sc3d_cli.train import main as train_main
+    from conftest import run_cli
+
+    run = tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, "--steps", 1, "--tiny", "--base-channels", 4,
+                         "--batch-size", 4, "--no-progress", "--val-every", 0])
+    res = run_cli(train_main, ["eval", "--checkpoint", run, "--shards", sample_shards, "--out", tmp_path / "ev",
+                               "--device", "cpu", *option], expect_exit=1)
+    lines = res.output.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], res.output
+    assert not (tmp_path / "ev").exists()

@@ -133,6 +133,9 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     ``table``, the text table, and ``out``)."""
     from sc3d_train.loop.runtime import resolve_device
 
+    if batch_size < 1 or examples < 0:
+        name, value, least = ("batch_size", batch_size, 1) if batch_size < 1 else ("examples", examples, 0)
+        raise ValueError(f"{name} (--{name.replace('_', '-')}) must be >= {least}, got {value}")
     dev = resolve_device(device)
     checkpoint = run_checkpoint(checkpoint, pick)
     model, cfg, ckpt = load_model(checkpoint, dev)
