@@ -59,7 +59,9 @@ def test_t2_resume_drops_a_best_checkpoint_of_steps_it_trains_again(sample_shard
     evaluated those. Now that ``best.pt`` is removed and the best chosen again from the resumed
     step: ``best.pt`` holds the weights of a step of the resumed run (equal to that step's
     checkpoint, written with ``--checkpoint-every 1``), the step ``validation.csv`` marks best.
-    An exact resume (same ``--steps``) still ends with the uninterrupted run's ``best.pt``."""
+    An exact resume (same ``--steps``) still ends with the uninterrupted run's ``best.pt``; one
+    with validation turned off (``--val-every 0``) keeps no ``best.pt`` (follow-up: before, the
+    step-8 file stayed there too)."""
     import csv
 
     import torch
@@ -73,6 +75,12 @@ def test_t2_resume_drops_a_best_checkpoint_of_steps_it_trains_again(sample_shard
                          "--checkpoint-every", 4, "--lr", 0.01, "--select-by", "iou"])
     whole_best = torch.load(run / "checkpoints" / "best.pt", weights_only=False)
     assert whole_best["step"] > 4  # the precondition: a best after the checkpoint resumed from
+    noval = tmp_path / "noval"  # resumed with validation off (--val-every may change on resume)
+    shutil.copytree(run, noval)
+    (noval / "checkpoints" / "step_000008.pt").unlink()
+    shutil.copyfile(noval / "checkpoints" / "step_000004.pt", noval / "checkpoints" / "last.pt")
+    run_cli(train_main, ["fit", "--out", noval, "--resume", "--steps", 6, "--val-every", 0, "--no-progress"])
+    assert not (noval / "checkpoints" / "best.pt").exists()  # eval then reads last.pt, of this run
     for name, steps in (("short", 6), ("exact", 8)):
         again = tmp_path / name
         shutil.copytree(run, again)

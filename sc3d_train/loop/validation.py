@@ -143,7 +143,10 @@ class Validator:
     def for_run(cls, cfg: RunConfig, device: torch.device, start_step: int, is_main: bool,
                 tb=None, say=print) -> "Validator | None":
         """The run's validator on the main rank; None elsewhere, with validation off, or when the
-        shards have no ``val_split`` objects (said once through ``say``)."""
+        shards have no ``val_split`` objects (said once through ``say``). On resume, a ``best.pt`` of
+        steps trained again is removed here (:func:`resumed_best`), with validation off too."""
+        if is_main and start_step > 0 and best_path(Path(cfg.out)).is_file():
+            resumed_best(Path(cfg.out), start_step)
         if not is_main or not cfg.val_every:
             return None
         dataset = validation_dataset(cfg)
