@@ -74,6 +74,11 @@ PRESETS = {
 }
 
 
+#: checkpoints a claims run writes (every steps / N steps), so that a rerun resumes a run cut short
+#: near where it stopped; dropped when the run is finished (:func:`drop_intermediate_checkpoints`)
+CHECKPOINTS_PER_RUN = 10
+
+
 def run_config(name: str, preset: ClaimsPreset, shards: Path, out: Path, device: str = ClaimsConfig.device,
                workers: int = ClaimsConfig.workers, seed: int | None = None, resume: bool = False) -> RunConfig:
     """The :class:`RunConfig` of run ``name`` (one of :data:`RUNS`) with ``seed`` (None: the
@@ -86,7 +91,7 @@ def run_config(name: str, preset: ClaimsPreset, shards: Path, out: Path, device:
                    batch_size=preset.batch_size, lr=preset.lr, lr_schedule=preset.lr_schedule,
                    seed=preset.seed if seed is None else seed,
                    labeled_fraction=preset.labeled_fraction, device=device, workers=workers,
-                   progress=False, checkpoint_every=preset.steps)
+                   progress=False, checkpoint_every=-(-preset.steps // CHECKPOINTS_PER_RUN))
     options["mode"] = {"labeled-only": "labeled-only", "semi": "semi", "ray": "true-pose-masks",
                        "ray-proj": "true-pose-masks"}.get(name, "supervised")
     if options["mode"] == "true-pose-masks":
@@ -99,6 +104,16 @@ def run_config(name: str, preset: ClaimsPreset, shards: Path, out: Path, device:
     if name == "ray" and not resume:
         cfg = replace(cfg, loss_weights=replace(cfg.loss_weights, proj=0.0))
     return cfg
+
+
+def drop_intermediate_checkpoints(run_dir: Path, steps: int) -> None:
+    """Remove the ``step_XXXXXX.pt`` of ``run_dir`` before step ``steps`` once its run is finished:
+    they serve only to resume a run cut short (``last.pt`` and ``best.pt`` stay, what ``eval`` reads)."""
+    from sc3d_train.loop.checkpoint import checkpoint_dir
+
+    for p in checkpoint_dir(run_dir).glob("step_*.pt"):
+        if p.name[5:-3].isdigit() and int(p.name[5:-3]) < steps:
+            p.unlink(missing_ok=True)
 
 
 def seed_list(preset: ClaimsPreset, seeds: int) -> list[int]:
@@ -152,6 +167,7 @@ def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path
     resume = (run_dir / "checkpoints" / "last.pt").is_file()
     echo(f"{name} seed {seed}: {cfg.mode}, {cfg.steps} steps of {cfg.batch_size}" + (" (resuming)" if resume else ""))
     fit(cfg, resume=resume)
+    drop_intermediate_checkpoints(run_dir, cfg.steps)
     res = evaluate(run_checkpoint(run_dir, pick), eval_shards, eval_split, eval_folder(run_dir, pick), device)
     seconds = time.perf_counter() - t0
     echo(f"    {name} seed {seed} (step {res['step']}): mean IoU@0.4 {res['mean']['voxel_iou_0.4']:.3f}, median "
@@ -160,8 +176,15 @@ def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path
 
 
 def evaluated_on(metrics_file: Path, shards: Path, split: str) -> bool:
-    """Whether the evaluation in ``metrics_file`` is of ``split`` of ``shards`` (else it is redone)."""
-    saved = json.loads(Path(metrics_file).read_text())
+    """Whether the evaluation in ``metrics_file`` is a finished one (readable JSON, its
+    ``predictions.png`` beside it) of ``split`` of ``shards`` (else it is redone: an evaluation
+    cut short, e.g. by a kill or a full disk, is done again on the rerun)."""
+    try:
+        saved = json.loads(Path(metrics_file).read_text())
+    except (OSError, ValueError):
+        return False
+    if not isinstance(saved, dict) or not Path(metrics_file).with_name("predictions.png").is_file():
+        return False
     return saved.get("split") == split and Path(saved.get("shards", "")).resolve() == Path(shards).resolve()
 
 

@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from sc3d_data.formats.shapenet import category_label
+from sc3d_data.io.shards import atomic_write_bytes
 from sc3d_train.loop.checkpoint import load_model, run_checkpoint
 from sc3d_train.settings.command_config import EvalConfig
 from sc3d_train.data.dataset import ShardDataset
@@ -125,11 +126,16 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
              pose_from: str = EvalConfig.pose_from, pick: str = EvalConfig.pick) -> dict:
     """Evaluate ``checkpoint`` (a file, or a run folder: its ``pick`` checkpoint,
     :func:`~sc3d_train.loop.checkpoint.run_checkpoint`) on ``split`` of ``shards``; writes ``out/metrics.json`` and
-    ``out/predictions.png`` (``out`` None: ``RUN_DIR/eval_SPLIT``, :func:`default_output_dir`);
+    ``out/predictions.png`` (``out`` None: ``RUN_DIR/eval_SPLIT``, :func:`default_output_dir`), the
+    picture first and ``metrics.json`` last, atomically, so that ``metrics.json`` exists only for a
+    finished evaluation (``claims`` reads it back instead of evaluating again);
     ``examples`` objects per category are drawn. Returns the metrics dict (also holding
     ``table``, the text table, and ``out``)."""
     from sc3d_train.loop.runtime import resolve_device
 
+    if batch_size < 1 or examples < 0:
+        name, value, least = ("batch_size", batch_size, 1) if batch_size < 1 else ("examples", examples, 0)
+        raise ValueError(f"{name} (--{name.replace('_', '-')}) must be >= {least}, got {value}")
     dev = resolve_device(device)
     checkpoint = run_checkpoint(checkpoint, pick)
     model, cfg, ckpt = load_model(checkpoint, dev)
@@ -148,8 +154,9 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     result = {"checkpoint": str(checkpoint), "step": int(ckpt.get("step", -1)), "shards": str(shards),
               "split": split, "pose_from": pose_from, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
               "differs_from_training": differences, "trained_on": trained_on, **summary}
-    (out / "metrics.json").write_text(json.dumps(_finite(result), indent=1))
+    (out / "metrics.json").unlink(missing_ok=True)  # written last: it marks a finished evaluation
     plot_examples(kept, out / "predictions.png")
+    atomic_write_bytes(out / "metrics.json", json.dumps(_finite(result), indent=1).encode())
     result["table"] = format_table(summary)
     result["out"] = str(out)
     return result

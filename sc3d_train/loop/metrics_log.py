@@ -4,6 +4,7 @@ for data (:class:`DataWaitClock`) and the GPU's utilisation (:func:`gpu_utilisat
 from __future__ import annotations
 
 import csv
+import io
 import math
 import time
 from pathlib import Path
@@ -11,10 +12,23 @@ from pathlib import Path
 CSV_NAME = "metrics.csv"
 
 
+def complete_rows(path: Path) -> list[dict]:
+    """The rows of the CSV log ``path`` (``metrics.csv``, ``validation.csv``) read back on resume,
+    less a last row that a crash cut short mid-write (no line end; or a missing column, or a
+    step that is no integer), which would otherwise be kept as an early step's row."""
+    with open(path, newline="") as f:
+        text = f.read()
+    if not text.endswith("\n"):
+        text = text[: text.rfind("\n") + 1]
+    return [r for r in csv.DictReader(io.StringIO(text, newline=""))
+            if None not in r and None not in r.values() and str(r.get("step")).isdigit()]
+
+
 class MetricsLog:
     """Scalars to ``metrics.csv`` (one row per logged step) and TensorBoard (``tb/``).
     On resume, rows at or after the resume step (written after the checkpoint by the
-    interrupted run) are dropped first, so the CSV has each step once."""
+    interrupted run) and a row cut short (:func:`complete_rows`) are dropped first, so the CSV
+    has each step once."""
 
     def __init__(self, run_dir: Path, start_step: int, enabled: bool = True):
         self.path = Path(run_dir) / CSV_NAME
@@ -23,8 +37,7 @@ class MetricsLog:
         if not enabled:
             return
         if start_step > 0 and self.path.is_file():
-            with open(self.path, newline="") as f:
-                self.rows = [r for r in csv.DictReader(f) if int(r["step"]) < start_step]
+            self.rows = [r for r in complete_rows(self.path) if int(r["step"]) < start_step]
         self.fields = list(self.rows[0].keys()) if self.rows else None
         if self.fields is not None:
             for r in self.rows[1:]:

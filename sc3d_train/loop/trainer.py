@@ -143,13 +143,13 @@ def restore(t: Training) -> tuple[int, Path]:
     t.optimizer.load_state_dict(ckpt["optimizer"])
     if t.scaler is not None and ckpt.get("scaler"):
         t.scaler.load_state_dict(ckpt["scaler"])
-    step = int(ckpt["step"])
+    step, states = int(ckpt["step"]), ckpt["rng"]
+    if len(states) != t.dist.world_size:  # before the data position, which the rank count also changes
+        raise CheckpointError(f"{ckpt_file}: saved with {len(states)} ranks, now {t.dist.world_size}; "
+                              f"resume with {len(states)} (torchrun --nproc_per_node, or none for 1)")
     expected = data_position(cfg, step, t.local_batch)
     if ckpt["data_position"] != expected:
         raise CheckpointError(f"{ckpt_file}: data position {ckpt['data_position']} != {expected}")
-    states = ckpt["rng"]
-    if len(states) != t.dist.world_size:
-        raise CheckpointError(f"{ckpt_file}: saved with {len(states)} ranks, now {t.dist.world_size}")
     set_rng_state(states[t.dist.rank])
     return step, ckpt_file
 

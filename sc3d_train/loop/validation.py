@@ -28,7 +28,10 @@ Files in the run folder: ``validation.csv`` (one row per validation: ``step`` = 
 figures, ``seconds`` it took, ``best`` 1 where it became the best), TensorBoard scalars ``val/*``
 and ``checkpoints/best.pt`` (model, config, step and the validation record: what ``eval`` and
 ``claims`` read by default). On ``--resume`` the rows after the resumed step are dropped and
-``best.pt``'s record is the best to beat (exact resume retraces the same weights). The torch RNG
+``best.pt``'s record is the best to beat; a ``best.pt`` of a step after the resumed one (kept by
+the interrupted run from steps now trained again, on another schedule where ``--steps`` changed:
+weights of no step of the resumed run) is removed, and the best is chosen again from there
+(exact resume retraces the same weights and keeps the same step). The torch RNG
 state is restored after each validation, so the trajectory does not depend on ``val_every``.
 
 **Only the last phase's weights.** A ``semi`` run validates during its labelled pretraining too
@@ -54,6 +57,7 @@ import numpy as np
 import torch
 
 from sc3d_train.loop.checkpoint import best_path, load_checkpoint, save_best
+from sc3d_train.loop.metrics_log import complete_rows
 from sc3d_train.loop.schedule import phase_at
 from sc3d_train.settings.command_config import DEFAULT_POSE_SOURCE
 from sc3d_train.settings.config import RunConfig
@@ -100,6 +104,17 @@ def validation_dataset(cfg: RunConfig) -> ShardDataset | None:
         raise
 
 
+def resumed_best(run_dir: Path, start_step: int) -> dict | None:
+    """The validation record of ``run_dir``'s ``best.pt`` to beat when resuming at ``start_step``
+    (module doc); a ``best.pt`` of a later step, from steps the resume trains again, is removed
+    and None returned."""
+    best = load_checkpoint(best_path(run_dir)).get("validation")
+    if best is not None and int(best.get("step", 0)) > start_step:
+        best_path(run_dir).unlink()
+        return None
+    return best
+
+
 class Validator:
     """Validation of one run on rank 0 (module doc). ``due(done)`` says when, ``run`` does it."""
 
@@ -110,23 +125,28 @@ class Validator:
         self.path = self.run_dir / VAL_CSV
         rows = []
         if start_step > 0 and self.path.is_file():
-            with open(self.path, newline="") as f:
-                rows = [r for r in csv.DictReader(f) if int(r["step"]) <= start_step]
+            rows = [r for r in complete_rows(self.path) if int(r["step"]) <= start_step]
         with open(self.path, "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=FIELDS)
             w.writeheader()
             w.writerows(rows)
+        for r in rows:  # TensorBoard's resume purge (from start_step on) took the resumed step's own row
+            if int(r["step"]) >= start_step > 0:
+                self._to_tb({k: float(r[k]) for k in FIELDS[1:5]}, int(r["step"]))
         self.best = None
         #: whether this split is large enough to pick best.pt (module doc: too few objects)
         self.selects = dataset.num_objects >= cfg.val_min_objects
         if start_step > 0 and best_path(self.run_dir).is_file():
-            self.best = load_checkpoint(best_path(self.run_dir)).get("validation")
+            self.best = resumed_best(self.run_dir, start_step)
 
     @classmethod
     def for_run(cls, cfg: RunConfig, device: torch.device, start_step: int, is_main: bool,
                 tb=None, say=print) -> "Validator | None":
         """The run's validator on the main rank; None elsewhere, with validation off, or when the
-        shards have no ``val_split`` objects (said once through ``say``)."""
+        shards have no ``val_split`` objects (said once through ``say``). On resume, a ``best.pt`` of
+        steps trained again is removed here (:func:`resumed_best`), with validation off too."""
+        if is_main and start_step > 0 and best_path(Path(cfg.out)).is_file():
+            resumed_best(Path(cfg.out), start_step)
         if not is_main or not cfg.val_every:
             return None
         dataset = validation_dataset(cfg)
@@ -174,7 +194,11 @@ class Validator:
                "seconds": round(time.perf_counter() - t0, 3), "best": int(better)}
         with open(self.path, "a", newline="") as f:
             csv.DictWriter(f, fieldnames=FIELDS).writerow(row)
+        self._to_tb(figures, done)
+        return row
+
+    def _to_tb(self, figures: dict, done: int) -> None:
+        """The ``val_*`` figures of the validation after ``done`` steps as TensorBoard ``val/*``."""
         if self.tb is not None:
             for k, v in figures.items():
                 self.tb.add_scalar(f"val/{k[4:]}", v, done)
-        return row
