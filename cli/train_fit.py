@@ -64,6 +64,8 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
     main_rank = os.environ.get("RANK", "0") == "0"  # under torchrun only rank 0 reports
     from contextlib import nullcontext
 
+    import torch
+
     from sc3d_data.io.outlock import LockError, exclusive_lock
 
     try:
@@ -81,6 +83,11 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
         from sc3d_data.io.shards import one_line
 
         raise click.ClickException(one_line(e)) from e
+    except torch.OutOfMemoryError as e:  # CUDA; a CPU batch that does not fit is refused before training
+        from sc3d_data.io.shards import one_line
+
+        raise click.ClickException(f"out of GPU memory while training ({one_line(e)[:160]}); the memory of a "
+                                   "step grows with --batch-size: use a smaller one") from e
     if not main_rank:
         return
     losses = ", ".join(f"{k} {v:.4f}" for k, v in summary["last_losses"].items())

@@ -42,6 +42,18 @@ def test_fit_on_cuda_with_the_defaults_learns(sample_shards, tmp_path):
     assert "device: cuda" in cfg
 
 
+def test_a_cuda_batch_that_does_not_fit_is_one_line(sample_shards, tmp_path):
+    """``--batch-size 100000`` on CUDA (terabytes of activations; 4 GiB of host batch) ends with
+    one line saying the GPU's memory ran out and to lower ``--batch-size``, not a traceback.
+    Eager (``--compile off``): compiling a step that cannot run would only cost time."""
+    res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", tmp_path / "run", "--steps", 1,
+                               "--batch-size", 100000, *TINY, "--device", "cuda", "--compile", "off"], expect_exit=1)
+    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    assert len(errors) == 1 and errors[0].startswith("Error: out of GPU memory while training ("), res.output
+    assert errors[0].endswith("use a smaller one"), errors[0]
+    assert "Traceback" not in res.output
+
+
 def test_resume_on_cuda_equals_the_uninterrupted_run(sample_shards, tmp_path):
     """Killed after the checkpoint of step 3 and resumed: the resumed steps 3-5 log the losses of
     the uninterrupted run within 2% (relative) and end at weights within 2e-2 (absolute) of its

@@ -30,13 +30,12 @@ trajectory (weights, optimiser, AMP scaler, every RNG, step, data position) is c
 ``--resume`` continues exactly: the loss at step N equals the uninterrupted run's.
 
 Modules: :mod:`~sc3d_train.loop.schedule` (phase, lr, data position of a step), :mod:`~sc3d_train.loop.phase_step`
-(batches and losses of a step), :mod:`~sc3d_train.loop.train_step` (the step, eager or compiled; on one
-CUDA device with CUDA graphs by default), :mod:`~sc3d_train.data.device_prefetch` (the next batch copied
-to the GPU on a side stream), :mod:`~sc3d_train.loop.loss_window` (the finiteness check without a host
-sync per step), :mod:`~sc3d_train.loop.runtime` (ranks, device, AMP), :mod:`~sc3d_train.loop.metrics_log`
-(metrics.csv, TensorBoard, curves), :mod:`~sc3d_train.loop.streams` (datasets and loaders of each
-phase), :mod:`~sc3d_train.loop.checkpoint`, :mod:`~sc3d_train.loop.validation` (the val split, ``best.pt``):
-this one holds the loop.
+(batches and losses of a step), :mod:`~sc3d_train.loop.train_step` (the step, eager or compiled; CUDA graphs on one
+GPU), :mod:`~sc3d_train.data.device_prefetch` (the next batch copied to the GPU on a side stream),
+:mod:`~sc3d_train.loop.loss_window` (finiteness check, no host sync a step), :mod:`~sc3d_train.loop.runtime` (ranks,
+device, AMP), :mod:`~sc3d_train.loop.memory_check` (does a CPU batch fit), :mod:`~sc3d_train.loop.metrics_log`
+(metrics.csv, TensorBoard, curves), :mod:`~sc3d_train.loop.streams` (datasets and loaders of each phase),
+:mod:`~sc3d_train.loop.checkpoint`, :mod:`~sc3d_train.loop.validation` (val split, ``best.pt``): this one the loop.
 """
 from __future__ import annotations
 
@@ -53,6 +52,7 @@ from sc3d_train.settings.config import CONFIG_NAME, RunConfig
 from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.data.device_prefetch import DevicePrefetcher
 from sc3d_train.loop.loss_window import LossWindow
+from sc3d_train.loop.memory_check import check_cpu_batch_fits
 from sc3d_train.loop.metrics_log import DataWaitClock, MetricsLog, gpu_utilisation, plot_curves
 from sc3d_train.loop.phase_step import augment_step, training_batch
 from sc3d_train.loop.runtime import (DistInfo, all_gather, all_mean, all_min, channels_last_on, resolve_amp,
@@ -98,7 +98,7 @@ class Training:
 
 def prepare(cfg: RunConfig) -> Training:
     """Datasets (every data error surfaces here, before any work), pose targets, the seeded
-    model, Adam and AMP of this process."""
+    model, Adam and AMP of this process; a CPU batch too large for memory is refused (``memory_check``)."""
     dist_info = setup_distributed(cfg.device)
     device = resolve_device(cfg.device, dist_info)
     if cfg.batch_size % dist_info.world_size:
@@ -124,8 +124,8 @@ def prepare(cfg: RunConfig) -> Training:
         model = model.to(memory_format=torch.channels_last)
     optimizer = torch.optim.Adam(model.parameters(), lr=lr_at(cfg, 0), fused=device.type == "cuda")
     scaler = torch.amp.GradScaler("cuda") if amp_dtype == torch.float16 else None
-    return Training(cfg, dist_info, device, local_batch, model, model, optimizer, scaler, amp_dtype,
-                    channels_last, datasets, pose_targets)
+    return check_cpu_batch_fits(Training(cfg, dist_info, device, local_batch, model, model, optimizer, scaler,
+                                         amp_dtype, channels_last, datasets, pose_targets))
 
 
 def restore(t: Training) -> tuple[int, Path]:
