@@ -282,7 +282,8 @@ def test_d8_checkpoint_on_a_full_disk_removes_its_temp_and_resume_finds_the_newe
         from sc3d_train.loop.checkpoint import CheckpointError, resume_checkpoint, save_checkpoint
         run = Path(os.environ["T"]) / "run"
         def payload(step, mb):
-            return {{"model": {{"w": torch.ones(mb * 2**18)}}, "config": {{}}, "step": step}}
+            return {{"model": {{"w": torch.ones(mb * 2**18)}}, "config": {{}}, "step": step, "optimizer": {{}},
+                    "rng": [], "data_position": {{}}}}
         save_checkpoint(run, payload(1, 1))          # step_000001.pt + last.pt: 2 MiB of 3
         try:
             save_checkpoint(run, payload(2, 1))      # step_000002.pt fits, last.pt copy does not

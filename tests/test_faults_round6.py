@@ -61,3 +61,37 @@ def test_f1_indices_that_are_not_zero_pass_the_check(tmp_path, line):
 
     (p := tmp_path / "x.obj").write_text(_vertex_lines() + line + "\n")
     check_obj_indices(p)
+
+
+# ----------------------------------------------------------------------------- F2
+@pytest.mark.parametrize("line, problem", [("Train chair/a", None), ("validation chair/a", "'validation'"),
+                                           ("\x1b[2Jtrain chair/a", "'\\x1b[2Jtrain'")])
+def test_f2_split_file_names_other_than_train_val_test_are_refused(tmp_path, line, problem):
+    """A plain split file's ``SPLIT ID`` lines took any word as the split: ``validation`` (not
+    ``val``) put objects into a split ``sc3d-train`` never reads, and escape codes reached the
+    terminal through ``info``. Now the split is train, val or test in any case (``Train`` is
+    train), anything else fails naming the file, the line and the word, escaped."""
+    from sc3d_data.formats.splits import read_split_lines
+
+    (p := tmp_path / "splits.txt").write_text("# a comment\n" + line + "\n")
+    if problem is None:
+        assert read_split_lines(p) == [(2, "train", "chair/a")]
+        return
+    with pytest.raises(ValueError) as e:
+        read_split_lines(p)
+    assert str(e.value) == f"{p}:2: split {problem} is none of train, val, test (lines are 'SPLIT ID' or 'ID')"
+
+
+@pytest.mark.parametrize("spec", ["random:nan,0,1", "random:0.9,nan", "random:inf,-inf,1", "random:1.5,-0.5"])
+def test_f3_random_split_fractions_must_be_finite_and_in_0_1(tmp_path, spec):
+    """``random:nan,0,1`` passed both checks (NaN is neither < 0 nor far from a sum of 1) and
+    wrote ``NaN``, which is not JSON, into ``index.json``; now ``render`` refuses it in one line
+    before any work."""
+    chair = tmp_path / "m" / "chair"
+    chair.mkdir(parents=True)
+    (chair / "cube.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    res = run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", tmp_path / "out", "--split", spec,
+                              *FAST], expect_exit=None)
+    assert res.exit_code != 0
+    assert f"split {spec!r}: give 2 or 3 fractions in [0, 1] that sum to 1" in res.output, res.output
+    assert not (tmp_path / "out" / "index.json").exists()

@@ -75,3 +75,75 @@ def test_t1_the_probe_changes_nothing_of_the_run(sample_shards, tmp_path, monkey
         assert {k: v for k, v in ra.items() if k not in timing} == {k: v for k, v in rb.items() if k not in timing}
     for key, value in ckpt_a["model"].items():
         assert torch.equal(value, ckpt_b["model"][key]), key
+
+
+# ----------------------------------------------------------------------------- T2
+def test_t2_a_run_that_diverges_leaves_no_best_checkpoint_of_nan_weights(sample_shards, tmp_path):
+    """Validation ran whenever ``--val-every`` was due, but the loss was checked only at log and
+    checkpoint steps: ``--lr 1e6 --log-every 5 --val-every 2`` diverged at step 1, the
+    validation of step 2 kept ``best.pt`` of NaN weights, and ``eval RUN`` used them by default.
+    Now the loss is checked before every validation: the run stops at step 2 with the divergence
+    message and no ``best.pt`` exists."""
+    out = tmp_path / "run"
+    res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", out, "--steps", 10, "--batch-size", 4,
+                               "--tiny", "--no-progress", "--lr", 1e6, "--log-every", 5, "--checkpoint-every", 5,
+                               "--val-every", 2, "--val-min-objects", 1, "--device", "cpu"], expect_exit=1)
+    assert "Error: loss is nan at step" in res.output and "last good checkpoint: none" in res.output, res.output
+    assert not (out / "checkpoints" / "best.pt").exists()
+
+
+# ----------------------------------------------------------------------------- T3
+def test_t3_claims_refuses_evaluation_data_it_cannot_use_before_training(sample_shards, tmp_path):
+    """``claims`` checked only that the evaluation objects were not trained on, and opened the
+    evaluation split after training the first run: an ``--eval-split`` that names no objects, or
+    evaluation shards without voxels, cost a whole training run before the error. Now both are
+    refused first, in one line, and no run folder is made."""
+    import shutil
+
+    import h5py
+
+    novox = tmp_path / "novox"
+    shutil.copytree(sample_shards, novox)
+    for shard in novox.glob("*.h5"):
+        with h5py.File(shard, "a") as f:
+            del f["voxels"]
+    for eval_shards, split, expected in ((sample_shards, "nonexist", f"{sample_shards}: split 'nonexist' is empty"),
+                                         (novox, "test", "shard has no 'voxels' dataset")):
+        out = tmp_path / f"claims-{split}"
+        res = run_cli(train_main, ["claims", "--train-shards", sample_shards, "--eval-shards", eval_shards,
+                                   "--out", out, "--device", "cpu", "--eval-split", split], expect_exit=1)
+        errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+        assert len(errors) == 1 and expected in errors[0], res.output
+        assert "steps of" not in res.output and not out.exists()
+
+
+# ----------------------------------------------------------------------------- T4
+def test_t4_resume_from_weights_only_is_one_line(sample_shards, tmp_path):
+    """``best.pt`` copied over ``last.pt`` (weights and config, no optimiser, RNG or data position)
+    made ``fit --resume`` end in ``KeyError: 'optimizer'``; now one line names the file and what
+    it lacks."""
+    out = tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", out, "--steps", 1, "--batch-size", 4, *TINY,
+                         "--val-every", 1, "--val-min-objects", 1, "--device", "cpu"])
+    ckpts = out / "checkpoints"
+    (ckpts / "last.pt").write_bytes((ckpts / "best.pt").read_bytes())
+    for p in ckpts.glob("step_*.pt"):
+        p.unlink()
+    res = run_cli(train_main, ["fit", "--out", out, "--resume", "--steps", 3, "--no-progress"], expect_exit=1)
+    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    assert len(errors) == 1 and f"{ckpts / 'last.pt'}: holds no optimizer, rng, data_position" in errors[0], res.output
+    assert "Traceback" not in res.output
+
+
+# ----------------------------------------------------------------------------- T5
+def test_t5_a_checkpoint_given_as_config_is_named(sample_shards, tmp_path):
+    """``fit --config RUN/checkpoints/last.pt`` printed only ``'utf-8' codec can't decode byte
+    0x80 ...``, naming neither the file nor what it is; now the line names the file and says a
+    checkpoint is resumed with ``--resume``."""
+    out = tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", out, "--steps", 1, "--batch-size", 4, *TINY,
+                         "--val-every", 0, "--device", "cpu"])
+    ckpt = out / "checkpoints" / "last.pt"
+    res = run_cli(train_main, ["fit", "--config", ckpt, "--out", tmp_path / "other"], expect_exit=1)
+    assert f"Error: {ckpt}: not a YAML config file (not UTF-8 text" in res.output, res.output
+    assert "--resume" in res.output

@@ -13,8 +13,8 @@ Three ways (``spec`` / ``split_file`` of :func:`assign_splits`):
 split files (``split_file``: one file, several files, or a directory)
     * PTN style ``SYNSET_trainids.txt`` / ``_valids.txt`` / ``_testids.txt`` (also ``train.txt``
       ``val.txt`` ``test.txt``): the split comes from the file name; one id per line.
-    * any other file is a plain list: each line ``SPLIT ID`` (tab or spaces), or just ``ID``
-      meaning train.
+    * any other file is a plain list: each line ``SPLIT ID`` (tab or spaces; SPLIT is train, val
+      or test in any case, anything else is refused naming the line), or just ``ID`` meaning train.
     An id is ``synset/model_id`` (the category may also be a name such as ``chair``) or a bare
     ``model_id`` (matches that model id in any category). Empty lines and lines starting with
     ``#`` are ignored. A directory contributes every ``*.txt`` in it.
@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Iterable, Sequence
 
 from sc3d_data.formats.shapenet import resolve_category
+from sc3d_data.io.names import printable
 
 DEFAULT_SPLIT = "random:0.7,0.1,0.2"
 #: the ``--split`` / ``--split-file`` rules as the CLIs' ``--help`` shows them (module doc)
@@ -42,6 +43,8 @@ SPLIT_FILE_HELP = ("PTN SYNSET_{train,val,test}ids.txt files, a directory of the
                    "(lines 'SPLIT ID' or 'ID' = train; ID = synset/model_id or model_id). "
                    "Objects no file lists are skipped and reported.")
 R2N2_TRAIN_FRACTION = 0.8
+#: the splits a split file may name (any case); ``sc3d-train`` reads train, val and test
+SPLIT_NAMES = ("train", "val", "test")
 _NAMED_FILE = re.compile(r"(?:^|_)(train|val|test)(?:ids)?\.txt$", re.IGNORECASE)
 
 
@@ -64,8 +67,8 @@ def parse_random_spec(spec: str) -> dict[str, float]:
     except ValueError:
         raise ValueError(f"split {spec!r}: fractions must be numbers, e.g. random:0.7,0.1,0.2") from None
     names = {2: ("train", "test"), 3: ("train", "val", "test")}.get(len(values))
-    if names is None or any(v < 0 for v in values) or abs(sum(values) - 1.0) > 1e-6:
-        raise ValueError(f"split {spec!r}: give 2 or 3 fractions >= 0 that sum to 1 "
+    if names is None or not all(0 <= v <= 1 for v in values) or abs(sum(values) - 1.0) > 1e-6:
+        raise ValueError(f"split {spec!r}: give 2 or 3 fractions in [0, 1] that sum to 1 "
                          "(train,test or train,val,test), e.g. random:0.7,0.1,0.2")
     return dict(zip(names, values))
 
@@ -134,7 +137,10 @@ def read_split_lines(path: Path) -> list[tuple[int, str, str]]:
         elif len(fields) == 1:
             out.append((lineno, "train", fields[0]))
         elif len(fields) == 2:
-            out.append((lineno, fields[0], fields[1]))
+            if fields[0].lower() not in SPLIT_NAMES:
+                raise ValueError(f"{path}:{lineno}: split '{printable(fields[0])}' is none of "
+                                 f"{', '.join(SPLIT_NAMES)} (lines are 'SPLIT ID' or 'ID')")
+            out.append((lineno, fields[0].lower(), fields[1]))
         else:
             raise ValueError(f"{path}:{lineno}: expected 'SPLIT ID' or 'ID', got {line!r}")
     return out

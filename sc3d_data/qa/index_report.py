@@ -25,7 +25,7 @@ def index_report(shard_dir: Path, max_failures: int = 50) -> str:
     counts = index.get("counts", {})
     splits = sorted(counts.get("by_split", {}))
     lines.append(f"\nobjects: {counts.get('total', 0)} in {len(index.get('shards', []))} shards")
-    header = f"  {'category':<24}" + "".join(f"{s:>8}" for s in splits) + f"{'total':>8}"
+    header = f"  {'category':<24}" + "".join(f" {printable(s):>7}" for s in splits) + f"{'total':>8}"
     lines.append(header)
     for cat, per in counts.get("by_category", {}).items():
         lines.append(f"  {printable(category_label(cat)):<24}" + "".join(f"{per.get(s, 0):>8}" for s in splits) + f"{sum(per.values()):>8}")

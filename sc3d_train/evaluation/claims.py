@@ -37,7 +37,7 @@ from pathlib import Path
 
 from sc3d_train.evaluation.claims_report import RUNS, aggregate, write_report
 from sc3d_train.evaluation.shape_baselines import shape_baselines
-from sc3d_train.data.dataset import DataError
+from sc3d_train.data.dataset import DataError, ShardDataset
 from sc3d_train.settings.command_config import ClaimsConfig
 from sc3d_train.settings.config import ModelConfig, RunConfig
 from sc3d_train.settings.config_io import defaults_of
@@ -208,9 +208,11 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path,
             device: str = ClaimsConfig.device, workers: int = ClaimsConfig.workers, runs=None,
             echo=print, seeds: int = ClaimsConfig.seeds, pick: str = ClaimsConfig.pick) -> dict:
     """Train and evaluate every run of ``preset`` with each of ``seeds`` seeds (skipping finished
-    (run, seed) pairs); write the report. Returns ``{run name: aggregate}`` (:func:`aggregate`)."""
+    (run, seed) pairs); write the report. Evaluation data that cannot serve (objects trained on,
+    an empty split, shards without voxels) is refused before any training. Returns ``{run name: aggregate}`` (:func:`aggregate`)."""
     p = PRESETS[preset] if isinstance(preset, str) else preset
     check_held_out(train_shards, eval_shards, eval_split, p.extra.get("split", _FIT["split"]))
+    ShardDataset(eval_shards, eval_split, require_voxels=True)  # an empty split or no voxels: refused before training
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     per_seed, timings = {}, {}

@@ -170,24 +170,39 @@ def load_checkpoint(path: Path, map_location="cpu") -> dict:
     return ckpt
 
 
+#: what a checkpoint needs besides the weights and config to continue a run exactly
+RESUME_KEYS = ("optimizer", "rng", "step", "data_position")
+
+
+def _resumable(path: Path, ckpt: dict) -> dict:
+    """``ckpt``, or ``CheckpointError`` naming ``path`` when it lacks what a resume needs (a
+    ``best.pt`` holds the weights only)."""
+    missing = [k for k in RESUME_KEYS if k not in ckpt]
+    if missing:
+        raise CheckpointError(f"{path}: holds no {', '.join(missing)} (weights only, like best.pt): --resume "
+                              "continues from a last.pt or step_*.pt that fit wrote")
+    return ckpt
+
+
 def resume_checkpoint(run_dir: Path) -> tuple[Path, dict]:
     """``(path, checkpoint)`` of the newest complete checkpoint of a run: ``last.pt`` unless a
     ``step_XXXXXX.pt`` with a higher step exists (``last.pt`` not updated because the disk
-    filled up, say); unreadable files are passed over. ``CheckpointError`` when none is left."""
+    filled up, say); unreadable files, and files without the training state
+    (:data:`RESUME_KEYS`), are passed over. ``CheckpointError`` when none is left."""
     folder = checkpoint_dir(run_dir)
     steps = sorted(((int(m.group(1)), p) for p in folder.glob("step_*.pt")
                     if (m := re.fullmatch(r"step_(\d+)\.pt", p.name))), reverse=True)
     errors, last = [], None
     if last_path(run_dir).is_file():
         try:
-            last = load_checkpoint(last_path(run_dir))
+            last = _resumable(last_path(run_dir), load_checkpoint(last_path(run_dir)))
         except CheckpointError as e:
             errors.append(str(e))
     for step, p in steps:
         if last is not None and int(last.get("step", -1)) >= step:
             break
         try:
-            return p, load_checkpoint(p)
+            return p, _resumable(p, load_checkpoint(p))
         except CheckpointError as e:
             errors.append(str(e))
     if last is not None:

@@ -219,9 +219,8 @@ def mean_scalars(t: Training, losses: dict) -> dict:
 
 
 def fit(cfg: RunConfig, resume: bool = False) -> dict:
-    """Train according to ``cfg`` (see module doc). Returns a summary dict: ``step``,
-    ``last_losses``, ``samples_per_s``, ``checkpoint`` (path of last.pt), ``best`` (the
-    validation record of best.pt, or None).
+    """Train according to ``cfg`` (see module doc). Returns a summary dict: ``step``, ``last_losses``,
+    ``samples_per_s``, ``checkpoint`` (path of last.pt), ``best`` (validation record of best.pt, or None).
 
     Raises :class:`TrainingDiverged` on a non-finite loss, ``DataError`` / ``CheckpointError``
     on bad inputs, before any training step."""
@@ -265,7 +264,8 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
             log_now = done % cfg.log_every == 0 or done == cfg.steps
             boundary = cfg.mode == "semi" and done == cfg.pretrain_steps
             save_now = done % cfg.checkpoint_every == 0 or done == cfg.steps or boundary
-            if log_now or save_now:  # the only host syncs of the loop: every log_every steps at most
+            validate_now = validator is not None and validator.due(done)
+            if log_now or save_now or validate_now:  # the loop's only host syncs; best.pt never of NaN weights
                 check_finite(t, window, last_good)
             if log_now:
                 if t.device.type == "cuda":
@@ -283,7 +283,7 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
                                          samples_s=f"{rate:.1f}", data_wait=f"{100 * wait_share:.0f}%")
             if progress is not None:
                 progress.update(1)
-            if validator is not None and validator.due(done):
+            if validate_now:
                 validator.run(t.model, done)
             if save_now:
                 path = save(t, done, log)

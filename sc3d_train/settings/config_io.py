@@ -146,14 +146,17 @@ def dump_yaml(data: dict, header: str = "") -> str:
 
 def load_yaml(path: Path) -> dict:
     """The mapping in YAML (or JSON) file ``path``; ``ConfigError`` naming the file when it is
-    missing, unreadable, not YAML or not a mapping."""
+    missing, unreadable, not text (a checkpoint given as ``--config``), not YAML or not a mapping."""
     import yaml
 
     path = Path(path)
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except OSError as e:
         raise ConfigError(f"{path}: cannot read config ({e.strerror or e})") from e
+    except UnicodeDecodeError as e:  # a checkpoint or a picture given as --config
+        raise ConfigError(f"{path}: not a YAML config file (not UTF-8 text: byte {e.object[e.start]:#04x} at "
+                          f"offset {e.start}; a checkpoint is resumed with --resume, not --config)") from e
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as e:
