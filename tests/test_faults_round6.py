@@ -95,3 +95,34 @@ def test_f3_random_split_fractions_must_be_finite_and_in_0_1(tmp_path, spec):
     assert res.exit_code != 0
     assert f"split {spec!r}: give 2 or 3 fractions in [0, 1] that sum to 1" in res.output, res.output
     assert not (tmp_path / "out" / "index.json").exists()
+
+
+# ----------------------------------------------------------------------------- F4
+def test_f4_voxelize_killed_between_shard_and_index_is_repaired_by_the_rerun(tmp_path):
+    """``voxelize SHARDS`` replaces a shard (atomically) and writes the index after it; killed in
+    between, the index kept the shard's old size and checksum, the rerun skipped the shard
+    because it held voxels, and ``info --verify`` called it broken for good (its advice,
+    re-rendering, dropped the voxels). Now the rerun voxelizes such a shard again: exit 0,
+    ``info --verify`` passes, and the voxels equal those of the uninterrupted voxelize."""
+    import h5py
+
+    chair = tmp_path / "m" / "chair"
+    chair.mkdir(parents=True)
+    (chair / "cube.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    before = (out / "index.json").read_bytes()
+    run_cli(data_main, ["voxelize", out, "--resolution", "16", "--no-progress"])
+    with h5py.File(out / "shard-00000.h5") as f:
+        whole = f["voxels"][:]
+    (out / "index.json").write_bytes(before)   # what a kill after the shard's replacement leaves
+    assert run_cli(data_main, ["info", out, "--verify"], expect_exit=None).exit_code != 0
+    res = run_cli(data_main, ["voxelize", out, "--resolution", "16", "--no-progress"])
+    assert "voxelized 1 objects in 1 shards" in res.output, res.output
+    run_cli(data_main, ["info", out, "--verify"])
+    with h5py.File(out / "shard-00000.h5") as f:
+        np.testing.assert_array_equal(f["voxels"][:], whole)
+    assert whole.any()
+    # a further rerun skips the shard
+    res = run_cli(data_main, ["voxelize", out, "--resolution", "16", "--no-progress"])
+    assert "1 shards already done" in res.output, res.output

@@ -179,7 +179,9 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
                 for p in paths]  # the voxelize failures of each shard, kept for a skipped shard
     todo = []
     for c, (has, sources, ids, cats, to_canonical) in enumerate(rows):
-        if has and not overwrite:
+        # a shard whose size is not the index's was replaced by a voxelize killed before it wrote
+        # the index (its voxels are whole: the replacement is atomic): done again, index recorded
+        if has and not overwrite and index.shards[c].get("bytes") in (None, paths[c].stat().st_size):
             summary.shards_skipped += 1
             continue
         todo += [RowTask(c * K + r, resolve_source(s, settings.get("meshes")), cats[r], ids[r], "", s, r, T)
