@@ -1,8 +1,11 @@
-"""``sc3d-train``, round six: defects that earlier rounds noticed and left alone. T1: a CPU batch
-whose step does not fit in memory was ended by Linux's out-of-memory killer with no message
-(``fit --batch-size 100000``); it is now refused before training, in one line naming the largest
-batch that fits. Real shards, real tiny training, no mocks."""
+"""``sc3d-train``, round six: defects that earlier rounds noticed and left alone (T1) and that a
+sixth attack on the commands found (T2-T6). T1: a CPU batch whose step does not fit in memory was
+ended by Linux's out-of-memory killer with no message (``fit --batch-size 100000``); it is now
+refused before training, in one line naming the largest batch that fits. Real shards, real tiny
+training, no mocks."""
 from __future__ import annotations
+
+import json
 
 import torch
 
@@ -147,3 +150,42 @@ def test_t5_a_checkpoint_given_as_config_is_named(sample_shards, tmp_path):
     res = run_cli(train_main, ["fit", "--config", ckpt, "--out", tmp_path / "other"], expect_exit=1)
     assert f"Error: {ckpt}: not a YAML config file (not UTF-8 text" in res.output, res.output
     assert "--resume" in res.output
+
+
+# ----------------------------------------------------------------------------- T6
+def test_t6_eval_knows_training_objects_after_the_shards_moved(sample_shards, tmp_path):
+    """``eval`` found the objects a checkpoint trained on by reading the run's shards; once they
+    had moved (trained on a scratch copy, evaluated on a local one) it counted 0 and printed no
+    note, so training-set figures read as held-out. Now a copy whose split holds the run's
+    objects (``objects_sha256``) stands in for them: ``--split train`` gets the note (all 8
+    train objects of the sample shards), ``--split test`` counts 0; shards split otherwise say
+    that it is unknown (``trained_on`` null)."""
+    import shutil
+
+    from sc3d_cli.data import main as data_main
+    from conftest import SAMPLE_MESHES
+
+    first = tmp_path / "scratch"
+    shutil.copytree(sample_shards, first)
+    run = tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", first, "--out", run, "--steps", 1, "--batch-size", 4, *TINY,
+                         "--val-every", 0, "--device", "cpu"])
+    moved = tmp_path / "local"
+    first.rename(moved)
+    train_objects = sum(1 for o in json.loads((moved / "index.json").read_text())["objects"] if o["split"] == "train")
+
+    def evaluate(shards, split):
+        res = run_cli(train_main, ["eval", "--checkpoint", run, "--shards", shards, "--split", split, "--pose", "head",
+                                   "--device", "cpu", "--out", tmp_path / f"eval-{shards.name}-{split}"])
+        return res.output, json.loads((tmp_path / f"eval-{shards.name}-{split}" / "metrics.json").read_text())
+
+    output, metrics = evaluate(moved, "train")
+    assert metrics["trained_on"] == train_objects > 0
+    assert f"note: {train_objects} of the {train_objects} evaluated objects are objects the checkpoint was trained on" \
+        in output
+    output, metrics = evaluate(moved, "test")
+    assert metrics["trained_on"] == 0 and "note:" not in output
+    other = tmp_path / "other"
+    run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", other, "--voxelize", "--seed", 3, "--no-progress"])
+    output, metrics = evaluate(other, "train")
+    assert metrics["trained_on"] is None and "whether evaluated objects were trained on is unknown" in output

@@ -145,7 +145,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
         raise ValueError(f"{shards}: voxels are {dataset.info['voxel_resolution']}^3 but the checkpoint "
                          f"predicts {cfg.model.voxel_resolution}^3")
     differences = differences_from_training(cfg, dataset.info)
-    trained_on = training_objects_among(cfg, dataset.objects)
+    trained_on = training_objects_among(cfg, dataset.objects, shards)
     rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
                                  loss_weights=cfg.loss_weights)
     summary = summarize(rows)
@@ -189,17 +189,22 @@ def differences_from_training(cfg, info: dict) -> list[str]:
     return found
 
 
-def training_objects_among(cfg, objects) -> int:
-    """How many of ``objects`` (``ObjectRef``s being evaluated) are objects the run of ``cfg``
-    trained on: by category and model id, against the run's ``split`` of its shards (0 when
-    those shards are gone). ``eval --split train`` is a legitimate check of the training fit,
-    but its figures are not of held-out objects, and ``eval`` says so."""
+def training_objects_among(cfg, objects, shards: Path) -> int | None:
+    """How many of ``objects`` (``ObjectRef``s of ``shards`` being evaluated) are objects the run
+    of ``cfg`` trained on, by category and model id: against the run's ``split`` of its shards,
+    or, where those cannot be read (moved, a copy on another machine), against the same split of
+    ``shards`` when its objects are the run's (``cfg.objects_sha256``). None when neither tells.
+    ``eval --split train`` is a legitimate check of the training fit, but its figures are not of
+    held-out objects, and ``eval`` says so."""
     from sc3d_train.data.dataset import DataError, scan_objects
+    from sc3d_train.loop.resolve import objects_digest
 
     try:
         refs, _ = scan_objects(Path(cfg.shards))
     except (DataError, OSError):
-        return 0
+        refs, _ = scan_objects(Path(shards))
+        if cfg.objects_sha256 is None or objects_digest(refs, cfg.split) != cfg.objects_sha256:
+            return None
     trained = {(r.category, r.model_id) for r in refs if r.split == cfg.split}
     return sum(1 for r in objects if (r.category, r.model_id) in trained)
 

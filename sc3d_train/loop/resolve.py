@@ -68,18 +68,24 @@ def shard_facts(shards: Path, split: str) -> dict:
     and voxel resolution, the dataset facts (views, background, intrinsics, camera distance) and
     ``objects_sha256``, the SHA-256 of the sorted ``category/model_id`` of the objects of
     ``split`` (the objects the run trains on). ``DataError`` when the shards have no voxels."""
-    import hashlib
-
     from sc3d_train.data.dataset import DataError, background_of, scan_objects
 
     refs, info = scan_objects(Path(shards))
     if info["voxel_resolution"] is None:
         raise DataError(f"{shards}: shards have no voxels; run `sc3d-data voxelize` first")
-    objects = "\n".join(sorted(f"{r.category}/{r.model_id}" for r in refs if r.split == split))
     return {"model.image_size": info["image_size"], "model.voxel_resolution": info["voxel_resolution"],
             "image_size": info["image_size"], "num_views": info["num_views"], "background": background_of(info),
             "intrinsics": info["K"], "camera_distance": info["distance"],
-            "objects_sha256": hashlib.sha256(objects.encode()).hexdigest()}
+            "objects_sha256": objects_digest(refs, split)}
+
+
+def objects_digest(refs, split: str) -> str:
+    """SHA-256 (hex) of the sorted ``category/model_id`` of the objects of ``split`` among
+    ``refs`` (``ObjectRef``s): a run's ``objects_sha256``."""
+    import hashlib
+
+    objects = "\n".join(sorted(f"{r.category}/{r.model_id}" for r in refs if r.split == split))
+    return hashlib.sha256(objects.encode()).hexdigest()
 
 
 def run_facts(cfg: RunConfig) -> dict:
