@@ -189,3 +189,43 @@ def test_t6_eval_knows_training_objects_after_the_shards_moved(sample_shards, tm
     run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", other, "--voxelize", "--seed", 3, "--no-progress"])
     output, metrics = evaluate(other, "train")
     assert metrics["trained_on"] is None and "whether evaluated objects were trained on is unknown" in output
+
+
+# ----------------------------------------------------------------------------- T7
+def test_t7_resume_follows_shards_that_moved_and_only_the_same_data(sample_shards, tmp_path):
+    """A run whose shard folder had moved could not be resumed: ``--shards NEW`` was refused as a
+    change and the checkpoint's config named the old folder. Now ``--resume --shards NEW``
+    continues exactly (the losses of the resumed steps equal the uninterrupted run's, bit for bit
+    on the CPU) when NEW holds the run's data, and is refused naming the change when it holds
+    other training objects; without ``--shards`` the error says how to resume."""
+    import shutil
+
+    import h5py
+
+    from tests.test_train import interrupt_at
+
+    scratch = tmp_path / "scratch"
+    shutil.copytree(sample_shards, scratch)
+    args = ["--batch-size", "4", *TINY, "--checkpoint-every", "3", "--seed", "5", "--val-every", 0, "--device", "cpu"]
+    whole, part = tmp_path / "whole", tmp_path / "part"
+    run_cli(train_main, ["fit", "--shards", scratch, "--out", whole, "--steps", "6", *args])
+    interrupt_at(whole, part, 3)
+    moved = tmp_path / "local"
+    scratch.rename(moved)
+    res = run_cli(train_main, ["fit", "--out", part, "--resume", "--no-progress"], expect_exit=1)
+    assert f"Error: {scratch}: the shard folder of run {part} does not exist; if it moved, resume with --shards" \
+        in res.output, res.output
+
+    other = tmp_path / "other"   # the same objects, but one of the training objects moved to val
+    shutil.copytree(moved, other)
+    with h5py.File(sorted(other.glob("*.h5"))[0], "a") as f:
+        splits = [s.decode() if isinstance(s, bytes) else s for s in f["split"][:]]
+        f["split"][splits.index("train")] = "val"
+    res = run_cli(train_main, ["fit", "--out", part, "--resume", "--shards", other, "--no-progress"], expect_exit=1)
+    assert f"Error: {other}: the shards changed since run {part} started (the objects of split 'train')" in res.output
+
+    run_cli(train_main, ["fit", "--out", part, "--resume", "--shards", moved, "--no-progress"])
+    a, b = read_csv(whole / "metrics.csv"), read_csv(part / "metrics.csv")
+    for key in ("total", "l3d", "l2d", "lsc", "pose"):
+        assert [r[key] for r in a[3:]] == [r[key] for r in b[3:]], key
+    assert f"shards: {moved}" in (part / "config.yaml").read_text()

@@ -114,9 +114,10 @@ def check_same_shards(cfg: RunConfig, out: Path) -> None:
 
 
 def _resumed(options: dict, model_options: dict, tiny: bool = False) -> RunConfig:
-    """The saved config of run ``options["out"]`` with the resumable ``options`` applied;
-    ``CheckpointError`` listing any other option that differs from the run's (``tiny``: the
-    tiny preset asked for, an error unless the run's model already is it)."""
+    """The saved config of run ``options["out"]`` with the resumable ``options`` applied (``--shards``
+    may name a moved copy: :func:`check_same_shards` holds it to the run's data); ``CheckpointError``
+    listing any other option that differs from the run's (``tiny``: the tiny preset asked for, an
+    error unless the run's model already is it)."""
     from sc3d_train.loop.checkpoint import CheckpointError
 
     out = Path(options["out"])
@@ -128,7 +129,9 @@ def _resumed(options: dict, model_options: dict, tiny: bool = False) -> RunConfi
     for k, v in sorted(options.items()):
         current = getattr(cfg, k)
         same = Path(v).resolve() == Path(current).resolve() if k == "shards" else v == current
-        if k in RESUMABLE_FIELDS:
+        if k == "shards" and not same and cfg.objects_sha256 is None:  # a run of an earlier version
+            changed.append(f"--shards {v!r} (run has {current!r}, and records no digest of its objects to compare)")
+        elif k in RESUMABLE_FIELDS:
             setattr(cfg, k, v)
         elif not same:
             changed.append(f"--{k.replace('_', '-')} {v!r} (run has {current!r})")
@@ -140,5 +143,8 @@ def _resumed(options: dict, model_options: dict, tiny: bool = False) -> RunConfi
     if changed:
         raise CheckpointError(f"{out}: cannot change on --resume: " + ", ".join(changed))
     cfg = RunConfig.from_dict(cfg.to_dict())  # the new values pass the checks a new run's do
+    if not Path(cfg.shards).is_dir():
+        raise CheckpointError(f"{cfg.shards}: the shard folder of run {out} does not exist; if it moved, resume "
+                              "with --shards NEW_FOLDER (held to the data the run started on)")
     check_same_shards(cfg, out)
     return cfg

@@ -36,9 +36,10 @@ VOXEL_DECODERS = ("3tube", "1tube")
 #: (voxels from masks at the true pose; the only mode that reads pose labels; used by ``claims``)
 MODES = ("supervised", "semi", "labeled-only", "true-pose-masks")
 #: fields that ``--resume`` may change (they do not alter the optimisation trajectory up to the
-#: checkpoint); every other field must match the checkpoint's config.
+#: checkpoint); every other field must match the checkpoint's config. ``shards`` may name another
+#: folder only when it holds the data the run started on (``loop.resolve.check_same_shards``).
 RESUMABLE_FIELDS = ("steps", "checkpoint_every", "workers", "decoded_cache", "log_every", "device", "progress",
-                    "out", "compile", "compile_backend", "val_every")
+                    "out", "compile", "compile_backend", "val_every", "shards")
 #: what picks ``checkpoints/best.pt`` among the validations of a run (:mod:`sc3d_train.loop.validation`)
 SELECT_BY = ("iou+pose", "iou", "pose")
 #: the one "tiny" preset (``fit --tiny``, ``ModelConfig.tiny()``): a small network for CPU demos
