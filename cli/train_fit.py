@@ -38,7 +38,7 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
     """Train the self-consistency model on the shards' training split."""
     from sc3d_train.loop.checkpoint import CheckpointError
     from sc3d_train.data.dataset import DataError
-    from sc3d_train.loop.resolve import given_paths, resolve_config
+    from sc3d_train.loop.resolve import check_mode_options, given_paths, resolve_config
     from sc3d_train.loop.trainer import TrainingDiverged, fit as run_fit
 
     if semi and labeled_only:
@@ -75,6 +75,7 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
         lock = exclusive_lock(run_dir, "sc3d-train fit", create=True) if main_rank and run_dir else nullcontext()
         with lock:
             cfg = resolve_config(options, model_options, resume, config_file)
+            check_mode_options(cfg, options)
             if main_rank:
                 click.echo(f"training {cfg.mode} for {cfg.steps} steps, batch {cfg.batch_size}, "
                            f"model {cfg.model}, run dir {cfg.out}")

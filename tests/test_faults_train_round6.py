@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 
+import pytest
 import torch
 
 from sc3d_cli.train import main as train_main
@@ -229,3 +230,30 @@ def test_t7_resume_follows_shards_that_moved_and_only_the_same_data(sample_shard
     for key in ("total", "l3d", "l2d", "lsc", "pose"):
         assert [r[key] for r in a[3:]] == [r[key] for r in b[3:]], key
     assert f"shards: {moved}" in (part / "config.yaml").read_text()
+
+
+# ----------------------------------------------------------------------------- T8
+@pytest.mark.parametrize("flags, expected", [
+    (["--labeled-fraction", "0.1", "--pretrain-steps", "1"],
+     "Error: --labeled-fraction (read by semi and labeled-only runs), --pretrain-steps (read by semi runs): not "
+     "read by a supervised run"),
+    (["--labeled-only", "--semi-lr", "0.1"], "Error: --semi-lr (read by semi runs): not read by a labeled-only run"),
+    (["--mask-size", "100000"], "Error: model: mask_size (--mask-size) must be at most the image size 64 (or the default 48), got 100000"),
+])
+def test_t8_options_the_run_would_ignore_or_cannot_use_are_refused(sample_shards, tmp_path, flags, expected):
+    """``--labeled-fraction 0.1`` without ``--semi`` trained on every object while ``config.yaml``
+    recorded 0.1; ``--mask-size 100000`` ended in a 37 GiB allocation traceback. Both are one
+    line now, before any work. Control: the same semi options with ``--semi`` train."""
+    out = tmp_path / "run"
+    res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", out, "--steps", 2, "--batch-size", 4, *TINY,
+                               "--val-every", 0, "--device", "cpu", *flags], expect_exit=None)
+    assert res.exit_code != 0 and expected in res.output, res.output
+    assert not (out / "checkpoints").exists()
+
+
+def test_t8_control_semi_options_with_semi_train(sample_shards, tmp_path):
+    out = tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", out, "--steps", 2, "--batch-size", 4, *TINY,
+                         "--val-every", 0, "--device", "cpu", "--semi", "--labeled-fraction", "0.5",
+                         "--pretrain-steps", "1"])
+    assert (out / "labeled_objects.txt").is_file() and "labeled_fraction: 0.5" in (out / "config.yaml").read_text()

@@ -148,3 +148,20 @@ def _resumed(options: dict, model_options: dict, tiny: bool = False) -> RunConfi
                               "with --shards NEW_FOLDER (held to the data the run started on)")
     check_same_shards(cfg, out)
     return cfg
+
+
+#: options that only some modes read, and those modes
+MODE_ONLY_OPTIONS = {"labeled_fraction": ("semi", "labeled-only"), "pretrain_steps": ("semi",),
+                     "semi_lr": ("semi",), "semi_labeled_share": ("semi",)}
+
+
+def check_mode_options(cfg: RunConfig, given: dict) -> None:
+    """``ValueError`` when an option given on the command line (``given``) is one that the run's
+    mode does not read (``--labeled-fraction`` without ``--semi`` or ``--labeled-only``, say):
+    it would be recorded in ``config.yaml`` and silently ignored."""
+    ignored = [k for k, modes in MODE_ONLY_OPTIONS.items() if k in given and cfg.mode not in modes]
+    if ignored:
+        names = ", ".join(f"--{k.replace('_', '-')} (read by {' and '.join(MODE_ONLY_OPTIONS[k])} runs)"
+                          for k in ignored)
+        raise ValueError(f"{names}: not read by a {cfg.mode} run (config.yaml would record it, training ignore it); "
+                         "train in a mode that reads it (--semi, --labeled-only) or leave it out")

@@ -99,6 +99,9 @@ class ModelConfig(_Plain):
         for name in ("mask_size", "shape_dim", "pose_dim", "base_channels"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if int(self.mask_size) > max(self.image_size, MASK_SIZE):  # finer than the stored masks: no information
+            raise ValueError(f"mask_size (--mask-size) must be at most the image size {self.image_size} (or the "
+                             f"default {MASK_SIZE}), got {self.mask_size}")
         check_pose_grid(self.azimuth_bins, self.elevation_bins, self.elevation_min, self.elevation_max)
 
     @classmethod
