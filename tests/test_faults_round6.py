@@ -126,3 +126,30 @@ def test_f4_voxelize_killed_between_shard_and_index_is_repaired_by_the_rerun(tmp
     # a further rerun skips the shard
     res = run_cli(data_main, ["voxelize", out, "--resolution", "16", "--no-progress"])
     assert "1 shards already done" in res.output, res.output
+
+
+# ----------------------------------------------------------------------------- F5
+def test_f5_every_material_file_an_obj_names_is_read(tmp_path):
+    """``mtllib a.mtl b.mtl`` (several files in one statement, as OBJ allows) was warned about as
+    one missing file "a.mtl b.mtl", and a second ``mtllib`` statement was never read (trimesh
+    reads the first statement only): faces using a material of ``b.mtl`` rendered grey. Now both
+    forms render the faces in ``b.mtl``'s blue (Kd 0 0 1), with no warning. Control: an OBJ that
+    names only ``a.mtl`` renders the same faces without blue."""
+    folder = tmp_path / "m" / "thing"
+    folder.mkdir(parents=True)
+    (folder / "a.mtl").write_text("newmtl red\nKd 1 0 0\n")
+    (folder / "b.mtl").write_text("newmtl blue\nKd 0 0 1\n")
+    body = _vertex_lines() + "usemtl blue\n" + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in CUBE_F)
+    (folder / "one_statement.obj").write_text("mtllib a.mtl b.mtl\n" + body)
+    (folder / "two_statements.obj").write_text("mtllib a.mtl\nmtllib b.mtl\n" + body)
+    (folder / "only_a.obj").write_text("mtllib a.mtl\n" + body)
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    index = index_of(out)
+    assert index["failures"] == [] and not index.get("warnings"), index.get("warnings")
+    colour = {mid: o["images"][o["masks"].astype(bool)].astype(float).mean(0) for (_, mid), o in objects_by_id(out).items()}
+    for name in ("one_statement", "two_statements"):
+        r, g, b = colour[name]
+        assert b > 100 and r < 20 and g < 20, (name, colour[name])
+    r, g, b = colour["only_a"]
+    assert not (b > 100 and r < 20 and g < 20), colour["only_a"]

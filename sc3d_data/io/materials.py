@@ -89,12 +89,21 @@ class MaterialReport:
     reported: set[str] = field(default_factory=set)
 
 
+def mtllib_names(path: Path) -> list[str]:
+    """The material files OBJ ``path`` names, in order: every ``mtllib`` statement, each of which
+    may name several files separated by spaces (OBJ allows it); a statement whose whole text names
+    an existing file is that one file (a name with spaces)."""
+    names = []
+    for value in re.findall(r"^\s*mtllib\s+(.+?)\s*$", path.read_text(errors="replace"), flags=re.M):
+        names += [value] if (path.parent / value).is_file() else value.split()
+    return names
+
+
 def _obj_refs(path: Path, root: Path, report: MaterialReport) -> list[tuple[str, Path]]:
     """``[(name as written, path)]`` of the textures an OBJ's material files name; material files
     outside ``root`` are noted in ``report`` and not read, missing ones warned about."""
     refs = []
-    text = path.read_text(errors="replace")
-    for lib in re.findall(r"^\s*mtllib\s+(.+?)\s*$", text, flags=re.M):
+    for lib in mtllib_names(path):
         mtl = path.parent / lib
         if not _inside(mtl, root):
             refs.append((lib, mtl))
@@ -189,7 +198,9 @@ def make_resolver(path: Path, root: Path | None):
     """A trimesh resolver for mesh ``path`` that serves files inside :func:`texture_root` (names
     relative to the mesh's folder, ``..`` allowed while inside; like trimesh's own it also tries
     the name without options and the bare file name, each also percent-decoded as glTF URIs are)
-    and records every name it could not serve."""
+    and records every name it could not serve. For an OBJ, trimesh reads only its first ``mtllib``
+    statement, as one file name: asked for it, the resolver serves every material file the OBJ
+    names (:func:`mtllib_names`) one after the other, so none is dropped."""
     from trimesh.resolvers import Resolver
 
     class _RootResolver(Resolver):
@@ -203,6 +214,15 @@ def make_resolver(path: Path, root: Path | None):
             return list(dict.fromkeys(names + [urllib.parse.unquote(n) for n in names]))  # glTF URIs
 
         def get(self, name: str) -> bytes:
+            if name.strip() == first_mtllib and len(libs) > 1:  # trimesh reads the first statement only
+                return b"\n".join(self._read(lib) for lib in libs if self._inside_file(lib))
+            return self._read(name)
+
+        def _inside_file(self, name: str) -> bool:
+            p = (self.parent / name).resolve()
+            return p.is_relative_to(self.top) and p.is_file()
+
+        def _read(self, name: str) -> bytes:
             first = (self.parent / map_file_name(name.strip())).resolve()
             for cand in self._candidates(name):
                 p = (self.parent / cand).resolve()
@@ -225,6 +245,11 @@ def make_resolver(path: Path, root: Path | None):
         def write(self, name, data):
             raise PermissionError(f"{name}: sc3d does not write beside meshes")
 
+    libs, first_mtllib = [], None
+    if Path(path).suffix.lower() == ".obj":  # all material files, served for the first statement
+        libs = mtllib_names(Path(path))
+        found = re.search(r"mtllib(.*)", Path(path).read_text(errors="replace"))
+        first_mtllib = found.group(1).strip() if found else None  # what trimesh asks for
     return _RootResolver(Path(path).parent, texture_root(path, root), [])
 
 
