@@ -153,3 +153,26 @@ def test_f5_every_material_file_an_obj_names_is_read(tmp_path):
         assert b > 100 and r < 20 and g < 20, (name, colour[name])
     r, g, b = colour["only_a"]
     assert not (b > 100 and r < 20 and g < 20), colour["only_a"]
+
+
+# ----------------------------------------------------------------------------- F6
+def test_f6_voxelize_meshes_refuses_a_folder_of_other_grids(tmp_path):
+    """``voxelize --meshes M --out V --resolution 64`` on a folder voxelized at 16 skipped the
+    existing file and exited 0: the folder kept a 16^3 grid (and would mix grids as meshes are
+    added); other axes were ignored alike. Now a rerun with other grid settings is refused in one
+    line naming them, the same settings resume, and ``--overwrite`` redoes the file at the new
+    resolution (its header says so)."""
+    chair = tmp_path / "m" / "chair"
+    chair.mkdir(parents=True)
+    (chair / "cube.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    out = tmp_path / "vox"
+    base = ["voxelize", "--meshes", tmp_path / "m", "--out", out, "--no-progress"]
+    run_cli(data_main, [*base, "--resolution", "16"])
+    for extra, changed in ((["--resolution", "64"], "--resolution 16 -> 64"),
+                           (["--resolution", "16", "--up", "+Z", "--front", "-Y"], "--up '+Y' -> '+Z', --front 'auto' -> '-Y'")):
+        res = run_cli(data_main, [*base, *extra], expect_exit=None)
+        assert res.exit_code != 0
+        assert f"Error: {out}: holds .binvox files voxelized with other settings ({changed})" in res.output, res.output
+    assert "1 already there" in run_cli(data_main, [*base, "--resolution", "16"]).output
+    run_cli(data_main, [*base, "--resolution", "64", "--overwrite"])
+    assert (out / "chair" / "cube.binvox").read_bytes().split(b"\n")[1] == b"dim 64 64 64"

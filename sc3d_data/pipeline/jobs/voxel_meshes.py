@@ -7,7 +7,9 @@ that voxelized it (job ``VOXELIZE_MESH`` on the local pool or Ray, ``executor.py
 the per-mesh time limit ``--timeout``; ``--executor slurm``: ``slurm_executor``). Existing
 ``.binvox`` files are complete (written atomically) and skipped on a rerun, so a crash or
 Ctrl-C loses no finished file; failures (with the reason: error, time limit, worker
-killed) go to ``out/failures.json``, sorted by source. With ``part`` (``--part I/N``) only
+killed) go to ``out/failures.json``, sorted by source. The settings that decide a grid
+(resolution, normalisation, axes) are recorded in ``out/voxelize.json``; a rerun with others is
+refused (``--overwrite`` redoes every file with the new ones). With ``part`` (``--part I/N``) only
 the meshes of that part (``sc3d_data.pipeline.run.partition``) are done and failures go to
 ``out/failures.part-00I-of-00N.json``, so N jobs can share one ``out`` folder.
 (Shards: voxelize each part folder of a partitioned render, or render with ``--voxelize``.)
@@ -110,6 +112,7 @@ def voxelize_meshes(config: VoxelMeshesConfig) -> VoxelizeSummary:
     if not entries and not problems:
         raise no_meshes_found(config.meshes)
     out.mkdir(parents=True, exist_ok=True)
+    check_grid_settings(config)
     summary = VoxelizeSummary()
     if not part.whole:
         entries = [e for e in entries if part_of(e.category, e.model_id, part.count) == part.index]
@@ -148,6 +151,35 @@ def voxelize_meshes(config: VoxelMeshesConfig) -> VoxelizeSummary:
     write_json_atomic(out / failures_name(part), failures)
     summary.seconds = time.monotonic() - t0
     return summary
+
+
+#: the file under ``--out`` recording the settings that decide every grid in the folder
+GRID_SETTINGS_NAME = "voxelize.json"
+
+
+def grid_settings(config: VoxelMeshesConfig) -> dict:
+    """The settings that decide a ``.binvox`` grid: resolution and the frame it is taken in."""
+    return {"resolution": config.resolution, "normalize": config.normalize, "up": config.up, "front": config.front}
+
+
+def check_grid_settings(config: VoxelMeshesConfig) -> None:
+    """Record :func:`grid_settings` in ``out/voxelize.json``; ``ValueError`` naming the folder and
+    the differences when it already holds grids made with other settings (a rerun would skip
+    the existing files and leave a folder of mixed grids), unless ``config.overwrite``."""
+    import json
+
+    path = Path(config.out) / GRID_SETTINGS_NAME
+    now = grid_settings(config)
+    try:
+        was = json.loads(path.read_text())
+    except (OSError, ValueError):
+        was = None
+    if isinstance(was, dict) and was != now and not config.overwrite:
+        changed = ", ".join(f"--{k} {was.get(k)!r} -> {now[k]!r}" for k in now if was.get(k) != now[k])
+        raise ValueError(f"{config.out}: holds .binvox files voxelized with other settings ({changed}); a rerun "
+                         "skips existing files, so the folder would mix grids: use another --out, or --overwrite "
+                         "to redo them all")
+    write_json_atomic(path, now)
 
 
 def failures_name(part: Part) -> str:
