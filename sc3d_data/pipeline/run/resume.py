@@ -5,7 +5,10 @@ The index is rewritten atomically after every shard (past 10,000 objects less of
 same ``--part``) skips chunks that are complete (their shard is listed, exists and matches the
 size and SHA-256 in the index: a truncated or corrupted shard is rendered again) and, with
 ``retry_failed``, renders the recorded failures of complete chunks again and rewrites their
-shard in plan order. Stale ``*.tmp`` files are deleted.
+shard in plan order. Stale ``*.tmp`` files are deleted. A rerun whose split rule puts a kept
+object in another split than its shard holds (an edited ``--split-file``, or ``--split r2n2``
+over a folder that gained meshes) is refused before any work (:func:`check_kept_splits`): the
+index would describe splits the shards do not hold.
 """
 from __future__ import annotations
 
@@ -68,7 +71,8 @@ def settings_differ(old: dict, new: dict, defaults: dict | None = None) -> list[
 
 def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[Task]) -> dict:
     """What an existing index lets this run keep: chunks whose shard is intact (or that were
-    empty), their index entries, and the failures to render again (``retry_failed``)."""
+    empty), their index entries, and the failures to render again (``retry_failed``).
+    ``ValueError`` when this run's split rule moves a kept object (:func:`check_kept_splits`)."""
     from sc3d_data.io.shard_reader import verify_shard
 
     by_key = {(t.category, t.model_id): t for t in tasks}
@@ -81,6 +85,7 @@ def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[T
             broken.append(problem + "; rendering its objects again")
     shards = [s for s in old.get("shards", []) if s["chunk"] in done_chunks]
     objects = [o for o in old.get("objects", []) if o.get("chunk") in done_chunks]
+    check_kept_splits(out, objects, tasks)
     kept_files = {s["file"] for s in shards}
     failures = [f for f in old.get("failures", []) if f.get("chunk") in done_chunks
                 or (f.get("stage") == "voxelize" and f.get("shard") in kept_files)]
@@ -99,6 +104,29 @@ def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[T
             "warnings": warnings, "retry": retry, "attempts": attempts, "broken": broken,
             "empty_chunks": [c for c in old.get("empty_chunks", []) if c in done_chunks],
             "extra": {k: old[k] for k in ("voxels",) if k in old}}  # the record of `voxelize SHARDS`
+
+
+def split_changes(objects: list[dict], tasks: list[Task]) -> list[tuple[str, str, str, str]]:
+    """``[(category, model_id, old split, new split)]`` of the kept ``objects`` (index entries)
+    that this run's plan ``tasks`` puts in another split than the one their shard holds, in
+    index order. Objects the plan lacks are left out (the plan check refuses them)."""
+    new = {(t.category, t.model_id): t.split for t in tasks}
+    return [(o.get("category"), o.get("model_id"), o.get("split"), new[key]) for o in objects
+            if (key := (o.get("category"), o.get("model_id"))) in new and o.get("split") != new[key]]
+
+
+def check_kept_splits(out: Path, objects: list[dict], tasks: list[Task]) -> None:
+    """``ValueError`` (one line) when a kept object would change split under this run's split
+    rule: its shard keeps the old split while the index would list the new rule (module doc)."""
+    from sc3d_data.io.names import printable
+
+    changes = split_changes(objects, tasks)
+    if changes:
+        cat, mid, was, now = changes[0]
+        raise ValueError(f"{out}: {len(changes)} kept object(s) would change split under this run's split rule "
+                         f"(e.g. {printable(cat)}/{printable(mid)}: {was} -> {now}), but their shards keep the "
+                         "split they were made with; render into another --out (or --overwrite), or keep the "
+                         "split rule and split file as they were")
 
 
 def unlisted_positions(tasks: list[Task], K: int, done_chunks: set, listed: list[dict]) -> set[int]:
