@@ -19,7 +19,6 @@ Conventions
 from __future__ import annotations
 
 import io
-import json
 import os
 import re
 import struct
@@ -27,6 +26,7 @@ import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from sc3d_data.io.gltf_check import read_gltf
 from sc3d_data.io.names import printable
 
 __all__ = ["SHAPENET_V2_MESH", "MaterialReport", "loader_misses", "make_resolver", "material_report",
@@ -128,19 +128,7 @@ def gltf_uri_path(folder: Path, uri: str) -> Path:
 
 def _gltf_refs(path: Path) -> tuple[list[tuple[str, Path]], list[tuple[str, bytes]]]:
     """``(external images [(name, path)], embedded images [(name, bytes)])`` of a GLTF/GLB."""
-    raw = path.read_bytes()
-    binary = None
-    if path.suffix.lower() == ".glb":
-        if len(raw) < 20 or raw[:4] != b"glTF":
-            return [], []  # the parser reports it
-        json_len = struct.unpack_from("<I", raw, 12)[0]
-        doc = json.loads(raw[20:20 + json_len])
-        rest = 20 + json_len
-        if len(raw) >= rest + 8:
-            bin_len = struct.unpack_from("<I", raw, rest)[0]
-            binary = raw[rest + 8:rest + 8 + bin_len]
-    else:
-        doc = json.loads(raw)
+    doc, binary = read_gltf(path, binary=True)  # not a glTF document: ValueError, the loader reports it
     external, embedded = [], []
     for i, image in enumerate(doc.get("images", [])):
         if "uri" in image and not image["uri"].startswith("data:"):

@@ -10,7 +10,9 @@ a regular file (FIFO, device, a symlink to one: never opened), a file over ``max
 (checked before parsing), a file that does not parse, no triangles, NaN/inf vertices, zero
 surface area, more than ``max_faces`` triangles, coordinates beyond float32 range (the renderer
 draws in float32), an OBJ whose text cannot be decoded, an OBJ face that names index 0 (OBJ
-counts from 1; trimesh would silently read 0 as the last vertex), or (``bad_texture="fail"``, the default)
+counts from 1; trimesh would silently read 0 as the last vertex), a glTF/GLB that draws a
+TRIANGLE_FAN primitive (which trimesh skips) or a sparse POSITION/indices accessor (which trimesh
+does not apply; both judged from the JSON by ``sc3d_data.io.gltf_check``), or (``bad_texture="fail"``, the default)
 a texture that is named but cannot be read, decoded or loaded. Warnings (recorded in the index,
 the object still renders): an OBJ's ``.mtl`` that is missing, textures not loaded
 (``bad_texture="fallback"``), and material or texture files outside the dataset folder, which
@@ -176,6 +178,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     ``bad_texture="fallback"``, missing ``.mtl`` files, material files outside the folder
     ``root``, never read: refused when ``outside_textures="refuse"``). Raises ``MeshError`` on
     bad input (see module doc)."""
+    from sc3d_data.io.gltf_check import gltf_refusal
     from sc3d_data.io.materials import loader_misses, make_resolver, material_report
 
     path = Path(path)
@@ -193,6 +196,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
                         "material colours)")
     if path.suffix.lower() == ".obj":
         check_obj_indices(path)
+    if (refusal := gltf_refusal(path)) is not None:  # glTF/GLB only
+        raise MeshError(refusal)
     resolver = make_resolver(path, root)
     scene = load_scene(path, resolver)
     missed = loader_misses(resolver, report)

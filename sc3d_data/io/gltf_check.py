@@ -1,0 +1,108 @@
+"""The JSON document of a glTF/GLB file, and the geometry in it that trimesh would not read as written.
+
+trimesh's glTF loader (``trimesh.exchange.gltf``, 5.x) builds triangles from primitives of mode
+TRIANGLES (4) and TRIANGLE_STRIP (5) only: a TRIANGLE_FAN (6) primitive is skipped with a debug
+log line, and an accessor's ``sparse`` substitution is never applied (the base values, or zeros,
+are read). Either way the object would render and voxelize as other geometry than the file's,
+with no warning. :func:`gltf_refusal` says why to refuse such a file before it is loaded, judging
+from the JSON alone (for a GLB only its JSON chunk is read, never the binary one).
+
+Only what the loader draws is judged: the meshes of the nodes reachable from the scene it uses
+(``scene``, else the first), their surface primitives' POSITION and ``indices`` accessors.
+Points and lines (modes 0-3) carry no surface and are not drawn, which is right: left alone.
+A document that does not parse is left for the loader to report.
+"""
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+
+__all__ = ["GLTF_SUFFIXES", "SKIPPED_SURFACE_MODES", "gltf_refusal", "read_gltf"]
+
+GLTF_SUFFIXES = (".gltf", ".glb")
+#: primitive modes that draw a surface but which the loader skips: ``{mode: name}``
+SKIPPED_SURFACE_MODES = {6: "TRIANGLE_FAN"}
+#: primitive modes the loader reads as triangles (the default mode is TRIANGLES)
+TRIANGLE_MODES = (4, 5)
+_GLB_MAGIC, _JSON_CHUNK = b"glTF", b"JSON"
+
+
+def read_gltf(path: Path, binary: bool = False) -> tuple[dict, bytes | None]:
+    """``(JSON document, binary chunk)`` of glTF/GLB ``path``; the binary chunk (a GLB's ``BIN``,
+    else None) is read only when ``binary``. Raises ``OSError``/``ValueError``/``struct.error``
+    when the file is not a glTF document (the loader reports it)."""
+    path = Path(path)
+    if path.suffix.lower() != ".glb":
+        return json.loads(path.read_bytes()), None
+    with open(path, "rb") as f:
+        header = f.read(20)
+        if len(header) < 20 or header[:4] != _GLB_MAGIC or header[16:20] != _JSON_CHUNK:
+            raise ValueError(f"{path}: not a GLB file (no glTF header and JSON chunk)")
+        json_len = struct.unpack_from("<I", header, 12)[0]
+        doc = json.loads(f.read(json_len))
+        if not binary:
+            return doc, None
+        chunk = f.read(8)
+        if len(chunk) < 8:
+            return doc, None
+        return doc, f.read(struct.unpack_from("<I", chunk, 0)[0])
+
+
+def _drawn_meshes(doc: dict) -> set[int]:
+    """Indices of the meshes of the nodes reachable from the scene the loader draws (``scene``,
+    else scene 0; none without ``scenes``)."""
+    nodes, scenes = doc.get("nodes", []), doc.get("scenes")
+    if not scenes:
+        return set()
+    queue, seen, meshes = list(scenes[doc.get("scene", 0)].get("nodes", [])), set(), set()
+    while queue:
+        i = queue.pop()
+        if i in seen:
+            continue
+        seen.add(i)
+        node = nodes[i]
+        if "mesh" in node:
+            meshes.add(node["mesh"])
+        queue.extend(node.get("children", []))
+    return meshes
+
+
+def gltf_problems(doc: dict) -> list[str]:
+    """What of glTF document ``doc``'s drawn geometry the loader would not read as written
+    (module doc), one phrase each, in file order."""
+    problems, sparse_seen = [], set()
+    accessors = doc.get("accessors", [])
+    for m in sorted(_drawn_meshes(doc)):
+        for k, prim in enumerate(doc["meshes"][m].get("primitives", [])):
+            mode = prim.get("mode", 4)
+            if mode in SKIPPED_SURFACE_MODES:
+                problems.append(f"mesh {m} primitive {k} is a {SKIPPED_SURFACE_MODES[mode]} (mode {mode}), "
+                                "which the loader skips")
+                continue
+            if mode not in TRIANGLE_MODES:
+                continue  # points and lines: no surface, not drawn
+            used = [("POSITION", prim.get("attributes", {}).get("POSITION")), ("indices", prim.get("indices"))]
+            for role, a in used:
+                if a is not None and a not in sparse_seen and "sparse" in accessors[a]:
+                    sparse_seen.add(a)
+                    problems.append(f"accessor {a} ({role} of mesh {m}) is sparse, which the loader does not apply")
+    return problems
+
+
+def gltf_refusal(path: Path, shown: int = 3) -> str | None:
+    """The one-line reason (naming ``path``; the first ``shown`` problems and how many more) to
+    refuse glTF/GLB ``path`` because it draws geometry the loader would not read as written
+    (module doc), or None. Other files, and documents that do not parse, pass (the loader reports
+    those)."""
+    path = Path(path)
+    if path.suffix.lower() not in GLTF_SUFFIXES:
+        return None
+    try:
+        problems = gltf_problems(read_gltf(path)[0])
+    except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error, RecursionError):
+        return None  # not a well-formed glTF document: the loader reports it
+    if not problems:
+        return None
+    more = f"; and {len(problems) - shown} more like these" if len(problems) > shown else ""
+    return f"{path}: {'; '.join(problems[:shown])}{more}; not read"
