@@ -176,3 +176,37 @@ def test_f6_voxelize_meshes_refuses_a_folder_of_other_grids(tmp_path):
     assert "1 already there" in run_cli(data_main, [*base, "--resolution", "16"]).output
     run_cli(data_main, [*base, "--resolution", "64", "--overwrite"])
     assert (out / "chair" / "cube.binvox").read_bytes().split(b"\n")[1] == b"dim 64 64 64"
+
+
+# ----------------------------------------------------------------------------- F7
+def test_f7_a_mesh_changed_after_rendering_is_rendered_again(tmp_path):
+    """A mesh re-exported after its object was rendered was "resumed" by the rerun (the index
+    knew only its path), and ``voxelize SHARDS`` voxelized the new file with the old transform:
+    images of one shape, voxels of another. Now the index records each source's fingerprint
+    (size, time, SHA-256): ``voxelize`` refuses in one line while a source differs, the render
+    rerun renders that object again (its masks now those of the new mesh, which a fresh render
+    of it gives), and a copy of the meshes with new times but the same content still resumes."""
+    import os
+
+    import h5py
+
+    chair = tmp_path / "m" / "chair"
+    chair.mkdir(parents=True)
+    (chair / "a.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    out = tmp_path / "out"
+    render = ["render", "--meshes", tmp_path / "m", "--out", out, *FAST]
+    run_cli(data_main, render)
+    flat_box = [[x, y, z * 0.2] for x, y, z in CUBE_V]                # the re-exported mesh
+    (chair / "a.obj").write_text(obj_text(flat_box, CUBE_F))
+    res = run_cli(data_main, ["voxelize", out, "--resolution", "16", "--no-progress"], expect_exit=None)
+    assert res.exit_code != 0 and f"{out}: 1 source mesh(es) changed since they were rendered (e.g. " \
+        f"{chair / 'a.obj'}" in res.output, res.output
+    res = run_cli(data_main, render)
+    assert "changed since it was rendered" in res.output and "done 1, resumed 0" in res.output, res.output
+    fresh = tmp_path / "fresh"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", fresh, *FAST])
+    with h5py.File(out / "shard-00000.h5") as a, h5py.File(fresh / "shard-00000.h5") as b:
+        np.testing.assert_array_equal(a["masks"][:], b["masks"][:])
+    os.utime(chair / "a.obj", ns=(1, 1))                               # a copy that kept no times
+    assert "done 0, resumed 1" in run_cli(data_main, render).output
+    run_cli(data_main, ["voxelize", out, "--resolution", "16", "--no-progress"])

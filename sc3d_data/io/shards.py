@@ -364,14 +364,20 @@ def index_counts(objects: list[dict]) -> dict:
 def add_shard_to_index(shards: list[dict], objects: list[dict], name: str, chunk: int,
                        records: list[ObjectRecord], sha256: str | None = None) -> None:
     """Append the index entries of the shard ``name`` (chunk ``chunk``) just written from
-    ``records``: one to ``shards``, one per record (its row) to ``objects``. ``sha256`` (as
-    returned by ``write_shard``) is recorded; without it ``write_index`` computes it."""
+    ``records``: one to ``shards``, one per record (its row) to ``objects``, with the fingerprint
+    of its source file (``source_file``: ``io.source_fingerprint``) where that is a file.
+    ``sha256`` (as returned by ``write_shard``) is recorded; without it ``write_index`` computes
+    it."""
     from collections import Counter
+
+    from sc3d_data.io.source_fingerprint import fingerprint
 
     for row, r in enumerate(records):
         objects.append({"category": r.category, "model_id": r.model_id, "split": r.split,
                         "source": r.source, "shard": name, "row": row, "chunk": chunk,
                         "clipped_views": int(np.asarray(r.arrays["clipped"]).sum())})
+        if (source_file := fingerprint(r.source)) is not None:  # a rerun notices a changed mesh
+            objects[-1]["source_file"] = source_file
     entry = {"file": name, "chunk": chunk, "objects": len(records),
              "categories": dict(Counter(r.category for r in records)),
              "splits": dict(Counter(r.split for r in records))}

@@ -11,7 +11,8 @@ A run's resolved config is written beside it as ``RUN_DIR/config.yaml`` and, as 
 inside every checkpoint; ``fit --config RUN_DIR/config.yaml`` starts the same run again
 (docs/config.md). The settings of ``eval``, ``predict`` and ``claims`` are declared the same way
 in :mod:`sc3d_train.settings.command_config`. This module imports nothing heavy (no torch), so
-``fit --help`` stays fast.
+``fit --help`` stays fast. Length: it is the one place of every training setting, each declared
+once with its check; split up, a setting's default and its check would live apart.
 """
 from __future__ import annotations
 

@@ -158,6 +158,24 @@ def _read_rows(path: Path, resolution: int) -> tuple[bool, list, list, list, np.
             raise ShardError(f"{path}: broken shard ({io_reason(e)}); see `sc3d-data info --verify`") from e
 
 
+def check_sources_unchanged(shard_dir: Path, objects: list[dict], paths: list[Path], K: int, todo: list) -> None:
+    """``ValueError`` (one line) when a mesh of ``todo`` (``RowTask``s) differs from the
+    fingerprint recorded when its object was rendered (``source_file`` of its index entry,
+    ``io.source_fingerprint``): its voxels would not match its images. No shard is changed."""
+    from sc3d_data.io.source_fingerprint import source_change
+
+    entry = {(o.get("shard"), o.get("row")): o for o in objects}
+    changed = []
+    for t in todo:
+        recorded = entry.get((paths[t.pos // K].name, t.row), {}).get("source_file")
+        if recorded is not None and Path(t.path).is_file() and (why := source_change(t.path, recorded)):
+            changed.append(f"{t.path} ({why})")
+    if changed:
+        raise ValueError(f"{shard_dir}: {len(changed)} source mesh(es) changed since they were rendered (e.g. "
+                         f"{changed[0]}): their voxels would not match their images; rerun `sc3d-data render` "
+                         "(it renders them again), then voxelize; no shard was changed")
+
+
 def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, progress) -> VoxelizeSummary:
     """The shards are the chunks of ``shard_output.write_chunks``: row ``r`` of the ``c``-th
     shard listed is plan position ``c * K + r`` (``K`` = the most rows of a shard)."""
@@ -186,6 +204,7 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
             continue
         todo += [RowTask(c * K + r, resolve_source(s, settings.get("meshes")), cats[r], ids[r], "", s, r, T)
                  for r, (s, T) in enumerate(zip(sources, to_canonical))]
+    check_sources_unchanged(shard_dir, index.objects, paths, K, todo)
     if todo and not any(Path(t.path).is_file() for t in todo):
         raise ValueError(f"{shard_dir}: none of the {len(todo)} source meshes its shards record exists (first: "
                          f"{todo[0].source}, also looked for under {settings.get('meshes')}); no shard was changed: "

@@ -5,7 +5,9 @@ The index is rewritten atomically after every shard (past 10,000 objects less of
 same ``--part``) skips chunks that are complete (their shard is listed, exists and matches the
 size and SHA-256 in the index: a truncated or corrupted shard is rendered again) and, with
 ``retry_failed``, renders the recorded failures of complete chunks again and rewrites their
-shard in plan order. Stale ``*.tmp`` files are deleted. A rerun whose split rule puts a kept
+shard in plan order. A kept chunk holding a mesh that changed since it was rendered (its
+``source_file`` fingerprint, :func:`changed_sources`) is rendered again. Stale ``*.tmp`` files
+are deleted. A rerun whose split rule puts a kept
 object in another split than its shard holds (an edited ``--split-file``, or ``--split r2n2``
 over a folder that gained meshes) is refused before any work (:func:`check_kept_splits`): the
 index would describe splits the shards do not hold.
@@ -83,6 +85,9 @@ def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[T
             done_chunks.add(s["chunk"])
         else:
             broken.append(problem + "; rendering its objects again")
+    for chunk, problem in changed_sources(old.get("objects", []), by_key, done_chunks).items():
+        done_chunks.discard(chunk)
+        broken.append(problem)
     shards = [s for s in old.get("shards", []) if s["chunk"] in done_chunks]
     objects = [o for o in old.get("objects", []) if o.get("chunk") in done_chunks]
     check_kept_splits(out, objects, tasks)
@@ -104,6 +109,23 @@ def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[T
             "warnings": warnings, "retry": retry, "attempts": attempts, "broken": broken,
             "empty_chunks": [c for c in old.get("empty_chunks", []) if c in done_chunks],
             "extra": {k: old[k] for k in ("voxels",) if k in old}}  # the record of `voxelize SHARDS`
+
+
+def changed_sources(objects: list[dict], by_key: dict, chunks: set) -> dict[int, str]:
+    """``{chunk: reason}`` for the ``chunks`` holding an object (index entry) whose mesh file
+    differs from the fingerprint recorded when it was rendered (``source_file``;
+    ``io.source_fingerprint``): such a chunk is rendered again. ``by_key``: the plan's tasks by
+    (category, model id); entries without a fingerprint (earlier versions) are not compared."""
+    from sc3d_data.io.source_fingerprint import source_change
+
+    out: dict[int, str] = {}
+    for o in objects:
+        task = by_key.get((o.get("category"), o.get("model_id")))
+        if o.get("chunk") not in chunks or o["chunk"] in out or task is None or "source_file" not in o:
+            continue
+        if (why := source_change(task.path, o["source_file"])) is not None:
+            out[o["chunk"]] = f"{task.path}: changed since it was rendered ({why}); rendering its chunk again"
+    return out
 
 
 def split_changes(objects: list[dict], tasks: list[Task]) -> list[tuple[str, str, str, str]]:

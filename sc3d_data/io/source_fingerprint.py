@@ -1,0 +1,51 @@
+"""The fingerprint of a source mesh file, recorded per object in ``index.json`` (``source_file``),
+so that a rerun notices a mesh that changed after it was rendered.
+
+A fingerprint is ``{"bytes", "mtime_ns", "sha256"}`` of the file as it was when its shard was
+listed. :func:`source_change` compares a file with one: the same size and modification time
+mean unchanged (no read); another size means changed; the same size with another time (a copy
+made without keeping times, a touched file) is settled by the SHA-256 of the content, so moving
+or copying a dataset does not count as a change.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import stat
+from pathlib import Path
+
+__all__ = ["fingerprint", "source_change"]
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def fingerprint(path: str | Path) -> dict | None:
+    """``{"bytes", "mtime_ns", "sha256"}`` of regular file ``path``; None for anything else (a
+    folder of 3D-R2N2 renderings, a file gone)."""
+    try:
+        st = os.stat(path)
+        if not stat.S_ISREG(st.st_mode):
+            return None
+        return {"bytes": st.st_size, "mtime_ns": st.st_mtime_ns, "sha256": _sha256(Path(path))}
+    except OSError:
+        return None
+
+
+def source_change(path: str | Path, recorded: dict) -> str | None:
+    """How file ``path`` differs from its ``recorded`` fingerprint, in a few words, or None when
+    it has the same content (module doc)."""
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        return f"cannot be read ({e.strerror or e})"
+    if st.st_size != recorded.get("bytes"):
+        return f"{recorded.get('bytes'):,} -> {st.st_size:,} bytes"
+    if st.st_mtime_ns == recorded.get("mtime_ns"):
+        return None
+    return None if _sha256(Path(path)) == recorded.get("sha256") else "same size, other content"
