@@ -183,7 +183,8 @@ def test_f7_a_mesh_changed_after_rendering_is_rendered_again(tmp_path):
     """A mesh re-exported after its object was rendered was "resumed" by the rerun (the index
     knew only its path), and ``voxelize SHARDS`` voxelized the new file with the old transform:
     images of one shape, voxels of another. Now the index records each source's fingerprint
-    (size, time, SHA-256): ``voxelize`` refuses in one line while a source differs, the render
+    (size, time, SHA-256): ``voxelize`` fails such an object (naming the change) while a source
+    differs, the render
     rerun renders that object again (its masks now those of the new mesh, which a fresh render
     of it gives), and a copy of the meshes with new times but the same content still resumes."""
     import os
@@ -199,8 +200,11 @@ def test_f7_a_mesh_changed_after_rendering_is_rendered_again(tmp_path):
     flat_box = [[x, y, z * 0.2] for x, y, z in CUBE_V]                # the re-exported mesh
     (chair / "a.obj").write_text(obj_text(flat_box, CUBE_F))
     res = run_cli(data_main, ["voxelize", out, "--resolution", "16", "--no-progress"], expect_exit=None)
-    assert res.exit_code != 0 and f"{out}: 1 source mesh(es) changed since they were rendered (e.g. " \
-        f"{chair / 'a.obj'}" in res.output, res.output
+    assert res.exit_code != 0 and "no object was voxelized: all 1 failed" in res.output, res.output
+    (failure,) = index_of(out)["failures"]
+    size_was, size_now = len(obj_text(CUBE_V, CUBE_F)), (chair / "a.obj").stat().st_size
+    assert failure["reason"] == (f"{chair / 'a.obj'}: changed since it was rendered ({size_was} -> {size_now} bytes); "
+                                 "its voxels would not match its images: render it again, then voxelize")
     res = run_cli(data_main, render)
     assert "changed since it was rendered" in res.output and "done 1, resumed 0" in res.output, res.output
     fresh = tmp_path / "fresh"

@@ -52,7 +52,6 @@ the index are changed together whenever the format changes.
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import re
@@ -62,6 +61,8 @@ from typing import Any
 
 import h5py
 import numpy as np
+
+from sc3d_data.io.hashing import file_sha256  # noqa: F401 - also imported from here by other modules
 
 SCHEMA_VERSION = 1
 INDEX_NAME = "index.json"
@@ -143,6 +144,8 @@ class ObjectRecord:
     split: str
     source: str
     arrays: dict[str, "np.ndarray | EncodedArray"] = field(default_factory=dict)
+    #: the source file's fingerprint (``io.source_fingerprint``), taken by the worker that read it
+    source_file: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -186,7 +189,7 @@ def encode_arrays(record: ObjectRecord, layout: str, names=ENCODED_BY_WORKER) ->
     """``record`` with its arrays ``names`` (those it has) replaced by ``EncodedArray``s."""
     arrays = {k: encode_array(k, v, layout) if k in names and not isinstance(v, EncodedArray) else v
               for k, v in record.arrays.items()}
-    return ObjectRecord(record.model_id, record.category, record.split, record.source, arrays)
+    return ObjectRecord(record.model_id, record.category, record.split, record.source, arrays, record.source_file)
 
 
 def border_clipped(masks: np.ndarray) -> np.ndarray:
@@ -219,15 +222,6 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     except OSError as e:
         _unlink_quietly(tmp)
         raise OSError(e.errno, f"cannot write {path}: {io_reason(e)}", str(path)) from e
-
-
-def file_sha256(path: Path) -> str:
-    """Hex SHA-256 of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def write_json_atomic(path: Path, obj: Any) -> None:
@@ -365,7 +359,8 @@ def add_shard_to_index(shards: list[dict], objects: list[dict], name: str, chunk
                        records: list[ObjectRecord], sha256: str | None = None) -> None:
     """Append the index entries of the shard ``name`` (chunk ``chunk``) just written from
     ``records``: one to ``shards``, one per record (its row) to ``objects``, with the fingerprint
-    of its source file (``source_file``: ``io.source_fingerprint``) where that is a file.
+    of its source file (``source_file``: ``io.source_fingerprint``; the worker's, or taken here
+    for records read back from a shard) where that is a file.
     ``sha256`` (as returned by ``write_shard``) is recorded; without it ``write_index`` computes
     it."""
     from collections import Counter
@@ -376,7 +371,7 @@ def add_shard_to_index(shards: list[dict], objects: list[dict], name: str, chunk
         objects.append({"category": r.category, "model_id": r.model_id, "split": r.split,
                         "source": r.source, "shard": name, "row": row, "chunk": chunk,
                         "clipped_views": int(np.asarray(r.arrays["clipped"]).sum())})
-        if (source_file := fingerprint(r.source)) is not None:  # a rerun notices a changed mesh
+        if (source_file := r.source_file or fingerprint(r.source)) is not None:  # a rerun notices a changed mesh
             objects[-1]["source_file"] = source_file
     entry = {"file": name, "chunk": chunk, "objects": len(records),
              "categories": dict(Counter(r.category for r in records)),

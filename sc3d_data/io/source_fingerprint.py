@@ -9,20 +9,13 @@ or copying a dataset does not count as a change.
 """
 from __future__ import annotations
 
-import hashlib
 import os
 import stat
 from pathlib import Path
 
+from sc3d_data.io.hashing import file_sha256
+
 __all__ = ["fingerprint", "source_change"]
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def fingerprint(path: str | Path) -> dict | None:
@@ -32,20 +25,24 @@ def fingerprint(path: str | Path) -> dict | None:
         st = os.stat(path)
         if not stat.S_ISREG(st.st_mode):
             return None
-        return {"bytes": st.st_size, "mtime_ns": st.st_mtime_ns, "sha256": _sha256(Path(path))}
+        return {"bytes": st.st_size, "mtime_ns": st.st_mtime_ns, "sha256": file_sha256(Path(path))}
     except OSError:
         return None
 
 
 def source_change(path: str | Path, recorded: dict) -> str | None:
     """How file ``path`` differs from its ``recorded`` fingerprint, in a few words, or None when
-    it has the same content (module doc)."""
+    it has the same content (module doc). Same content under another time: ``recorded`` takes the
+    file's time (the index it came from is written back), so a copied dataset is hashed once."""
     try:
         st = os.stat(path)
     except OSError as e:
         return f"cannot be read ({e.strerror or e})"
     if st.st_size != recorded.get("bytes"):
-        return f"{recorded.get('bytes'):,} -> {st.st_size:,} bytes"
+        return f"{recorded.get('bytes')} -> {st.st_size} bytes"
     if st.st_mtime_ns == recorded.get("mtime_ns"):
         return None
-    return None if _sha256(Path(path)) == recorded.get("sha256") else "same size, other content"
+    if file_sha256(Path(path)) != recorded.get("sha256"):
+        return "same size, other content"
+    recorded["mtime_ns"] = st.st_mtime_ns  # the same content: the next check needs no read
+    return None

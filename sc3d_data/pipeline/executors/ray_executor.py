@@ -110,6 +110,7 @@ class RecordRef:
     source: str
     arrays: dict
     ref: object = None
+    source_file: dict | None = None  # the source file's fingerprint, as the worker took it
 
 
 def job_task_split(job: Job, config, backend: str, task):
@@ -124,7 +125,7 @@ def job_task_split(job: Job, config, backend: str, task):
         return (pos, status, payload), None
     record, warnings = payload
     stub = RecordRef(record.model_id, record.category, record.split, record.source,
-                     {"clipped": record.arrays["clipped"]})
+                     {"clipped": record.arrays["clipped"]}, source_file=record.source_file)
     return (pos, status, (stub, warnings)), record
 
 

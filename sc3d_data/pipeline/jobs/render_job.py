@@ -148,6 +148,9 @@ def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord
 
     from sc3d_data.io.meshes import MeshError
 
+    from sc3d_data.io.source_fingerprint import fingerprint
+
+    source_file = fingerprint(task.path)  # before reading: an edit during the render counts as a change
     root = Path(config.meshes)
     scene, vertices, faces, warnings = load_mesh(Path(task.path), config.max_faces, config.bad_texture,
                                                  root=root if root.is_dir() else root.parent,
@@ -172,7 +175,7 @@ def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord
         arrays["voxels"] = voxelize_triangles(apply_transform(vertices, to_canonical), faces,
                                               resolution=config.voxel_resolution)
     record = ObjectRecord(model_id=task.model_id, category=task.category, split=task.split,
-                          source=task.path, arrays=arrays)
+                          source=task.path, arrays=arrays, source_file=source_file)
     return record, warnings
 
 

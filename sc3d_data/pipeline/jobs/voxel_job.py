@@ -78,17 +78,25 @@ class VoxelizeShardsConfig(ExecOptions):
 @dataclass(frozen=True, eq=False)
 class RowTask(Task):
     """One object of a shard: ``path`` its mesh file (``resolve_source``), ``source`` as the
-    shard records it, ``row`` its row, ``to_canonical`` its stored 4x4 transform."""
+    shard records it, ``row`` its row, ``to_canonical`` its stored 4x4 transform, ``source_file``
+    the fingerprint its index entry recorded (None for shards of earlier versions)."""
 
     source: str = ""
     row: int = 0
     to_canonical: np.ndarray | None = None
+    source_file: dict | None = None  # the mesh's fingerprint when it was rendered (io.source_fingerprint)
 
 
 def voxelize_row_task(config: VoxelizeShardsConfig, backend: str, task: RowTask):
     """The job of one shard row (``executor.Job``, run by a worker): ``(pos, "ok", (voxels
-    [G, G, G] bool, []))`` or ``(pos, "fail", reason)``."""
+    [G, G, G] bool, []))`` or ``(pos, "fail", reason)``; a mesh that changed since its object was
+    rendered fails (its voxels would not match the images)."""
+    from sc3d_data.io.source_fingerprint import source_change
+
     limit_threads()
+    if task.source_file is not None and (why := source_change(task.path, dict(task.source_file))) is not None:
+        return task.pos, "fail", (f"{task.path}: changed since it was rendered ({why}); its voxels would not "
+                                  "match its images: render it again, then voxelize")
     try:
         voxels = voxelize_source(task.path, task.to_canonical, config.resolution, config.max_faces)
         return task.pos, "ok", (voxels, [])
@@ -158,24 +166,6 @@ def _read_rows(path: Path, resolution: int) -> tuple[bool, list, list, list, np.
             raise ShardError(f"{path}: broken shard ({io_reason(e)}); see `sc3d-data info --verify`") from e
 
 
-def check_sources_unchanged(shard_dir: Path, objects: list[dict], paths: list[Path], K: int, todo: list) -> None:
-    """``ValueError`` (one line) when a mesh of ``todo`` (``RowTask``s) differs from the
-    fingerprint recorded when its object was rendered (``source_file`` of its index entry,
-    ``io.source_fingerprint``): its voxels would not match its images. No shard is changed."""
-    from sc3d_data.io.source_fingerprint import source_change
-
-    entry = {(o.get("shard"), o.get("row")): o for o in objects}
-    changed = []
-    for t in todo:
-        recorded = entry.get((paths[t.pos // K].name, t.row), {}).get("source_file")
-        if recorded is not None and Path(t.path).is_file() and (why := source_change(t.path, recorded)):
-            changed.append(f"{t.path} ({why})")
-    if changed:
-        raise ValueError(f"{shard_dir}: {len(changed)} source mesh(es) changed since they were rendered (e.g. "
-                         f"{changed[0]}): their voxels would not match their images; rerun `sc3d-data render` "
-                         "(it renders them again), then voxelize; no shard was changed")
-
-
 def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, progress) -> VoxelizeSummary:
     """The shards are the chunks of ``shard_output.write_chunks``: row ``r`` of the ``c``-th
     shard listed is plan position ``c * K + r`` (``K`` = the most rows of a shard)."""
@@ -195,16 +185,16 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
     base = [f for f in index.failures if f.get("stage") != "voxelize"]
     by_shard = [[f for f in index.failures if f.get("stage") == "voxelize" and f.get("shard") == p.name]
                 for p in paths]  # the voxelize failures of each shard, kept for a skipped shard
-    todo = []
+    todo, entries = [], {(o.get("shard"), o.get("row")): o for o in index.objects}
     for c, (has, sources, ids, cats, to_canonical) in enumerate(rows):
         # a shard whose size is not the index's was replaced by a voxelize killed before it wrote
         # the index (its voxels are whole: the replacement is atomic): done again, index recorded
         if has and not overwrite and index.shards[c].get("bytes") in (None, paths[c].stat().st_size):
             summary.shards_skipped += 1
             continue
-        todo += [RowTask(c * K + r, resolve_source(s, settings.get("meshes")), cats[r], ids[r], "", s, r, T)
+        todo += [RowTask(c * K + r, resolve_source(s, settings.get("meshes")), cats[r], ids[r], "", s, r, T,
+                         entries.get((paths[c].name, r), {}).get("source_file"))
                  for r, (s, T) in enumerate(zip(sources, to_canonical))]
-    check_sources_unchanged(shard_dir, index.objects, paths, K, todo)
     if todo and not any(Path(t.path).is_file() for t in todo):
         raise ValueError(f"{shard_dir}: none of the {len(todo)} source meshes its shards record exists (first: "
                          f"{todo[0].source}, also looked for under {settings.get('meshes')}); no shard was changed: "
