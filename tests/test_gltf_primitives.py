@@ -193,3 +193,19 @@ def test_strips_and_undrawn_meshes_are_not_refused(tmp_path):
         assert "cannot parse mesh file" in str(e)
     else:
         raise AssertionError("a garbage GLB loaded")
+
+
+def test_a_document_without_scenes_is_judged_on_every_mesh(tmp_path):
+    """A glTF without ``scenes`` is drawn whole by the loader (every mesh; the fan still dropped,
+    as trimesh shows): it is judged on every mesh, so the fan is refused there too."""
+    from sc3d_data.io.gltf_check import gltf_refusal
+
+    path = tmp_path / "noscene.gltf"
+    doc = _write_gltf(path, [(*_cube(), 4), (*_disk(), 6)])
+    for key in ("scenes", "scene"):
+        doc.pop(key)
+    path.write_text(json.dumps(doc))
+    cube_only = tmp_path / "cube.gltf"
+    _write_gltf(cube_only, [(*_cube(), 4)])
+    assert _loaded_triangles(path)[0] == _loaded_triangles(cube_only)[0]   # the fan is dropped
+    assert gltf_refusal(path) == _fan_message(path, doc)

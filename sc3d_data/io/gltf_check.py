@@ -8,7 +8,7 @@ with no warning. :func:`gltf_refusal` says why to refuse such a file before it i
 from the JSON alone (for a GLB only its JSON chunk is read, never the binary one).
 
 Only what the loader draws is judged: the meshes of the nodes reachable from the scene it uses
-(``scene``, else the first), their surface primitives' POSITION and ``indices`` accessors.
+(``scene``, else the first; every mesh without scenes), their surface primitives' POSITION and ``indices`` accessors.
 Points and lines (modes 0-3) carry no surface and are not drawn, which is right: left alone.
 A document that does not parse is left for the loader to report.
 """
@@ -51,10 +51,10 @@ def read_gltf(path: Path, binary: bool = False) -> tuple[dict, bytes | None]:
 
 def _drawn_meshes(doc: dict) -> set[int]:
     """Indices of the meshes of the nodes reachable from the scene the loader draws (``scene``,
-    else scene 0; none without ``scenes``)."""
+    else scene 0; every mesh when the document has no ``scenes``)."""
     nodes, scenes = doc.get("nodes", []), doc.get("scenes")
-    if not scenes:
-        return set()
+    if not scenes:  # the loader then draws every mesh
+        return set(range(len(doc.get("meshes", []))))
     queue, seen, meshes = list(scenes[doc.get("scene", 0)].get("nodes", [])), set(), set()
     while queue:
         i = queue.pop()

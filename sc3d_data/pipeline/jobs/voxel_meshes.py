@@ -174,12 +174,18 @@ def check_grid_settings(config: VoxelMeshesConfig) -> None:
         was = json.loads(path.read_text())
     except (OSError, ValueError):
         was = None
-    if isinstance(was, dict) and was != now and not config.overwrite:
+    if was == now:
+        return
+    if isinstance(was, dict) and not config.overwrite:
         changed = ", ".join(f"--{k} {was.get(k)!r} -> {now[k]!r}" for k in now if was.get(k) != now[k])
         raise ValueError(f"{config.out}: holds .binvox files voxelized with other settings ({changed}); a rerun "
                          "skips existing files, so the folder would mix grids: use another --out, or --overwrite "
                          "to redo them all")
-    write_json_atomic(path, now)
+    import os
+
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")  # --part jobs may write it at the same time
+    tmp.write_text(json.dumps(now, indent=1))
+    os.replace(tmp, path)
 
 
 def failures_name(part: Part) -> str:
