@@ -20,7 +20,8 @@ TINY_NOTES = {k: f"[--tiny: {v}]" for k, v in TINY_MODEL.items()}
               help="A run's config.yaml: train that run again (options given here override it; "
               "--shards and --out default to its values).")
 @click.option("--shards", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Shard directory written by `sc3d-data render --voxelize` (optional with --resume).")
+              help="Shard directory written by `sc3d-data render --voxelize` (optional with --resume; "
+                   "there, a moved copy of the run's data).")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Run directory: config.yaml, checkpoints/, metrics.csv, tb/, curves.png.")
 @config_options(RunConfig)
@@ -32,7 +33,8 @@ TINY_NOTES = {k: f"[--tiny: {v}]" for k, v in TINY_MODEL.items()}
 @click.option("--tiny", is_flag=True, help="The tiny network preset for CPU demos and tests "
               f"({', '.join(f'{k} {v}' for k, v in TINY_MODEL.items())}).")
 @click.option("--resume", is_flag=True, help="Continue RUN_DIR from checkpoints/last.pt exactly; only "
-              "--steps/--checkpoint-every/--log-every/--workers/--device/--no-progress may change.")
+              "--steps/--checkpoint-every/--log-every/--workers/--device/--no-progress and --shards (the same data, "
+              "moved) may change.")
 @click.pass_context
 def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_settings):
     """Train the self-consistency model on the shards' training split."""
@@ -84,7 +86,7 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
         from sc3d_data.io.shards import one_line
 
         raise click.ClickException(one_line(e)) from e
-    except torch.OutOfMemoryError as e:  # CUDA; a CPU batch that does not fit is refused before training
+    except torch.cuda.OutOfMemoryError as e:  # CUDA; a CPU batch that does not fit is refused before training
         from sc3d_data.io.shards import one_line
 
         raise click.ClickException(f"out of GPU memory while training ({one_line(e)[:160]}); the memory of a "

@@ -212,7 +212,7 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path,
     an empty split, shards without voxels) is refused before any training. Returns ``{run name: aggregate}`` (:func:`aggregate`)."""
     p = PRESETS[preset] if isinstance(preset, str) else preset
     check_held_out(train_shards, eval_shards, eval_split, p.extra.get("split", _FIT["split"]))
-    ShardDataset(eval_shards, eval_split, require_voxels=True)  # an empty split or no voxels: refused before training
+    ShardDataset(eval_shards, eval_split, require_voxels=True).close()  # empty split, no voxels: refused before training
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     per_seed, timings = {}, {}

@@ -35,6 +35,8 @@ PROBE_SIZES = (4, 16)
 #: share of the available memory a step may plan to use (the allocator holds about 10% more than
 #: the live tensors: 10 MiB a sample resident against 8.9 MiB counted, tiny network)
 USABLE_SHARE = 0.8
+#: share of what fits that the refusal suggests
+SUGGESTED_SHARE = 0.9
 GIB, MIB = 2**30, 2**20
 
 
@@ -49,15 +51,30 @@ def _proc_kib(path: str, key: str) -> int | None:
     return None
 
 
-#: (mount, limit file, usage file) of the cgroup memory controller, v2 then v1
-_CGROUP_FILES = (("/sys/fs/cgroup", "memory.max", "memory.current"),
-                 ("/sys/fs/cgroup/memory", "memory.limit_in_bytes", "memory.usage_in_bytes"))
+#: (mount, limit file, usage file, the reclaimable page cache's key in memory.stat) of the cgroup
+#: memory controller, v2 then v1
+_CGROUP_FILES = (("/sys/fs/cgroup", "memory.max", "memory.current", "inactive_file"),
+                 ("/sys/fs/cgroup/memory", "memory.limit_in_bytes", "memory.usage_in_bytes", "total_inactive_file"))
+
+
+def _stat_value(path: Path, key: str) -> int:
+    """The ``KEY N`` value of a cgroup ``memory.stat`` file, 0 where it is not there."""
+    try:
+        for line in path.read_text().splitlines():
+            name, _, value = line.partition(" ")
+            if name == key:
+                return int(value)
+    except (OSError, ValueError):
+        pass
+    return 0
 
 
 def cgroup_free_bytes() -> int | None:
     """What the memory limits of this process's cgroup and its ancestors leave (limit less usage,
-    the least over the levels), bytes: a SLURM job or a container limits a process below the
-    machine's free memory. None where no level sets a limit. cgroup v2 and v1."""
+    the least over the levels; the usage without the inactive page cache, which the kernel
+    reclaims before it kills: as docker and the kubelet count it), bytes: a SLURM job or a
+    container limits a process below the machine's free memory. None where no level sets a
+    limit. cgroup v2 and v1."""
     try:
         lines = Path("/proc/self/cgroup").read_text().splitlines()
     except OSError:
@@ -70,14 +87,14 @@ def cgroup_free_bytes() -> int | None:
         elif "memory" in controllers.split(","):
             paths["/sys/fs/cgroup/memory"] = path
     free = None
-    for mount, limit_name, usage_name in _CGROUP_FILES:
+    for mount, limit_name, usage_name, cache_key in _CGROUP_FILES:
         folder = Path(mount) / paths.get(mount, "/").lstrip("/")
         for level in [folder, *folder.parents]:
             if not level.is_relative_to(mount):
                 break
             try:
                 limit = (level / limit_name).read_text().strip()
-                usage = int((level / usage_name).read_text())
+                usage = int((level / usage_name).read_text()) - _stat_value(level / "memory.stat", cache_key)
             except (OSError, ValueError):
                 continue
             if limit.isdigit() and int(limit) < 2**60:  # "max" (v2) or a huge number (v1): no limit
@@ -134,8 +151,9 @@ def step_peak_bytes(t, batch_size: int) -> int:
         n_lab, n_unl = batch_split(cfg, batch_size)
         sizes = {"supervised": n_lab, "unsupervised": n_unl} if n_lab else {"unsupervised": n_unl}
     datasets = {"supervised": t.labeled, "unsupervised": t.datasets.get("unlabeled")}
-    batches = {phase: training_batch(next(iter(make_loader(datasets[phase], n, seed=0))), phase, t.device,
-                                     t.channels_last, t.pose_targets)
+    as_phase = {"supervised": "true-pose-masks"} if cfg.mode == "true-pose-masks" else {}  # as the loop does
+    batches = {phase: training_batch(next(iter(make_loader(datasets[phase], n, seed=0))), as_phase.get(phase, phase),
+                                     t.device, t.channels_last, t.pose_targets)
                for phase, n in sizes.items()}
     model = copy.deepcopy(t.model)
     with torch.random.fork_rng(devices=[]), LiveTensorBytes() as memory:
@@ -150,8 +168,7 @@ def check_cpu_batch_fits(t):
     ``LOCAL_WORLD_SIZE``), would need more memory than is available (module doc). Checks nothing
     on CUDA, for batches up to :data:`PROBE_ABOVE`, or where Linux does not report the memory
     available."""
-    free = available_bytes()
-    if t.device.type != "cpu" or t.local_batch <= PROBE_ABOVE or free is None:
+    if t.device.type != "cpu" or t.local_batch <= PROBE_ABOVE or (free := available_bytes()) is None:
         return t
     ranks_here = int(os.environ.get("LOCAL_WORLD_SIZE", 1))
     small, large = PROBE_SIZES
@@ -161,9 +178,11 @@ def check_cpu_batch_fits(t):
     need = ranks_here * (fixed + per_sample * t.local_batch)
     usable = USABLE_SHARE * free
     if need > usable:
-        most = int((usable / ranks_here - fixed) // per_sample) * t.dist.world_size
+        # the suggestion keeps a tenth in reserve: the memory available moves from one run to the next
+        most = int(SUGGESTED_SHARE * (usable / ranks_here - fixed) // per_sample) * t.dist.world_size
+        advice = f"use --batch-size {most} or less" if most >= 1 else "not even a batch of 1 fits: free memory first"
         raise ValueError(
             f"--batch-size {t.cfg.batch_size} needs about {need / GIB:.1f} GiB of memory a step on the CPU "
-            f"({per_sample / MIB:.1f} MiB a sample, measured), more than the {free / GIB:.1f} GiB available; "
-            f"use --batch-size {max(most, 1)} or less")
+            f"({per_sample / MIB:.1f} MiB a sample, measured), more than the {usable / GIB:.1f} GiB a step may take "
+            f"({USABLE_SHARE:.0%} of the {free / GIB:.1f} GiB available); {advice}")
     return t
