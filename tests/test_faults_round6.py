@@ -214,3 +214,26 @@ def test_f7_a_mesh_changed_after_rendering_is_rendered_again(tmp_path):
     os.utime(chair / "a.obj", ns=(1, 1))                               # a copy that kept no times
     assert "done 0, resumed 1" in run_cli(data_main, render).output
     run_cli(data_main, ["voxelize", out, "--resolution", "16", "--no-progress"])
+
+
+def test_f6_a_binvox_of_another_resolution_is_done_again(tmp_path):
+    """``voxelize.json`` is one record for the folder, so ``--part I/N --overwrite`` with a new
+    resolution re-records it for parts whose files it did not redo; those files were then kept.
+    Now a rerun keeps only files whose header has its resolution and redoes the others (here the
+    record is rewritten as such a part run leaves it)."""
+    import json
+
+    chair = tmp_path / "m" / "chair"
+    chair.mkdir(parents=True)
+    for name in ("a", "b"):
+        (chair / f"{name}.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    out = tmp_path / "vox"
+    base = ["voxelize", "--meshes", tmp_path / "m", "--out", out, "--no-progress"]
+    run_cli(data_main, [*base, "--resolution", "16"])
+    record = json.loads((out / "voxelize.json").read_text())
+    (out / "voxelize.json").write_text(json.dumps({**record, "resolution": 8}))
+    res = run_cli(data_main, [*base, "--resolution", "8"])
+    assert "wrote 2 .binvox files" in res.output and "(0 already there)" in res.output, res.output
+    for name in ("a", "b"):
+        assert (out / "chair" / f"{name}.binvox").read_bytes().split(b"\n")[1] == b"dim 8 8 8"
+    assert "(2 already there)" in run_cli(data_main, [*base, "--resolution", "8"]).output

@@ -132,6 +132,16 @@ def sc3d_to_binvox(voxels: np.ndarray) -> np.ndarray:
     return np.transpose(voxels, (0, 2, 1))
 
 
+def binvox_resolution(path: str | Path) -> int | None:
+    """The grid side ``D`` of ``.binvox`` file ``path`` from its header alone; None when the file
+    cannot be read or is not a binvox file."""
+    try:
+        with open(path, "rb") as f:
+            return _parse_header(f, path)[0][0]
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def read_binvox(path: str | Path) -> Binvox:
     """Read a binvox file; voxels come back in sc3d order ``[x, y, z]`` (module doc)."""
     path = Path(path)

@@ -5,7 +5,8 @@ Every mesh under ``meshes`` (``sc3d_data.formats.discover`` layouts) is normalis
 ``out/<same relative path>.binvox`` (sc3d header: translate -0.5, scale 1) by the worker
 that voxelized it (job ``VOXELIZE_MESH`` on the local pool or Ray, ``executor.py``, with
 the per-mesh time limit ``--timeout``; ``--executor slurm``: ``slurm_executor``). Existing
-``.binvox`` files are complete (written atomically) and skipped on a rerun, so a crash or
+``.binvox`` files are complete (written atomically) and skipped on a rerun when their header has
+the run's resolution (another is done again), so a crash or
 Ctrl-C loses no finished file; failures (with the reason: error, time limit, worker
 killed) go to ``out/failures.json``, sorted by source. The settings that decide a grid
 (resolution, normalisation, axes) are recorded in ``out/voxelize.json``; a rerun with others is
@@ -22,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sc3d_data.io.binvox import binvox_resolution
 from sc3d_data.io.shards import write_json_atomic
 from sc3d_data.pipeline.executors.job import ExecOptions, Job
 from sc3d_data.pipeline.executors.slurm_executor import SlurmOptions, run_array, summed_parts
@@ -118,8 +120,9 @@ def voxelize_meshes(config: VoxelMeshesConfig) -> VoxelizeSummary:
         entries = [e for e in entries if part_of(e.category, e.model_id, part.count) == part.index]
         problems = problems if part.index == 0 else []
     todo = []
-    for e in entries:
-        if binvox_target(config, str(e.path)).is_file() and not config.overwrite:
+    for e in entries:  # a file of another resolution (or unreadable) is done again
+        target = binvox_target(config, str(e.path))
+        if not config.overwrite and target.is_file() and binvox_resolution(target) == config.resolution:
             summary.shards_skipped += 1
         else:
             todo.append(Task(len(todo), str(e.path), e.category, e.model_id, ""))
