@@ -281,3 +281,23 @@ def test_t8_control_semi_options_with_semi_train(sample_shards, tmp_path):
                          "--val-every", 0, "--device", "cpu", "--semi", "--labeled-fraction", "0.5",
                          "--pretrain-steps", "1"])
     assert (out / "labeled_objects.txt").is_file() and "labeled_fraction: 0.5" in (out / "config.yaml").read_text()
+
+
+# ----------------------------------------------------------------------------- T9
+def test_t9_an_interrupt_after_a_checkpoint_names_that_checkpoint(sample_shards, tmp_path, monkeypatch):
+    """Ctrl-C while ``curves.png`` was redrawn, right after a checkpoint was written, reported the
+    checkpoint before it as the last good one (the loop had not noted the new one yet). Now the
+    message names the ``last.pt`` on disk: the checkpoint of step 2 here. The interrupt is raised
+    where Ctrl-C landed in the attack: in the curves' redraw after the checkpoint."""
+    import sc3d_train.loop.trainer as trainer
+
+    def ctrl_c(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(trainer, "plot_curves", ctrl_c)
+    out = tmp_path / "run"
+    res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", out, "--steps", 4, "--batch-size", 4, *TINY,
+                               "--checkpoint-every", 2, "--val-every", 0, "--device", "cpu"], expect_exit=None)
+    assert res.exit_code != 0
+    assert f"interrupted; last good checkpoint: {out / 'checkpoints' / 'last.pt'} (resume with --resume)" in res.output
+    assert torch.load(out / "checkpoints" / "last.pt", weights_only=False)["step"] == 2

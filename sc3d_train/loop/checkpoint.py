@@ -66,6 +66,14 @@ def last_path(run_dir: Path) -> Path:
     return checkpoint_dir(run_dir) / "last.pt"
 
 
+def saved_last(run_dir: Path) -> str:
+    """``last.pt`` of the run as a string when it exists (written atomically, after the loss was
+    checked: a good checkpoint, also when an interrupt came before the loop noted it), else
+    ``"none"``."""
+    path = last_path(run_dir)
+    return str(path) if path.is_file() else "none"
+
+
 def best_path(run_dir: Path) -> Path:
     """The run's best checkpoint on its validation split (:mod:`sc3d_train.loop.validation`)."""
     return checkpoint_dir(run_dir) / "best.pt"

@@ -47,7 +47,7 @@ import torch
 
 from sc3d_train.loop.checkpoint import (CheckpointError, build_model, checkpoint_config, last_path,
                                         resume_checkpoint, rng_state, save_checkpoint, set_rng_state,
-                                        state_dict_mismatch)
+                                        saved_last, state_dict_mismatch)
 from sc3d_train.settings.config import CONFIG_NAME, RunConfig
 from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.data.device_prefetch import DevicePrefetcher
@@ -290,7 +290,7 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
                 last_good = str(path) if path else last_good
     except KeyboardInterrupt:
         if t.dist.is_main:
-            print(f"\ninterrupted; last good checkpoint: {last_good or 'none'} (resume with --resume)")
+            print(f"\ninterrupted; last good checkpoint: {saved_last(t.run_dir)} (resume with --resume)")
         raise
     finally:
         if progress is not None:
