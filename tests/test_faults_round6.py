@@ -237,3 +237,18 @@ def test_f6_a_binvox_of_another_resolution_is_done_again(tmp_path):
     for name in ("a", "b"):
         assert (out / "chair" / f"{name}.binvox").read_bytes().split(b"\n")[1] == b"dim 8 8 8"
     assert "(2 already there)" in run_cli(data_main, [*base, "--resolution", "8"]).output
+
+
+# ----------------------------------------------------------------------------- F8
+@pytest.mark.parametrize("spec", [",", " , ,"])
+def test_f8_categories_that_name_nothing_are_refused(tmp_path, spec):
+    """``--categories ,`` filtered every mesh away and said "no mesh files found" of a folder
+    full of meshes; now one line says the option names no category, before any work."""
+    chair = tmp_path / "m" / "chair"
+    chair.mkdir(parents=True)
+    (chair / "cube.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    res = run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", tmp_path / "out", "--categories", spec,
+                              *FAST], expect_exit=None)
+    assert res.exit_code != 0
+    assert f"Error: --categories {spec!r} names no category" in res.output, res.output
+    assert not (tmp_path / "out" / "index.json").exists()

@@ -68,13 +68,17 @@ def resolve_category(name: str) -> str:
 
 def resolve_categories(spec: str | Iterable[str]) -> set[str]:
     """``"airplane,car,03001627"`` (or an iterable of such items, each possibly comma separated)
-    -> ``{"02691156", "02958343", "03001627"}``. Unknown names are kept as given."""
+    -> ``{"02691156", "02958343", "03001627"}``. Unknown names are kept as given; a spec that
+    names no category at all (``","``) is a ``ValueError``, not a filter that keeps nothing."""
     items = [spec] if isinstance(spec, str) else list(spec)
     out: set[str] = set()
     for item in items:
         for part in str(item).split(","):
             if part.strip():
                 out.add(resolve_category(part))
+    if not out:
+        raise ValueError(f"--categories {spec!r} names no category (give names or synset ids, comma-separated, "
+                         "e.g. chair,02691156)")
     return out
 
 
