@@ -252,3 +252,27 @@ def test_f8_categories_that_name_nothing_are_refused(tmp_path, spec):
     assert res.exit_code != 0
     assert f"Error: --categories {spec!r} names no category" in res.output, res.output
     assert not (tmp_path / "out" / "index.json").exists()
+
+
+# ----------------------------------------------------------------------------- F9
+def test_f9_a_single_shapenet_mesh_keeps_its_synset_and_model_id(tmp_path, monkeypatch):
+    """``--meshes SYNSET/MODEL_ID/model.obj`` (one ShapeNetCore file) took the model id for the
+    category and ``model`` for the id; a folder of such files gives SYNSET and MODEL_ID, and so
+    does the single file now, for v1 and v2 layouts, given absolutely or relatively. A file
+    outside that layout keeps the flat rule (its folder's name, also for a bare file name)."""
+    from sc3d_data.formats.discover import discover_meshes
+
+    model = tmp_path / "03001627" / "1a2b3c"
+    (model / "models").mkdir(parents=True)
+    for path in (model / "model.obj", model / "models" / "model_normalized.obj", tmp_path / "loose.obj"):
+        path.write_text(obj_text(CUBE_V, CUBE_F))
+
+    def ids(root):
+        (entry,), _ = discover_meshes(root)
+        return entry.category, entry.model_id
+
+    assert ids(model / "model.obj") == ids(model / "models" / "model_normalized.obj") == ("03001627", "1a2b3c")
+    monkeypatch.chdir(model)
+    assert ids("model.obj") == ids("models/model_normalized.obj") == ("03001627", "1a2b3c")
+    monkeypatch.chdir(tmp_path)
+    assert ids("loose.obj") == (tmp_path.name, "loose")

@@ -140,7 +140,12 @@ def discover_meshes(root, categories=None, category_override=None
     if root.is_file():
         if root.suffix.lower() not in MESH_EXTENSIONS:
             raise ValueError(f"{root}: not a mesh file (expected one of {', '.join(MESH_EXTENSIONS)})")
-        found.append(MeshEntry(root, root.stem, resolve_category(root.parent.name or "unknown")))
+        model_dir = _shapenet_model_dir(root.absolute().parent)
+        if model_dir is not None and root.absolute() in (model_dir / SHAPENET_V1_MESH[0],
+                                                         model_dir.joinpath(*SHAPENET_V2_MESH)):
+            found.append(MeshEntry(root, model_dir.name, model_dir.parent.name))  # SYNSET/MODEL_ID/.../model*.obj
+        else:
+            found.append(MeshEntry(root, root.stem, resolve_category(root.absolute().parent.name or "unknown")))
     else:
         root_resolved = root.resolve()
         folders = _walk(root, problems)
