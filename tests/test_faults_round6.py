@@ -82,19 +82,25 @@ def test_f2_split_file_names_other_than_train_val_test_are_refused(tmp_path, lin
     assert str(e.value) == f"{p}:2: split {problem} is none of train, val, test (lines are 'SPLIT ID' or 'ID')"
 
 
+def _render_refused(tmp_path, options: list) -> str:
+    """The output of ``render`` with ``options`` over a folder holding one cube, which must fail
+    before any work (no index written)."""
+    chair = tmp_path / "m" / "chair"
+    chair.mkdir(parents=True)
+    (chair / "cube.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    res = run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", tmp_path / "out", *options, *FAST],
+                  expect_exit=None)
+    assert res.exit_code != 0 and not (tmp_path / "out" / "index.json").exists(), res.output
+    return res.output
+
+
 @pytest.mark.parametrize("spec", ["random:nan,0,1", "random:0.9,nan", "random:inf,-inf,1", "random:1.5,-0.5"])
 def test_f3_random_split_fractions_must_be_finite_and_in_0_1(tmp_path, spec):
     """``random:nan,0,1`` passed both checks (NaN is neither < 0 nor far from a sum of 1) and
     wrote ``NaN``, which is not JSON, into ``index.json``; now ``render`` refuses it in one line
     before any work."""
-    chair = tmp_path / "m" / "chair"
-    chair.mkdir(parents=True)
-    (chair / "cube.obj").write_text(obj_text(CUBE_V, CUBE_F))
-    res = run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", tmp_path / "out", "--split", spec,
-                              *FAST], expect_exit=None)
-    assert res.exit_code != 0
-    assert f"split {spec!r}: give 2 or 3 fractions in [0, 1] that sum to 1" in res.output, res.output
-    assert not (tmp_path / "out" / "index.json").exists()
+    output = _render_refused(tmp_path, ["--split", spec])
+    assert f"split {spec!r}: give 2 or 3 fractions in [0, 1] that sum to 1" in output, output
 
 
 # ----------------------------------------------------------------------------- F4
@@ -244,14 +250,8 @@ def test_f6_a_binvox_of_another_resolution_is_done_again(tmp_path):
 def test_f8_categories_that_name_nothing_are_refused(tmp_path, spec):
     """``--categories ,`` filtered every mesh away and said "no mesh files found" of a folder
     full of meshes; now one line says the option names no category, before any work."""
-    chair = tmp_path / "m" / "chair"
-    chair.mkdir(parents=True)
-    (chair / "cube.obj").write_text(obj_text(CUBE_V, CUBE_F))
-    res = run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", tmp_path / "out", "--categories", spec,
-                              *FAST], expect_exit=None)
-    assert res.exit_code != 0
-    assert f"Error: --categories {spec!r} names no category" in res.output, res.output
-    assert not (tmp_path / "out" / "index.json").exists()
+    output = _render_refused(tmp_path, ["--categories", spec])
+    assert f"Error: --categories {spec!r} names no category" in output, output
 
 
 # ----------------------------------------------------------------------------- F9
