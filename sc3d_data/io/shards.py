@@ -62,7 +62,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from sc3d_data.io.hashing import file_sha256  # noqa: F401 - also imported from here by other modules
+from sc3d_data.io.hashing import file_sha256
 
 SCHEMA_VERSION = 1
 INDEX_NAME = "index.json"
@@ -207,12 +207,13 @@ def _unlink_quietly(path: Path) -> None:
         pass
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
+def atomic_write_bytes(path: Path, data: bytes, shared: bool = False) -> None:
     """Write ``data`` to ``path`` via a temporary file + fsync + rename; on failure (disk
     full...) the temporary file is removed, ``path`` keeps its old content and ``OSError``
-    names ``path``."""
+    names ``path``. ``shared``: processes that do not lock the folder may write ``path`` at the
+    same time (``--part`` jobs), so the temporary file is this process's own (``NAME.PID.tmp``)."""
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
+    tmp = path.with_name(path.name + (f".{os.getpid()}.tmp" if shared else ".tmp"))
     try:
         with open(tmp, "wb") as f:
             f.write(data)
@@ -224,8 +225,8 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
         raise OSError(e.errno, f"cannot write {path}: {io_reason(e)}", str(path)) from e
 
 
-def write_json_atomic(path: Path, obj: Any) -> None:
-    atomic_write_bytes(path, json.dumps(obj, indent=1, sort_keys=False).encode())
+def write_json_atomic(path: Path, obj: Any, shared: bool = False) -> None:
+    atomic_write_bytes(path, json.dumps(obj, indent=1, sort_keys=False).encode(), shared)
 
 
 def chunk_shape(name: str, shape: tuple[int, ...], layout: str) -> tuple[int, ...]:

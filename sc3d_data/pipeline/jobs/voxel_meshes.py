@@ -184,11 +184,7 @@ def check_grid_settings(config: VoxelMeshesConfig) -> None:
         raise ValueError(f"{config.out}: holds .binvox files voxelized with other settings ({changed}); a rerun "
                          "skips existing files, so the folder would mix grids: use another --out, or --overwrite "
                          "to redo them all")
-    import os
-
-    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")  # --part jobs may write it at the same time
-    tmp.write_text(json.dumps(now, indent=1))
-    os.replace(tmp, path)
+    write_json_atomic(path, now, shared=True)  # --part jobs may write it at the same time
 
 
 def failures_name(part: Part) -> str:
