@@ -89,12 +89,13 @@ class MaterialReport:
     reported: set[str] = field(default_factory=set)
 
 
-def mtllib_names(path: Path) -> list[str]:
-    """The material files OBJ ``path`` names, in order: every ``mtllib`` statement, each of which
-    may name several files separated by spaces (OBJ allows it); a statement whose whole text names
-    an existing file is that one file (a name with spaces)."""
+def mtllib_names(path: Path, text: str | None = None) -> list[str]:
+    """The material files OBJ ``path`` (its ``text`` when already read) names, in order: every
+    ``mtllib`` statement, each of which may name several files separated by spaces (OBJ allows
+    it); a statement whose whole text names an existing file is that one file (a name with spaces)."""
     names = []
-    for value in re.findall(r"^\s*mtllib\s+(.+?)\s*$", path.read_text(errors="replace"), flags=re.M):
+    text = path.read_text(errors="replace") if text is None else text
+    for value in re.findall(r"^\s*mtllib\s+(.+?)\s*$", text, flags=re.M):
         names += [value] if (path.parent / value).is_file() else value.split()
     return names
 
@@ -235,8 +236,9 @@ def make_resolver(path: Path, root: Path | None):
 
     libs, first_mtllib = [], None
     if Path(path).suffix.lower() == ".obj":  # all material files, served for the first statement
-        libs = mtllib_names(Path(path))
-        found = re.search(r"mtllib(.*)", Path(path).read_text(errors="replace"))
+        text = Path(path).read_text(errors="replace")
+        libs = mtllib_names(Path(path), text)
+        found = re.search(r"mtllib(.*)", text)
         first_mtllib = found.group(1).strip() if found else None  # what trimesh asks for
     return _RootResolver(Path(path).parent, texture_root(path, root), [])
 
