@@ -209,10 +209,11 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path,
             echo=print, seeds: int = ClaimsConfig.seeds, pick: str = ClaimsConfig.pick) -> dict:
     """Train and evaluate every run of ``preset`` with each of ``seeds`` seeds (skipping finished
     (run, seed) pairs); write the report. Evaluation data that cannot serve (objects trained on,
-    an empty split, shards without voxels) is refused before any training. Returns ``{run name: aggregate}`` (:func:`aggregate`)."""
+    an empty split, shards without voxels) is refused before any training. Returns
+    ``{run name: aggregate}`` (:func:`aggregate`)."""
     p = PRESETS[preset] if isinstance(preset, str) else preset
     check_held_out(train_shards, eval_shards, eval_split, p.extra.get("split", _FIT["split"]))
-    ShardDataset(eval_shards, eval_split, require_voxels=True).close()  # empty split, no voxels: refused before training
+    ShardDataset(eval_shards, eval_split, require_voxels=True).close()  # an empty split, no voxels: refused now
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     per_seed, timings = {}, {}

@@ -40,17 +40,6 @@ SUGGESTED_SHARE = 0.9
 GIB, MIB = 2**30, 2**20
 
 
-def _proc_kib(path: str, key: str) -> int | None:
-    """The ``KEY: N kB`` value of a ``/proc`` file in bytes, None where it is not there."""
-    try:
-        for line in Path(path).read_text().splitlines():
-            if line.startswith(key + ":"):
-                return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        return None
-    return None
-
-
 #: (mount, limit file, usage file, the reclaimable page cache's key in memory.stat) of the cgroup
 #: memory controller, v2 then v1
 _CGROUP_FILES = (("/sys/fs/cgroup", "memory.max", "memory.current", "inactive_file"),
@@ -103,9 +92,16 @@ def cgroup_free_bytes() -> int | None:
 
 
 def available_bytes() -> int | None:
-    """Memory this process may still take, bytes: ``MemAvailable``, lowered to what its cgroup's
-    limit leaves (:func:`cgroup_free_bytes`). None where Linux says neither."""
-    free = [v for v in (_proc_kib("/proc/meminfo", "MemAvailable"), cgroup_free_bytes()) if v is not None]
+    """Memory this process may still take, bytes: the machine's available memory (psutil; Linux's
+    ``MemAvailable``), lowered to what its cgroup's limit leaves (:func:`cgroup_free_bytes`).
+    None where neither is known."""
+    import psutil
+
+    try:
+        machine = int(psutil.virtual_memory().available)
+    except (OSError, RuntimeError, AttributeError):  # no memory figures on this system
+        machine = None
+    free = [v for v in (machine, cgroup_free_bytes()) if v is not None]
     return min(free) if free else None
 
 
