@@ -1,7 +1,7 @@
 """Speed of training: one optimiser step, the shard loader, the self-consistency module.
 
     python benchmarks/train_step.py [--shards DIR] [--compare-shards DIR] [--batch-size 48] [--device auto] [--tiny]
-                                    [--loader-only] [--workers 0,2,4] [--skip-loader] [--skip-semi] [--skip-sc]
+                                    [--loader-only] [--workers 0,2,4] [--skip-loader] [--skip-supervised] [--skip-semi] [--skip-sc]
                                     [--profile [--profile-steps 3]]
 
 Without ``--shards`` the bundled sample meshes are rendered + voxelized into a temporary
@@ -277,7 +277,7 @@ def step_tables(cfg, batch, device, args) -> float | None:
     for phase, title in (("supervised", "1. training step (supervised)"),
                          ("semi", "1b. mixed step of --semi (half labelled, half unlabelled: pose search on the "
                                   "predictions)")):
-        if phase == "semi" and args.skip_semi:
+        if (phase == "semi" and args.skip_semi) or (phase == "supervised" and args.skip_supervised):
             continue
         print(f"\n{title}: building and warming up")
         timed = time_variants(cfg, batch, device, variants, args.steps, phase)
@@ -313,6 +313,7 @@ def main() -> None:
     ap.add_argument("--tiny", action="store_true", help="the --tiny model instead of the paper's width")
     ap.add_argument("--skip-loader", action="store_true")
     ap.add_argument("--skip-semi", action="store_true", help="no table 1b (the mixed step of --semi)")
+    ap.add_argument("--skip-supervised", action="store_true", help="no table 1 (the supervised step)")
     ap.add_argument("--skip-sc", action="store_true", help="no table 3 (the self-consistency module)")
     ap.add_argument("--profile", action="store_true",
                     help="torch.profiler of fit's default step: top kernels, kernel launches per step")

@@ -1,89 +1,142 @@
 #!/usr/bin/env bash
-# Everything a GPU machine should show, in one command: the machine, the whole test suite (gpu
-# tests included), and every script in benchmarks/ run to its end on short inputs. Each step's
-# output goes to OUT/<step>.log; a table of exit codes and seconds ends the run (and OUT/summary.md).
+# What a GPU machine should show, in one command and in priority order: the figures issues 21
+# and 22 wait for first (training step, fit compiled and eager, render scaling, ShapeNet-sized
+# projection), then the gpu tests, then the whole suite and every other script in benchmarks/.
 #
-#   bash scripts/gpu_check.sh [--out gpu_check] [--meshes ../shared/meshes] [--skip-suite]
-#                             [--skip-benchmarks] [--limit 40]
+#   bash scripts/gpu_check.sh [--out gpu_check] [--meshes ../shared/meshes] [--kit .gpu]
+#                             [--budget SECONDS] [--only STEP,...] [--skip STEP,...] [--steps 2000]
 #
-# Run it after `bash scripts/setup.sh --gpu` (or with sc3d installed in the python on PATH). On a
-# CPU machine it runs too (the gpu tests skip, train_step uses the tiny network): that is how the
-# script itself is checked. Exit code 1 when any step failed.
+# --kit DIR: install first from a folder made by `bash scripts/gpu_kit.sh` (GL loader debs,
+#   the wheels the machine lacks, the meshes): for a lent machine that reaches no registry.
+# --budget S: stop starting steps when fewer than 30 s of S are left, and end each step at its
+#   own cap or at the budget, whichever comes first (a step cut off says "timeout" in the
+#   summary). Without it, every step runs to its end.
+# --only / --skip: step names (the first column of the summary), e.g. to finish a cut-off run.
+#
+# OUT holds summary.md (a row per step: exit code, seconds, command; then the tables of every
+# log), logs.tar.gz (every step's log and the fit runs' metrics) and curves.png (compiled against
+# eager), rewritten after each step, so a run killed from outside still leaves what it measured.
+# On a CPU machine it runs too (the gpu tests skip, the network is the tiny one, fewer steps):
+# that is how the script itself is checked. Exit code 1 when any step failed.
 set -uo pipefail
 cd "$(dirname "$0")/.."
-OUT=gpu_check; MESHES=../shared/meshes; SUITE=1; BENCH=1; LIMIT=40
+OUT=gpu_check; MESHES=../shared/meshes; KIT=""; BUDGET=0; ONLY=""; SKIP=""; STEPS=2000
 while [ $# -gt 0 ]; do
   case "$1" in
     --out) OUT=$2; shift 2 ;;
     --meshes) MESHES=$2; shift 2 ;;
-    --limit) LIMIT=$2; shift 2 ;;
-    --skip-suite) SUITE=0; shift ;;
-    --skip-benchmarks) BENCH=0; shift ;;
+    --kit) KIT=$2; shift 2 ;;
+    --budget) BUDGET=$2; shift 2 ;;
+    --only) ONLY=",$2,"; shift 2 ;;
+    --skip) SKIP=",$2,"; shift 2 ;;
+    --steps) STEPS=$2; shift 2 ;;
     *) echo "gpu_check: unknown option $1" >&2; exit 2 ;;
   esac
 done
-[ -x .venv/bin/python ] && PY=.venv/bin/python || PY=python3
-SC3D_DATA=$(dirname "$(command -v "$PY")")/sc3d-data
 mkdir -p "$OUT"
 OUT=$(cd "$OUT" && pwd)
 WORK=$(mktemp -d)
 trap 'rm -rf "$WORK"' EXIT
+mkdir -p "$WORK/logs"
 export PYTHONUNBUFFERED=1
-ROWS=()
-FAILED=0
+T0=$SECONDS
 
-step() {  # step NAME COMMAND...: run, log to OUT/NAME.log, remember exit code and seconds
-  local name=$1; shift
-  local t0=$SECONDS
-  echo "== $name: $*"
-  "$@" >"$OUT/$name.log" 2>&1
-  local code=$?
-  ROWS+=("| $name | $code | $((SECONDS - t0)) | \`$*\` |")
-  [ "$code" -eq 0 ] || { FAILED=1; echo "   exit $code (see $OUT/$name.log)"; tail -5 "$OUT/$name.log"; }
+if [ -n "$KIT" ]; then   # a lent machine: GL loaders, missing wheels, this project, the meshes
+  for f in "$KIT"/gl/*.deb; do dpkg -x "$f" /; done
+  ldconfig
+  export __EGL_VENDOR_LIBRARY_FILENAMES=${__EGL_VENDOR_LIBRARY_FILENAMES:-/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json}
+  python3 -m pip install -q --no-index --no-deps --no-build-isolation --no-compile --no-cache-dir --upgrade --target /tmp/site \
+    "$KIT"/whl/*.whl . >"$WORK/logs/kit.log" 2>&1 || { cat "$WORK/logs/kit.log"; exit 2; }
+  export PYTHONPATH=/tmp/site${PYTHONPATH:+:$PYTHONPATH} PATH=/tmp/site/bin:$PATH
+  tar -xJf "$KIT/meshes.tar.xz" -C "$WORK" && MESHES=$WORK/meshes
+fi
+[ -x .venv/bin/python ] && PY=$PWD/.venv/bin/python || PY=python3
+DATA=("$PY" -c "from sc3d_cli.data import main; main()")
+TRAIN=("$PY" -c "from sc3d_cli.train import main; main()")
+[ -d "$MESHES" ] || { echo "gpu_check: no mesh folder $MESHES (--meshes or --kit)" >&2; exit 2; }
+MESHES=$(cd "$MESHES" && pwd)
+CUDA=$($PY -c "import torch; print(int(torch.cuda.is_available()))" 2>/dev/null || echo 0)
+NPROC=$(nproc)
+if [ "$CUDA" = 1 ]; then WIDTH=(); BATCH=48; else WIDTH=(--tiny); BATCH=8; STEPS=$((STEPS < 60 ? STEPS : 60)); fi
+ROWS=(); NAMES=(); FAILED=0; declare -A SECS
+
+summarise() {  # OUT/summary.md and OUT/logs.tar.gz from what has run so far
+  {
+    echo "gpu_check $(date -u +%F) commit $(git rev-parse --short HEAD 2>/dev/null) on $NPROC cores, CUDA $CUDA, budget ${BUDGET}s"
+    echo
+    echo "| step | exit | seconds | command |"
+    echo "|---|---|---|---|"
+    printf '%s\n' "${ROWS[@]}"
+    for name in "${NAMES[@]}"; do
+      echo; echo "## $name"; echo
+      [ "$name" = machine ] && { cat "$WORK/logs/$name.log"; continue; }
+      grep -E '^\||samples/s|views/s|projection|flat|same curve|DIFFERENT|passed|failed|skipped|error|Error' \
+        "$WORK/logs/$name.log" | head -150
+    done
+  } >"$OUT/summary.md"
+  tar -czf "$OUT/logs.tar.gz" --exclude='*.pt' --exclude=tb -C "$WORK" logs runs 2>/dev/null
 }
 
-CUDA=$($PY -c "import torch; print(int(torch.cuda.is_available()))" 2>/dev/null || echo 0)
-step machine bash -c "nvidia-smi -L 2>&1; nproc; $PY -c 'import torch; print(torch.__version__, torch.version.cuda, torch.cuda.is_available() and torch.cuda.get_device_name(0))'; \
-  for b in egl osmesa; do $PY -c \"from sc3d_data.render.probe import probe_backend; print('\$b', probe_backend('\$b'))\" 2>&1 | tail -1; done"
-
-if [ "$SUITE" = 1 ]; then
-  step suite "$PY" -m pytest -q -p no:cacheprovider -rs
-fi
-
-if [ "$BENCH" = 1 ]; then
-  [ -d "$MESHES" ] || { echo "gpu_check: no mesh folder $MESHES (--meshes)" >&2; exit 2; }
-  SUB="$WORK/meshes"; mkdir -p "$SUB"   # about LIMIT meshes, the same number from each category folder
-  CATS=$(find "$(cd "$MESHES" && pwd)" -mindepth 1 -maxdepth 1 -type d | sort)
-  PER=$(( (LIMIT + $(echo "$CATS" | wc -l) - 1) / $(echo "$CATS" | wc -l) ))
-  for cat in $CATS; do
-    find "$cat" -type f \( -name '*.glb' -o -name '*.obj' -o -name '*.ply' -o -name '*.off' -o -name '*.stl' \) | sort | head -n "$PER" |
-      while read -r f; do c=$(basename "$cat"); mkdir -p "$SUB/$c"; ln -s "$f" "$SUB/$c/$(basename "$f")"; done
-  done
-  step shards "$SC3D_DATA" render --meshes "$SUB" --out "$WORK/shards" --voxelize --no-progress
-  if [ "$CUDA" = 1 ]; then
-    step train_step "$PY" benchmarks/train_step.py --shards "$WORK/shards" --batch-size 48 --profile
-  else
-    step train_step "$PY" benchmarks/train_step.py --shards "$WORK/shards" --tiny --batch-size 8 --steps 2 --skip-sc
+step() {  # step NAME CAP COMMAND...: run (at most CAP s, or what the budget leaves), log, remember
+  local name=$1 cap=$2; shift 2
+  if [ -n "$ONLY" ] && [[ "$ONLY" != *",$name,"* ]]; then return; fi
+  if [[ "$SKIP" == *",$name,"* ]]; then return; fi
+  local limit=0
+  if [ "$BUDGET" -gt 0 ]; then
+    local left=$((BUDGET - (SECONDS - T0) - 20))
+    if [ "$left" -lt 30 ]; then ROWS+=("| $name | not run (budget) | - | \`$*\` |"); summarise; return; fi
+    limit=$((cap < left ? cap : left))
   fi
-  step render "$PY" benchmarks/render.py --meshes "$SUB" --repeat 1
-  SWEEP=1; n=2; while [ "$n" -le "$(nproc)" ]; do SWEEP="$SWEEP,$n"; n=$((n * 2)); done
-  [ "$(( $(nproc) & ($(nproc) - 1) ))" -eq 0 ] || SWEEP="$SWEEP,$(nproc)"   # 1,2,4,8,16 on 16 cores
-  step render_sweep "$PY" benchmarks/render.py --meshes "$MESHES" --sweep "$SWEEP" --pipeline-only
-  step voxelize "$PY" benchmarks/voxelize.py "$SUB"
-  step shard_write "$PY" benchmarks/shard_write.py "$WORK/shards" --repeat 1
-  step pose_search "$PY" benchmarks/pose_search.py --shards "$WORK/shards"
-  step scale "$PY" benchmarks/scale.py --meshes "$SUB" --workers 4
-  step faults "$PY" benchmarks/faults.py --meshes "$SUB" --files 60 --workers 4
-  mkdir -p "$WORK/old" && git archive HEAD | tar -x -C "$WORK/old"   # the *_compare scripts against HEAD itself
-  step pipeline_compare "$PY" benchmarks/pipeline_compare.py "$WORK/old" "$SUB" --repeat 1
-  step voxelize_compare "$PY" benchmarks/voxelize_compare.py "$WORK/old" "$SUB" --repeat 1
-fi
+  local t0=$SECONDS
+  echo "== $name (at $((SECONDS - T0)) s, limit ${limit} s (0: none)): $*"
+  if [ "$limit" -gt 0 ]; then timeout --kill-after=10 "$limit" "$@" >"$WORK/logs/$name.log" 2>&1
+  else "$@" >"$WORK/logs/$name.log" 2>&1; fi
+  local code=$?
+  SECS[$name]=$((SECONDS - t0)); NAMES+=("$name")
+  local shown=$code; [ "$code" -eq 124 ] || [ "$code" -eq 137 ] && shown="$code (timeout)"
+  ROWS+=("| $name | $shown | ${SECS[$name]} | \`$*\` |")
+  [ "$code" -eq 0 ] || { FAILED=1; echo "   exit $shown"; tail -5 "$WORK/logs/$name.log"; }
+  summarise
+}
 
-{
-  echo "gpu_check $(date -u +%F) commit $(git rev-parse --short HEAD 2>/dev/null) on $(nproc) cores, CUDA $CUDA"
-  echo
-  echo "| step | exit | seconds | command |"
-  echo "|---|---|---|---|"
-  printf '%s\n' "${ROWS[@]}"
-} | tee "$OUT/summary.md"
+FIT=(--shards "$WORK/shards" --steps "$STEPS" --batch-size "$BATCH" --val-every 0 --no-progress "${WIDTH[@]}")
+
+SWEEP=2; [ "$NPROC" -ge 8 ] && SWEEP="$SWEEP,$((NPROC / 2))"; [ "$NPROC" -gt 2 ] && SWEEP="$SWEEP,$NPROC"   # 2,8,16 on 16 cores
+[ "$CUDA" = 1 ] && SIZES=84,1000,5000 || SIZES=20,60,120
+mkdir -p "$WORK/runs"
+step machine 60 bash -c "nvidia-smi -L 2>&1; nproc; free -g | head -2; $PY -c 'import torch; print(torch.__version__, torch.version.cuda, torch.cuda.is_available() and torch.cuda.get_device_name(0))'; \
+  for b in egl osmesa; do $PY -c \"from sc3d_data.render.probe import probe_backend; print('\$b', probe_backend('\$b'))\" 2>&1 | tail -1; done"
+step shards 240 "${DATA[@]}" render --meshes "$MESHES" --out "$WORK/shards" --voxelize --no-progress
+step train_step 300 "$PY" benchmarks/train_step.py --shards "$WORK/shards" --batch-size "$BATCH" --skip-loader --skip-semi \
+  --skip-sc --profile "${WIDTH[@]}"
+step fit_compiled 240 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/compiled" --seed 0 --compile auto
+step fit_compiled_seed1 180 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/compiled_seed1" --seed 1 --compile auto
+step fit_eager 300 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/eager" --seed 0 --compile off
+# compiled seed 0 against eager seed 0, with compiled seed 1 as the run-to-run noise; the paper's 20,000 steps projected
+step curves 60 "$PY" benchmarks/compare_curves.py "$WORK/runs/eager" "$WORK/runs/compiled" --noise "$WORK/runs/compiled_seed1" \
+  --out "$OUT/curves.png" --project-steps 20000 --wall-b "${SECS[fit_compiled]:-0}" --batch-size "$BATCH"
+step corpus 240 "$PY" benchmarks/corpus_size.py --meshes "$MESHES" --sizes "$SIZES" --workers "$NPROC"
+step render_sweep 150 "$PY" benchmarks/render.py --meshes "$MESHES" --sweep "$SWEEP" --copies 3 --pipeline-only
+step gpu_tests 400 "$PY" -m pytest -q -p no:cacheprovider -rs -m gpu
+step train_step_semi 400 "$PY" benchmarks/train_step.py --shards "$WORK/shards" --batch-size "$BATCH" --skip-supervised \
+  --profile "${WIDTH[@]}"
+step suite 1200 "$PY" -m pytest -q -p no:cacheprovider -rs
+SUB="$WORK/sub"   # about 40 meshes, the same number from each category folder, for the slower scripts
+for cat in "$MESHES"/*/; do
+  find "$cat" -type f \( -name '*.glb' -o -name '*.obj' -o -name '*.ply' -o -name '*.off' -o -name '*.stl' \) | sort | head -n 7 |
+    while read -r f; do c=$(basename "$cat"); mkdir -p "$SUB/$c"; ln -s "$f" "$SUB/$c/$(basename "$f")"; done
+done
+step voxelize 300 "$PY" benchmarks/voxelize.py "$SUB"
+step shard_write 300 "$PY" benchmarks/shard_write.py "$WORK/shards" --repeat 1
+step pose_search 300 "$PY" benchmarks/pose_search.py --shards "$WORK/shards"
+step scale 300 "$PY" benchmarks/scale.py --meshes "$SUB" --workers 4
+step faults 300 "$PY" benchmarks/faults.py --meshes "$SUB" --files 60 --workers 4
+mkdir -p "$WORK/old" && git archive HEAD 2>/dev/null | tar -x -C "$WORK/old"   # the *_compare scripts against HEAD itself
+[ -e "$WORK/old/pyproject.toml" ] || SKIP="$SKIP,pipeline_compare,voxelize_compare,"   # a copy without .git
+step pipeline_compare 300 "$PY" benchmarks/pipeline_compare.py "$WORK/old" "$SUB" --repeat 1
+step voxelize_compare 300 "$PY" benchmarks/voxelize_compare.py "$WORK/old" "$SUB" --repeat 1
+
+summarise
+cat "$OUT/summary.md"
+echo "(all of it: $OUT/summary.md, $OUT/logs.tar.gz, $OUT/curves.png; $((SECONDS - T0)) s)"
 exit $FAILED
