@@ -7,7 +7,8 @@
 #                             [--budget SECONDS] [--only STEP,...] [--skip STEP,...] [--steps 2000]
 #
 # --kit DIR: install first from a folder made by `bash scripts/gpu_kit.sh` (GL loader debs,
-#   the wheels the machine lacks, the meshes): for a lent machine that reaches no registry.
+#   the wheels the machine lacks, the meshes; sc3d runs from this tree through PYTHONPATH): for a
+#   lent machine that reaches no registry.
 # --budget S: stop starting steps when fewer than 30 s of S are left, and end each step at its
 #   own cap or at the budget, whichever comes first (a step cut off says "timeout" in the
 #   summary). Without it, every step runs to its end.
@@ -45,9 +46,12 @@ if [ -n "$KIT" ]; then   # a lent machine: GL loaders, missing wheels, this proj
   for f in "$KIT"/gl/*.deb; do dpkg -x "$f" /; done
   ldconfig
   export __EGL_VENDOR_LIBRARY_FILENAMES=${__EGL_VENDOR_LIBRARY_FILENAMES:-/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json}
-  python3 -m pip install -q --no-index --no-deps --no-build-isolation --no-compile --no-cache-dir --upgrade --target /tmp/site \
-    "$KIT"/whl/*.whl . >"$WORK/logs/kit.log" 2>&1 || { cat "$WORK/logs/kit.log"; exit 2; }
-  export PYTHONPATH=/tmp/site${PYTHONPATH:+:$PYTHONPATH} PATH=/tmp/site/bin:$PATH
+  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site \
+    "$KIT"/whl/*.whl >"$WORK/logs/kit.log" 2>&1 || { cat "$WORK/logs/kit.log"; exit 2; }
+  # sc3d itself from this source tree, not built: a machine's setuptools may predate pyproject's
+  # `license = "MIT"` (77+), and nothing can be fetched there; cli/ is imported as sc3d_cli
+  ln -sfn "$PWD/cli" /tmp/site/sc3d_cli
+  export PYTHONPATH=/tmp/site:$PWD${PYTHONPATH:+:$PYTHONPATH}
   tar -xJf "$KIT/meshes.tar.xz" -C "$WORK" && MESHES=$WORK/meshes
 fi
 [ -x .venv/bin/python ] && PY=$PWD/.venv/bin/python || PY=python3
