@@ -175,7 +175,13 @@ def _color_factor(c) -> np.ndarray:
 def mesh_parts(scene, to_canonical: np.ndarray):
     """``(model [4,4], positions [N,3] f32, faces [M,3] u32, colors [N,4] u8 or None,
     uv [N,2] f32 or None, base_color [4], texture image or None)`` per geometry of a
-    ``trimesh.Scene``, with pyrender's reading of trimesh visuals."""
+    ``trimesh.Scene``, with pyrender's reading of trimesh visuals.
+
+    ``positions`` are the part's source-frame vertices less the centre of their bounding box
+    (subtracted in float64), and ``model`` maps them to the canonical frame (``to_canonical @
+    node transform @ translate(centre)``): a mesh far from its origin (georeferenced or CAD
+    coordinates, 1e6 units away) keeps its shape in float32, which has 24 bits of mantissa,
+    and the model matrix's translation is the part's place in the canonical frame, near 0."""
     import trimesh
 
     for node in scene.graph.nodes_geometry:
@@ -203,7 +209,11 @@ def mesh_parts(scene, to_canonical: np.ndarray):
                 uv = vis.uv
             else:
                 image = None
-        yield (model, np.ascontiguousarray(pos, np.float32), np.ascontiguousarray(faces, np.uint32),
+        pos = np.asarray(pos, dtype=np.float64)
+        centre = (pos.min(axis=0) + pos.max(axis=0)) / 2
+        shift = np.eye(4)
+        shift[:3, 3] = centre
+        yield (model @ shift, np.ascontiguousarray(pos - centre, np.float32), np.ascontiguousarray(faces, np.uint32),
                None if colors is None else np.ascontiguousarray(colors, np.uint8),
                None if uv is None else np.ascontiguousarray(uv, np.float32), base, image)
 
