@@ -35,8 +35,9 @@ def eval_cmd(checkpoint, shards, out, pose_from, device, split, pick, batch_size
         click.echo(f"note: these shards differ from the checkpoint's training data: "
                    f"{'; '.join(result['differs_from_training'])}; the figures measure the model across that change")
     if result["trained_on"] is None:
-        click.echo(f"note: the checkpoint's training shards cannot be read and {shards} does not hold its training "
-                   "objects as recorded: whether evaluated objects were trained on is unknown")
+        click.echo(f"note: the checkpoint's training shards cannot be read or no longer hold the objects it trained on "
+                   f"(moved, or re-rendered with another split), and {shards} does not hold them as recorded: whether "
+                   "evaluated objects were trained on is unknown")
     elif result["trained_on"]:
         click.echo(f"note: {result['trained_on']} of the {result['overall']['objects']} evaluated objects are objects the "
                    f"checkpoint was trained on: these figures are not of held-out objects")

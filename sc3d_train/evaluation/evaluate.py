@@ -191,21 +191,32 @@ def differences_from_training(cfg, info: dict) -> list[str]:
 
 def training_objects_among(cfg, objects, shards: Path) -> int | None:
     """How many of ``objects`` (``ObjectRef``s of ``shards`` being evaluated) are objects the run
-    of ``cfg`` trained on, by category and model id: against the run's ``split`` of its shards,
-    or, where those cannot be read (moved, a copy on another machine), against the same split of
-    ``shards`` when its objects are the run's (``cfg.objects_sha256``). None when neither tells.
+    of ``cfg`` trained on, by category and model id: against the run's ``split`` of its shards
+    when they still hold the objects the run trained on (``cfg.objects_sha256``, compared where
+    recorded), else against the same split of ``shards`` when its objects are the run's. None
+    when neither tells: the run's shards moved (a copy on another machine) or were re-rendered
+    in place with another split, and ``shards`` does not hold the run's objects either.
     ``eval --split train`` is a legitimate check of the training fit, but its figures are not of
     held-out objects, and ``eval`` says so."""
     from sc3d_train.data.dataset import DataError, scan_objects
     from sc3d_train.loop.resolve import objects_digest
 
-    try:
-        refs, _ = scan_objects(Path(cfg.shards))
-    except (DataError, OSError):
-        refs, _ = scan_objects(Path(shards))
-        if cfg.objects_sha256 is None or objects_digest(refs, cfg.split) != cfg.objects_sha256:
+    def trained_among(folder: Path, need_digest: bool) -> set | None:
+        """The run's training objects as ``folder`` holds them; None when it cannot tell."""
+        try:
+            refs, _ = scan_objects(folder)
+        except (DataError, OSError):
             return None
-    trained = {(r.category, r.model_id) for r in refs if r.split == cfg.split}
+        recorded = cfg.objects_sha256
+        if (recorded is None and need_digest) or (recorded is not None and objects_digest(refs, cfg.split) != recorded):
+            return None
+        return {(r.category, r.model_id) for r in refs if r.split == cfg.split}
+
+    trained = trained_among(Path(cfg.shards), need_digest=False)
+    if trained is None:
+        trained = trained_among(Path(shards), need_digest=True)
+    if trained is None:
+        return None
     return sum(1 for r in objects if (r.category, r.model_id) in trained)
 
 
