@@ -46,3 +46,42 @@ def test_e1_eval_does_not_count_trained_objects_against_a_new_split(sample_shard
     assert metrics["overall"]["objects"] == 11
     assert metrics["trained_on"] is None, metrics["trained_on"]
     assert "whether evaluated objects were trained on is unknown" in output
+
+
+# ----------------------------------------------------------------------------- E2
+def test_e2_claims_redoes_evaluations_of_eval_shards_rerendered_in_place(sample_shards, tmp_path):
+    """A claims study reran after its eval shards were re-rendered in place (black background,
+    2 views) read its old ``metrics.json`` back ("done before"), reporting figures of data that
+    no longer exists. ``eval`` now records ``data_sha256`` and a rerun redoes an evaluation whose
+    digest differs (here: the new figures count 2 views per object, not 24), and one without a
+    digest (an earlier version's); an unchanged rerun still reuses it."""
+    from sc3d_train.evaluation.claims import ClaimsPreset, run_all
+
+    eval_shards = tmp_path / "eval_shards"
+    shutil.copytree(sample_shards, eval_shards)
+    preset = ClaimsPreset(steps=2, batch_size=2, lr=1e-3, tiny=True, runs=("sup-3tube",),
+                          extra={"val_every": 0, "base_channels": 4})
+    out = tmp_path / "claims"
+
+    def study():
+        said = []
+        run_all(sample_shards, eval_shards, out, preset, "test", "cpu", 0, echo=said.append)
+        return said, json.loads((out / "runs" / "sup-3tube" / "seed-0" / "eval" / "metrics.json").read_text())
+
+    said, first = study()
+    test_objects = first["overall"]["objects"]
+    assert first["overall"]["images"] == 24 * test_objects
+    said, again = study()
+    assert any("done before" in s for s in said) and again == first
+    run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", eval_shards, "--voxelize", "--no-progress",
+                        "--views", 2, "--background", "0,0,0", "--overwrite"])
+    said, redone = study()
+    assert not any("done before" in s for s in said), said
+    assert redone["overall"]["images"] == 2 * test_objects
+    assert redone["data_sha256"] != first["data_sha256"]
+    metrics = out / "runs" / "sup-3tube" / "seed-0" / "eval" / "metrics.json"
+    old = json.loads(metrics.read_text())
+    del old["data_sha256"]                      # as an earlier version wrote it
+    metrics.write_text(json.dumps(old))
+    said, _ = study()
+    assert not any("done before" in s for s in said), said

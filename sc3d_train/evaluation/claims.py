@@ -3,7 +3,7 @@ each on held-out shards, and write the paper's tables (markdown) and one figure.
 
 Runs (each a normal ``fit`` run folder under ``OUT/runs/NAME/seed-S`` per seed and its evaluation
 of ``best.pt`` (``--pick last``: ``last.pt``) under ``.../eval``; a rerun skips (run, seed) pairs
-whose evaluation of the same split and shards exists and resumes a half-trained one, so the
+whose evaluation of the same split and shards, unchanged since (``data_sha256``), exists and resumes a half-trained one, so the
 command resumes; a run folder of other settings is refused):
 
 =================  ============================================================================
@@ -36,6 +36,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 from sc3d_train.evaluation.claims_report import RUNS, aggregate, write_report
+from sc3d_train.evaluation.evaluated_data import split_digest
 from sc3d_train.evaluation.shape_baselines import shape_baselines
 from sc3d_train.data.dataset import DataError, ShardDataset
 from sc3d_train.settings.command_config import ClaimsConfig
@@ -142,9 +143,11 @@ def report_stem(pick: str) -> str:
 
 
 def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path, eval_shards: Path, out: Path,
-                       eval_split: str, device: str, workers: int, pick: str, echo) -> tuple[dict, float | None]:
-    """The eval metrics of run ``name`` with ``seed``: read back when its evaluation exists,
-    else trained (resumed from its ``last.pt`` when there is one) and evaluated on ``pick``.
+                       eval_split: str, device: str, workers: int, pick: str, echo,
+                       data_digest: str | None = None) -> tuple[dict, float | None]:
+    """The eval metrics of run ``name`` with ``seed``: read back when its evaluation of the eval
+    shards as they are now exists (``data_digest``: their
+    :func:`~sc3d_train.evaluation.evaluated_data.split_digest`, computed here when None), else trained (resumed from its ``last.pt`` when there is one) and evaluated on ``pick``.
     Returns ``(metrics, seconds spent or None when read back)``."""
     from sc3d_train.loop.checkpoint import CheckpointError, run_checkpoint
     from sc3d_train.evaluation.evaluate import evaluate
@@ -160,7 +163,7 @@ def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path
         raise CheckpointError(f"{e} [claims: {out} holds this study's runs; give another --out for other "
                               f"settings or shards]") from e
     if metrics_file.is_file() and trained_steps in (None, cfg.steps) and \
-            evaluated_on(metrics_file, eval_shards, eval_split):
+            evaluated_on(metrics_file, eval_shards, eval_split, data_digest):
         echo(f"{name} seed {seed}: done before, reading {metrics_file}")
         return json.loads(metrics_file.read_text()), None
     t0 = time.perf_counter()
@@ -175,17 +178,22 @@ def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path
     return res, seconds
 
 
-def evaluated_on(metrics_file: Path, shards: Path, split: str) -> bool:
+def evaluated_on(metrics_file: Path, shards: Path, split: str, data_digest: str | None = None) -> bool:
     """Whether the evaluation in ``metrics_file`` is a finished one (readable JSON, its
-    ``predictions.png`` beside it) of ``split`` of ``shards`` (else it is redone: an evaluation
-    cut short, e.g. by a kill or a full disk, is done again on the rerun)."""
+    ``predictions.png`` beside it) of ``split`` of ``shards`` as they are now: the same split
+    name, folder and ``data_sha256`` (``data_digest``: the shards'
+    :func:`~sc3d_train.evaluation.evaluated_data.split_digest`, computed here when None). Else
+    it is redone: an evaluation cut short (a kill, a full disk), one of shards re-rendered in
+    place since, or one from a version that recorded no digest."""
     try:
         saved = json.loads(Path(metrics_file).read_text())
     except (OSError, ValueError):
         return False
     if not isinstance(saved, dict) or not Path(metrics_file).with_name("predictions.png").is_file():
         return False
-    return saved.get("split") == split and Path(saved.get("shards", "")).resolve() == Path(shards).resolve()
+    if saved.get("split") != split or Path(saved.get("shards", "")).resolve() != Path(shards).resolve():
+        return False
+    return saved.get("data_sha256") == (data_digest or split_digest(shards, split))
 
 
 def check_held_out(train_shards: Path, eval_shards: Path, eval_split: str, train_split: str) -> None:
@@ -214,6 +222,7 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path,
     p = PRESETS[preset] if isinstance(preset, str) else preset
     check_held_out(train_shards, eval_shards, eval_split, p.extra.get("split", _FIT["split"]))
     ShardDataset(eval_shards, eval_split, require_voxels=True).close()  # an empty split, no voxels: refused now
+    data_digest = split_digest(eval_shards, eval_split)  # what each finished evaluation must have measured
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     per_seed, timings = {}, {}
@@ -222,7 +231,7 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path,
         per_seed[name] = {}
         for seed in seed_values:
             res, seconds = train_and_evaluate(name, seed, p, train_shards, eval_shards, out, eval_split,
-                                              device, workers, pick, echo)
+                                              device, workers, pick, echo, data_digest)
             per_seed[name][seed] = res
             if seconds is not None:
                 timings[f"{name}/seed-{seed}"] = seconds

@@ -35,6 +35,7 @@ from sc3d_data.io.shards import atomic_write_bytes
 from sc3d_train.loop.checkpoint import load_model, run_checkpoint
 from sc3d_train.settings.command_config import EvalConfig
 from sc3d_train.data.dataset import ShardDataset
+from sc3d_train.evaluation.evaluated_data import evaluated_data_digest
 from sc3d_train.paper.metrics import MASK_THRESHOLD, VOXEL_THRESHOLDS, predict_dataset, summarize
 
 TABLE_COLUMNS = (("images", "n", "{:d}"), ("voxel_iou_0.4", "IoU@.4", "{:.3f}"),
@@ -128,7 +129,8 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     :func:`~sc3d_train.loop.checkpoint.run_checkpoint`) on ``split`` of ``shards``; writes ``out/metrics.json`` and
     ``out/predictions.png`` (``out`` None: ``RUN_DIR/eval_SPLIT``, :func:`default_output_dir`), the
     picture first and ``metrics.json`` last, atomically, so that ``metrics.json`` exists only for a
-    finished evaluation (``claims`` reads it back instead of evaluating again);
+    finished evaluation (``claims`` reads it back instead of evaluating again while the shards
+    give the same ``data_sha256``, :func:`~sc3d_train.evaluation.evaluated_data.evaluated_data_digest`);
     ``examples`` objects per category are drawn. Returns the metrics dict (also holding
     ``table``, the text table, and ``out``)."""
     from sc3d_train.loop.runtime import resolve_device
@@ -146,6 +148,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
                          f"predicts {cfg.model.voxel_resolution}^3")
     differences = differences_from_training(cfg, dataset.info)
     trained_on = training_objects_among(cfg, dataset.objects, shards)
+    data_sha256 = evaluated_data_digest(shards, split, dataset.objects)
     rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
                                  loss_weights=cfg.loss_weights)
     summary = summarize(rows)
@@ -153,7 +156,8 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     out.mkdir(parents=True, exist_ok=True)
     result = {"checkpoint": str(checkpoint), "step": int(ckpt.get("step", -1)), "shards": str(shards),
               "split": split, "pose_from": pose_from, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
-              "differs_from_training": differences, "trained_on": trained_on, **summary}
+              "differs_from_training": differences, "trained_on": trained_on,
+              "data_sha256": data_sha256, **summary}
     (out / "metrics.json").unlink(missing_ok=True)  # written last: it marks a finished evaluation
     plot_examples(kept, out / "predictions.png")
     atomic_write_bytes(out / "metrics.json", json.dumps(_finite(result), indent=1).encode())
