@@ -41,5 +41,8 @@ def eval_cmd(checkpoint, shards, out, pose_from, device, split, pick, batch_size
     elif result["trained_on"]:
         click.echo(f"note: {result['trained_on']} of the {result['overall']['objects']} evaluated objects are objects the "
                    f"checkpoint was trained on: these figures are not of held-out objects")
+    if result["selected_on_this_split"]:
+        click.echo(f"note: {result['checkpoint']} was chosen (best of its validations) on these {split!r} objects, so "
+                   "these figures are optimistic; evaluate on --split test or with --pick last")
     out = Path(result["out"])
     click.echo(f"wrote {out / 'metrics.json'} and {out / 'predictions.png'}")

@@ -85,3 +85,39 @@ def test_e2_claims_redoes_evaluations_of_eval_shards_rerendered_in_place(sample_
     metrics.write_text(json.dumps(old))
     said, _ = study()
     assert not any("done before" in s for s in said), said
+
+
+# ----------------------------------------------------------------------------- E3
+def test_e3_eval_of_best_pt_on_the_split_that_chose_it_says_so(sample_shards, tmp_path):
+    """``best.pt`` is the best of the run's validations on its 'val' objects (here 2 of the sample
+    shards, validated after steps 2 and 4); evaluating it on those objects gave figures that read
+    as held-out with no note. Now a note and ``selected_on_this_split: true``; the test split, and
+    ``last.pt`` (nothing chose it) on 'val', are not flagged."""
+    run = tmp_path / "run"
+    _fit(sample_shards, run, "--steps", 4, "--val-every", 2, "--val-min-objects", 1)
+    assert (run / "checkpoints" / "best.pt").is_file()
+    output, metrics = _eval(run, sample_shards, "val", tmp_path / "val")
+    assert metrics["selected_on_this_split"] is True and metrics["trained_on"] == 0
+    assert "so these figures are optimistic; evaluate on --split test or with --pick last" in output
+    output, metrics = _eval(run, sample_shards, "test", tmp_path / "test")
+    assert metrics["selected_on_this_split"] is False and "optimistic" not in output
+    output, metrics = _eval(run, sample_shards, "val", tmp_path / "val-last", "--pick", "last")
+    assert metrics["selected_on_this_split"] is False and "optimistic" not in output
+
+
+def test_e3_claims_refuses_to_evaluate_on_the_split_that_chooses_best_pt(sample_shards, tmp_path):
+    """``claims --eval-split val`` on the training shards, with validation on: each run's best.pt
+    would be evaluated on the objects that chose it. Refused before any training, in one line
+    naming the split and the way out."""
+    import pytest
+
+    from sc3d_train.data.dataset import DataError
+    from sc3d_train.evaluation.claims import ClaimsPreset, run_all
+
+    preset = ClaimsPreset(steps=2, batch_size=2, lr=1e-3, tiny=True, runs=("sup-3tube",),
+                          extra={"val_every": 1, "val_min_objects": 1, "base_channels": 4})
+    out = tmp_path / "claims"
+    with pytest.raises(DataError, match=r"2 object\(s\) of split 'val' are the 'val' objects of .* that choose each "
+                                        r"run's best.pt .*--pick last"):
+        run_all(sample_shards, sample_shards, out, preset, "val", "cpu", 0, echo=lambda s: None)
+    assert not (out / "runs").exists()

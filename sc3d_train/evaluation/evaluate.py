@@ -35,7 +35,7 @@ from sc3d_data.io.shards import atomic_write_bytes
 from sc3d_train.loop.checkpoint import load_model, run_checkpoint
 from sc3d_train.settings.command_config import EvalConfig
 from sc3d_train.data.dataset import ShardDataset
-from sc3d_train.evaluation.evaluated_data import evaluated_data_digest
+from sc3d_train.evaluation.evaluated_data import evaluated_data_digest, selection_objects_among, training_objects_among
 from sc3d_train.paper.metrics import MASK_THRESHOLD, VOXEL_THRESHOLDS, predict_dataset, summarize
 
 TABLE_COLUMNS = (("images", "n", "{:d}"), ("voxel_iou_0.4", "IoU@.4", "{:.3f}"),
@@ -148,6 +148,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
                          f"predicts {cfg.model.voxel_resolution}^3")
     differences = differences_from_training(cfg, dataset.info)
     trained_on = training_objects_among(cfg, dataset.objects, shards)
+    selected_on = selection_objects_among(cfg, ckpt.get("validation"), dataset.objects, shards)
     data_sha256 = evaluated_data_digest(shards, split, dataset.objects)
     rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
                                  loss_weights=cfg.loss_weights)
@@ -157,7 +158,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     result = {"checkpoint": str(checkpoint), "step": int(ckpt.get("step", -1)), "shards": str(shards),
               "split": split, "pose_from": pose_from, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
               "differs_from_training": differences, "trained_on": trained_on,
-              "data_sha256": data_sha256, **summary}
+              "selected_on_this_split": selected_on, "data_sha256": data_sha256, **summary}
     (out / "metrics.json").unlink(missing_ok=True)  # written last: it marks a finished evaluation
     plot_examples(kept, out / "predictions.png")
     atomic_write_bytes(out / "metrics.json", json.dumps(_finite(result), indent=1).encode())
@@ -191,37 +192,6 @@ def differences_from_training(cfg, info: dict) -> list[str]:
         found.append(f"elevations {outside} deg outside the pose grid's [{low:g}, {high:g}] (their pose error "
                      f"has a floor)")
     return found
-
-
-def training_objects_among(cfg, objects, shards: Path) -> int | None:
-    """How many of ``objects`` (``ObjectRef``s of ``shards`` being evaluated) are objects the run
-    of ``cfg`` trained on, by category and model id: against the run's ``split`` of its shards
-    when they still hold the objects the run trained on (``cfg.objects_sha256``, compared where
-    recorded), else against the same split of ``shards`` when its objects are the run's. None
-    when neither tells: the run's shards moved (a copy on another machine) or were re-rendered
-    in place with another split, and ``shards`` does not hold the run's objects either.
-    ``eval --split train`` is a legitimate check of the training fit, but its figures are not of
-    held-out objects, and ``eval`` says so."""
-    from sc3d_train.data.dataset import DataError, scan_objects
-    from sc3d_train.loop.resolve import objects_digest
-
-    def trained_among(folder: Path, need_digest: bool) -> set | None:
-        """The run's training objects as ``folder`` holds them; None when it cannot tell."""
-        try:
-            refs, _ = scan_objects(folder)
-        except (DataError, OSError):
-            return None
-        recorded = cfg.objects_sha256
-        if (recorded is None and need_digest) or (recorded is not None and objects_digest(refs, cfg.split) != recorded):
-            return None
-        return {(r.category, r.model_id) for r in refs if r.split == cfg.split}
-
-    trained = trained_among(Path(cfg.shards), need_digest=False)
-    if trained is None:
-        trained = trained_among(Path(shards), need_digest=True)
-    if trained is None:
-        return None
-    return sum(1 for r in objects if (r.category, r.model_id) in trained)
 
 
 def _finite(obj):

@@ -1,7 +1,9 @@
-"""What an evaluation measured, as one digest: ``eval`` records it in ``metrics.json``
+"""What an evaluation measured. As one digest: ``eval`` records it in ``metrics.json``
 (``data_sha256``) and ``claims`` reuses an evaluation only while its shards still give the same
 digest (shards re-rendered in place with other settings, objects or a new split are evaluated
-again)."""
+again). And how the evaluated objects relate to the checkpoint's run: how many it trained on
+(``trained_on``), and whether they chose the checkpoint (``selected_on_this_split``: ``best.pt``
+evaluated on its own validation objects, optimistic figures)."""
 from __future__ import annotations
 
 import hashlib
@@ -35,3 +37,51 @@ def split_digest(shards: Path, split: str) -> str:
 
     refs, _ = scan_objects(Path(shards))
     return evaluated_data_digest(shards, split, [r for r in refs if r.split == split])
+
+
+def run_split_objects(cfg, split: str, shards: Path) -> set | None:
+    """``{(category, model_id)}`` of the objects of ``split`` as the run of ``cfg`` saw them: from
+    the run's shards while they still hold the objects it trained on (``cfg.objects_sha256``,
+    compared where recorded), else from ``shards`` (the evaluated ones) when their training split
+    holds exactly the run's objects. None when neither tells: the run's shards moved (a copy on
+    another machine) or were re-rendered in place with another split, and ``shards`` does not
+    hold the run's objects either."""
+    from sc3d_train.data.dataset import DataError, scan_objects
+    from sc3d_train.loop.resolve import objects_digest
+
+    for folder, need_digest in ((Path(cfg.shards), False), (Path(shards), True)):
+        try:
+            refs, _ = scan_objects(folder)
+        except (DataError, OSError):
+            continue
+        recorded = cfg.objects_sha256
+        if (recorded is None and need_digest) or (recorded is not None and objects_digest(refs, cfg.split) != recorded):
+            continue
+        return {(r.category, r.model_id) for r in refs if r.split == split}
+    return None
+
+
+def training_objects_among(cfg, objects, shards: Path) -> int | None:
+    """How many of ``objects`` (``ObjectRef``s of ``shards`` being evaluated) are objects the run
+    of ``cfg`` trained on, by category and model id (:func:`run_split_objects` of its ``split``);
+    None when that cannot be told. ``eval --split train`` is a legitimate check of the training
+    fit, but its figures are not of held-out objects, and ``eval`` says so."""
+    trained = run_split_objects(cfg, cfg.split, shards)
+    return None if trained is None else sum(1 for r in objects if (r.category, r.model_id) in trained)
+
+
+def selection_objects_among(cfg, validation: dict | None, objects, shards: Path) -> bool:
+    """Whether ``objects`` (``ObjectRef``s of ``shards`` being evaluated) include objects of the
+    validation split that chose the checkpoint (``validation``: its record, ``best.pt``'s
+    ``validation``; None for ``last.pt`` and other checkpoints that nothing chose, then False):
+    its figures on them are optimistic, the checkpoint being the best of several on exactly these
+    objects. Judged by category and model id against the run's ``validation["split"]``
+    (:func:`run_split_objects`); where that cannot be told, True when the evaluated objects hold
+    the same split name as the validation's in the same shard folder as the run's."""
+    if not validation:
+        return False
+    val_split = validation.get("split", cfg.val_split)
+    chose = run_split_objects(cfg, val_split, shards)
+    if chose is None:
+        return Path(shards).resolve() == Path(cfg.shards).resolve() and any(r.split == val_split for r in objects)
+    return any((r.category, r.model_id) in chose for r in objects)
