@@ -17,14 +17,17 @@ from sc3d_train.settings.command_config import EvalConfig
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Directory for metrics.json and predictions.png [RUN_DIR/eval_SPLIT beside the checkpoint].")
 @config_options(EvalConfig)
-def eval_cmd(checkpoint, shards, out, pose_from, device, split, pick, batch_size, examples):
+@click.pass_context
+def eval_cmd(ctx, checkpoint, shards, out, pose_from, device, split, pick, batch_size, examples):
     """Voxel IoU (0.4, 0.5), mask IoU and pose error per category on a split."""
-    from sc3d_train.loop.checkpoint import CheckpointError
+    from sc3d_train.loop.checkpoint import CheckpointError, run_checkpoint
     from sc3d_train.data.dataset import DataError
     from sc3d_train.evaluation.evaluate import evaluate
 
+    pick_given = ctx.get_parameter_source("pick") == click.core.ParameterSource.COMMANDLINE
     try:
-        result = evaluate(checkpoint, shards, split, out, device, batch_size, examples, pose_from, pick)
+        result = evaluate(run_checkpoint(checkpoint, pick, pick_given), shards, split, out, device, batch_size,
+                          examples, pose_from, pick)
     except (DataError, CheckpointError, ValueError, OSError) as e:
         from sc3d_data.io.shards import one_line
 

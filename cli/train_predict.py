@@ -17,17 +17,19 @@ from sc3d_train.settings.command_config import PredictConfig
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory [RUN_DIR/predictions beside the checkpoint].")
 @config_options(PredictConfig)
-def predict(checkpoint, images, out, pose_from, device, threshold, pick):
+@click.pass_context
+def predict(ctx, checkpoint, images, out, pose_from, device, threshold, pick):
     """Voxels (.binvox, .npz), mesh (.obj), pose (.json) and a picture (.png) per IMAGE."""
     from sc3d_train.loop.checkpoint import CheckpointError, run_checkpoint
     from sc3d_train.evaluation.predict import ImageError, predict as run_predict
 
-    checkpoint = run_checkpoint(checkpoint, pick)
-    if out is None:
-        from sc3d_train.evaluation.evaluate import default_output_dir
-
-        out = default_output_dir(checkpoint, "predictions")
+    pick_given = ctx.get_parameter_source("pick") == click.core.ParameterSource.COMMANDLINE
     try:
+        checkpoint = run_checkpoint(checkpoint, pick, pick_given)
+        if out is None:
+            from sc3d_train.evaluation.evaluate import default_output_dir
+
+            out = default_output_dir(checkpoint, "predictions")
         results = run_predict(checkpoint, list(images), out, device, threshold, pose_from, pick)
     except (ImageError, CheckpointError, ValueError, OSError) as e:
         from sc3d_data.io.shards import one_line

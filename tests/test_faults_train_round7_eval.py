@@ -9,6 +9,8 @@ from __future__ import annotations
 import json
 import shutil
 
+import pytest
+
 from sc3d_cli.data import main as data_main
 from sc3d_cli.train import main as train_main
 from conftest import SAMPLE_MESHES, run_cli
@@ -27,6 +29,16 @@ def _eval(run, shards, split, out, *extra, expect_exit=0):
                                "--device", "cpu", "--out", out, "--examples", 0, *extra], expect_exit=expect_exit)
     metrics = out / "metrics.json"
     return res.output, (json.loads(metrics.read_text()) if metrics.is_file() else None)
+
+
+@pytest.fixture(scope="module")
+def val_run(sample_shards, tmp_path_factory):
+    """A 4-step tiny run validated after steps 2 and 4 on the 2 'val' objects of the sample
+    shards: ``checkpoints/best.pt`` (chosen on them) and ``last.pt`` (step 4)."""
+    run = tmp_path_factory.mktemp("val_run") / "run"
+    _fit(sample_shards, run, "--steps", 4, "--val-every", 2, "--val-min-objects", 1)
+    assert (run / "checkpoints" / "best.pt").is_file()
+    return run
 
 
 # ----------------------------------------------------------------------------- E1
@@ -88,14 +100,12 @@ def test_e2_claims_redoes_evaluations_of_eval_shards_rerendered_in_place(sample_
 
 
 # ----------------------------------------------------------------------------- E3
-def test_e3_eval_of_best_pt_on_the_split_that_chose_it_says_so(sample_shards, tmp_path):
+def test_e3_eval_of_best_pt_on_the_split_that_chose_it_says_so(sample_shards, val_run, tmp_path):
     """``best.pt`` is the best of the run's validations on its 'val' objects (here 2 of the sample
     shards, validated after steps 2 and 4); evaluating it on those objects gave figures that read
     as held-out with no note. Now a note and ``selected_on_this_split: true``; the test split, and
     ``last.pt`` (nothing chose it) on 'val', are not flagged."""
-    run = tmp_path / "run"
-    _fit(sample_shards, run, "--steps", 4, "--val-every", 2, "--val-min-objects", 1)
-    assert (run / "checkpoints" / "best.pt").is_file()
+    run = val_run
     output, metrics = _eval(run, sample_shards, "val", tmp_path / "val")
     assert metrics["selected_on_this_split"] is True and metrics["trained_on"] == 0
     assert "so these figures are optimistic; evaluate on --split test or with --pick last" in output
@@ -109,8 +119,6 @@ def test_e3_claims_refuses_to_evaluate_on_the_split_that_chooses_best_pt(sample_
     """``claims --eval-split val`` on the training shards, with validation on: each run's best.pt
     would be evaluated on the objects that chose it. Refused before any training, in one line
     naming the split and the way out."""
-    import pytest
-
     from sc3d_train.data.dataset import DataError
     from sc3d_train.evaluation.claims import ClaimsPreset, run_all
 
@@ -121,3 +129,33 @@ def test_e3_claims_refuses_to_evaluate_on_the_split_that_chooses_best_pt(sample_
                                         r"run's best.pt .*--pick last"):
         run_all(sample_shards, sample_shards, out, preset, "val", "cpu", 0, echo=lambda s: None)
     assert not (out / "runs").exists()
+
+
+# ----------------------------------------------------------------------------- E4
+def test_e4_pick_with_a_checkpoint_file_is_refused_and_a_checkpoints_folder_is_its_run(sample_shards, val_run,
+                                                                                       tmp_path):
+    """``--pick last`` with ``--checkpoint RUN/checkpoints/best.pt`` evaluated best.pt, ignoring
+    the option: now refused in one line naming the run folder to give instead (eval and predict).
+    ``--checkpoint RUN/checkpoints`` looked for ``RUN/checkpoints/checkpoints/last.pt``: it now
+    stands for RUN (``--pick last``: last.pt, step 4), and a file without ``--pick`` is read as it is."""
+    from PIL import Image
+
+    best, folder = val_run / "checkpoints" / "best.pt", val_run / "checkpoints"
+    output, metrics = _eval(best, sample_shards, "test", tmp_path / "refused", "--pick", "last", expect_exit=1)
+    errors = [ln for ln in output.splitlines() if ln.startswith("Error:")]
+    assert errors == [f"Error: --pick last: {best} is a checkpoint file, and --pick chooses a checkpoint of a run "
+                      f"folder; give the run folder (--checkpoint {val_run} --pick last) or leave --pick out"], output
+    assert metrics is None
+    _, metrics = _eval(folder, sample_shards, "test", tmp_path / "folder", "--pick", "last")
+    assert metrics["checkpoint"] == str(folder / "last.pt") and metrics["step"] == 4
+    _, metrics = _eval(best, sample_shards, "test", tmp_path / "file")
+    assert metrics["checkpoint"] == str(best)
+    image = tmp_path / "white.png"
+    Image.new("RGB", (64, 64), (255, 255, 255)).save(image)
+    res = run_cli(train_main, ["predict", "--checkpoint", best, "--pick", "best", image, "--out", tmp_path / "p1",
+                               "--device", "cpu"], expect_exit=1)
+    assert [ln for ln in res.output.splitlines() if ln.startswith("Error:")][0].startswith(
+        f"Error: --pick best: {best} is a checkpoint file"), res.output
+    run_cli(train_main, ["predict", "--checkpoint", folder, image, "--out", tmp_path / "p2", "--device", "cpu",
+                         "--pose", "head"])
+    assert (tmp_path / "p2" / "white.json").is_file()

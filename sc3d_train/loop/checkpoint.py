@@ -79,18 +79,27 @@ def best_path(run_dir: Path) -> Path:
     return checkpoint_dir(run_dir) / "best.pt"
 
 
-def run_checkpoint(path: Path, pick: str = "best") -> Path:
+def run_checkpoint(path: Path, pick: str = "best", pick_given: bool = False) -> Path:
     """The checkpoint file that ``path`` names: ``path`` itself when it is a file; for a run folder
     ``checkpoints/best.pt`` (``pick="best"``; ``last.pt`` where the run kept no best, e.g. with
-    validation off) or ``checkpoints/last.pt`` (``pick="last"``)."""
+    validation off) or ``checkpoints/last.pt`` (``pick="last"``). A run's ``checkpoints`` folder
+    stands for its run folder. ``pick_given`` (``--pick`` on the command line) with a file:
+    ``CheckpointError``, since ``--pick`` chooses inside a run folder and a file leaves nothing to
+    choose (it would be ignored)."""
     path = Path(path)
     if path.is_dir():
         from sc3d_train.settings.command_config import CHECKPOINT_PICKS
 
         if pick not in CHECKPOINT_PICKS:
             raise ValueError(f"pick must be one of {CHECKPOINT_PICKS}, got {pick!r}")
+        if path.name == "checkpoints" and not checkpoint_dir(path).is_dir():  # RUN/checkpoints: RUN
+            path = path.parent
         best = best_path(path)
         return best if pick == "best" and best.is_file() else last_path(path)
+    if pick_given and path.is_file():
+        run = path.parent.parent if path.parent.name == "checkpoints" else "RUN_DIR"
+        raise CheckpointError(f"--pick {pick}: {path} is a checkpoint file, and --pick chooses a checkpoint of a run "
+                              f"folder; give the run folder (--checkpoint {run} --pick {pick}) or leave --pick out")
     return path
 
 
