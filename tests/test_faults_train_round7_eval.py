@@ -159,3 +159,23 @@ def test_e4_pick_with_a_checkpoint_file_is_refused_and_a_checkpoints_folder_is_i
     run_cli(train_main, ["predict", "--checkpoint", folder, image, "--out", tmp_path / "p2", "--device", "cpu",
                          "--pose", "head"])
     assert (tmp_path / "p2" / "white.json").is_file()
+
+
+# ----------------------------------------------------------------------------- E5
+def test_e5_a_huge_batch_size_is_refused_in_one_line_naming_the_option(sample_shards, val_run, tmp_path):
+    """``eval --batch-size 99999999999999999999`` failed with islice's message (no option named);
+    ``fit`` with it would build index lists on a GPU until memory ran out. Both now refuse any
+    batch above 2^24 = 16777216 in one line naming --batch-size, before any work; 2^24 itself
+    is accepted (the whole split in one batch)."""
+    huge = 99999999999999999999
+    expected = (f"Error: batch_size (--batch-size) must be at most 16777216 (2^24 images of 64x64 RGB are 200 GB "
+                f"even as bytes), got {huge}")
+    output, metrics = _eval(val_run, sample_shards, "test", tmp_path / "huge", "--batch-size", huge, expect_exit=1)
+    assert [ln for ln in output.splitlines() if ln.startswith("Error:")] == [expected], output
+    assert "Traceback" not in output and metrics is None and not (tmp_path / "huge").exists()
+    _, metrics = _eval(val_run, sample_shards, "test", tmp_path / "max", "--batch-size", 2 ** 24)
+    assert metrics["overall"]["images"] == 24 * metrics["overall"]["objects"]
+    res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", tmp_path / "run", "--steps", 2,
+                               "--batch-size", huge, *TINY, "--device", "cpu"], expect_exit=1)
+    assert [ln for ln in res.output.splitlines() if ln.startswith("Error:")] == [expected], res.output
+    assert not (tmp_path / "run" / "checkpoints").exists()

@@ -34,6 +34,7 @@ from sc3d_data.formats.shapenet import category_label
 from sc3d_data.io.shards import atomic_write_bytes
 from sc3d_train.loop.checkpoint import load_model, run_checkpoint
 from sc3d_train.settings.command_config import EvalConfig
+from sc3d_train.settings.config import MAX_BATCH_SIZE, batch_size_too_large
 from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.evaluation.evaluated_data import evaluated_data_digest, selection_objects_among, training_objects_among
 from sc3d_train.paper.metrics import MASK_THRESHOLD, VOXEL_THRESHOLDS, predict_dataset, summarize
@@ -138,6 +139,8 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     if batch_size < 1 or examples < 0:
         name, value, least = ("batch_size", batch_size, 1) if batch_size < 1 else ("examples", examples, 0)
         raise ValueError(f"{name} (--{name.replace('_', '-')}) must be >= {least}, got {value}")
+    if batch_size > MAX_BATCH_SIZE:
+        raise ValueError(batch_size_too_large(batch_size))
     dev = resolve_device(device)
     checkpoint = run_checkpoint(checkpoint, pick)
     model, cfg, ckpt = load_model(checkpoint, dev)

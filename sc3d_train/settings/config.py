@@ -24,6 +24,10 @@ from sc3d_train.settings.config_io import ConfigError, check_choices, dump_yaml,
 
 #: the help of every ``--device`` option
 DEVICE_HELP = "auto (CUDA if present), cpu, cuda or cuda:N."
+#: the largest --batch-size of ``fit`` and ``eval``: 2^24 images of 64x64 RGB are 200 GB even as
+#: bytes, so no batch that could run is refused, while a mistyped one (1e20) is, in one line
+#: (unbounded, it failed deep inside the data loader, or built index lists until memory ran out)
+MAX_BATCH_SIZE = 2 ** 24
 #: the side (pixels) of the masks of the self-consistency module: 48 as in the paper
 MASK_SIZE = 48
 #: samples per ray of the self-consistency losses
@@ -70,6 +74,12 @@ class _Plain:
     @classmethod
     def from_dict(cls, d: dict):
         return from_plain(cls, d)
+
+
+def batch_size_too_large(batch_size: int) -> str:
+    """The one-line refusal of a ``--batch-size`` above :data:`MAX_BATCH_SIZE`."""
+    return (f"batch_size (--batch-size) must be at most {MAX_BATCH_SIZE} (2^24 images of 64x64 RGB are 200 GB "
+            f"even as bytes), got {batch_size}")
 
 
 @dataclass
@@ -244,6 +254,8 @@ class RunConfig(_Plain):
         check_choices(self)
         if self.steps < 1 or self.batch_size < 1:
             raise ValueError("steps and batch size must be positive")
+        if self.batch_size > MAX_BATCH_SIZE:
+            raise ValueError(batch_size_too_large(self.batch_size))
         if not 0.0 < self.labeled_fraction <= 1.0:
             raise ValueError(f"labeled fraction must be in (0, 1], got {self.labeled_fraction}")
         if not 0.0 <= self.semi_labeled_share < 1.0:
