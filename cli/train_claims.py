@@ -29,13 +29,17 @@ def claims(train_shards, eval_shards, eval_split, out, preset, runs, device, wor
     from sc3d_data.io.shards import one_line
     from sc3d_train.loop.checkpoint import CheckpointError
     from sc3d_train.loop.trainer import TrainingDiverged
-    from sc3d_train.evaluation.claims import RUNS, run_all
+    from sc3d_train.evaluation.claims import PRESETS, RUNS, check_study_options, run_all
     from sc3d_train.data.dataset import DataError
 
     names = [r.strip() for r in runs.split(",")] if runs else None
     unknown = sorted(set(names or []) - set(RUNS))
     if unknown:
         raise click.UsageError(f"unknown runs {unknown}; choose from {', '.join(RUNS)}")
+    try:  # options that cannot serve: refused before the study's folder is created
+        check_study_options(PRESETS[preset], seeds, device)
+    except ValueError as e:
+        raise click.ClickException(one_line(e)) from e
     try:  # one study per folder: its runs, evaluations and reports are written by this process only
         with exclusive_lock(out, "sc3d-train claims", create=True):
             run_all(train_shards, eval_shards, out, preset, eval_split, device, workers, names, echo=click.echo,

@@ -179,3 +179,30 @@ def test_e5_a_huge_batch_size_is_refused_in_one_line_naming_the_option(sample_sh
                                "--batch-size", huge, *TINY, "--device", "cpu"], expect_exit=1)
     assert [ln for ln in res.output.splitlines() if ln.startswith("Error:")] == [expected], res.output
     assert not (tmp_path / "run" / "checkpoints").exists()
+
+
+# ----------------------------------------------------------------------------- E6
+@pytest.mark.parametrize("seeds", [101, 100000000000])
+def test_e6_claims_refuses_too_many_seeds_before_anything(sample_shards, tmp_path, seeds):
+    """``claims --seeds 100000000000`` built the list of seeds until memory ran out (MemoryError
+    under a limit, the machine's memory without); 101 would start a study of weeks. Above 100
+    it is refused in one line naming --seeds and why, before the study folder is created (and
+    before the device, bogus here, is looked at)."""
+    out = tmp_path / "claims"
+    res = run_cli(train_main, ["claims", "--train-shards", sample_shards, "--eval-shards", sample_shards, "--out", out,
+                               "--runs", "sup-3tube", "--seeds", seeds, "--device", "bogus"], expect_exit=1)
+    assert res.output.splitlines() == [
+        f"Error: seeds (--seeds) must be in [1, 100], got {seeds} (each seed trains and evaluates every run again: "
+        f"100 is already days of computing)"], res.output
+    assert not out.exists()
+
+
+def test_e6_claims_refuses_an_unknown_device_before_training(sample_shards, tmp_path):
+    """``claims --device bogus`` was refused only by the first run's ``fit``, after its
+    "training" line. Now one line and nothing else, no study folder."""
+    out = tmp_path / "claims"
+    res = run_cli(train_main, ["claims", "--train-shards", sample_shards, "--eval-shards", sample_shards, "--out", out,
+                               "--runs", "sup-3tube", "--device", "bogus"], expect_exit=1)
+    assert res.output.splitlines() == [
+        "Error: --device 'bogus': not a device; use auto (CUDA if present), cpu, cuda or cuda:N."], res.output
+    assert not out.exists()

@@ -117,11 +117,28 @@ def drop_intermediate_checkpoints(run_dir: Path, steps: int) -> None:
             p.unlink(missing_ok=True)
 
 
+#: the most seeds of a study: each seed trains and evaluates every run again (the cpu preset: about
+#: 40 min a seed), so 100 is already days of computing; more is a mistyped number
+MAX_SEEDS = 100
+
+
 def seed_list(preset: ClaimsPreset, seeds: int) -> list[int]:
-    """The seeds of a study: ``preset.seed``, ``preset.seed + 1``, ... (``seeds`` of them)."""
-    if seeds < 1:
-        raise ValueError(f"seeds must be >= 1, got {seeds}")
+    """The seeds of a study: ``preset.seed``, ``preset.seed + 1``, ... (``seeds`` of them, 1 to
+    :data:`MAX_SEEDS`; else ``ValueError`` naming ``--seeds``)."""
+    if not 1 <= seeds <= MAX_SEEDS:
+        raise ValueError(f"seeds (--seeds) must be in [1, {MAX_SEEDS}], got {seeds} (each seed trains and evaluates "
+                         f"every run again: {MAX_SEEDS} is already days of computing)")
     return [preset.seed + k for k in range(seeds)]
+
+
+def check_study_options(preset: ClaimsPreset, seeds: int, device: str) -> list[int]:
+    """The study's seeds (:func:`seed_list`), once ``seeds`` and ``device`` are known to serve
+    (``ValueError`` naming the option otherwise), before anything is trained or written."""
+    from sc3d_train.loop.runtime import resolve_device
+
+    seed_values = seed_list(preset, seeds)
+    resolve_device(device)
+    return seed_values
 
 
 def run_folder(out: Path, name: str, seed: int) -> Path:
@@ -236,10 +253,11 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path,
             device: str = ClaimsConfig.device, workers: int = ClaimsConfig.workers, runs=None,
             echo=print, seeds: int = ClaimsConfig.seeds, pick: str = ClaimsConfig.pick) -> dict:
     """Train and evaluate every run of ``preset`` with each of ``seeds`` seeds (skipping finished
-    (run, seed) pairs); write the report. Evaluation data that cannot serve (objects trained on
+    (run, seed) pairs); write the report. ``seeds`` and ``device`` that cannot serve, and evaluation data that cannot serve (objects trained on
     or that choose the runs' best.pt, an empty split, shards without voxels) is refused before any training. Returns
     ``{run name: aggregate}`` (:func:`aggregate`)."""
     p = PRESETS[preset] if isinstance(preset, str) else preset
+    seed_values = check_study_options(p, seeds, device)
     check_held_out(train_shards, eval_shards, eval_split, p.extra.get("split", _FIT["split"]))
     check_not_selection(train_shards, eval_shards, eval_split, p, pick)
     ShardDataset(eval_shards, eval_split, require_voxels=True).close()  # an empty split, no voxels: refused now
@@ -247,7 +265,7 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path,
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     per_seed, timings = {}, {}
-    names, seed_values = list(runs or p.runs), seed_list(p, seeds)
+    names = list(runs or p.runs)
     for name in names:
         per_seed[name] = {}
         for seed in seed_values:

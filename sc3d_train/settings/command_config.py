@@ -73,5 +73,5 @@ class ClaimsConfig:
     device: str = setting("auto", DEVICE_HELP)
     workers: int = setting(0, "DataLoader workers per run.")
     pick: str = setting("best", PICK_HELP, choices=CHECKPOINT_PICKS)
-    seeds: int = setting(1, "Seeds per run (seed, seed + 1, ...): each cell of claims.md becomes mean +- "
-                         "standard deviation over them.")
+    seeds: int = setting(1, "Seeds per run (seed, seed + 1, ...; 1 to 100): each cell of claims.md becomes "
+                         "mean +- standard deviation over them.")
