@@ -34,6 +34,9 @@ def eval_cmd(ctx, checkpoint, shards, out, pose_from, device, split, pick, batch
         raise click.ClickException(one_line(e)) from e
     click.echo(f"{result['checkpoint']} (step {result['step']}) on split {split!r} of {shards} (pose: {pose_from}):")
     click.echo(result["table"])
+    if not result["shards_complete"]:
+        click.echo(f"note: {shards} is incomplete (its render was cut short: index.json complete false): these "
+                   "figures are of the objects rendered so far")
     if result["differs_from_training"]:
         click.echo(f"note: these shards differ from the checkpoint's training data: "
                    f"{'; '.join(result['differs_from_training'])}; the figures measure the model across that change")

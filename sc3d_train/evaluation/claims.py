@@ -38,6 +38,7 @@ from pathlib import Path
 from sc3d_train.evaluation.claims_report import RUNS, aggregate, write_report
 from sc3d_train.evaluation.evaluated_data import split_digest
 from sc3d_train.evaluation.shape_baselines import shape_baselines
+from sc3d_train.data.completeness import require_complete
 from sc3d_train.data.dataset import DataError, ShardDataset
 from sc3d_train.settings.command_config import ClaimsConfig
 from sc3d_train.settings.config import ModelConfig, RunConfig
@@ -258,6 +259,8 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path,
     ``{run name: aggregate}`` (:func:`aggregate`)."""
     p = PRESETS[preset] if isinstance(preset, str) else preset
     seed_values = check_study_options(p, seeds, device)
+    for shards in dict.fromkeys((train_shards, eval_shards)):
+        require_complete(Path(shards))
     check_held_out(train_shards, eval_shards, eval_split, p.extra.get("split", _FIT["split"]))
     check_not_selection(train_shards, eval_shards, eval_split, p, pick)
     ShardDataset(eval_shards, eval_split, require_voxels=True).close()  # an empty split, no voxels: refused now

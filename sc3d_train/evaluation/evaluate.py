@@ -35,6 +35,7 @@ from sc3d_data.io.shards import atomic_write_bytes
 from sc3d_train.loop.checkpoint import load_model, run_checkpoint
 from sc3d_train.settings.command_config import EvalConfig
 from sc3d_train.settings.config import MAX_BATCH_SIZE, batch_size_too_large
+from sc3d_train.data.completeness import shards_complete
 from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.evaluation.evaluated_data import evaluated_data_digest, selection_objects_among, training_objects_among
 from sc3d_train.paper.metrics import MASK_THRESHOLD, VOXEL_THRESHOLDS, predict_dataset, summarize
@@ -161,7 +162,8 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     result = {"checkpoint": str(checkpoint), "step": int(ckpt.get("step", -1)), "shards": str(shards),
               "split": split, "pose_from": pose_from, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
               "differs_from_training": differences, "trained_on": trained_on,
-              "selected_on_this_split": selected_on, "data_sha256": data_sha256, **summary}
+              "selected_on_this_split": selected_on, "data_sha256": data_sha256,
+              "shards_complete": shards_complete(shards), **summary}
     (out / "metrics.json").unlink(missing_ok=True)  # written last: it marks a finished evaluation
     plot_examples(kept, out / "predictions.png")
     atomic_write_bytes(out / "metrics.json", json.dumps(_finite(result), indent=1).encode())

@@ -164,11 +164,36 @@ def save_checkpoint(run_dir: Path, payload: dict) -> Path:
     return path
 
 
+#: the first torch whose ``torch.load(weights_only=True)`` runs no code from a crafted file
+#: (CVE-2025-32434 affects 2.5.1 and earlier) and that has ``torch.serialization.safe_globals``
+SAFE_TORCH = (2, 6)
+#: what ``torch.save`` writes: a zip archive
+ZIP_MAGIC = b"PK\x03\x04"
+
+
+def torch_is_safe(version: str) -> bool:
+    """Whether a torch ``version`` string (``2.13.0+cpu``, ``2.6.0a0+git``) is at least SAFE_TORCH."""
+    try:
+        major, minor = (int(x) for x in version.split("+")[0].split(".")[:2])
+    except ValueError:
+        return True  # an unparseable local build: let torch itself decide
+    return (major, minor) >= SAFE_TORCH
+
+
 def load_checkpoint(path: Path, map_location="cpu") -> dict:
-    """Read a checkpoint with a clear error for a missing or foreign file."""
+    """Read a checkpoint with a clear error for a missing or foreign file, or a torch too old to
+    read one without running code from it."""
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"{path}: checkpoint not found")
+    if not torch_is_safe(torch.__version__):
+        raise CheckpointError(f"{path}: not loaded: torch {torch.__version__} is older than "
+                              f"{'.'.join(map(str, SAFE_TORCH))}, whose weights_only loading can run code from a "
+                              "crafted file (CVE-2025-32434); upgrade torch")
+    with open(path, "rb") as f:
+        if f.read(len(ZIP_MAGIC)) != ZIP_MAGIC:
+            raise CheckpointError(f"{path}: not a checkpoint file (torch.save writes a zip archive; give a run "
+                                  "folder or a .pt file that fit wrote)")
     try:
         with torch.serialization.safe_globals(CHECKPOINT_GLOBALS):
             ckpt = torch.load(path, map_location=map_location, weights_only=True)
