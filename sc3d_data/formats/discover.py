@@ -112,11 +112,22 @@ def _special_reason(path: str) -> str:
     return f"not a regular file ({kind}{via}); not read"
 
 
-def _shapenet_model_dir(folder: Path) -> Path | None:
-    """The ShapeNet model folder (``SYNSET/MODEL_ID``) that ``folder`` is or lies in, if any."""
-    for cand in (folder, folder.parent):
-        if cand.parent != cand and is_synset_id(cand.parent.name) and not is_synset_id(cand.name):
-            return cand
+def _shapenet_model_dir(folder: Path, root: Path) -> tuple[Path, str, str] | None:
+    """``(model folder as walked, synset, model id)`` of the ShapeNet model folder
+    (``SYNSET/MODEL_ID``) that ``folder`` (walked from ``root``) is or lies in, if any.
+
+    Names are read from the absolute path, so ``--meshes .`` inside a synset folder reads as
+    its full path. A model folder at or above ``root`` (``root`` itself, or the folder that holds
+    a v2 ``models/`` given as ``root``) counts only when it holds ShapeNet's mesh (``model.obj``
+    or ``models/model_normalized.obj``): a folder of plain meshes whose parent has an 8-digit
+    name (a date, a job id) is not a model folder."""
+    here, top = Path(os.path.abspath(folder)), Path(os.path.abspath(root))
+    for cand, walked in ((here, folder), (here.parent, folder.parent)):
+        if cand.parent == cand or not is_synset_id(cand.parent.name) or is_synset_id(cand.name):
+            continue
+        below_root = cand != top and top in cand.parents
+        if below_root or (cand / SHAPENET_V1_MESH[0]).is_file() or cand.joinpath(*SHAPENET_V2_MESH).is_file():
+            return walked, cand.parent.name, cand.name
     return None
 
 
@@ -140,19 +151,22 @@ def discover_meshes(root, categories=None, category_override=None
     if root.is_file():
         if root.suffix.lower() not in MESH_EXTENSIONS:
             raise ValueError(f"{root}: not a mesh file (expected one of {', '.join(MESH_EXTENSIONS)})")
-        model_dir = _shapenet_model_dir(root.absolute().parent)
-        if model_dir is not None and root.absolute() in (model_dir / SHAPENET_V1_MESH[0],
-                                                         model_dir.joinpath(*SHAPENET_V2_MESH)):
-            found.append(MeshEntry(root, model_dir.name, model_dir.parent.name))  # SYNSET/MODEL_ID/.../model*.obj
+        file = Path(os.path.abspath(root))
+        model = _shapenet_model_dir(file.parent, file.parent)
+        if model is not None and file in (model[0] / SHAPENET_V1_MESH[0], model[0].joinpath(*SHAPENET_V2_MESH)):
+            found.append(MeshEntry(root, model[2], model[1]))  # SYNSET/MODEL_ID/.../model*.obj
         else:
-            found.append(MeshEntry(root, root.stem, resolve_category(root.absolute().parent.name or "unknown")))
+            found.append(MeshEntry(root, root.stem, resolve_category(file.parent.name or "unknown")))
     else:
         root_resolved = root.resolve()
         folders = _walk(root, problems)
         shapenet_models: dict[Path, Path | None] = {}   # model folder -> its mesh (None: none yet)
+        model_ids: dict[Path, tuple[str, str]] = {}     # model folder -> (synset, model id)
         for folder, files in folders:
-            model_dir = _shapenet_model_dir(folder)
-            if model_dir is not None:
+            model = _shapenet_model_dir(folder, root)
+            if model is not None:
+                model_dir = model[0]
+                model_ids[model_dir] = model[1:]
                 shapenet_models.setdefault(model_dir, None)
                 v1 = model_dir / SHAPENET_V1_MESH[0]
                 v2 = model_dir.joinpath(*SHAPENET_V2_MESH)
@@ -178,11 +192,12 @@ def discover_meshes(root, categories=None, category_override=None
         wanted_synsets = (resolve_categories(categories)
                           if categories is not None and not category_override else None)
         for model_dir, mesh in shapenet_models.items():
-            if mesh is None and (wanted_synsets is None or model_dir.parent.name in wanted_synsets):
+            synset, model_id = model_ids[model_dir]
+            if mesh is None and (wanted_synsets is None or synset in wanted_synsets):
                 problems.append(_problem(model_dir, "ShapeNet model folder without its mesh "
                                                     "(neither model.obj nor models/model_normalized.obj)"))
-            else:
-                found.append(MeshEntry(mesh, model_dir.name, model_dir.parent.name))
+            elif mesh is not None:
+                found.append(MeshEntry(mesh, model_id, synset))
 
     if category_override:
         cat = resolve_category(str(category_override))

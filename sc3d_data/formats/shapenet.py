@@ -97,9 +97,10 @@ AUTO_FRONT = "auto"
 def shapenet_version(path) -> int | None:
     """1 for ``SYNSET/MODEL_ID/model.obj``, 2 for ``SYNSET/MODEL_ID/models/model_normalized.obj``,
     else ``None`` (by the path alone)."""
+    import os
     from pathlib import Path
 
-    p = Path(path)
+    p = Path(os.path.abspath(path))  # `--meshes .` inside a synset folder: the names above it count
     if p.name == "model.obj" and is_synset_id(p.parent.parent.name):
         return 1
     if p.name == "model_normalized.obj" and p.parent.name == "models" and is_synset_id(p.parents[2].name):

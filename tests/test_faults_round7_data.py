@@ -1,0 +1,69 @@
+"""Hostile inputs to `sc3d-data`, round seven: the ShapeNet layout read from how a path is
+written (`--meshes .`, an 8-digit folder above plain meshes). Expected categories, ids and
+fronts are stated by hand from the folder names."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from sc3d_data.formats.discover import discover_meshes
+from sc3d_data.formats.shapenet import resolve_front
+
+SAMPLES = Path(__file__).resolve().parents[1] / "assets" / "sample_meshes"
+SYNSET = "03001627"
+MODELS = ("1a38407b2b1f9ad8b6ed3b79bd59f70", "2b38407b2b1f9ad8b6ed3b79bd59f71")
+
+
+def _shapenet_v1(root: Path) -> Path:
+    """``root/SYNSET/MODEL_ID/model.obj`` for two models (tiny tetrahedra)."""
+    for m in MODELS:
+        d = root / SYNSET / m
+        d.mkdir(parents=True)
+        (d / "model.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    return root / SYNSET
+
+
+@pytest.mark.parametrize("how", ["absolute", "dot", "relative"])
+def test_r7_a_synset_folder_reads_the_same_however_it_is_written(tmp_path, monkeypatch, how):
+    """`--meshes .` run inside the synset folder made each model its own category with model id
+    'model' and gave it the front of a non-ShapeNet mesh; now the synset and model ids and the v1
+    front (+X) are those of the absolute path."""
+    synset_dir = _shapenet_v1(tmp_path / "sn")
+    root = {"absolute": synset_dir, "dot": Path("."), "relative": Path(SYNSET)}[how]
+    monkeypatch.chdir({"absolute": tmp_path, "dot": synset_dir, "relative": tmp_path / "sn"}[how])
+    entries, problems = discover_meshes(root)
+    assert not problems
+    assert [(e.category, e.model_id) for e in entries] == [(SYNSET, m) for m in MODELS]
+    assert {resolve_front("auto", e.path) for e in entries} == {"+X"}
+
+
+@pytest.mark.parametrize("how", ["absolute", "relative"])
+def test_r7_an_eight_digit_folder_above_plain_meshes_is_no_shapenet_synset(tmp_path, monkeypatch, how):
+    """`/tmp/12345678/chairs` (a date or a SLURM job id above a folder of GLBs) was taken for a
+    ShapeNet model folder without its mesh, and nothing rendered. Now the GLBs are the objects
+    of category 'chairs', whichever way the path is written."""
+    chairs = tmp_path / "12345678" / "chairs"
+    chairs.mkdir(parents=True)
+    for f in sorted((SAMPLES / "chair").glob("*.glb"))[:2]:
+        shutil.copy(f, chairs / f.name)
+    monkeypatch.chdir(tmp_path / "12345678")
+    entries, problems = discover_meshes(chairs if how == "absolute" else Path("chairs"))
+    assert not problems
+    assert sorted((e.category, e.model_id) for e in entries) == sorted(
+        ("chairs", f.stem) for f in (SAMPLES / "chair").glob("*.glb"))[:2]
+
+
+def test_r7_control_a_model_folder_given_itself_is_still_shapenet(tmp_path):
+    """`--meshes SYNSET/MODEL_ID` (one model's folder, which holds model.obj) keeps its ids; a
+    model folder below --meshes without its mesh is still reported."""
+    synset_dir = _shapenet_v1(tmp_path / "sn")
+    entries, problems = discover_meshes(synset_dir / MODELS[0])
+    assert [(e.category, e.model_id) for e in entries] == [(SYNSET, MODELS[0])] and not problems
+    (synset_dir / MODELS[1] / "model.obj").unlink()
+    (synset_dir / MODELS[1] / "notes.txt").write_text("no mesh here")
+    entries, problems = discover_meshes(synset_dir)
+    assert [(e.category, e.model_id) for e in entries] == [(SYNSET, MODELS[0])]
+    assert [p["reason"] for p in problems] == [
+        "ShapeNet model folder without its mesh (neither model.obj nor models/model_normalized.obj)"]
