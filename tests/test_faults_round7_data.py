@@ -67,3 +67,65 @@ def test_r7_control_a_model_folder_given_itself_is_still_shapenet(tmp_path):
     assert [(e.category, e.model_id) for e in entries] == [(SYNSET, MODELS[0])]
     assert [p["reason"] for p in problems] == [
         "ShapeNet model folder without its mesh (neither model.obj nor models/model_normalized.obj)"]
+
+
+def _h5_voxels(out: Path, row: int):
+    import h5py
+
+    with h5py.File(next(out.glob("shard-*.h5")), "r") as f:
+        return f["voxels"][row]
+
+
+def test_r7_voxelize_finds_relative_sources_under_the_recorded_root_and_keeps_good_grids(tmp_path, monkeypatch):
+    """Rendered from A with a relative --meshes, voxelized from B, where a different mesh has the
+    same relative path: the mesh under A (the index's meshes root) is voxelized, not B's. When
+    the recorded mesh has changed since rendering, the object fails but keeps the grid made from
+    the mesh as rendered (it was replaced by an empty one before)."""
+    from sc3d_cli.data import main as data_main
+    from conftest import run_cli
+
+    tetra = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n"
+    for tree, text in (("A", tetra), ("B", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")):
+        (tmp_path / tree / "meshes" / "chair").mkdir(parents=True)
+        (tmp_path / tree / "meshes" / "chair" / "a.obj").write_text(text)
+    out = tmp_path / "out"
+    monkeypatch.chdir(tmp_path / "A")
+    run_cli(data_main, ["render", "--meshes", "meshes", "--out", out, "--voxelize", "--views", "4", "--no-progress",
+                        "--workers", "1"])
+    rendered = _h5_voxels(out, 0)
+    assert rendered.sum() > 100
+    monkeypatch.chdir(tmp_path / "B")
+    run_cli(data_main, ["voxelize", out, "--overwrite", "--no-progress"])
+    assert (_h5_voxels(out, 0) == rendered).all()
+    (tmp_path / "A" / "meshes" / "chair" / "a.obj").write_text(tetra + "v 2 2 2\nf 1 2 5\n")  # changed since
+    res = run_cli(data_main, ["voxelize", out, "--overwrite", "--no-progress"], expect_exit=None)
+    assert (_h5_voxels(out, 0) == rendered).all(), "the grid made from the mesh as rendered was replaced"
+    import json
+
+    failures = json.loads((out / "index.json").read_text())["failures"]
+    assert [f.get("grid_kept") for f in failures] == [True], res.output
+
+
+def test_r7_a_voxelize_rerun_retries_objects_that_failed(tmp_path):
+    """A mesh missing during `voxelize SHARDS` failed; once it is back, a plain rerun (no
+    --overwrite) voxelizes it (the shard was skipped as done before, keeping the empty grid)."""
+    from sc3d_cli.data import main as data_main
+    from conftest import run_cli
+
+    m = tmp_path / "m" / "chair"
+    m.mkdir(parents=True)
+    glbs = sorted((SAMPLES / "chair").glob("*.glb"))[:2]
+    for f in glbs:
+        shutil.copy(f, m / f.name)
+    out = tmp_path / "vr"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, "--views", "4", "--no-progress",
+                        "--workers", "1"])
+    (m / glbs[0].name).rename(tmp_path / "away.glb")
+    run_cli(data_main, ["voxelize", out, "--no-progress"], expect_exit=None)
+    assert _h5_voxels(out, 0).sum() == 0
+    (tmp_path / "away.glb").rename(m / glbs[0].name)
+    res = run_cli(data_main, ["voxelize", out, "--no-progress"])
+    assert _h5_voxels(out, 0).sum() > 100, res.output
+    import json
+
+    assert json.loads((out / "index.json").read_text())["failures"] == []

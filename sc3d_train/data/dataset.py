@@ -102,9 +102,11 @@ def voxelize_failures(index: dict) -> set[tuple[str, int]]:
     """``{(shard file name, row)}`` of the objects whose grid ``sc3d-data voxelize SHARDS`` could
     not make: they keep their row with an empty grid (the shard stays rectangular) and a
     ``"stage": "voxelize"`` entry in the index's ``failures``. An empty grid is no ground truth,
-    so :func:`scan_objects` leaves these objects out of every split."""
+    so :func:`scan_objects` leaves these objects out of every split. A failure that kept the
+    object's earlier grid (``grid_kept``: a rerun could not voxelize a mesh changed or gone since,
+    and kept the grid made from the mesh as rendered) is no such row."""
     return {(Path(str(f.get("shard"))).name, int(f["row"])) for f in index.get("failures", [])
-            if f.get("stage") == "voxelize" and isinstance(f.get("row"), int)}
+            if f.get("stage") == "voxelize" and isinstance(f.get("row"), int) and not f.get("grid_kept")}
 
 
 _TOLD: set[str] = set()

@@ -108,11 +108,12 @@ VOXELIZE_ROW = Job("voxelize", voxelize_row_task)
 
 
 def resolve_source(source: str, meshes_root: str | None) -> str:
-    """The mesh file of a shard's ``source``: as recorded when it exists (absolute, or relative
-    to the current folder), else the longest tail of it that exists under the dataset's
-    ``meshes`` root (index settings), so shards rendered from a relative path still work."""
+    """The mesh file of a shard's ``source``: an absolute one as recorded; a relative one (the
+    render ran on a relative ``--meshes``) first as the longest tail of it that exists under the
+    dataset's ``meshes`` root (index settings, absolute), and only then relative to the current
+    folder, where another tree may hold a file of the same relative name."""
     p = Path(source)
-    if p.exists() or p.is_absolute() or not meshes_root:
+    if p.is_absolute() or not meshes_root:
         return source
     parts = p.parts
     for k in range(len(parts)):
@@ -145,6 +146,17 @@ def voxelize_shards(shard_dir: Path, resolution: int = 32, workers: int = 1, ove
 
     with locked_output(Path(shard_dir), "sc3d-data voxelize", create=False):
         return _voxelize_shards_locked(Path(shard_dir), resolution, workers, overwrite, progress)
+
+
+def _earlier_grid(path: Path, row: int) -> np.ndarray | None:
+    """Row ``row`` of the ``voxels`` the shard ``path`` holds now, or None where it cannot be read."""
+    from sc3d_data.io.shard_reader import open_shard
+
+    try:
+        with open_shard(path) as f:
+            return f["voxels"][row]
+    except (OSError, KeyError, ValueError):
+        return None
 
 
 def _read_rows(path: Path, resolution: int) -> tuple[bool, list, list, list, np.ndarray]:
@@ -189,7 +201,9 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
     for c, (has, sources, ids, cats, to_canonical) in enumerate(rows):
         # a shard whose size is not the index's was replaced by a voxelize killed before it wrote
         # the index (its voxels are whole: the replacement is atomic): done again, index recorded
-        if has and not overwrite and index.shards[c].get("bytes") in (None, paths[c].stat().st_size):
+        # a shard with objects that failed before is done again: the mesh may be back or fixed
+        if has and not overwrite and index.shards[c].get("bytes") in (None, paths[c].stat().st_size) \
+                and not any(not f.get("grid_kept") for f in by_shard[c]):
             summary.shards_skipped += 1
             continue
         todo += [RowTask(c * K + r, resolve_source(s, settings.get("meshes")), cats[r], ids[r], "", s, r, T,
@@ -213,9 +227,14 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
         for t, status, payload in results:
             if status == "ok":
                 grids[t.row] = payload[0]
-            else:
-                by_shard[c].append({"stage": "voxelize", "source": t.source, "category": t.category,
-                                    "model_id": t.model_id, "shard": path.name, "row": t.row, "reason": payload})
+                continue
+            failure = {"stage": "voxelize", "source": t.source, "category": t.category,
+                       "model_id": t.model_id, "shard": path.name, "row": t.row, "reason": payload}
+            earlier = _earlier_grid(path, t.row) if rows[c][0] else None
+            if earlier is not None and earlier.any():  # a grid made before from the mesh as rendered
+                grids[t.row] = earlier
+                failure.update(reason=f"{payload}; its earlier grid is kept", grid_kept=True)
+            by_shard[c].append(failure)
         index.shards[c]["sha256"] = replace_dataset_atomically(path, "voxels", grids, update_index=False)
         index.shards[c]["bytes"] = path.stat().st_size
         index.failures = base + [f for fails in by_shard for f in fails]
