@@ -3,9 +3,13 @@ and the resolver through which trimesh reads them.
 
 Conventions
 -----------
+- **Real file**: a mesh reached through a symlink names its companion files (``.mtl``,
+  textures, glTF buffers) relative to the file the link points to (``os.path.realpath``), as
+  the program that wrote them did, never relative to the link.
 - **Texture root** (:func:`texture_root`): the folder every ``.mtl``, texture or external glTF
   file a mesh names must lie in, after resolving ``..`` and symlinks: the dataset folder
-  (``--meshes``), or, without one, the mesh's own folder. A ShapeNetCore v2 mesh
+  (``--meshes``) when the real file lies in it, else (no dataset folder, or a link that points
+  out of it) the real file's own folder. A ShapeNetCore v2 mesh
   (``MODEL/models/model_normalized.obj``, whose ``.mtl`` names ``../images/textureN.jpg``) may
   also read its model folder ``MODEL/``.
 - A reference is judged from its path alone (``Path.resolve``: string work and symlink reads,
@@ -30,7 +34,7 @@ from sc3d_data.io.gltf_check import read_gltf
 from sc3d_data.io.names import printable
 
 __all__ = ["SHAPENET_V2_MESH", "MaterialReport", "loader_misses", "make_resolver", "material_report",
-           "texture_root"]
+           "real_file", "texture_root"]
 
 #: ShapeNetCore v2's mesh inside a model folder
 SHAPENET_V2_MESH = ("models", "model_normalized.obj")
@@ -42,11 +46,20 @@ def _inside(path: Path, folder: Path) -> bool:
     return Path(path).resolve().is_relative_to(Path(folder).resolve())
 
 
+def real_file(path: Path) -> Path:
+    """The file mesh ``path`` is, symlinks resolved (module doc): its companion files are named
+    relative to this file's folder."""
+    return Path(os.path.realpath(path))
+
+
 def texture_root(path: Path, root: Path | None) -> Path:
-    """The folder the files named by mesh ``path`` must lie in (module doc): ``root`` (the mesh's
-    folder when None), widened to the model folder of a ShapeNetCore v2 mesh that lies inside it."""
-    path = Path(path)
-    base = Path(root) if root is not None else path.parent
+    """The folder the files named by mesh ``path`` must lie in (module doc): ``root`` when the
+    real file lies in it, else the real file's folder, widened to the model folder of a
+    ShapeNetCore v2 mesh that lies inside it."""
+    path = real_file(path)
+    base = Path(root).resolve() if root is not None else path.parent
+    if not path.is_relative_to(base):  # a link out of the dataset folder: its target's own folder
+        base = path.parent
     if path.parts[-2:] == SHAPENET_V2_MESH:
         model = path.parent.parent
         if _inside(base, model):
@@ -148,7 +161,7 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn")
     ``outside="refuse"`` a ``ValueError`` lists them; otherwise they are listed in
     ``report.outside`` and never opened. Then the textures inside are checked: missing or
     undecodable ones go to ``report.problems``."""
-    path = Path(path)
+    path = real_file(path)
     top = texture_root(path, root)
     report = MaterialReport()
     suffix = path.suffix.lower()
@@ -185,7 +198,7 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn")
 
 def make_resolver(path: Path, root: Path | None):
     """A trimesh resolver for mesh ``path`` that serves files inside :func:`texture_root` (names
-    relative to the mesh's folder, ``..`` allowed while inside; like trimesh's own it also tries
+    relative to the real file's folder (:func:`real_file`), ``..`` allowed while inside; like trimesh's own it also tries
     the name without options and the bare file name, each also percent-decoded as glTF URIs are)
     and records every name it could not serve. For an OBJ, trimesh reads only its first ``mtllib``
     statement, as one file name: asked for it, the resolver serves every material file the OBJ
@@ -234,13 +247,13 @@ def make_resolver(path: Path, root: Path | None):
         def write(self, name, data):
             raise PermissionError(f"{name}: sc3d does not write beside meshes")
 
-    libs, first_mtllib = [], None
-    if Path(path).suffix.lower() == ".obj":  # all material files, served for the first statement
-        text = Path(path).read_text(errors="replace")
-        libs = mtllib_names(Path(path), text)
+    real, libs, first_mtllib = real_file(path), [], None
+    if real.suffix.lower() == ".obj":  # all material files, served for the first statement
+        text = real.read_text(errors="replace")
+        libs = mtllib_names(real, text)
         found = re.search(r"mtllib(.*)", text)
         first_mtllib = found.group(1).strip() if found else None  # what trimesh asks for
-    return _RootResolver(Path(path).parent, texture_root(path, root), [])
+    return _RootResolver(real.parent, texture_root(real, root), [])
 
 
 def loader_misses(resolver, report: MaterialReport) -> list[str]:

@@ -1,0 +1,66 @@
+"""Hostile inputs to `sc3d-data`, round seven (paths): a symlinked mesh's companion files, empty
+`--elevations`, split-file ids with spaces. Expected colours, messages and splits are stated by
+hand from the files the tests write."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sc3d_data.io.meshes import load_mesh
+
+RED = (200, 30, 30)
+
+
+def _red_box(folder: Path) -> None:
+    """``folder/redbox.obj`` (+ ``material.mtl``, ``material_0.png``) and ``folder/redbox.gltf``
+    (+ its ``.bin`` buffers and texture): a unit box with an 8x8 texture of one colour, ``RED``."""
+    import trimesh
+    from PIL import Image
+
+    box = trimesh.creation.box()
+    box.visual = trimesh.visual.TextureVisuals(uv=box.vertices[:, :2] + 0.5,
+                                               image=Image.fromarray(np.full((8, 8, 3), RED, np.uint8)))
+    folder.mkdir(parents=True)
+    box.export(folder / "redbox.obj")
+    box.export(folder / "redbox.gltf")
+
+
+def _texture_colour(scene) -> tuple[int, int, int]:
+    """The colour of the first texel of the only geometry's texture (OBJ or glTF material)."""
+    (geometry,) = scene.geometry.values()
+    material = geometry.visual.material
+    image = getattr(material, "image", None) or getattr(material, "baseColorTexture", None)
+    assert image is not None, f"no texture loaded ({type(material).__name__})"
+    return image.convert("RGB").getpixel((0, 0))
+
+
+@pytest.mark.parametrize("name", ["redbox.obj", "redbox.gltf"])
+def test_r7_a_symlinked_mesh_reads_its_companions_beside_its_target(tmp_path, name):
+    """A link in the dataset folder to a textured mesh elsewhere looked for its .mtl, texture and
+    glTF buffers beside the link: the OBJ rendered grey with 'material file material.mtl not
+    found', the glTF failed ('gltf_buffer_0.bin: not found'). They are read beside the target."""
+    _red_box(tmp_path / "src")
+    (tmp_path / "meshes" / "chair").mkdir(parents=True)
+    link = tmp_path / "meshes" / "chair" / ("linked" + Path(name).suffix)
+    os.symlink(tmp_path / "src" / name, link)
+    scene, _, _, warnings = load_mesh(link, root=tmp_path / "meshes")
+    assert warnings == []
+    assert _texture_colour(scene) == RED
+
+
+def test_r7_a_symlinked_mesh_reads_nothing_outside_its_targets_folder(tmp_path):
+    """Companions of a link's target stay inside the target's own folder (the rule for every
+    path a file names): an .mtl naming `../secret.png` next to the target's folder is not read."""
+    _red_box(tmp_path / "src" / "sub")
+    secret = tmp_path / "src" / "secret.png"
+    (tmp_path / "src" / "sub" / "material_0.png").rename(secret)
+    mtl = tmp_path / "src" / "sub" / "material.mtl"
+    mtl.write_text(mtl.read_text().replace("material_0.png", "../secret.png"))
+    (tmp_path / "meshes" / "chair").mkdir(parents=True)
+    link = tmp_path / "meshes" / "chair" / "linked.obj"
+    os.symlink(tmp_path / "src" / "sub" / "redbox.obj", link)
+    _, _, _, warnings = load_mesh(link, root=tmp_path / "meshes")
+    assert len(warnings) == 1 and f"{secret} lies outside the dataset folder {tmp_path / 'src' / 'sub'}" in warnings[0]
