@@ -64,3 +64,20 @@ def test_r7_a_symlinked_mesh_reads_nothing_outside_its_targets_folder(tmp_path):
     os.symlink(tmp_path / "src" / "sub" / "redbox.obj", link)
     _, _, _, warnings = load_mesh(link, root=tmp_path / "meshes")
     assert len(warnings) == 1 and f"{secret} lies outside the dataset folder {tmp_path / 'src' / 'sub'}" in warnings[0]
+
+
+@pytest.mark.parametrize("elevations", ["", ",", " , "])
+def test_r7_render_refuses_an_empty_elevation_list_in_one_line(tmp_path, elevations):
+    """`--elevations ''` (or `,`) raised a ZeroDivisionError traceback while sizing the atlas of
+    zero views; now one line names the option, before any mesh is tried or --out is made."""
+    from sc3d_cli.data import main
+    from conftest import run_cli
+
+    (tmp_path / "meshes" / "chair").mkdir(parents=True)
+    (tmp_path / "meshes" / "chair" / "a.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    result = run_cli(main, ["render", "--meshes", tmp_path / "meshes", "--out", tmp_path / "out",
+                            "--elevations", elevations, "--no-progress"], expect_exit=1)
+    assert result.output.strip() == "Error: --elevations: give at least one elevation"
+    assert not (tmp_path / "out").exists()
+
+

@@ -80,6 +80,8 @@ class RenderConfig:
         this machine's memory can do (so a typo fails at once, not as N worker failures)."""
         import math
 
+        if not self.elevations:  # `--elevations ''` or `,`: no view to render (and no atlas to size)
+            raise ValueError("--elevations: give at least one elevation")
         views = self.num_views * len(self.elevations)
         cols = math.ceil(math.sqrt(views))
         side = self.image_size * max(cols, math.ceil(views / cols))
