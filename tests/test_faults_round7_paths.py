@@ -81,3 +81,37 @@ def test_r7_render_refuses_an_empty_elevation_list_in_one_line(tmp_path, elevati
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("file_name, text", [
+    ("s.txt", "train\tchair/with space\nTEST   chair/plain\n"),
+    ("s.txt", "train  chair/with space  \ntest chair/plain\n"),
+    ("train.txt", "chair/with space\n"),
+])
+def test_r7_split_files_name_ids_with_spaces(tmp_path, file_name, text):
+    """A split file could not name an object whose id holds a space ('expected 'SPLIT ID' or
+    'ID'', 'expected one id per line'): the id is now the rest of the line after the split name
+    (ends stripped), and the whole line in a per-split file. Expected: the splits written."""
+    import json
+
+    from sc3d_cli.data import main
+    from conftest import run_cli
+
+    (tmp_path / "m" / "chair").mkdir(parents=True)
+    for name in ("with space", "plain"):
+        (tmp_path / "m" / "chair" / f"{name}.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+                                                              "f 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    (split_file := tmp_path / file_name).write_text(text)
+    run_cli(main, ["render", "--meshes", tmp_path / "m", "--out", tmp_path / "out", "--split-file", split_file,
+                   "--views", 1, "--image-size", 16, "--workers", 1, "--no-progress"])
+    index = json.loads((tmp_path / "out" / "index.json").read_text())
+    splits = {o["model_id"]: o["split"] for o in index["objects"]}
+    assert splits == ({"with space": "train"} if file_name == "train.txt" else {"with space": "train", "plain": "test"})
+
+
+def test_r7_a_one_word_split_line_still_refuses_a_mistyped_split_name(tmp_path):
+    """Control: with ids running to the line's end, a first word that is no split name is still
+    refused naming the line (not read as an id with a space, silently put in train)."""
+    from sc3d_data.formats.splits import read_split_lines
+
+    (p := tmp_path / "s.txt").write_text("tran chair/a\n")
+    with pytest.raises(ValueError, match=r"s\.txt:1: split 'tran' is none of train, val, test"):
+        read_split_lines(p)

@@ -12,9 +12,12 @@ Three ways (``spec`` / ``split_file`` of :func:`assign_splits`):
     test (``n`` = the number of objects of that category that were found).
 split files (``split_file``: one file, several files, or a directory)
     * PTN style ``SYNSET_trainids.txt`` / ``_valids.txt`` / ``_testids.txt`` (also ``train.txt``
-      ``val.txt`` ``test.txt``): the split comes from the file name; one id per line.
-    * any other file is a plain list: each line ``SPLIT ID`` (tab or spaces; SPLIT is train, val
-      or test in any case, anything else is refused naming the line), or just ``ID`` meaning train.
+      ``val.txt`` ``test.txt``): the split comes from the file name; one id per line (the whole
+      line, its ends stripped: an id may hold spaces).
+    * any other file is a plain list: each line ``SPLIT ID`` (SPLIT is train, val or test in any
+      case, anything else is refused naming the line; then a tab or spaces, and the rest of the
+      line, ends stripped, is the id, spaces and all), or just ``ID`` meaning train (one word: an
+      id with spaces needs its SPLIT first, so a mistyped split name is never read as an id).
     An id is ``synset/model_id`` (the category may also be a name such as ``chair``) or a bare
     ``model_id`` (matches that model id in any category). Empty lines and lines starting with
     ``#`` are ignored. A directory contributes every ``*.txt`` in it.
@@ -40,8 +43,8 @@ SPLIT_HELP = ("random:TRAIN,VAL,TEST (fractions summing to 1, e.g. random:0.7,0.
               "others and the fractions hold in expectation. r2n2: per category, model ids sorted, "
               "first 80% train, rest test (3D-R2N2). --split-file overrides --split.")
 SPLIT_FILE_HELP = ("PTN SYNSET_{train,val,test}ids.txt files, a directory of them, or a plain list "
-                   "(lines 'SPLIT ID' or 'ID' = train; ID = synset/model_id or model_id). "
-                   "Objects no file lists are skipped and reported.")
+                   "(lines 'SPLIT ID' or 'ID' = train; ID = synset/model_id or model_id, the rest of "
+                   "the line). Objects no file lists are skipped and reported.")
 R2N2_TRAIN_FRACTION = 0.8
 #: the splits a split file may name (any case); ``sc3d-train`` reads train, val and test
 SPLIT_NAMES = ("train", "val", "test")
@@ -129,20 +132,17 @@ def read_split_lines(path: Path) -> list[tuple[int, str, str]]:
         line = line.strip()
         if not line or line.startswith("#"):
             continue
-        fields = line.split()
-        if named is not None:
-            if len(fields) != 1:
-                raise ValueError(f"{path}:{lineno}: expected one id per line, got {line!r}")
-            out.append((lineno, named, fields[0]))
-        elif len(fields) == 1:
+        if named is not None:  # the whole line is the id: ids may hold spaces
+            out.append((lineno, named, line))
+            continue
+        fields = line.split(None, 1)  # SPLIT, then the rest of the line is the id
+        if len(fields) == 1:
             out.append((lineno, "train", fields[0]))
-        elif len(fields) == 2:
-            if fields[0].lower() not in SPLIT_NAMES:
-                raise ValueError(f"{path}:{lineno}: split '{printable(fields[0])}' is none of "
-                                 f"{', '.join(SPLIT_NAMES)} (lines are 'SPLIT ID' or 'ID')")
-            out.append((lineno, fields[0].lower(), fields[1]))
+        elif fields[0].lower() not in SPLIT_NAMES:
+            raise ValueError(f"{path}:{lineno}: split '{printable(fields[0])}' is none of "
+                             f"{', '.join(SPLIT_NAMES)} (lines are 'SPLIT ID' or 'ID')")
         else:
-            raise ValueError(f"{path}:{lineno}: expected 'SPLIT ID' or 'ID', got {line!r}")
+            out.append((lineno, fields[0].lower(), fields[1]))
     return out
 
 
