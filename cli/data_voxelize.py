@@ -54,7 +54,9 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
             click.echo(f"voxelized {s.objects - s.failed} objects in {s.shards_done} shards ({s.shards_skipped} shards "
                        f"already done), {s.failed} failed, {s.seconds:.1f} s")
             if s.failed and s.failed == s.objects:
-                raise click.ClickException(f"no object was voxelized: all {s.failed} failed (their grids are empty; "
+                grids = (f"earlier grid kept for {s.kept}, the others' are empty" if s.kept
+                         else "their grids are empty")
+                raise click.ClickException(f"no object was voxelized: all {s.failed} failed ({grids}; "
                                            f"reasons: `sc3d-data info {shards}`)")
         else:
             config = VoxelMeshesConfig(meshes=meshes, out=out, resolution=resolution, normalize=normalize, up=up,

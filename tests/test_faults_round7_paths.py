@@ -115,3 +115,29 @@ def test_r7_a_one_word_split_line_still_refuses_a_mistyped_split_name(tmp_path):
     (p := tmp_path / "s.txt").write_text("tran chair/a\n")
     with pytest.raises(ValueError, match=r"s\.txt:1: split 'tran' is none of train, val, test"):
         read_split_lines(p)
+
+
+def test_r7_voxelize_says_a_failed_object_kept_its_grid(tmp_path):
+    """A mesh changed since rendering fails `voxelize SHARDS` and keeps the grid made from the
+    mesh as rendered, but the closing line said 'their grids are empty'. It now says how many
+    kept theirs. Expected: the render's own grid, unchanged, and the line written by hand."""
+    import h5py
+
+    from sc3d_cli.data import main
+    from conftest import run_cli
+
+    tetra = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n"
+    (tmp_path / "m" / "chair").mkdir(parents=True)
+    (mesh := tmp_path / "m" / "chair" / "a.obj").write_text(tetra)
+    out = tmp_path / "out"
+    run_cli(main, ["render", "--meshes", tmp_path / "m", "--out", out, "--voxelize", "--views", 1,
+                   "--image-size", 16, "--workers", 1, "--no-progress"])
+    with h5py.File(out / "shard-00000.h5", "r") as f:
+        rendered = f["voxels"][0]
+    mesh.write_text(tetra + "v 2 2 2\nf 1 2 5\n")  # changed since it was rendered
+    res = run_cli(main, ["voxelize", out, "--overwrite", "--no-progress"], expect_exit=1)
+    assert res.output.strip().splitlines()[-1] == (
+        f"Error: no object was voxelized: all 1 failed (earlier grid kept for 1, the others' are empty; "
+        f"reasons: `sc3d-data info {out}`)")
+    with h5py.File(out / "shard-00000.h5", "r") as f:
+        assert rendered.sum() > 0 and (f["voxels"][0] == rendered).all()

@@ -132,6 +132,7 @@ class VoxelizeSummary:
     shards_skipped: int = 0
     objects: int = 0
     failed: int = 0
+    kept: int = 0  # failed objects that kept the grid they had (``grid_kept``)
     seconds: float = 0.0
 
     def as_dict(self) -> dict:
@@ -234,6 +235,7 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
             if earlier is not None and earlier.any():  # a grid made before from the mesh as rendered
                 grids[t.row] = earlier
                 failure.update(reason=f"{payload}; its earlier grid is kept", grid_kept=True)
+                summary.kept += 1
             by_shard[c].append(failure)
         index.shards[c]["sha256"] = replace_dataset_atomically(path, "voxels", grids, update_index=False)
         index.shards[c]["bytes"] = path.stat().st_size
