@@ -10,7 +10,8 @@ import click
 @click.argument("out", type=click.Path(file_okay=False, path_type=Path))
 @click.argument("parts", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--copy", is_flag=True, help="Copy the shard files instead of hard-linking them.")
-@click.option("--overwrite", is_flag=True, help="Replace a dataset in OUT that is not a merge.")
+@click.option("--overwrite", is_flag=True, help="Replace a dataset in OUT that is not a merge, and files named like "
+              "its shards that OUT's index does not list.")
 def merge(out, parts, copy, overwrite):
     """Combine the folders of `render/import-r2n2 --part I/N` runs (PARTS, all N of them) into one
     dataset in OUT with one index. Refuses parts made with other settings, missing or unfinished

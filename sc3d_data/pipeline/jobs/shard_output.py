@@ -39,7 +39,6 @@ Decisions:
 """
 from __future__ import annotations
 
-import json
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -50,7 +49,7 @@ from sc3d_data.io.shards import (SHARD_PATTERN, ShardError, add_shard_to_index, 
                                  shard_path)
 from sc3d_data.io.shards import write_index as write_index_file
 from sc3d_data.pipeline.executors.executor import Executor, finished_chunks
-from sc3d_data.pipeline.run.resume import (check_resume, empty_state, remaining, resume_state, settings_differ,
+from sc3d_data.pipeline.run.resume import (check_resume, empty_state, remaining, resume_state,
                                            voxels_after_rewrite)
 
 #: an index listing more objects than this is written lazily (module doc)
@@ -222,22 +221,13 @@ class NewShards:
     def check_unlisted(self) -> None:
         """``ValueError`` naming a file named like a shard this run writes that the index did
         not list (intact or not) and that is not a shard of this run's settings (module doc)."""
-        from sc3d_data.io.shard_reader import open_shard
+        from sc3d_data.pipeline.run.resume import check_unlisted_shard
 
         for c in sorted({t.pos // self.chunk_size for t in self.todo}):
             path = self.index.out / SHARD_PATTERN.format(c)
-            if path.name in self.old_files or not (path.exists() or path.is_symlink()):
-                continue
-            try:
-                with open_shard(path) as f:
-                    theirs = json.loads(f.attrs["settings"])
-                ours = isinstance(theirs, dict) and not settings_differ(theirs, self.index.settings)
-            except (ShardError, KeyError, ValueError, OSError):
-                ours = False
-            if not ours:
-                raise ValueError(f"{path}: named like a shard this run writes, but {index_path(self.index.out)} "
-                                 "does not list it and it was not made with this run's settings; move it away "
-                                 "or use another --out")
+            if path.name not in self.old_files:
+                check_unlisted_shard(path, self.index.settings, index_path(self.index.out), "this run",
+                                     "move it away or use another --out")
 
     def run(self, pool: Executor | None, n_workers: int, progress: Callable[[int], None] | None = None,
             bar: str | None = None) -> None:

@@ -8,7 +8,10 @@ Checks, before anything is written (each refusal is one line naming the folder):
   ``N`` and the same plan digest (planned from the same collection);
 - parts ``0..N-1`` are each given exactly once (a missing part is named);
 - each part accounts for the objects it was assigned (shards + failures), and no object id
-  appears twice across parts.
+  appears twice across parts;
+- a file in ``OUT`` named like a shard the merge writes that ``OUT``'s index does not list is
+  someone's unless it is a shard of the parts' settings (``resume.check_unlisted_shard``, as
+  ``render`` decides); ``overwrite=True`` replaces it.
 
 Output: the shards of part 0, then part 1, ... become ``OUT/shard-00000.h5``, ... (hard links
 when ``OUT`` is on the same file system, else copies; ``copy=True`` always copies), so the
@@ -29,8 +32,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from sc3d_data.pipeline.run.resume import settings_differ
-from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, file_sha256, load_index, shard_path, write_index
+from sc3d_data.pipeline.run.resume import check_unlisted_shard, settings_differ
+from sc3d_data.io.shards import (INDEX_NAME, SHARD_PATTERN, file_sha256, load_index, shard_path,
+                                 write_index)
 from sc3d_data.io.shard_reader import verify_shard
 
 
@@ -164,17 +168,14 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
         old = load_index(out) if (out / INDEX_NAME).is_file() else {}
         if old and not overwrite and "merged" not in old:
             raise MergeError(f"{out}: already holds a dataset that is not a merge; use another OUT or --overwrite")
-        shards, objects, failures, skipped, warnings = [], [], [], [], []
+        listed = {e["file"] for e in old.get("shards", [])}
+        shards, objects, failures, skipped, warnings, places = [], [], [], [], [], []
         counts = {"linked": 0, "copied": 0, "kept": 0}
         for index in parts:
             src_dir, names = Path(index["_dir"]), {}
             for entry in index.get("shards", []):
                 name = SHARD_PATTERN.format(len(shards))
-                dst = out / name
-                if dst.is_file() and dst.stat().st_size == entry["bytes"] and file_sha256(dst) == entry["sha256"]:
-                    counts["kept"] += 1
-                else:
-                    counts[_place(src_dir / entry["file"], dst, copy)] += 1
+                places.append((src_dir / entry["file"], out / name, entry))
                 objects += [dict(o, shard=name, chunk=len(shards)) for o in index["objects"]
                             if o["shard"] == entry["file"]]
                 names[entry["file"]] = name
@@ -182,6 +183,15 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
             failures += _renamed_failures(index.get("failures", []), names)
             skipped += index.get("skipped", [])
             warnings += index.get("warnings", [])
+        kept = [dst.is_file() and dst.stat().st_size == entry["bytes"] and file_sha256(dst) == entry["sha256"]
+                for _, dst, entry in places]
+        if not overwrite:  # a shard-named file no merge wrote is someone's: refused before any write
+            for (_, dst, _), same in zip(places, kept):
+                if not same and dst.name not in listed:
+                    check_unlisted_shard(dst, parts[0]["settings"], out / INDEX_NAME, "this merge",
+                                         "move it away, use another OUT or --overwrite")
+        for (src, dst, _), same in zip(places, kept):
+            counts["kept" if same else _place(src, dst, copy)] += 1
         for stale in {e["file"] for e in old.get("shards", [])} - {s["file"] for s in shards}:
             shard_path(out, stale).unlink(missing_ok=True)  # listed by an earlier merge of other parts
         first = parts[0]

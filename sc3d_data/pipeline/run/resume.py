@@ -28,6 +28,27 @@ def clean_tmp(out: Path) -> None:
             pass
 
 
+def check_unlisted_shard(path: Path, settings: dict, index_file: Path, what: str, hint: str) -> None:
+    """``ValueError`` when ``path``, a file named like a shard that ``what`` (a command) is about
+    to write but that its folder's index ``index_file`` does not list, exists and is not a shard
+    made with ``settings`` (such a shard was left by a run killed before its index listed it and
+    may be replaced); anything else is someone's file. ``hint``: what the user can do."""
+    import json
+
+    from sc3d_data.io.shards import ShardError
+    from sc3d_data.io.shard_reader import open_shard
+
+    if not (path.exists() or path.is_symlink()):
+        return
+    try:
+        with open_shard(path) as f:
+            theirs = json.loads(f.attrs["settings"])
+        ours = isinstance(theirs, dict) and not settings_differ(theirs, settings)
+    except (ShardError, KeyError, ValueError, OSError):
+        ours = False
+    if not ours:
+        raise ValueError(f"{path}: named like a shard {what} writes, but {index_file} does not list it and it "
+                         f"was not made with this run's settings; {hint}")
 
 
 def remove_listed_outputs(out: Path) -> None:

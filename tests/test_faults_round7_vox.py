@@ -1,0 +1,51 @@
+"""Hostile inputs, round seven (merge and voxelize): a file of the user's in the merge folder, a
+failed voxelize that a rerun should retry, full disks during voxelize, merge and render, and the
+dataset kinds voxelize cannot work on. Real renderer, real HDF5, real worker processes, real
+ENOSPC (a tmpfs, as ``test_faults._in_tmpfs``); expected values come from the fixtures."""
+from __future__ import annotations
+
+import shutil
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from sc3d_cli.data import main as data_main
+from conftest import SAMPLE_MESHES, run_cli
+from test_faults import FAST, _in_tmpfs, index_of
+
+CLI = f"{sys.executable} -c 'import sc3d_cli.data as d; d.main()'"
+
+
+@pytest.fixture(scope="module")
+def parts(tmp_path_factory) -> list[Path]:
+    """The two part folders of a `render --part I/2` of the chair meshes (4 views)."""
+    root = tmp_path_factory.mktemp("parts")
+    shutil.copytree(SAMPLE_MESHES / "chair", root / "m" / "chair")
+    dirs = [root / f"p{i}" for i in range(2)]
+    for i, d in enumerate(dirs):
+        run_cli(data_main, ["render", "--meshes", root / "m", "--out", d, "--part", f"{i}/2", *FAST])
+    return dirs
+
+
+def _one_error(output: str) -> str:
+    errors = [ln for ln in output.splitlines() if ln.startswith("Error:")]
+    assert len(errors) == 1 and "Traceback" not in output, output
+    return errors[0]
+
+
+def test_merge_refuses_a_file_of_the_users_named_like_a_shard(parts, tmp_path):
+    """`render` refuses an unlisted shard-named file that is no shard of its settings; merge
+    replaced it silently. It now refuses the same way (nothing written), and --overwrite replaces it."""
+    out = tmp_path / "m"
+    out.mkdir()
+    (out / "shard-00000.h5").write_text("precious\n")
+    res = run_cli(data_main, ["merge", out, *parts], expect_exit=1)
+    line = _one_error(res.output)
+    assert f"{out / 'shard-00000.h5'}: named like a shard this merge writes" in line and "--overwrite" in line
+    assert (out / "shard-00000.h5").read_text() == "precious\n"
+    assert not (out / "index.json").exists() and not (out / "shard-00001.h5").exists()
+    run_cli(data_main, ["merge", "--overwrite", out, *parts])
+    assert (out / "shard-00000.h5").read_bytes() == (parts[0] / "shard-00000.h5").read_bytes()
+    run_cli(data_main, ["merge", out, *parts])  # a rerun over its own (listed) shards still works
