@@ -49,3 +49,19 @@ def test_merge_refuses_a_file_of_the_users_named_like_a_shard(parts, tmp_path):
     run_cli(data_main, ["merge", "--overwrite", out, *parts])
     assert (out / "shard-00000.h5").read_bytes() == (parts[0] / "shard-00000.h5").read_bytes()
     run_cli(data_main, ["merge", out, *parts])  # a rerun over its own (listed) shards still works
+
+
+def test_merge_copy_on_a_full_disk_names_the_destination_and_leaves_no_tmp(parts):
+    """shutil's ENOSPC names the file copied FROM: the error blamed a part's shard and left
+    OUT/shard-NNNNN.h5.tmp. Now: the destination is named and no .tmp is left."""
+    total = sum((p / "shard-00000.h5").stat().st_size for p in parts) // 1024
+    r = _in_tmpfs(textwrap.dedent(f"""
+        A=$(df -k --output=avail $T | tail -1)
+        fallocate -l $(( (A - {total} / 2) * 1024 )) $T/filler
+        {CLI} merge --copy $T/m {parts[0]} {parts[1]}; echo "rc=$?"
+        echo "tmp_left=$(ls $T/m | grep -c '\\.tmp$')"
+        """), size="1m")
+    line = _one_error(r.stdout)
+    assert "rc=1\n" in r.stdout and "No space left on device" in line, r.stdout
+    assert "/m/shard-0000" in line and str(parts[0]) not in line and str(parts[1]) not in line, line
+    assert "tmp_left=0" in r.stdout, r.stdout

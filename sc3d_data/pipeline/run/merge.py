@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sc3d_data.pipeline.run.resume import check_unlisted_shard, settings_differ
-from sc3d_data.io.shards import (INDEX_NAME, SHARD_PATTERN, file_sha256, load_index, shard_path,
+from sc3d_data.io.shards import (INDEX_NAME, SHARD_PATTERN, file_sha256, io_reason, load_index, shard_path,
                                  write_index)
 from sc3d_data.io.shard_reader import verify_shard
 
@@ -136,7 +136,8 @@ def check_parts(dirs: list[Path]) -> list[dict]:
 
 def _place(src: Path, dst: Path, copy: bool) -> str:
     """Put ``src`` at ``dst`` atomically (temporary name, then rename): a hard link, or a copy
-    across file systems / with ``copy``. Returns ``"linked"`` or ``"copied"``."""
+    across file systems / with ``copy``. Returns ``"linked"`` or ``"copied"``. On failure (disk
+    full) the temporary file is removed and the ``OSError`` names ``dst``."""
     tmp = dst.with_name(dst.name + ".tmp")
     if tmp.exists():
         tmp.unlink()
@@ -147,9 +148,13 @@ def _place(src: Path, dst: Path, copy: bool) -> str:
             how = "linked"
         except OSError:
             pass
-    if how == "copied":
-        shutil.copyfile(src, tmp)
-    os.replace(tmp, dst)
+    try:
+        if how == "copied":
+            shutil.copyfile(src, tmp)  # its ENOSPC names the source file: renamed below
+        os.replace(tmp, dst)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise OSError(e.errno, io_reason(e), str(dst)) from e
     return how
 
 
