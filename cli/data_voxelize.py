@@ -53,7 +53,7 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
             s = voxelize_shards(shards, resolution, workers or os.cpu_count() or 1, overwrite, progress)
             click.echo(f"voxelized {s.objects - s.failed} objects in {s.shards_done} shards ({s.shards_skipped} shards "
                        f"already done), {s.failed} failed, {s.seconds:.1f} s")
-            if s.failed and s.failed == s.objects:
+            if s.failed and s.failed == s.objects and not s.reused:
                 grids = (f"earlier grid kept for {s.kept}, the others' are empty" if s.kept
                          else "their grids are empty")
                 raise click.ClickException(f"no object was voxelized: all {s.failed} failed ({grids}; "

@@ -8,7 +8,9 @@ Shards (``voxelize_shards``)
     ``sc3d_data.voxel.voxelize.voxelize_triangles``. The ``voxels`` dataset ``[N, G, G, G]`` is added
     to each shard atomically (``shards.replace_dataset_atomically``), one shard at a time.
     Resume: a shard that already holds ``voxels`` at the requested resolution is skipped
-    (``overwrite=True`` redoes it). The objects run on the local pool (``executor.py``:
+    unless objects of it failed (their ``voxelize`` failures): those objects are voxelized
+    again and the shard rewritten with the other objects' grids kept (as ``render`` retries
+    its failures); ``overwrite=True`` redoes every shard. The objects run on the local pool (``executor.py``:
     ``workers`` processes; a worker that dies costs its object; no time limit) and the shards
     are the chunks of the loop ``render`` and ``import-r2n2`` write with
     (``shard_output.py``): the index's ``bytes``/``sha256`` of a shard are written right after
@@ -125,8 +127,8 @@ def resolve_source(source: str, meshes_root: str | None) -> str:
 
 @dataclass
 class VoxelizeSummary:
-    """Counts of a voxelize run (``--meshes``: ``objects`` files written, ``shards_skipped``
-    files already there)."""
+    """Counts of a voxelize run (``objects`` voxelized by this run, ``failed`` of them; ``--meshes``:
+    ``objects`` files written, ``shards_skipped`` files already there)."""
 
     shards_done: int = 0
     shards_skipped: int = 0
@@ -134,6 +136,7 @@ class VoxelizeSummary:
     failed: int = 0
     kept: int = 0  # failed objects that kept the grid they had (``grid_kept``)
     seconds: float = 0.0
+    reused: int = 0  # objects of retried shards whose grids an earlier run made, kept
 
     def as_dict(self) -> dict:
         """``done``/``resumed``/``failed`` (the keys of a part's summary) plus the fields."""
@@ -179,6 +182,19 @@ def _read_rows(path: Path, resolution: int) -> tuple[bool, list, list, list, np.
             raise ShardError(f"{path}: broken shard ({io_reason(e)}); see `sc3d-data info --verify`") from e
 
 
+def _kept_voxels(path: Path) -> np.ndarray:
+    """The ``voxels [N, G, G, G]`` uint8 the shard ``path`` holds (a rerun retrying its failed
+    objects keeps the others' grids); one line naming it when they cannot be read."""
+    from sc3d_data.io.shards import ShardError, io_reason
+    from sc3d_data.io.shard_reader import open_shard
+
+    with open_shard(path) as f:
+        try:
+            return np.asarray(f["voxels"][()], dtype=np.uint8)
+        except (OSError, KeyError, RuntimeError) as e:
+            raise ShardError(f"{path}: broken shard ({io_reason(e)}); see `sc3d-data info --verify`") from e
+
+
 def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, progress) -> VoxelizeSummary:
     """The shards are the chunks of ``shard_output.write_chunks``: row ``r`` of the ``c``-th
     shard listed is plan position ``c * K + r`` (``K`` = the most rows of a shard)."""
@@ -199,20 +215,24 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
     by_shard = [[f for f in index.failures if f.get("stage") == "voxelize" and f.get("shard") == p.name]
                 for p in paths]  # the voxelize failures of each shard, kept for a skipped shard
     todo, entries = [], {(o.get("shard"), o.get("row")): o for o in index.objects}
+    retried: dict[int, set] = {}  # shard -> the rows whose voxelize failed, done again (the others kept)
     for c, (has, sources, ids, cats, to_canonical) in enumerate(rows):
+        rows_todo = range(len(sources))
         # a shard whose size is not the index's was replaced by a voxelize killed before it wrote
         # the index (its voxels are whole: the replacement is atomic): done again, index recorded
-        # a shard with objects that failed before is done again: the mesh may be back or fixed
-        if has and not overwrite and index.shards[c].get("bytes") in (None, paths[c].stat().st_size) \
-                and not any(not f.get("grid_kept") for f in by_shard[c]):
-            summary.shards_skipped += 1
-            continue
-        todo += [RowTask(c * K + r, resolve_source(s, settings.get("meshes")), cats[r], ids[r], "", s, r, T,
-                         entries.get((paths[c].name, r), {}).get("source_file"))
-                 for r, (s, T) in enumerate(zip(sources, to_canonical))]
-    if todo and not any(Path(t.path).is_file() for t in todo):
-        raise ValueError(f"{shard_dir}: none of the {len(todo)} source meshes its shards record exists (first: "
-                         f"{todo[0].source}, also looked for under {settings.get('meshes')}); no shard was changed: "
+        if has and not overwrite and index.shards[c].get("bytes") in (None, paths[c].stat().st_size):
+            rows_todo = retried[c] = {f.get("row") for f in by_shard[c]} & set(rows_todo)
+            summary.reused += len(sources) - len(rows_todo)
+            if not rows_todo:
+                summary.shards_skipped += 1
+                continue
+        todo += [RowTask(c * K + r, resolve_source(sources[r], settings.get("meshes")), cats[r], ids[r], "",
+                         sources[r], r, to_canonical[r], entries.get((paths[c].name, r), {}).get("source_file"))
+                 for r in sorted(rows_todo)]
+    fresh = [t for t in todo if t.pos // K not in retried]  # a retried failure may well fail again
+    if fresh and not any(Path(t.path).is_file() for t in fresh):
+        raise ValueError(f"{shard_dir}: none of the {len(fresh)} source meshes its shards record exists (first: "
+                         f"{fresh[0].source}, also looked for under {settings.get('meshes')}); no shard was changed: "
                          "voxelize where the meshes are")
     bar = None
     if progress:
@@ -224,7 +244,9 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
     def store(c: int, results: list, last: bool) -> None:
         path = paths[c]
         grids = np.zeros((len(rows[c][1]),) + (resolution,) * 3, dtype=np.uint8)
-        by_shard[c] = []
+        if c in retried:  # the grids of the objects not retried are kept
+            grids = _kept_voxels(path)
+        by_shard[c] = [f for f in by_shard[c] if f.get("row") not in {t.row for t, _, _ in results}]
         for t, status, payload in results:
             if status == "ok":
                 grids[t.row] = payload[0]
@@ -241,7 +263,7 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
         index.shards[c]["bytes"] = path.stat().st_size
         index.failures = base + [f for fails in by_shard for f in fails]
         summary.shards_done += 1
-        summary.objects += len(grids)
+        summary.objects += len(results)
         summary.failed += len(by_shard[c])
         if bar is not None:
             bar.update(1)
