@@ -109,3 +109,28 @@ def test_voxelize_rerun_retries_the_objects_that_failed(tmp_path):
     for mid, grid in expected.items():
         assert (got[mid] == grid).all(), mid
     run_cli(data_main, ["info", out, "--verify"])
+
+
+def test_voxelize_on_a_full_disk_fails_in_one_line_and_keeps_the_shard(tmp_path):
+    """The disk filling while HDF5 wrote the new voxels into the shard's temporary copy made h5py
+    crash (segfault, exit 139, 'Exception ignored' tracebacks) and left a shard-sized .tmp. Now:
+    one line naming the shard, exit 1, no .tmp, the shard's bytes unchanged. Free space: the
+    shard's size + 4 KiB, so the copy fits and the voxels do not."""
+    ds = tmp_path / "ds"
+    run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", ds, *FAST])
+    r = _in_tmpfs(textwrap.dedent(f"""
+        cp -r {ds} $T/ds
+        before=$(cat $T/ds/shard-*.h5 | sha256sum)
+        K=$(( $(stat -c %s $T/ds/shard-00000.h5) / 1024 )); A=$(df -k --output=avail $T | tail -1)
+        fallocate -l $(( (A - K - 4) * 1024 )) $T/filler
+        {CLI} voxelize $T/ds --resolution 64 --no-progress; echo "rc=$?"
+        echo "tmp_left=$(ls $T/ds | grep -c '\\.tmp$')"
+        [ "$(cat $T/ds/shard-*.h5 | sha256sum)" = "$before" ] && echo same
+        rm $T/filler
+        {CLI} info --verify $T/ds > /dev/null; echo "verify=$?"
+        """), size="4m")
+    line = _one_error(r.stdout)
+    assert "Segmentation" not in r.stdout and "Exception ignored" not in r.stdout, r.stdout
+    assert line.endswith("/ds/shard-00000.h5: cannot rewrite shard (No space left on device)"), r.stdout
+    assert "rc=1\n" in r.stdout and "tmp_left=0" in r.stdout and "same" in r.stdout, r.stdout
+    assert "verify=0" in r.stdout, r.stdout

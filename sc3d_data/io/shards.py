@@ -301,18 +301,22 @@ def _write_encoded(f: h5py.File, name: str, arrays: list[EncodedArray]) -> None:
 
 def replace_dataset_atomically(path: Path, name: str, data: np.ndarray, update_index: bool = True) -> str:
     """Add (or replace) the per-object dataset ``name`` in an existing shard without ever leaving
-    a half-written file named ``*.h5``: the shard is copied to ``NAME.tmp``, modified, and
-    renamed over the original. Returns the new file's SHA-256, which is also recorded at once
+    a half-written file named ``*.h5``: the shard is read into memory and modified there, then
+    written to ``NAME.tmp`` (``atomic_write_bytes``) and renamed over the original. HDF5 never
+    writes to the disk here: an HDF5 file whose writes failed (disk full) could not be closed
+    cleanly, and h5py crashed (segfault) closing it; a plain write fails with one ``ShardError``
+    line, the temporary file removed and the shard as it was. Memory: the shard's bytes twice.
+    Returns the new file's SHA-256, which is also recorded at once
     in the folder's ``index.json`` when that lists the shard (the index never describes the
     old bytes of a rewritten shard), unless ``update_index=False`` (a caller that writes the
     index itself: ``voxelize``)."""
-    import shutil
+    import hashlib
+    import io
 
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
     try:
-        shutil.copyfile(path, tmp)
-        with h5py.File(tmp, "a") as f:
+        image = io.BytesIO(path.read_bytes())
+        with h5py.File(image, "a") as f:
             n = f["model_id"].shape[0]
             if data.shape[0] != n:
                 raise ValueError(f"{path}: {name} has {data.shape[0]} objects, shard has {n}")
@@ -320,15 +324,13 @@ def replace_dataset_atomically(path: Path, name: str, data: np.ndarray, update_i
                 del f[name]
             data = np.asarray(data, dtype=ARRAY_DTYPES.get(name))
             f.create_dataset(name, data=data, chunks=(1,) + data.shape[1:], **COMPRESSION)
-        digest = file_sha256(tmp)
-        os.replace(tmp, path)
+        new = image.getvalue()
+        del image
+        atomic_write_bytes(path, new)
     except (OSError, RuntimeError) as e:
-        _unlink_quietly(tmp)
-        need = path.stat().st_size + np.asarray(data).nbytes if path.is_file() else 0
-        raise ShardError(f"{path}: cannot rewrite shard ({io_reason(e, path.parent, need)})") from e
-    except ValueError:
-        _unlink_quietly(tmp)
-        raise
+        reason = io_reason(e.__cause__ if isinstance(e.__cause__, OSError) else e)  # atomic_write_bytes's own
+        raise ShardError(f"{path}: cannot rewrite shard ({reason})") from e
+    digest = hashlib.sha256(new).hexdigest()
     if update_index and index_path(path.parent).is_file():
         index = load_index(path.parent)
         listed = [e for e in index["shards"] if isinstance(e, dict) and e.get("file") == path.name]
