@@ -134,3 +134,18 @@ def test_voxelize_on_a_full_disk_fails_in_one_line_and_keeps_the_shard(tmp_path)
     assert line.endswith("/ds/shard-00000.h5: cannot rewrite shard (No space left on device)"), r.stdout
     assert "rc=1\n" in r.stdout and "tmp_left=0" in r.stdout and "same" in r.stdout, r.stdout
     assert "verify=0" in r.stdout, r.stdout
+
+
+def test_render_on_a_full_disk_says_no_space_in_one_line(tmp_path):
+    """With ~150 KiB free, writing the first shard failed in HDF5's close, whose two-line report
+    ('Can't close file (file write failed: time = ...\\n, filename = ..., errno = 28, ...)') was
+    printed as the reason. Now the reason is the system's one line for errno 28."""
+    r = _in_tmpfs(textwrap.dedent(f"""
+        A=$(df -k --output=avail $T | tail -1)
+        fallocate -l $(( (A - 150) * 1024 )) $T/filler
+        {CLI} render --meshes {SAMPLE_MESHES} --out $T/out --workers 2 --no-progress; echo "rc=$?"
+        echo "tmp_left=$(ls $T/out | grep -c '\\.tmp$')"
+        """), size="2m")
+    line = _one_error(r.stdout)
+    assert line.endswith("/out/shard-00000.h5: cannot write shard (No space left on device)"), r.stdout
+    assert "rc=1\n" in r.stdout and "tmp_left=0" in r.stdout and "errno =" not in r.stdout, r.stdout

@@ -93,13 +93,16 @@ class ShardError(ValueError):
 
 def io_reason(e: BaseException, folder: Path | None = None, need: int = 0) -> str:
     """One-line reason of an I/O or HDF5 error (``No space left on device``, ``truncated file``...):
-    the first ``OSError`` with an errno in its chain, else its text. HDF5 often hides a full
+    the first ``OSError`` with an errno in its chain (the system's message for that errno where
+    the text is HDF5's report of it), else its text. HDF5 often hides a full
     disk behind a later error ("Slist already enabled?"): with ``folder`` given, a folder whose
     file system has less than ``need`` bytes (at least 1 MiB) free is reported as full."""
     seen = e
     while seen is not None:
         if isinstance(seen, OSError) and seen.errno and seen.strerror:
-            return seen.strerror
+            # HDF5's text of a system error spans lines ("Can't close file (file write failed: time
+            # = ...\n, filename = ..., errno = 28, ...)"): the system's own message says it in one
+            return os.strerror(seen.errno) if "errno =" in seen.strerror or "\n" in seen.strerror else seen.strerror
         seen = seen.__cause__ or seen.__context__
     if folder is not None:
         import shutil
