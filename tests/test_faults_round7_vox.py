@@ -149,3 +149,20 @@ def test_render_on_a_full_disk_says_no_space_in_one_line(tmp_path):
     line = _one_error(r.stdout)
     assert line.endswith("/out/shard-00000.h5: cannot write shard (No space left on device)"), r.stdout
     assert "rc=1\n" in r.stdout and "tmp_left=0" in r.stdout and "errno =" not in r.stdout, r.stdout
+
+
+def test_voxelize_refuses_an_r2n2_import_in_one_line(tmp_path):
+    """An import-r2n2 dataset has R2N2's own voxels and never had meshes; voxelize answered that
+    none of its 'source meshes' exists (the rendering folders) 'also looked for under None'.
+    Now one line says what the dataset is, and its shards are not touched."""
+    from test_import_r2n2 import synthesize
+
+    renderings, voxels, _ = synthesize(tmp_path / "r2n2", seed=3)
+    out = tmp_path / "imported"
+    run_cli(data_main, ["import-r2n2", "--renderings", renderings, "--voxels", voxels, "--out", out, "--no-progress"])
+    before = {p.name: p.read_bytes() for p in out.glob("*.h5")}
+    for extra in ([], ["--resolution", "64"], ["--overwrite"]):
+        res = run_cli(data_main, ["voxelize", out, "--no-progress", *extra], expect_exit=1)
+        line = _one_error(res.output)
+        assert f"{out}: imported from 3D-R2N2" in line and "32^3 voxels" in line and "None" not in line, line
+    assert {p.name: p.read_bytes() for p in out.glob("*.h5")} == before

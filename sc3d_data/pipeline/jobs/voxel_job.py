@@ -19,7 +19,8 @@ Shards (``voxelize_shards``)
     ``failures`` with ``"stage": "voxelize"``, its shard, row and reason. The index also gets
     ``"voxels": {"resolution": G, "occupancy": ...}``. When none of the source meshes exists
     (shards moved without their meshes) nothing is changed: one line names the folder, and no
-    shard's grids are replaced by empty ones.
+    shard's grids are replaced by empty ones. A dataset of ``import-r2n2`` (R2N2's own voxels,
+    no meshes) is refused in one line.
 
 Meshes (``voxelize --meshes``): ``voxel_meshes.py``.
 """
@@ -207,6 +208,11 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
     t0 = time.monotonic()
     index = ShardIndex.load(shard_dir, lazy=False)
     settings = index.settings
+    if settings.get("source") == "3D-R2N2":  # import-r2n2 (r2n2_job.ImportConfig.settings)
+        g = settings.get("voxel_resolution", 32)
+        raise ValueError(f"{shard_dir}: imported from 3D-R2N2 (sc3d-data import-r2n2): its objects carry R2N2's own "
+                         f"{g}^3 voxels and it has no source meshes, so there is nothing to voxelize; nothing was "
+                         "changed")
     paths = [shard_path(shard_dir, s["file"]) for s in index.shards]
     rows = [_read_rows(path, resolution) for path in paths]
     K = max([1] + [len(r[1]) for r in rows])
@@ -231,9 +237,9 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
                  for r in sorted(rows_todo)]
     fresh = [t for t in todo if t.pos // K not in retried]  # a retried failure may well fail again
     if fresh and not any(Path(t.path).is_file() for t in fresh):
+        under = f", also looked for under {settings['meshes']}" if settings.get("meshes") else ""
         raise ValueError(f"{shard_dir}: none of the {len(fresh)} source meshes its shards record exists (first: "
-                         f"{fresh[0].source}, also looked for under {settings.get('meshes')}); no shard was changed: "
-                         "voxelize where the meshes are")
+                         f"{fresh[0].source}{under}); no shard was changed: voxelize where the meshes are")
     bar = None
     if progress:
         from sc3d_data.pipeline.run.progress import progress_bar
