@@ -34,7 +34,7 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
     and the object's stored to_canonical, exactly as rendered), or with --meshes DIR --out DIR2
     write one .binvox per mesh. Reruns skip finished shards/files; failures go to the index
     (shards) or DIR2/failures.json (meshes). --meshes runs on the local pool, Ray or a SLURM job
-    array (--executor), with a per-mesh --timeout."""
+    array (--executor); both have a per-object --timeout."""
     from sc3d_data.pipeline.jobs.voxel_meshes import voxelize_on_slurm
     from sc3d_data.pipeline.jobs.voxel_job import voxelize_shards
     from sc3d_data.pipeline.jobs.voxel_meshes import VoxelMeshesConfig, failures_name, voxelize_meshes
@@ -50,7 +50,8 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
         raise click.UsageError("--executor is for --meshes; shards are voxelized by a local pool (--workers)")
     try:
         if shards is not None:
-            s = voxelize_shards(shards, resolution, workers or os.cpu_count() or 1, overwrite, progress)
+            s = voxelize_shards(shards, resolution, workers or os.cpu_count() or 1, overwrite, progress,
+                                scale["timeout_s"])
             click.echo(f"voxelized {s.objects - s.failed} objects in {s.shards_done} shards ({s.shards_skipped} shards "
                        f"already done), {s.failed} failed, {s.seconds:.1f} s")
             if s.failed and s.failed == s.objects and not s.reused:

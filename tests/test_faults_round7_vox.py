@@ -4,11 +4,13 @@ dataset kinds voxelize cannot work on. Real renderer, real HDF5, real worker pro
 ENOSPC (a tmpfs, as ``test_faults._in_tmpfs``); expected values come from the fixtures."""
 from __future__ import annotations
 
+import os
 import shutil
 import sys
 import textwrap
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from sc3d_cli.data import main as data_main
@@ -166,3 +168,34 @@ def test_voxelize_refuses_an_r2n2_import_in_one_line(tmp_path):
         line = _one_error(res.output)
         assert f"{out}: imported from 3D-R2N2" in line and "32^3 voxels" in line and "None" not in line, line
     assert {p.name: p.read_bytes() for p in out.glob("*.h5")} == before
+
+
+def test_voxelize_shards_honours_timeout(tmp_path):
+    """`voxelize SHARDS` accepted --timeout and ignored it (no limit: a hung mesh loader stalled
+    the run for ever). Fixture: a glTF rendered with its buffer a regular file, whose buffer is
+    then replaced by a FIFO nobody writes (the .gltf itself, the file fingerprinted, is
+    unchanged), so its loader blocks. Now that object fails with the time limit's reason, the
+    others get their grids, and the run ends."""
+    import subprocess
+
+    from conftest import write_hanging_gltf
+
+    chair = tmp_path / "m" / "chair"
+    chair.mkdir(parents=True)
+    shutil.copy(SAMPLE_MESHES / "chair" / "chair2_blendswap.glb", chair)
+    gltf = write_hanging_gltf(chair)
+    buffer = chair / "hang.bin"
+    buffer.unlink()
+    buffer.write_bytes(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0]], np.float32).tobytes())  # one triangle
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    assert index_of(out)["counts"]["total"] == 2
+    buffer.unlink()
+    os.mkfifo(buffer)
+    r = subprocess.run([sys.executable, "-c", "import sc3d_cli.data as d; d.main()", "voxelize", str(out),
+                        "--no-progress", "--timeout", "2", "--workers", "1"], timeout=90,
+                       stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    assert r.returncode == 0 and "voxelized 1 objects" in r.stdout and ", 1 failed" in r.stdout, r.stdout
+    [failure] = index_of(out)["failures"]
+    assert failure["stage"] == "voxelize" and failure["source"] == str(gltf)
+    assert "timed out after 2 s (--timeout)" in failure["reason"], failure

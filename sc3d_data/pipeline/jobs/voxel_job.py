@@ -11,7 +11,8 @@ Shards (``voxelize_shards``)
     unless objects of it failed (their ``voxelize`` failures): those objects are voxelized
     again and the shard rewritten with the other objects' grids kept (as ``render`` retries
     its failures); ``overwrite=True`` redoes every shard. The objects run on the local pool (``executor.py``:
-    ``workers`` processes; a worker that dies costs its object; no time limit) and the shards
+    ``workers`` processes; a worker that dies or passes the per-object time limit ``--timeout``
+    costs its object, retried by the next run) and the shards
     are the chunks of the loop ``render`` and ``import-r2n2`` write with
     (``shard_output.py``): the index's ``bytes``/``sha256`` of a shard are written right after
     it is rewritten, and the run holds the folder's write lock. An object that fails (mesh
@@ -70,9 +71,9 @@ def voxelize_canonical(vertices: np.ndarray, faces: np.ndarray, to_canonical: np
 
 @dataclass
 class VoxelizeShardsConfig(ExecOptions):
-    """What the workers of ``voxelize SHARDS`` need (``ExecOptions``: ``workers``; no per-object
-    time limit by default, as ``voxelize SHARDS`` never had one): the resolution ``G`` and
-    the dataset's face limit (index settings ``max_faces``)."""
+    """What the workers of ``voxelize SHARDS`` need (``ExecOptions``: ``workers`` and the
+    per-object time limit ``timeout_s``, ``--timeout``): the resolution ``G`` and the dataset's
+    face limit (index settings ``max_faces``)."""
 
     resolution: int = 32
     max_faces: int | None = None
@@ -145,12 +146,13 @@ class VoxelizeSummary:
 
 
 def voxelize_shards(shard_dir: Path, resolution: int = 32, workers: int = 1, overwrite: bool = False,
-                    progress: bool = False) -> VoxelizeSummary:
-    """Add ``voxels [N, G, G, G]`` to every shard of ``shard_dir`` (module doc)."""
+                    progress: bool = False, timeout_s: float = 120.0) -> VoxelizeSummary:
+    """Add ``voxels [N, G, G, G]`` to every shard of ``shard_dir`` (module doc); ``timeout_s``:
+    the per-object time limit, seconds (``--timeout``)."""
     from sc3d_data.pipeline.jobs.shard_output import locked_output
 
     with locked_output(Path(shard_dir), "sc3d-data voxelize", create=False):
-        return _voxelize_shards_locked(Path(shard_dir), resolution, workers, overwrite, progress)
+        return _voxelize_shards_locked(Path(shard_dir), resolution, workers, overwrite, progress, timeout_s)
 
 
 def _earlier_grid(path: Path, row: int) -> np.ndarray | None:
@@ -196,11 +198,9 @@ def _kept_voxels(path: Path) -> np.ndarray:
             raise ShardError(f"{path}: broken shard ({io_reason(e)}); see `sc3d-data info --verify`") from e
 
 
-def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, progress) -> VoxelizeSummary:
+def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, progress, timeout_s) -> VoxelizeSummary:
     """The shards are the chunks of ``shard_output.write_chunks``: row ``r`` of the ``c``-th
     shard listed is plan position ``c * K + r`` (``K`` = the most rows of a shard)."""
-    import math
-
     from sc3d_data.io.shards import shard_path
     from sc3d_data.pipeline.executors.executor import start_executor
     from sc3d_data.pipeline.jobs.shard_output import ShardIndex, write_chunks
@@ -275,7 +275,7 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
             bar.update(1)
 
     config = VoxelizeShardsConfig(resolution=resolution, max_faces=settings.get("max_faces"), workers=workers,
-                                  timeout_s=math.inf)
+                                  timeout_s=timeout_s)
     n_workers = max(1, min(workers, len(todo)))
     pool = start_executor(config, n_workers, VOXELIZE_ROW) if todo else None
     try:
