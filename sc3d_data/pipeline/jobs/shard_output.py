@@ -32,7 +32,8 @@ Decisions:
   index must never describe the old bytes of a rewritten shard.
 - A rerun refuses (``ValueError``, before any work) an index whose objects sit in other chunks
   than this run's plan puts them (the collection changed, or another sc3d made them): resuming
-  it would mix two plans in one dataset.
+  it would mix two plans in one dataset. It names the gone and new meshes (``resume.plan_changes``:
+  a gone mesh that had failed too, as the objects after it move to other chunks).
 - A file named like a shard this run writes that the index does not list is replaced only if
   it is a shard made with this run's settings (left by a run killed before its index listed
   it); anything else stops the run before any work, naming the file.
@@ -49,8 +50,8 @@ from sc3d_data.io.shards import (SHARD_PATTERN, ShardError, add_shard_to_index, 
                                  shard_path)
 from sc3d_data.io.shards import write_index as write_index_file
 from sc3d_data.pipeline.executors.executor import Executor, finished_chunks
-from sc3d_data.pipeline.run.resume import (check_resume, empty_state, remaining, resume_state,
-                                           voxels_after_rewrite)
+from sc3d_data.pipeline.run.resume import (check_resume, empty_state, plan_change_text, plan_changes, remaining,
+                                           resume_state, voxels_after_rewrite)
 
 #: an index listing more objects than this is written lazily (module doc)
 LAZY_OBJECTS = 10_000
@@ -205,8 +206,7 @@ class NewShards:
             state = resume_state(out, old, retry_failed, K, tasks)
         pos_of = {(t.category, t.model_id): t.pos for t in tasks}
         if any(pos_of.get((o["category"], o["model_id"]), -K) // K != o["chunk"] for o in state["objects"]):
-            raise ValueError(f"{out}: its shards do not hold this plan's chunks (the collection changed, or an "
-                             "older sc3d made them); use another --out or --overwrite")
+            raise ValueError(plan_change_text(out, *plan_changes(old, tasks, K)))
         for key in ("shards", "objects", "warnings", "empty_chunks"):
             setattr(index, key, state[key])
         index.failures = sorted(state["failures"], key=lambda f: f.get("pos", -1))
