@@ -97,10 +97,12 @@ def render(elevations, background, part, slurm, **options):
         click.echo(f"warning: {printable(note)}", err=True)
     retried = f", retried {s['retried']}" if s["retried"] else ""
     where = f"part {s['part']}, " if s.get("part", "0/1") != "0/1" else ""
-    click.echo(f"{where}done {s['done']}, resumed {s['resumed']}{retried}, skipped {s['skipped']}, failed {s['failed']} "
-               f"in {s['seconds']:.1f} s ({s['views_per_s']:.0f} views/s, {s['workers']} workers, "
+    warned = f", {s['warned']} with warnings" if s.get("warned") else ""
+    click.echo(f"{where}done {s['done']}, resumed {s['resumed']}{retried}, skipped {s['skipped']}, failed {s['failed']}"
+               f"{warned} in {s['seconds']:.1f} s ({s['views_per_s']:.0f} views/s, {s['workers']} workers, "
                f"backend {s['backend']}); index: {Path(s['out']) / 'index.json'}")
-    if s["failed"]:
-        click.echo(f"failures are listed with reasons by `sc3d-data info {s['out']}`")
+    listed = " and ".join(w for w, n in (("failures", s["failed"]), ("warnings", s.get("warned"))) if n)
+    if listed:
+        click.echo(f"{listed} are listed with reasons by `sc3d-data info {s['out']}`")
     if s["failed"] and not s["done"] and not s["resumed"]:
         raise click.ClickException(f"no object was rendered: all {s['failed']} failed")

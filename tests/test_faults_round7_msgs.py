@@ -42,3 +42,18 @@ def test_r7_a_refused_resume_names_the_meshes_gone_and_new(tmp_path):
     new = meshes / "chair" / "a0.obj"
     assert f"1 mesh(es) are new ({new})" in res.output and "move the new ones away" in res.output
     assert "gone" not in res.output
+
+
+def test_r7_render_summary_counts_objects_with_warnings(tmp_path):
+    """An OBJ whose .mtl is missing renders with the default material and a recorded warning;
+    the summary said only `failed 0`. Now it counts the object with warnings and says where
+    they are listed."""
+    meshes = tmp_path / "m" / "chair"
+    meshes.mkdir(parents=True)
+    (meshes / "t.obj").write_text("mtllib nothere.mtl\nusemtl a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+                                  "f 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    out = tmp_path / "out"
+    res = run_cli(main, ["render", "--meshes", meshes.parent, "--out", out, *FAST])
+    assert "failed 0, 1 with warnings in" in res.output
+    assert f"warnings are listed with reasons by `sc3d-data info {out}`" in res.output
+    assert len(json.loads((out / "index.json").read_text())["warnings"]) == 1

@@ -41,8 +41,8 @@ from sc3d_data.pipeline.jobs.shard_output import NewShards, ShardIndex, locked_o
 def render_dataset(config: RenderConfig, executor=None) -> dict:
     """Render ``config.meshes`` into shards under ``config.out`` (see module doc).
 
-    Returns the summary ``{"done", "skipped", "failed", "resumed", "retried", "repaired",
-    "seconds", "views", "views_per_s", "out", "notes"}``; ``index.json`` holds the details.
+    Returns the summary ``{"done", "skipped", "failed", "warned" (objects of the index with
+    warnings: a fallback texture, a missing .mtl...), "resumed", "retried", "repaired", "seconds", "views", "views_per_s", "out", "notes"}``; ``index.json`` holds the details.
     Raises ``ValueError`` (bad option or folder), ``LockError`` (another writer),
     ``ShardError`` / ``OSError`` (a shard or the index cannot be written: disk full...) with
     one-line messages naming the option or file.
@@ -83,6 +83,7 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
     views = run.done * len(config.elevations) * config.num_views
     return {"done": run.done, "resumed": run.resumed, "skipped": len(plan.skipped),
             "failed": len(index.failures) + len(index.problems), "retried": len(run.retry),
+            "warned": len({w.get("source") for w in index.warnings}),
             "repaired": len(run.repaired), "notes": run.repaired + run.notes,
             "seconds": seconds, "views": views, "views_per_s": views / seconds if seconds > 0 else 0.0,
             "out": str(out), "backend": settings["backend"], "workers": n_workers if run.todo else 0,
@@ -102,7 +103,8 @@ def render_on_slurm(config: RenderConfig, options: SlurmOptions) -> dict:
     t0 = time.monotonic()
     configs, summaries = run_array(render_part, config, options)
     merged = merge_parts(Path(config.out), [c.out for c in configs])
-    out = summed_parts(summaries, ("done", "resumed", "skipped", "failed", "retried", "repaired", "views"), t0, config)
+    out = summed_parts(summaries, ("done", "resumed", "skipped", "failed", "warned", "retried", "repaired",
+                                              "views"), t0, config)
     out.update(notes=[n for s in summaries for n in s["notes"]],
                views_per_s=out["views"] / out["seconds"] if out["seconds"] > 0 else 0.0,
                backend=",".join(sorted({str(s["backend"]) for s in summaries})),
