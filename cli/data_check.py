@@ -63,7 +63,7 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
             Path(json_out).write_text(json.dumps(
                 {"min_iou": min_iou, "min_coverage": min_coverage, "min_near": min_near, "passed": report.passed, "per_category": report.per_category(),
                  "objects": [{"category": o.category, "model_id": o.model_id, "shard": o.shard, "row": o.row,
-                              "mean_iou": o.mean_iou, "mean_coverage": o.mean_coverage, "mean_near": o.mean_near,
+                              "behind_camera_views": list(o.behind), "mean_iou": o.mean_iou, "mean_coverage": o.mean_coverage, "mean_near": o.mean_near,
                               "near": o.near.round(4).tolist(), "iou": o.iou.round(4).tolist(),
                               "coverage": o.coverage.round(4).tolist()} for o in report.objects]}, indent=1))
         except OSError as e:

@@ -24,7 +24,8 @@ def preview(shard_dir: Path, out: Path, max_objects: int, views: int, scale: int
 
     try:
         refuse_dataset_file(shard_dir, out, "--out")
-        sheet = contact_sheet(shard_dir, max_objects, views, scale)
+        notes: list[str] = []
+        sheet = contact_sheet(shard_dir, max_objects, views, scale, notes)
     except (FileNotFoundError, ValueError) as e:
         raise click.ClickException(one_line(e))
     try:
@@ -34,4 +35,6 @@ def preview(shard_dir: Path, out: Path, max_objects: int, views: int, scale: int
         raise click.ClickException(one_line(e))
     except ValueError as e:  # PIL: an extension it cannot write
         raise click.ClickException(f"--out {out}: {one_line(e)}")
+    for note in notes:
+        click.echo(f"warning: {note}", err=True)
     click.echo(f"wrote {out} ({sheet.shape[1]}x{sheet.shape[0]})")

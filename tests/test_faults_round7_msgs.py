@@ -57,3 +57,54 @@ def test_r7_render_summary_counts_objects_with_warnings(tmp_path):
     assert "failed 0, 1 with warnings in" in res.output
     assert f"warnings are listed with reasons by `sc3d-data info {out}`" in res.output
     assert len(json.loads((out / "index.json").read_text())["warnings"]) == 1
+
+
+def _older_near_camera_dataset(tmp_path: Path, distance: float = 0.7) -> Path:
+    """A voxelized cube (8 views at elevation 30) whose stored cameras are moved to ``distance``
+    from the origin, as an earlier sc3d that accepted ``--distance 0.7`` stored them (shard
+    bytes and size recorded in the index again). Hand-derived: the cube's corner (0.5, 0.5, 0.5)
+    has depth 0.7 - 0.5 * (cos30 (sin45 + cos45) + sin30) = -0.16 in the view at azimuth 45."""
+    import h5py
+
+    from sc3d_data.io.hashing import file_sha256
+
+    meshes = tmp_path / "m" / "chair"
+    meshes.mkdir(parents=True)
+    trimesh.creation.box(extents=(1, 1, 1)).export(meshes / "cube.obj")
+    out = tmp_path / "ds"
+    run_cli(main, ["render", "--meshes", meshes.parent, "--out", out, "--views", "8", "--image-size", "32",
+                   "--voxelize", "--voxel-resolution", "8", "--no-progress", "--workers", "1"])
+    shard = out / "shard-00000.h5"
+    with h5py.File(shard, "r+") as f:
+        f["t"][...] = f["t"][...] * distance / 2.0  # t = (0, 0, d) for a camera looking at the origin
+    index = json.loads((out / "index.json").read_text())
+    index["shards"][0].update(sha256=file_sha256(shard), bytes=shard.stat().st_size)
+    (out / "index.json").write_text(json.dumps(index))
+    return out
+
+
+def test_r7_render_refuses_a_camera_that_can_be_inside_the_unit_cube(tmp_path):
+    """`--distance 0.7` was accepted; the unit cube's corner lies sqrt(3)/2 = 0.866 from the
+    origin, so such a camera can be inside the object. Now one line names the minimum."""
+    meshes = _boxes(tmp_path / "m", ["a"])
+    res = run_cli(main, ["render", "--meshes", meshes, "--out", tmp_path / "o", "--distance", "0.7", *FAST],
+                  expect_exit=None)
+    assert res.exit_code != 0
+    assert "--distance 0.7: must be more than 0.866" in res.output and len(res.output.strip().splitlines()) == 1
+    run_cli(main, ["render", "--meshes", meshes, "--out", tmp_path / "o", "--distance", "0.87", *FAST])
+
+
+def test_r7_check_and_preview_name_views_with_voxels_behind_the_camera(tmp_path):
+    """check and preview aborted the whole dataset with 'project_voxels: part of the voxel grid
+    is behind the camera'. Now check scores those views 0 (the object fails) and names the object
+    and views; preview leaves their voxel tiles empty and names them."""
+    out = _older_near_camera_dataset(tmp_path)
+    res = run_cli(main, ["check", out, "--no-progress", "--png", tmp_path / "w.png",
+                         "--json", tmp_path / "c.json"], expect_exit=1)
+    assert "03001627/cube (shard-00000.h5 row 0): view(s) 1, 3, 5, 7 have voxels behind the camera" in res.output
+    assert "FAIL: 1 of 1 objects" in res.output and (tmp_path / "w.png").is_file()
+    report = json.loads((tmp_path / "c.json").read_text())
+    assert report["objects"][0]["behind_camera_views"] == [1, 3, 5, 7]
+    res = run_cli(main, ["preview", out, "--out", tmp_path / "s.png", "--views", "8"])
+    assert "03001627/cube (shard-00000.h5 row 0): view(s) 1, 3, 5, 7 have voxels behind" in res.output
+    assert (tmp_path / "s.png").is_file()

@@ -40,6 +40,9 @@ DEFAULT_NUM_VIEWS = 24
 DEFAULT_ELEVATION_DEG = 30.0
 DEFAULT_FOV_DEG = 49.13
 DEFAULT_DISTANCE = 2.0
+#: the farthest point of the voxel grid's cube [-0.5, 0.5]^3 from the origin (sqrt(3)/2): a
+#: camera nearer than this can be inside the cube, with part of the grid behind it
+MIN_DISTANCE = 0.5 * 3 ** 0.5
 DEFAULT_IMAGE_SIZE = 64
 
 

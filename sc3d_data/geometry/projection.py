@@ -17,6 +17,11 @@ import numpy as np
 from sc3d_data.geometry.camera import project_points
 from sc3d_data.geometry.voxel_grid import index_to_world
 
+
+class BehindCamera(ValueError):
+    """Occupied voxels lie behind the camera (or in its plane): their silhouette is not defined.
+    Only a camera nearer than ``camera.MIN_DISTANCE`` to the origin can see this."""
+
 # corner offsets (in voxel units) of the face of a unit cube on each side, in cyclic order
 _FACES = {
     (-1, 0, 0): [(0, 0, 0), (0, 1, 0), (0, 1, 1), (0, 0, 1)],
@@ -54,7 +59,7 @@ def project_voxels(voxels: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarr
     ``voxels`` bool/uint8 ``[G, G, G]`` index ``[x, y, z]`` over [-0.5, 0.5]^3; ``K [3, 3]``
     (pixels), ``R [3, 3]``, ``t [3]`` world->camera as stored in the shards; ``image_size``
     ``S`` (square). Returns bool ``[S, S]`` indexed ``[v, u]`` (row = image y, like the masks).
-    All of the grid must be in front of the camera.
+    All of the occupied voxels must be in front of the camera (else :class:`BehindCamera`).
     """
     S = int(image_size)
     out = np.zeros((S, S), dtype=bool)
@@ -64,7 +69,7 @@ def project_voxels(voxels: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarr
     K, R, t = (np.asarray(a, dtype=np.float64) for a in (K, R, t))
     uv, depth = project_points(quads.reshape(-1, 3), K, R, t)
     if (depth <= 1e-9).any():
-        raise ValueError("project_voxels: part of the voxel grid is behind the camera")
+        raise BehindCamera("project_voxels: part of the voxel grid is behind the camera")
     uv = uv.reshape(-1, 4, 2) - 0.5  # continuous coordinates in which pixel centres are integers
     lo = np.clip(np.ceil(uv.min(1) - 1e-9).astype(np.int64), 0, S)
     hi = np.clip(np.floor(uv.max(1) + 1e-9).astype(np.int64), -1, S - 1)

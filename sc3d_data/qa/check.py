@@ -29,6 +29,10 @@ test: voxel cubes stick out of the surface by up to a voxel, and structures thin
 voxel (lamp arms, chandeliers, chair legs, glider wings) are present as whole voxels but only
 as thin lines in the mask, so a correct thin object can score IoU 0.2 while a bulky one
 scores 0.9.
+
+A view whose camera has occupied voxels behind it (a ``--distance`` under sqrt(3)/2 that an
+earlier sc3d accepted) has no silhouette to compare: it scores 0 on all three (so its object
+fails) and the report names the object and its views; the check goes on with the others.
 """
 from __future__ import annotations
 
@@ -38,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sc3d_data.geometry.projection import project_voxels
+from sc3d_data.geometry.projection import BehindCamera, project_voxels
 from sc3d_data.io.names import printable
 from sc3d_data.io.shard_reader import ShardReader, iter_objects, verify_shards
 from sc3d_data.io.shards import ShardError, shard_path
@@ -58,6 +62,7 @@ class ObjectScore:
     iou: np.ndarray        # [V] per view
     coverage: np.ndarray   # [V] per view
     near: np.ndarray       # [V] per view
+    behind: tuple[int, ...] = ()  # views with occupied voxels behind the camera (scored 0)
 
     @property
     def mean_iou(self) -> float:
@@ -126,6 +131,10 @@ class CheckReport:
         for o in self.worst(n_worst):
             lines.append(f"  cov {o.mean_coverage:.3f}  near {o.mean_near:.3f}  IoU {o.mean_iou:.3f}  view {o.worst_view:>2} "
                          f"{o.iou[o.worst_view]:.3f}  {printable(f'{o.category}/{o.model_id}')}  ({o.shard} row {o.row})")
+        for o in (o for o in self.objects if o.behind):
+            lines.append(f"  {printable(f'{o.category}/{o.model_id}')} ({o.shard} row {o.row}): view(s) "
+                         f"{', '.join(map(str, o.behind))} have voxels behind the camera (its distance is under "
+                         "sqrt(3)/2); scored 0")
         verdict = "PASS" if self.passed else "FAIL"
         iou_rule = f" or min IoU {self.min_iou}" if self.min_iou > 0 else ""
         lines.append(f"{verdict}: {len(self.failing)} of {len(self.objects)} objects below min coverage "
@@ -153,8 +162,11 @@ def near_score(mask: np.ndarray, projected: np.ndarray, footprint: float) -> flo
     ``footprint + 1`` pixels from the mask *in regions wider than a voxel* (a morphological
     opening with a square of side ``ceil(footprint) + 1``, odd, drops the one-voxel-wide
     excess of structures thinner than a pixel, e.g. a lamp's wire, that the point-sampled mask
-    misses while the voxels keep them)."""
+    misses while the voxels keep them). A footprint beyond the image (a voxel next to the
+    camera) counts as the image's size: no distance in it is larger."""
     from scipy.ndimage import binary_opening, distance_transform_edt
+
+    footprint = min(footprint, float(sum(mask.shape)))
 
     if not projected.any():
         return 1.0
@@ -167,17 +179,24 @@ def near_score(mask: np.ndarray, projected: np.ndarray, footprint: float) -> flo
     return 1.0 - float(wide.sum()) / float(projected.sum())
 
 
-def view_scores(voxels: np.ndarray, masks: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def view_scores(voxels: np.ndarray, masks: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+                behind: list[int] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(iou [V], coverage [V], near [V])`` of one object's ``voxels [G,G,G]`` against
     ``masks [V,S,S]`` with cameras ``K [V,3,3]``, ``R [V,3,3]``, ``t [V,3]`` (module doc).
-    Empty mask and projection: 1."""
+    Empty mask and projection: 1. A view with voxels behind its camera scores 0 and is
+    appended to ``behind``."""
     S = masks.shape[-1]
     iou, cov, near = np.empty(len(masks)), np.empty(len(masks)), np.empty(len(masks))
     vox = np.asarray(voxels).astype(bool)
     for v in range(len(masks)):
         m = masks[v].astype(bool)
-        p = project_voxels(vox, K[v], R[v], t[v], S)
+        try:
+            p = project_voxels(vox, K[v], R[v], t[v], S)
+        except BehindCamera:
+            iou[v] = cov[v] = near[v] = 0.0
+            if behind is not None:
+                behind.append(v)
+            continue
         inter, union = (m & p).sum(), (m | p).sum()
         iou[v] = inter / union if union else 1.0
         cov[v] = inter / m.sum() if m.sum() else 1.0
@@ -204,9 +223,10 @@ def check_shards(shard_dir: Path, min_iou: float = DEFAULT_MIN_IOU,
     for obj in it:
         if "voxels" not in obj:
             raise ValueError(f"{shard_dir}/{obj['shard']}: no voxels (run `sc3d-data voxelize {shard_dir}` first)")
-        iou, cov, near = view_scores(obj["voxels"], obj["masks"], obj["K"], obj["R"], obj["t"])
+        behind: list[int] = []
+        iou, cov, near = view_scores(obj["voxels"], obj["masks"], obj["K"], obj["R"], obj["t"], behind)
         report.objects.append(ObjectScore(obj["category"], obj["model_id"], obj["shard"], obj["row"], iou, cov,
-                                          near))
+                                          near, tuple(behind)))
     return report
 
 
@@ -228,7 +248,10 @@ def write_worst_png(shard_dir: Path, report: CheckReport, path: Path, n: int = 8
         v = o.worst_view
         obj = reader.read(shard_path(shard_dir, o.shard), o.row, ("images", "masks", "voxels", "K", "R", "t"))
         image, mask = obj["images"][v], obj["masks"][v].astype(bool)
-        proj = project_voxels(obj["voxels"], obj["K"][v], obj["R"][v], obj["t"][v], mask.shape[-1])
+        try:
+            proj = project_voxels(obj["voxels"], obj["K"][v], obj["R"][v], obj["t"][v], mask.shape[-1])
+        except BehindCamera:  # drawn empty; the report names the view
+            proj = np.zeros_like(mask)
         diff = np.zeros(mask.shape + (3,))
         diff[mask & proj] = (0, 0.8, 0)
         diff[mask & ~proj] = (1, 0, 0)

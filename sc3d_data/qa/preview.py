@@ -4,7 +4,9 @@ One row per object: ``views`` rendered images, then the masks of the same views,
 the shards hold ``voxels``) the silhouettes of the voxels through the same stored cameras
 (``sc3d_data.geometry.projection``), each tile the stored image size times ``scale``. A label on
 the left names the category, model id and split. Objects are picked round-robin over
-categories so every category shows up.
+categories so every category shows up. A view whose camera has occupied voxels behind it (a
+``--distance`` under sqrt(3)/2 that an earlier sc3d accepted) gets an empty voxel tile, and a
+line naming the object and its views is added to ``notes``.
 """
 from __future__ import annotations
 
@@ -31,8 +33,29 @@ def pick_objects(shard_dir: Path, max_objects: int) -> list[dict]:
     return picked[:max_objects]
 
 
-def contact_sheet(shard_dir: Path, max_objects: int = 8, views: int = 6, scale: int = 2) -> np.ndarray:
-    """RGB uint8 ``[H, W, 3]`` contact sheet (see module doc)."""
+def _silhouettes(o: dict, S: int, sel, notes: list[str] | None) -> list[np.ndarray]:
+    """Voxel silhouettes ``[S, S]`` of object ``o`` (arrays of ``iter_objects``) in views
+    ``sel``; empty where voxels lie behind the camera (named in ``notes``)."""
+    from sc3d_data.geometry.projection import BehindCamera, project_voxels
+    from sc3d_data.io.names import printable
+
+    sil, behind = [], []
+    for v in sel:
+        try:
+            sil.append(project_voxels(o["voxels"].astype(bool), *(o[k][v].astype(np.float64) for k in "KRt"), S))
+        except BehindCamera:
+            sil.append(np.zeros((S, S), bool))
+            behind.append(int(v))
+    if behind and notes is not None:
+        notes.append(f"{printable(o['category'] + '/' + o['model_id'])} ({o['shard']} row {o['row']}): view(s) "
+                     f"{', '.join(map(str, behind))} have voxels behind the camera (its distance is under "
+                     "sqrt(3)/2); their voxel tiles are empty")
+    return sil
+
+
+def contact_sheet(shard_dir: Path, max_objects: int = 8, views: int = 6, scale: int = 2,
+                  notes: list[str] | None = None) -> np.ndarray:
+    """RGB uint8 ``[H, W, 3]`` contact sheet (see module doc); lines for the user go to ``notes``."""
     from PIL import Image, ImageDraw
 
     objects = pick_objects(shard_dir, max_objects)
@@ -45,10 +68,7 @@ def contact_sheet(shard_dir: Path, max_objects: int = 8, views: int = 6, scale: 
         tiles = [o["images"][v] for v in sel]
         tiles += [np.repeat(o["masks"][v][..., None] * 255, 3, -1).astype(np.uint8) for v in sel]
         if "voxels" in o:
-            from sc3d_data.geometry.projection import project_voxels_views
-
-            sil = project_voxels_views(o["voxels"].astype(bool), o["K"].astype(np.float64),
-                                       o["R"].astype(np.float64), o["t"].astype(np.float64), S, sel)
+            sil = _silhouettes(o, S, sel, notes)
             # voxel silhouette in blue, the rendered mask's outline-free overlay in grey
             for s, v in zip(sil, sel):
                 tile = np.full((S, S, 3), 255, np.uint8)

@@ -96,6 +96,11 @@ class RenderConfig:
             raise ValueError(f"--fov {self.fov_deg}: must be between 0 and 180 degrees")
         if not 0 < self.distance < math.inf:
             raise ValueError(f"--distance {self.distance}: must be a positive number")
+        from sc3d_data.geometry.camera import MIN_DISTANCE
+
+        if self.distance <= MIN_DISTANCE:
+            raise ValueError(f"--distance {self.distance}: must be more than {MIN_DISTANCE:.3f} (sqrt(3)/2, the "
+                             "farthest corner of the object's unit cube): a nearer camera can be inside the object")
         if not all(math.isfinite(e) for e in self.elevations):
             raise ValueError(f"--elevations {','.join(map(str, self.elevations))}: must be finite numbers")
         from sc3d_data.formats.shapenet import check_axes
