@@ -23,7 +23,8 @@ import click
                    "thin objects score low IoU at 32^3 even when correct).")
 @click.option("--worst", default=10, show_default=True, type=click.IntRange(1), help="Worst objects listed.")
 @click.option("--png", type=click.Path(dir_okay=False),
-              help="Picture of the worst views (image | mask | voxels | diff); default SHARDS/check_worst.png.")
+              help="Picture of the worst views (image | mask | voxels | diff); default SHARDS/check_worst.png "
+                   "(not written there when the dataset is read-only: a warning, not an error).")
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Write per-object scores as JSON.")
 @click.option("--progress/--no-progress", default=True, show_default=True)
 def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, json_out, progress):
@@ -39,6 +40,7 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
         raise click.UsageError("give the shard directory (SHARDS or --shards)")
     from sc3d_data.io.shards import one_line, refuse_dataset_file
 
+    default_png = not png
     png = Path(png) if png else Path(shards) / "check_worst.png"
     try:
         for option, path in (("--png", png), ("--json", json_out)):
@@ -54,10 +56,16 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
     try:
         png_path = write_worst_png(Path(shards), report, png, n=min(worst, 8))
     except OSError as e:  # a folder that cannot be made or written (the message names the file)
-        raise click.ClickException(one_line(e))
+        if not default_png:
+            raise click.ClickException(one_line(e))
+        # the default picture in a read-only dataset: the verdict stands without it
+        click.echo(f"warning: {one_line(e)}: the picture of the worst views was not written; "
+                   "give --png PATH to write it elsewhere", err=True)
+        png_path = None
     except ValueError as e:  # matplotlib: a format it cannot write
         raise click.ClickException(f"--png {png}: {one_line(e)}")
-    click.echo(f"worst views: {png_path}")
+    if png_path is not None:
+        click.echo(f"worst views: {png_path}")
     if json_out:
         try:
             Path(json_out).write_text(json.dumps(

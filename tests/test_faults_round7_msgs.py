@@ -108,3 +108,22 @@ def test_r7_check_and_preview_name_views_with_voxels_behind_the_camera(tmp_path)
     res = run_cli(main, ["preview", out, "--out", tmp_path / "s.png", "--views", "8"])
     assert "03001627/cube (shard-00000.h5 row 0): view(s) 1, 3, 5, 7 have voxels behind" in res.output
     assert (tmp_path / "s.png").is_file()
+
+
+def test_r7_check_of_a_dataset_where_the_default_picture_cannot_be_written(sample_shards, tmp_path):
+    """`check` of a read-only dataset printed PASS and then exited 1 on writing its default
+    SHARDS/check_worst.png. Now one warning names the file and --png, and the exit is the
+    verdict (0); an explicit --png that cannot be written stays an error. The unwritable file is
+    a folder in its place (root writes into read-only modes, not into a folder as a file)."""
+    import shutil
+
+    ds = tmp_path / "ds"
+    shutil.copytree(sample_shards, ds)
+    (ds / "check_worst.png").mkdir()
+    res = run_cli(main, ["check", ds, "--no-progress", "--json", tmp_path / "c.json"], expect_exit=0)
+    assert "PASS" in res.output and "worst views:" not in res.output
+    warning = [line for line in res.output.splitlines() if line.startswith("warning:")]
+    assert len(warning) == 1 and str(ds / "check_worst.png") in warning[0] and "--png PATH" in warning[0]
+    assert json.loads((tmp_path / "c.json").read_text())["passed"]
+    res = run_cli(main, ["check", ds, "--no-progress", "--png", tmp_path / "c.json" / "w.png"], expect_exit=1)
+    assert res.output.strip().splitlines()[-1].startswith(f"Error: {tmp_path / 'c.json'}")
