@@ -9,7 +9,7 @@ import click
 
 from sc3d_data.geometry.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS
 from sc3d_data.io.meshes import DEFAULT_MAX_FACES, DEFAULT_MAX_FILE_BYTES
-from sc3d_cli.scale_options import executor_options, part_option, run_render
+from sc3d_cli.scale_options import executor_options, part_from_slurm_note, part_option, run_render
 from sc3d_data.pipeline.jobs.render_job import SAMPLE_MESHES, RenderConfig
 from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
 
@@ -104,5 +104,7 @@ def render(elevations, background, part, slurm, **options):
     listed = " and ".join(w for w, n in (("failures", s["failed"]), ("warnings", s.get("warned"))) if n)
     if listed:
         click.echo(f"{listed} are listed with reasons by `sc3d-data info {s['out']}`")
+    if (note := part_from_slurm_note(part)) is not None:
+        click.echo(note)
     if s["failed"] and not s["done"] and not s["resumed"]:
         raise click.ClickException(f"no object was rendered: all {s['failed']} failed")

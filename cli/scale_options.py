@@ -24,6 +24,19 @@ def part_option(f):
                              "Combine part folders with `sc3d-data merge`.")(f)
 
 
+def part_from_slurm_note(part: Part) -> str | None:
+    """A line for the user when ``--part`` was not given and the part came from SLURM's
+    environment (``part_from_env``), so a job-array user who meant every object notices; None
+    otherwise. Call inside the command."""
+    from click.core import ParameterSource
+
+    if part.whole or click.get_current_context().get_parameter_source("part") != ParameterSource.DEFAULT:
+        return None
+    return (f"part {part} taken from SLURM_ARRAY_TASK_ID/SLURM_ARRAY_TASK_COUNT (this is a job array task): only "
+            "this part's objects were done; merge the part folders with `sc3d-data merge`, or give --part 0/1 "
+            "for all")
+
+
 def _slurm(ctx, param, value):
     from sc3d_data.pipeline.executors.slurm_executor import SlurmOptions
 

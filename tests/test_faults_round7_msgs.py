@@ -127,3 +127,26 @@ def test_r7_check_of_a_dataset_where_the_default_picture_cannot_be_written(sampl
     assert json.loads((tmp_path / "c.json").read_text())["passed"]
     res = run_cli(main, ["check", ds, "--no-progress", "--png", tmp_path / "c.json" / "w.png"], expect_exit=1)
     assert res.output.strip().splitlines()[-1].startswith(f"Error: {tmp_path / 'c.json'}")
+
+
+def test_r7_a_slurm_array_part_says_it_is_a_part(tmp_path, monkeypatch):
+    """Inside a SLURM job array render defaults to that task's part; render's summary did not
+    say where the part came from and `info` called the part folder complete without naming the
+    part. Now both do. Expected counts from the partition rule (sha256 of 'category/model_id'
+    mod 3), computed here with hashlib, not with sc3d."""
+    import hashlib
+
+    names = ["a", "b", "c", "d", "e", "f"]
+    meshes = _boxes(tmp_path / "m", names)
+    mine = [n for n in names if int(hashlib.sha256(f"03001627/{n}".encode()).hexdigest()[:16], 16) % 3 == 2]
+    assert 0 < len(mine) < len(names)
+    monkeypatch.setenv("SLURM_ARRAY_TASK_ID", "2")
+    monkeypatch.setenv("SLURM_ARRAY_TASK_COUNT", "3")
+    out = tmp_path / "sl"
+    res = run_cli(main, ["render", "--meshes", meshes, "--out", out, *FAST])
+    assert f"part 2/3, done {len(mine)}," in res.output
+    assert "part 2/3 taken from SLURM_ARRAY_TASK_ID/SLURM_ARRAY_TASK_COUNT" in res.output
+    res = run_cli(main, ["info", out])
+    assert f"part 2/3: {len(mine)} of {len(names)} planned objects; merge the parts" in res.output
+    res = run_cli(main, ["render", "--meshes", meshes, "--out", tmp_path / "p", "--part", "2/3", *FAST])
+    assert "taken from SLURM" not in res.output  # --part given: the user knows

@@ -16,7 +16,7 @@ def integrity_report(shard_dir: Path, full: bool = False) -> list[str]:
 
 
 def index_report(shard_dir: Path, max_failures: int = 50) -> str:
-    """Counts per category and split, settings, shards, clipped views, failures with reasons,
+    """Counts per category and split (with the part of a ``--part I/N`` run), settings, shards, clipped views, failures with reasons,
     skipped files and warnings, as plain text; names from disk in ``io.names.printable`` form
     (no control characters or undecodable bytes reach the terminal)."""
     index = load_index(shard_dir)
@@ -25,6 +25,11 @@ def index_report(shard_dir: Path, max_failures: int = 50) -> str:
     counts = index.get("counts", {})
     splits = sorted(counts.get("by_split", {}))
     lines.append(f"\nobjects: {counts.get('total', 0)} in {len(index.get('shards', []))} shards")
+    part = index.get("part", {})
+    if part.get("count", 1) > 1 and "merged" not in index:  # a --part I/N run (or a SLURM array task's)
+        lines.append(f"part {part.get('index')}/{part['count']}: {part.get('assigned', '?')} of "
+                     f"{part.get('planned_total', '?')} planned objects; merge the parts into one dataset "
+                     "(sc3d-data merge OUT PART_DIR...)")
     header = f"  {'category':<24}" + "".join(f" {printable(s):>7}" for s in splits) + f"{'total':>8}"
     lines.append(header)
     for cat, per in counts.get("by_category", {}).items():
