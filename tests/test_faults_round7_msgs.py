@@ -150,3 +150,18 @@ def test_r7_a_slurm_array_part_says_it_is_a_part(tmp_path, monkeypatch):
     assert f"part 2/3: {len(mine)} of {len(names)} planned objects; merge the parts" in res.output
     res = run_cli(main, ["render", "--meshes", meshes, "--out", tmp_path / "p", "--part", "2/3", *FAST])
     assert "taken from SLURM" not in res.output  # --part given: the user knows
+
+
+def test_r7_names_in_pictures_are_printable(tmp_path, recwarn):
+    """An object named with a tab: check's picture title made matplotlib warn 'Glyph 9 (\\t)
+    missing from font(s)'. Now names in pictures are written in printable form (a tab as \\t),
+    with no warning."""
+    meshes = tmp_path / "m" / "chair"
+    meshes.mkdir(parents=True)
+    trimesh.creation.box(extents=(1, 0.8, 0.6)).export(meshes / "a\tb.obj")
+    out = tmp_path / "ds"
+    run_cli(main, ["render", "--meshes", meshes.parent, "--out", out, *FAST, "--voxelize", "--voxel-resolution", "8"])
+    run_cli(main, ["check", out, "--no-progress", "--png", tmp_path / "w.png"], expect_exit=None)
+    run_cli(main, ["preview", out, "--out", tmp_path / "s.png"])
+    assert (tmp_path / "w.png").is_file() and (tmp_path / "s.png").is_file()
+    assert not [w for w in recwarn if "Glyph" in str(w.message)], [str(w.message) for w in recwarn]

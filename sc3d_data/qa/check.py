@@ -262,7 +262,7 @@ def write_worst_png(shard_dir: Path, report: CheckReport, path: Path, n: int = 8
             ax.imshow(img, cmap="gray" if img.ndim == 2 else None, interpolation="nearest")
             ax.set_xticks([])
             ax.set_yticks([])
-            ax.set_title(title if c else f"{o.model_id[:16]} v{v} cov {o.coverage[v]:.2f} IoU {o.iou[v]:.2f}", fontsize=7)
+            ax.set_title(title if c else f"{printable(o.model_id)[:16]} v{v} cov {o.coverage[v]:.2f} IoU {o.iou[v]:.2f}", fontsize=7)
     reader.close()
     fig.tight_layout()
     path = Path(path)

@@ -3,10 +3,11 @@
 One row per object: ``views`` rendered images, then the masks of the same views, then (when
 the shards hold ``voxels``) the silhouettes of the voxels through the same stored cameras
 (``sc3d_data.geometry.projection``), each tile the stored image size times ``scale``. A label on
-the left names the category, model id and split. Objects are picked round-robin over
-categories so every category shows up. A view whose camera has occupied voxels behind it (a
-``--distance`` under sqrt(3)/2 that an earlier sc3d accepted) gets an empty voxel tile, and a
-line naming the object and its views is added to ``notes``.
+the left names the category, model id and split (``io.names.printable``: a tab is drawn
+``\\t``). Objects are picked round-robin over categories so every category shows up. A view
+whose camera has occupied voxels behind it (a ``--distance`` under sqrt(3)/2 that an earlier
+sc3d accepted) gets an empty voxel tile, and a line naming the object and its views is added
+to ``notes``.
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from sc3d_data.formats.shapenet import category_name
+from sc3d_data.io.names import printable
 from sc3d_data.io.shard_reader import iter_objects
 
 LABEL_WIDTH = 150
@@ -37,8 +39,6 @@ def _silhouettes(o: dict, S: int, sel, notes: list[str] | None) -> list[np.ndarr
     """Voxel silhouettes ``[S, S]`` of object ``o`` (arrays of ``iter_objects``) in views
     ``sel``; empty where voxels lie behind the camera (named in ``notes``)."""
     from sc3d_data.geometry.projection import BehindCamera, project_voxels
-    from sc3d_data.io.names import printable
-
     sil, behind = [], []
     for v in sel:
         try:
@@ -80,7 +80,8 @@ def contact_sheet(shard_dir: Path, max_objects: int = 8, views: int = 6, scale: 
         row = np.kron(row, np.ones((scale, scale, 1), np.uint8))
         label = Image.new("RGB", (LABEL_WIDTH, row.shape[0]), "white")
         draw = ImageDraw.Draw(label)
-        draw.text((4, 4), f"{category_name(o['category'])}\n{o['model_id'][:22]}\n{o['split']}", fill="black")
+        draw.text((4, 4), "\n".join(printable(s) for s in (category_name(o["category"]), o["model_id"][:22], o["split"])),
+                  fill="black")
         rows.append(np.concatenate([np.asarray(label), row], 1))
     width = max(r.shape[1] for r in rows)
     rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)), constant_values=255) for r in rows]
