@@ -5,7 +5,7 @@
 # Idempotent: rerunning it only installs what is missing.
 #
 #   bash scripts/setup.sh          # CPU machine (CI, development)
-#   bash scripts/setup.sh --gpu    # NVIDIA GPU machine: keep the CUDA PyTorch the python already
+#   bash scripts/setup.sh --gpu    # NVIDIA GPU machine: keep the CUDA PyTorch (>= 2.6) the python already
 #                                  # has (the venv sees its packages), else install PyPI's CUDA
 #                                  # build; fails in one line if torch then sees no GPU
 set -euo pipefail
@@ -33,10 +33,23 @@ if [ -n "$missing" ]; then
 fi
 
 PY="${PYTHON:-python3}"
+# torch_ok PYTHON: whether PYTHON's torch is one sc3d loads checkpoints with (>= 2.6: before it,
+# torch.load(weights_only=True) could run code from a crafted file, CVE-2025-32434); the rule is
+# sc3d_train.settings.torch_floor.torch_is_safe, read from this tree
+torch_ok() {
+  "$1" -c "import sys, torch; sys.path.insert(0, '.'); from sc3d_train.settings.torch_floor import torch_is_safe
+sys.exit(not torch_is_safe(torch.__version__))" 2>/dev/null
+}
 if [ ! -x .venv/bin/python ]; then
   if [ "$GPU" = 1 ] && "$PY" -c "import torch, sys; sys.exit(not torch.cuda.is_available())" 2>/dev/null; then
-    echo "[setup] --gpu: $PY has a CUDA PyTorch; the venv keeps it (--system-site-packages)"
-    "$PY" -m venv --system-site-packages .venv
+    if torch_ok "$PY"; then
+      echo "[setup] --gpu: $PY has a CUDA PyTorch; the venv keeps it (--system-site-packages)"
+      "$PY" -m venv --system-site-packages .venv
+    else
+      echo "[setup] --gpu: $PY's torch $("$PY" -c 'import torch; print(torch.__version__)') is older than 2.6 (its" \
+           "weights_only loading can run code from a crafted checkpoint: CVE-2025-32434); the venv gets PyPI's torch instead" >&2
+      "$PY" -m venv .venv
+    fi
   else
     "$PY" -m venv .venv
   fi
@@ -44,6 +57,11 @@ fi
 . .venv/bin/activate
 python -m pip install -q --upgrade pip
 # torch 2.13.0: a CPU wheel on these machines; PyPI's Linux wheel is the CUDA build on a GPU machine.
+if python -c "import torch" 2>/dev/null && ! torch_ok python; then
+  echo "[setup] .venv's torch $(python -c 'import torch; print(torch.__version__)') is older than 2.6 (CVE-2025-32434:" \
+       "its weights_only loading can run code from a crafted checkpoint); upgrading it to 2.13.0" >&2
+  python -m pip install -q "torch==2.13.0"
+fi
 python -c "import torch" 2>/dev/null || python -m pip install -q "torch==2.13.0"
 if [ "$GPU" = 1 ]; then
   python -c "import torch, sys; sys.exit(not torch.cuda.is_available())" || {

@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from sc3d_train.settings.config import RunConfig
+from sc3d_train.settings.torch_floor import SAFE_TORCH, torch_is_safe
 
 FORMAT_VERSION = 1
 
@@ -164,20 +165,8 @@ def save_checkpoint(run_dir: Path, payload: dict) -> Path:
     return path
 
 
-#: the first torch whose ``torch.load(weights_only=True)`` runs no code from a crafted file
-#: (CVE-2025-32434 affects 2.5.1 and earlier) and that has ``torch.serialization.safe_globals``
-SAFE_TORCH = (2, 6)
 #: what ``torch.save`` writes: a zip archive
 ZIP_MAGIC = b"PK\x03\x04"
-
-
-def torch_is_safe(version: str) -> bool:
-    """Whether a torch ``version`` string (``2.13.0+cpu``, ``2.6.0a0+git``) is at least SAFE_TORCH."""
-    try:
-        major, minor = (int(x) for x in version.split("+")[0].split(".")[:2])
-    except ValueError:
-        return True  # an unparseable local build: let torch itself decide
-    return (major, minor) >= SAFE_TORCH
 
 
 def load_checkpoint(path: Path, map_location="cpu") -> dict:
