@@ -40,6 +40,10 @@ def eval_cmd(ctx, checkpoint, shards, out, pose_from, device, split, pick, batch
     if result["differs_from_training"]:
         click.echo(f"note: these shards differ from the checkpoint's training data: "
                    f"{'; '.join(result['differs_from_training'])}; the figures measure the model across that change")
+    if result["outside_pose_grid"]:
+        low, high = result["pose_grid_elevations"]
+        click.echo(f"note: elevations {result['outside_pose_grid']} deg of these shards lie outside the checkpoint's "
+                   f"pose grid [{low:g}, {high:g}] deg (model.elevation_min/max): their pose error has a floor")
     if result["trained_on"] is None:
         click.echo(f"note: the checkpoint's training shards cannot be read or no longer hold the objects it trained on "
                    f"(moved, or re-rendered with another split), and {shards} does not hold them as recorded: whether "

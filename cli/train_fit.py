@@ -40,7 +40,7 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
     """Train the self-consistency model on the shards' training split."""
     from sc3d_train.loop.checkpoint import CheckpointError
     from sc3d_train.data.dataset import DataError
-    from sc3d_train.loop.resolve import check_mode_options, given_paths, resolve_config
+    from sc3d_train.loop.resolve import check_mode_options, given_paths, pose_grid_warning, resolve_config
     from sc3d_train.loop.trainer import TrainingDiverged, fit as run_fit
 
     if semi and labeled_only:
@@ -78,6 +78,8 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
         with lock:
             cfg = resolve_config(options, model_options, resume, config_file)
             check_mode_options(cfg, options)
+            if main_rank and (warning := pose_grid_warning(cfg)):
+                click.echo(f"warning: {warning}", err=True)
             if main_rank:
                 click.echo(f"training {cfg.mode} for {cfg.steps} steps, batch {cfg.batch_size}, "
                            f"model {cfg.model}, run dir {cfg.out}")

@@ -283,11 +283,12 @@ def test_f11_eval_notes_shards_that_differ_from_the_training_data(sample_shards,
     # the re-rendered chairs are the run's own: F14's note counts those it trained on
     trained = sum(1 for o in json.loads((sample_shards / "index.json").read_text())["objects"]
                   if o["split"] == "train" and o["category"] == "03001627")  # chair
-    assert len(notes) == 2 and notes[1].startswith(f"note: {trained} of the 4 evaluated objects"), res.output
-    assert "background [0, 0, 0] (trained on [255, 255, 255])" in notes[0]
-    assert "elevations [70.0] deg outside the pose grid's [10, 50]" in notes[0]
-    saved = json.loads((tmp_path / "e1" / "metrics.json").read_text())["differs_from_training"]
-    assert len(saved) == 2 and saved[0].startswith("background")
+    assert len(notes) == 3 and notes[2].startswith(f"note: {trained} of the 4 evaluated objects"), res.output
+    assert "background [0, 0, 0] (trained on [255, 255, 255])" in notes[0] and "elevation" not in notes[0]
+    assert "elevations [70.0] deg of these shards lie outside the checkpoint's pose grid [10, 50]" in notes[1]
+    saved = json.loads((tmp_path / "e1" / "metrics.json").read_text())
+    assert len(saved["differs_from_training"]) == 1 and saved["differs_from_training"][0].startswith("background")
+    assert saved["outside_pose_grid"] == [70.0]
 
     res = run_cli(train_main, ["eval", "--checkpoint", ckpt, "--shards", sample_shards, "--out", tmp_path / "e2"])
     assert "note:" not in res.output

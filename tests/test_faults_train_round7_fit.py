@@ -42,3 +42,48 @@ def test_r7_setup_keeps_no_torch_older_than_2_6(tmp_path, version, ok):
     """setup.sh --gpu kept whatever CUDA torch the system python had (and an existing .venv's
     torch), though torch <= 2.5.1 runs code from a crafted checkpoint (CVE-2025-32434)."""
     assert setup_torch_ok(tmp_path, version) is ok
+
+
+@pytest.fixture(scope="module")
+def steep_shards(tmp_path_factory):
+    """Two sample chairs rendered at elevations 0 and 60 deg (the default pose grid is [10, 50])."""
+    from sc3d_cli.data import main as data_main
+
+    from conftest import SAMPLE_MESHES
+
+    out = tmp_path_factory.mktemp("steep") / "shards"
+    run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES / "chair", "--out", out, "--voxelize", "--elevations",
+                        "0,60", "--views", "4", "--split", "random:0.5,0.5,0", "--no-progress"])
+    return out
+
+
+def test_r7_fit_warns_of_elevations_outside_the_pose_grid_and_eval_does_not_call_them_other_data(
+        steep_shards, tmp_path):
+    """fit trained silently on views its pose grid cannot represent, and eval of the very shards it
+    trained on then said they 'differ from the checkpoint's training data'. Now fit warns before
+    training, naming the elevations, the grid and the config keys; eval notes the grid alone."""
+    from sc3d_cli.train import main as train_main
+
+    run = tmp_path / "run"
+    res = run_cli(train_main, ["fit", "--shards", steep_shards, "--out", run, "--tiny", "--steps", "2",
+                               "--batch-size", "2", "--val-every", "0", "--no-progress"])
+    warning = [ln for ln in res.output.splitlines() if ln.startswith("warning:")]
+    assert len(warning) == 1, res.output
+    assert "elevations [0.0, 60.0] deg lie outside the pose grid [10, 50]" in warning[0]
+    assert "model.elevation_min" in warning[0] and "model.elevation_max" in warning[0]
+    assert res.output.index("warning:") < res.output.index("done:")
+    res = run_cli(train_main, ["eval", "--checkpoint", run, "--shards", steep_shards, "--split", "val",
+                               "--out", tmp_path / "ev"])
+    notes = [ln for ln in res.output.splitlines() if ln.startswith("note:")]
+    assert not any("differ" in n for n in notes), res.output
+    assert any("elevations [0.0, 60.0] deg of these shards lie outside the checkpoint's pose grid [10, 50]" in n
+               for n in notes), res.output
+    metrics = json.loads((tmp_path / "ev" / "metrics.json").read_text())
+    assert metrics["differs_from_training"] == [] and metrics["outside_pose_grid"] == [0.0, 60.0]
+
+
+def test_r7_fit_says_nothing_of_elevations_inside_the_grid(sample_shards, tmp_path):
+    from sc3d_cli.train import main as train_main
+
+    res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", tmp_path / "run", *QUICK])
+    assert "warning:" not in res.output and "pose grid" not in res.output

@@ -161,7 +161,9 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     out.mkdir(parents=True, exist_ok=True)
     result = {"checkpoint": str(checkpoint), "step": int(ckpt.get("step", -1)), "shards": str(shards),
               "split": split, "pose_from": pose_from, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
-              "differs_from_training": differences, "trained_on": trained_on,
+              "differs_from_training": differences, "outside_pose_grid": outside_pose_grid(cfg, dataset.info),
+              "pose_grid_elevations": [cfg.model.elevation_min, cfg.model.elevation_max],
+              "trained_on": trained_on,
               "selected_on_this_split": selected_on, "data_sha256": data_sha256,
               "shards_complete": shards_complete(shards), **summary}
     (out / "metrics.json").unlink(missing_ok=True)  # written last: it marks a finished evaluation
@@ -175,9 +177,8 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
 def differences_from_training(cfg, info: dict) -> list[str]:
     """How the evaluated shards' images differ from those the checkpoint was trained on
     (``cfg``: its run config; ``info``: ``ShardDataset.info``), one phrase each; empty when
-    they are alike. Background, intrinsics and camera distance change what the network sees;
-    elevations outside the pose grid's range cannot be predicted, so their pose error has a
-    floor. Not refused: evaluating across such a change (other renders, 3D-R2N2's imports) is a
+    they are alike. Background, intrinsics and camera distance change what the network sees
+    (elevations outside the pose grid are :func:`outside_pose_grid`). Not refused: evaluating across such a change (other renders, 3D-R2N2's imports) is a
     legitimate experiment, but its figures must say so (``eval`` prints a note, and
     ``metrics.json`` keeps the list under ``differs_from_training``)."""
     from sc3d_train.data.dataset import background_of
@@ -191,12 +192,17 @@ def differences_from_training(cfg, info: dict) -> list[str]:
         found.append(f"intrinsics K (focal length {fx:.1f} px, trained on {trained_fx:.1f} px)")
     if not math.isclose(info["distance"], cfg.camera_distance, rel_tol=1e-4):
         found.append(f"camera distance {info['distance']:g} (trained at {cfg.camera_distance:g})")
-    low, high = cfg.model.elevation_min, cfg.model.elevation_max
-    outside = sorted({float(e) for e in info.get("settings", {}).get("elevations") or [] if not low <= e <= high})
-    if outside:
-        found.append(f"elevations {outside} deg outside the pose grid's [{low:g}, {high:g}] (their pose error "
-                     f"has a floor)")
     return found
+
+
+def outside_pose_grid(cfg, info: dict) -> list[float]:
+    """The shards' view elevations (degrees) outside the checkpoint's pose grid (``cfg``: its
+    run config; ``info``: ``ShardDataset.info``): their pose error has a floor, whether or not
+    the checkpoint was trained on these very shards (``fit`` warns of them), so it is a note of
+    its own, not a difference from the training data (``metrics.json``: ``outside_pose_grid``)."""
+    from sc3d_train.paper.pose import PoseGrid
+
+    return PoseGrid.of(cfg.model).outside(info.get("settings", {}).get("elevations"))
 
 
 def _finite(obj):

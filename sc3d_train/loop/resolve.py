@@ -168,3 +168,21 @@ def check_mode_options(cfg: RunConfig, given: dict) -> None:
                           for k in ignored)
         raise ValueError(f"{names}: not read by a {cfg.mode} run (config.yaml would record it, training ignore it); "
                          "train in a mode that reads it (--semi, --labeled-only) or leave it out")
+
+
+def pose_grid_warning(cfg: RunConfig) -> str | None:
+    """One line when the view elevations of ``cfg.shards`` (``index.json`` ``settings.elevations``,
+    degrees) fall outside the run's pose grid ``[model.elevation_min, model.elevation_max]``: the
+    pose head cannot predict them (its targets are the best-fitting grid poses, ``pose_search``).
+    Not refused (existing datasets stay trainable; a run may mean it); None when all fit."""
+    from sc3d_data.io.shards import load_index
+    from sc3d_train.paper.pose import PoseGrid
+
+    elevations = load_index(Path(cfg.shards)).get("settings", {}).get("elevations")
+    outside = PoseGrid.of(cfg.model).outside(elevations)
+    if not outside:
+        return None
+    m = cfg.model
+    return (f"{cfg.shards}: views at elevations {outside} deg lie outside the pose grid "
+            f"[{m.elevation_min:g}, {m.elevation_max:g}] deg: the pose head cannot predict them (its targets are the "
+            "best-fitting grid poses); to cover them set model.elevation_min / model.elevation_max in a --config file")
