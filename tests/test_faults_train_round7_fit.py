@@ -18,6 +18,15 @@ from conftest import REPO, run_cli
 QUICK = ["--tiny", "--steps", "2", "--batch-size", "2", "--val-every", "0", "--no-progress"]
 
 
+@pytest.fixture(scope="module")
+def tiny_run(sample_shards, tmp_path_factory):
+    from sc3d_cli.train import main as train_main
+
+    out = tmp_path_factory.mktemp("r7fit") / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", out, *QUICK])
+    return out
+
+
 def one_line(output: str) -> str:
     return " ".join(output.split())
 
@@ -87,3 +96,36 @@ def test_r7_fit_says_nothing_of_elevations_inside_the_grid(sample_shards, tmp_pa
 
     res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", tmp_path / "run", *QUICK])
     assert "warning:" not in res.output and "pose grid" not in res.output
+
+
+def _edited_copy(shards: Path, dest: Path, edit) -> Path:
+    """A copy of ``shards`` whose parsed index.json ``edit`` changed in place."""
+    shutil.copytree(shards, dest)
+    index = json.loads((dest / "index.json").read_text())
+    edit(index)
+    (dest / "index.json").write_text(json.dumps(index))
+    return dest
+
+
+@pytest.mark.parametrize("edit, says", [
+    (lambda i: i.update(failures=[5]), "failures[0] is 5, not an object"),
+    (lambda i: i.update(warnings=["look"]), "warnings[0] is 'look', not an object"),
+    (lambda i: i.update(skipped={"a": 1}), "skipped is dict, not a list"),
+    (lambda i: i["settings"].update(background="x"), "settings.background is 'x', not a number or a list of 3"),
+    (lambda i: i["settings"].update(elevations=30), "settings.elevations is 30, not a list of numbers"),
+    (lambda i: i["settings"].update(image_size="64"), "settings.image_size is '64', not an integer"),
+    (lambda i: i.update(settings=[]), "settings is list, not an object"),
+])
+def test_r7_a_malformed_index_is_refused_in_one_line_naming_the_key(sample_shards, tmp_path, edit, says):
+    """A failures entry that is no object gave AttributeError tracebacks (fit, sc3d-data info);
+    a string background 'could not convert string to float' naming neither file nor key."""
+    from sc3d_cli.data import main as data_main
+    from sc3d_cli.train import main as train_main
+
+    bad = _edited_copy(sample_shards, tmp_path / "bad", edit)
+    for group, args in ((train_main, ["fit", "--shards", bad, "--out", tmp_path / "run", *QUICK]),
+                        (data_main, ["info", bad])):
+        res = run_cli(group, args, expect_exit=1)
+        assert "Traceback" not in res.output and res.output.startswith("Error:"), res.output
+        assert f"{bad / 'index.json'}: malformed: {says}" in one_line(res.output), res.output
+    assert not (tmp_path / "run").exists()

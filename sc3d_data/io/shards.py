@@ -448,7 +448,10 @@ def refuse_dataset_file(shard_dir: Path, path: Path, option: str) -> None:
 
 
 def load_index(shard_dir: Path) -> dict:
-    """Read ``index.json`` of a shard directory; a clear error if it is missing or broken."""
+    """Read ``index.json`` of a shard directory; a clear error if it is missing or broken, or
+    malformed where readers look (``sc3d_data.io.index_check``)."""
+    from sc3d_data.io.index_check import index_problem
+
     p = index_path(shard_dir)
     if not p.is_file():
         raise FileNotFoundError(f"{shard_dir}: no {INDEX_NAME} (not an sc3d shard directory?)")
@@ -458,7 +461,10 @@ def load_index(shard_dir: Path) -> dict:
         raise ShardError(f"{p}: index is not valid JSON ({e})") from e
     except OSError as e:
         raise ShardError(f"{p}: cannot read index ({io_reason(e)})") from e
-    shards = index.get("shards", []) if isinstance(index, dict) else None
+    problem = index_problem(index)
+    if problem:
+        raise ShardError(f"{p}: {problem}")
+    shards = index.get("shards", [])
     if not isinstance(shards, list) or not all(isinstance(e, dict) and isinstance(e.get("file"), str)
                                                and isinstance(e.get("chunk", 0), int) for e in shards):
         raise ShardError(f"{p}: not an sc3d index (malformed shard list)")

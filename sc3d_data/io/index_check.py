@@ -1,0 +1,59 @@
+"""Validation of a parsed ``index.json`` (SPEC "Shards") before any reader uses it: the types of
+the keys readers index into, so that a hand-edited or foreign index is
+refused in one line naming the file and the key instead of failing deep in a reader (an
+``AttributeError`` on a ``failures`` entry, a float conversion of a background).
+
+Checked: ``settings`` an
+object whose ``background`` (a number, or a list of 3 numbers: RGB 0..255, or 0..1 floats),
+``elevations`` (a list of numbers, degrees), ``image_size`` / ``num_views`` / ``voxel_resolution``
+(integers) and ``distance`` / ``fov_deg`` (numbers) have those types where present and not null;
+``objects``, ``failures``, ``skipped`` and ``warnings`` lists of objects. Other keys are left to
+their readers."""
+from __future__ import annotations
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _numbers(v) -> bool:
+    return isinstance(v, list) and all(_number(x) for x in v)
+
+
+def _integer(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+#: settings key -> (test, what it must be)
+SETTING_TYPES = {
+    "background": (lambda v: _number(v) or (_numbers(v) and len(v) == 3), "a number or a list of 3 numbers (RGB)"),
+    "elevations": (_numbers, "a list of numbers (degrees)"),
+    "image_size": (_integer, "an integer (pixels)"),
+    "num_views": (_integer, "an integer"),
+    "voxel_resolution": (_integer, "an integer"),
+    "distance": (_number, "a number (world units)"),
+    "fov_deg": (_number, "a number (degrees)"),
+}
+#: top-level lists whose entries readers use as objects (``entry.get(...)``)
+OBJECT_LISTS = ("objects", "failures", "skipped", "warnings")
+
+
+def index_problem(index) -> str | None:
+    """What is wrong with parsed index ``index`` (one phrase naming the key), or None."""
+    if not isinstance(index, dict):
+        return f"not an sc3d index (a JSON {type(index).__name__}, not an object)"
+    settings = index.get("settings", {})
+    if not isinstance(settings, dict):
+        return f"malformed: settings is {type(settings).__name__}, not an object"
+    for key, (test, what) in SETTING_TYPES.items():
+        value = settings.get(key)
+        if value is not None and not test(value):
+            return f"malformed: settings.{key} is {value!r}, not {what}"
+    for key in OBJECT_LISTS:
+        entries = index.get(key, [])
+        if not isinstance(entries, list):
+            return f"malformed: {key} is {type(entries).__name__}, not a list"
+        bad = next((i for i, e in enumerate(entries) if not isinstance(e, dict)), None)
+        if bad is not None:
+            return f"malformed: {key}[{bad}] is {entries[bad]!r}, not an object"
+    return None
