@@ -129,3 +129,43 @@ def test_r7_a_malformed_index_is_refused_in_one_line_naming_the_key(sample_shard
         assert "Traceback" not in res.output and res.output.startswith("Error:"), res.output
         assert f"{bad / 'index.json'}: malformed: {says}" in one_line(res.output), res.output
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("version, says", [
+    (99, "schema_version 99 is newer than the 1 this sc3d reads (written by a newer sc3d): upgrade sc3d"),
+    ("1", "malformed: schema_version is '1', not an integer"),
+    (None, "malformed: no schema_version"),
+])
+def test_r7_an_index_of_another_schema_version_is_refused(sample_shards, tiny_run, tmp_path, version, says):
+    """schema_version was written and never read: an index of schema 99 was evaluated as if it
+    were this one. SCHEMA_VERSION is 1 (sc3d_data.io.shards)."""
+    from sc3d_cli.train import main as train_main
+
+    def edit(index):
+        if version is None:
+            del index["schema_version"]
+        else:
+            index["schema_version"] = version
+
+    other = _edited_copy(sample_shards, tmp_path / "other", edit)
+    res = run_cli(train_main, ["eval", "--checkpoint", tiny_run, "--shards", other, "--out", tmp_path / "ev"],
+                  expect_exit=1)
+    assert f"{other / 'index.json'}: {says}" in one_line(res.output), res.output
+    assert not (tmp_path / "ev" / "metrics.json").exists()
+
+
+def test_r7_a_shard_file_of_a_newer_schema_is_refused(sample_shards, tiny_run, tmp_path):
+    """The shard's own HDF5 schema_version attribute is checked as the index's is; control: the
+    unedited copy evaluates."""
+    import h5py
+
+    from sc3d_cli.train import main as train_main
+
+    other = _edited_copy(sample_shards, tmp_path / "other", lambda i: None)
+    run_cli(train_main, ["eval", "--checkpoint", tiny_run, "--shards", other, "--out", tmp_path / "ok"])
+    shard = sorted(other.glob("shard-*.h5"))[0]
+    with h5py.File(shard, "r+") as f:
+        f.attrs["schema_version"] = 99
+    res = run_cli(train_main, ["eval", "--checkpoint", tiny_run, "--shards", other, "--out", tmp_path / "ev"],
+                  expect_exit=1)
+    assert f"{shard}: schema_version 99 is newer than the 1 this sc3d reads" in one_line(res.output), res.output

@@ -1,9 +1,10 @@
-"""Validation of a parsed ``index.json`` (SPEC "Shards") before any reader uses it: the types of
-the keys readers index into, so that a hand-edited or foreign index is
+"""Validation of a parsed ``index.json`` (SPEC "Shards") before any reader uses it: the schema
+version, and the types of the keys readers index into, so that a hand-edited or foreign index is
 refused in one line naming the file and the key instead of failing deep in a reader (an
 ``AttributeError`` on a ``failures`` entry, a float conversion of a background).
 
-Checked: ``settings`` an
+Checked: ``schema_version`` an integer no newer than the one this sc3d reads (shard files'
+``schema_version`` attribute too: :func:`version_problem`); ``settings`` an
 object whose ``background`` (a number, or a list of 3 numbers: RGB 0..255, or 0..1 floats),
 ``elevations`` (a list of numbers, degrees), ``image_size`` / ``num_views`` / ``voxel_resolution``
 (integers) and ``distance`` / ``fov_deg`` (numbers) have those types where present and not null;
@@ -38,10 +39,29 @@ SETTING_TYPES = {
 OBJECT_LISTS = ("objects", "failures", "skipped", "warnings")
 
 
-def index_problem(index) -> str | None:
-    """What is wrong with parsed index ``index`` (one phrase naming the key), or None."""
+def version_problem(version, present: bool, newest: int) -> str | None:
+    """What is wrong with a file's ``schema_version`` (from ``index.json`` or a shard's HDF5
+    attributes; ``present``: whether the key was there), or None: it must be an integer no newer
+    than ``newest``, the one this sc3d reads."""
+    if present and hasattr(version, "item") and getattr(version, "ndim", 1) == 0:
+        version = version.item()  # a numpy scalar of the HDF5 attribute
+    if not _integer(version):
+        return (f"malformed: schema_version is {version!r}, not an integer" if present
+                else "malformed: no schema_version (not written by sc3d?)")
+    if version > newest:
+        return (f"schema_version {version} is newer than the {newest} this sc3d reads (written by a newer "
+                "sc3d): upgrade sc3d to read it")
+    return None
+
+
+def index_problem(index, schema_version: int) -> str | None:
+    """What is wrong with parsed index ``index`` (one phrase naming the key), or None.
+    ``schema_version``: the newest one this sc3d reads."""
     if not isinstance(index, dict):
         return f"not an sc3d index (a JSON {type(index).__name__}, not an object)"
+    problem = version_problem(index.get("schema_version"), "schema_version" in index, schema_version)
+    if problem:
+        return problem
     settings = index.get("settings", {})
     if not isinstance(settings, dict):
         return f"malformed: settings is {type(settings).__name__}, not an object"

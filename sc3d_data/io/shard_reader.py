@@ -18,8 +18,9 @@ from typing import Iterator
 import h5py
 import numpy as np
 
-from sc3d_data.io.shards import (OBJECT_ARRAYS, STRING_FIELDS, ObjectRecord, ShardError, file_sha256, io_reason,
-                                 load_index, shard_files, shard_path)
+from sc3d_data.io.index_check import version_problem
+from sc3d_data.io.shards import (OBJECT_ARRAYS, SCHEMA_VERSION, STRING_FIELDS, ObjectRecord, ShardError, file_sha256,
+                                 io_reason, load_index, shard_files, shard_path)
 
 
 @dataclass
@@ -191,7 +192,7 @@ def iter_objects(shard_dir: Path, fields: tuple[str, ...] | None = None) -> Iter
 
 class open_shard:
     """``with open_shard(path) as f``: an ``h5py.File`` read-only; ``ShardError`` naming the
-    file when it is missing, truncated or not HDF5."""
+    file when it is missing, truncated, not HDF5, or of a schema version this sc3d does not read."""
 
     def __init__(self, path: Path):
         self.path = Path(path)
@@ -200,6 +201,11 @@ class open_shard:
         except (OSError, RuntimeError) as e:
             raise ShardError(f"{self.path}: cannot open shard ({io_reason(e)}); "
                              "see `sc3d-data info --verify`") from e
+        problem = version_problem(self.file.attrs.get("schema_version"), "schema_version" in self.file.attrs,
+                                  SCHEMA_VERSION)
+        if problem:
+            self.file.close()
+            raise ShardError(f"{self.path}: {problem}")
 
     def __enter__(self) -> h5py.File:
         return self.file

@@ -448,8 +448,8 @@ def refuse_dataset_file(shard_dir: Path, path: Path, option: str) -> None:
 
 
 def load_index(shard_dir: Path) -> dict:
-    """Read ``index.json`` of a shard directory; a clear error if it is missing or broken, or
-    malformed where readers look (``sc3d_data.io.index_check``)."""
+    """Read ``index.json`` of a shard directory; a clear error if it is missing or broken, of a
+    newer schema, or malformed where readers look (``sc3d_data.io.index_check``)."""
     from sc3d_data.io.index_check import index_problem
 
     p = index_path(shard_dir)
@@ -461,7 +461,7 @@ def load_index(shard_dir: Path) -> dict:
         raise ShardError(f"{p}: index is not valid JSON ({e})") from e
     except OSError as e:
         raise ShardError(f"{p}: cannot read index ({io_reason(e)})") from e
-    problem = index_problem(index)
+    problem = index_problem(index, SCHEMA_VERSION)
     if problem:
         raise ShardError(f"{p}: {problem}")
     shards = index.get("shards", [])
