@@ -95,6 +95,10 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
                                    "step grows with --batch-size: use a smaller one") from e
     if not main_rank:
         return
+    if summary.get("already_done"):
+        click.echo(f"nothing to train: {summary['checkpoint']} is already at step {summary['step']} >= --steps "
+                   f"{cfg.steps}; give a larger --steps to train further")
+        return
     losses = ", ".join(f"{k} {v:.4f}" for k, v in summary["last_losses"].items())
     click.echo(f"done: step {summary['step']}, {summary['samples_per_s']:.1f} samples/s; {losses}")
     click.echo(f"checkpoint: {summary['checkpoint']}")

@@ -169,3 +169,45 @@ def test_r7_a_shard_file_of_a_newer_schema_is_refused(sample_shards, tiny_run, t
     res = run_cli(train_main, ["eval", "--checkpoint", tiny_run, "--shards", other, "--out", tmp_path / "ev"],
                   expect_exit=1)
     assert f"{shard}: schema_version 99 is newer than the 1 this sc3d reads" in one_line(res.output), res.output
+
+
+def test_r7_resume_of_a_run_already_at_its_steps_says_so(sample_shards, tmp_path):
+    """`fit --resume --steps 4` of a 6-step run printed 'done: step 6, 0.0 samples/s; ' with an
+    empty loss list; now one line says nothing is trained and why."""
+    from sc3d_cli.train import main as train_main
+
+    run = tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, *QUICK, "--steps", "6"])
+    res = run_cli(train_main, ["fit", "--out", run, "--resume", "--steps", "4", "--no-progress"])
+    assert "done:" not in res.output and "samples/s" not in res.output
+    assert f"nothing to train: {run / 'checkpoints' / 'last.pt'} is already at step 6 >= --steps 4" \
+        in one_line(res.output), res.output
+
+
+def test_r7_resume_says_which_checkpoint_it_falls_back_to_and_why(sample_shards, tmp_path):
+    """A truncated last.pt made --resume fall back to step_000002.pt silently and train those
+    steps again; now one line names the file it resumes from and why."""
+    from sc3d_cli.train import main as train_main
+
+    run = tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, *QUICK, "--checkpoint-every", "2",
+                         "--steps", "4"])
+    last = run / "checkpoints" / "last.pt"
+    last.write_bytes(last.read_bytes()[:200])
+    res = run_cli(train_main, ["fit", "--out", run, "--resume", "--steps", "6", "--no-progress"])
+    line = [ln for ln in res.output.splitlines() if ln.startswith("resuming from")]
+    assert len(line) == 1, res.output
+    assert line[0].startswith(f"resuming from {run / 'checkpoints' / 'step_000004.pt'} (step 4): last.pt unreadable: "
+                              f"{last}: ")
+    assert "done: step 6" in res.output
+
+
+def test_r7_an_unknown_val_split_is_refused(sample_shards, tmp_path):
+    """`--val-split valid` (a typo) printed a note and trained the whole run without validation
+    or best.pt; split names are train, val and test."""
+    from sc3d_cli.train import main as train_main
+
+    res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", tmp_path / "run", *QUICK[:5],
+                               "--val-split", "valid", "--no-progress"], expect_exit=2)
+    assert "'valid' is not one of 'train', 'val', 'test'" in one_line(res.output), res.output
+    assert not (tmp_path / "run").exists()

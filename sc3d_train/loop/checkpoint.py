@@ -215,11 +215,13 @@ def _resumable(path: Path, ckpt: dict) -> dict:
     return ckpt
 
 
-def resume_checkpoint(run_dir: Path) -> tuple[Path, dict]:
+def resume_checkpoint(run_dir: Path, say=None) -> tuple[Path, dict]:
     """``(path, checkpoint)`` of the newest complete checkpoint of a run: ``last.pt`` unless a
     ``step_XXXXXX.pt`` with a higher step exists (``last.pt`` not updated because the disk
     filled up, say); unreadable files, and files without the training state
-    (:data:`RESUME_KEYS`), are passed over. ``CheckpointError`` when none is left."""
+    (:data:`RESUME_KEYS`), are passed over. ``CheckpointError`` when none is left. ``say``
+    (a callable taking one line), where given, hears which file other than ``last.pt`` is
+    resumed from and why (``last.pt`` unreadable: the reason; or older)."""
     folder = checkpoint_dir(run_dir)
     steps = sorted(((int(m.group(1)), p) for p in folder.glob("step_*.pt")
                     if (m := re.fullmatch(r"step_(\d+)\.pt", p.name))), reverse=True)
@@ -233,9 +235,16 @@ def resume_checkpoint(run_dir: Path) -> tuple[Path, dict]:
         if last is not None and int(last.get("step", -1)) >= step:
             break
         try:
-            return p, _resumable(p, load_checkpoint(p))
+            ckpt = _resumable(p, load_checkpoint(p))
         except CheckpointError as e:
             errors.append(str(e))
+            continue
+        if say is not None:
+            why = (f"{last_path(run_dir).name} is older (step {last['step']})" if last is not None else
+                   f"{last_path(run_dir).name} unreadable: {errors[0]}" if last_path(run_dir).is_file() else
+                   f"no {last_path(run_dir).name}")
+            say(f"resuming from {p} (step {ckpt['step']}): {why}")
+        return p, ckpt
     if last is not None:
         return last_path(run_dir), last
     raise CheckpointError(f"{last_path(run_dir)}: checkpoint not found"

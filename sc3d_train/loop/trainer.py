@@ -132,7 +132,7 @@ def restore(t: Training) -> tuple[int, Path]:
     """Load the run's newest complete checkpoint into ``t`` after checking that it belongs to
     this config, data position and number of ranks. Returns ``(step, checkpoint file)``."""
     cfg = t.cfg
-    ckpt_file, ckpt = resume_checkpoint(t.run_dir)
+    ckpt_file, ckpt = resume_checkpoint(t.run_dir, say=print if t.dist.is_main else None)
     diffs = checkpoint_config(ckpt_file, ckpt).differences(cfg)
     if diffs:
         raise CheckpointError(f"{ckpt_file}: the run config differs from the checkpoint's: " + "; ".join(diffs))
@@ -231,7 +231,7 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
         last_good = str(last_path(t.run_dir))
         if start_step >= cfg.steps:
             return {"step": start_step, "last_losses": {}, "samples_per_s": 0.0, "checkpoint": str(ckpt_file),
-                    "best": None}
+                    "best": None, "already_done": True}
     else:
         torch.manual_seed(cfg.seed + 1000003 * t.dist.rank)  # per-rank noise (reparameterisation)
     wrap_ddp(t)

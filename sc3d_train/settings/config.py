@@ -20,6 +20,7 @@ import math
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
+from sc3d_data.formats.splits import SPLIT_NAMES
 from sc3d_train.settings.config_io import ConfigError, check_choices, dump_yaml, from_plain, load_yaml, setting
 
 #: the help of every ``--device`` option
@@ -227,7 +228,7 @@ class RunConfig(_Plain):
     val_every: int = setting(100, "Evaluate on the --val-split objects every N steps and at the end, and "
                              "keep the best as checkpoints/best.pt (0: off).")
     val_split: str = setting("val", "Split of --shards to validate on: objects never trained on (not the "
-                             "training split; test is refused).")
+                             "training split; test is refused).", choices=SPLIT_NAMES)
     val_views: int = setting(4, "Views per validation object (evenly spaced), to keep validation cheap.")
     val_min_objects: int = setting(5, "Keep best.pt only when the val split has at least N objects; with "
                                    "fewer the figures are still logged, no best.pt is kept and eval reads "
