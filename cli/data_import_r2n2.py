@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from sc3d_cli.scale_options import executor_options, part_option, run_scaled, timeout_option
+from sc3d_cli.scale_options import executor_options, part_from_slurm_note, part_option, run_scaled, timeout_option
 from sc3d_data.formats.r2n2 import R2N2_FRONT, VOXEL_FRAMES
 from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
 
@@ -66,5 +66,7 @@ def import_r2n2(renderings, voxels, out, image_size, background, categories, spl
     click.echo(f"imported {summary['done']} of {summary['planned']} models into {summary['out']} "
                f"({summary['resumed']} already there, {summary['failed']} failed, {summary['skipped']} skipped; "
                f"{summary['seconds']:.1f} s); details in index.json")
+    if (note := part_from_slurm_note(part)) is not None:
+        click.echo(note)
     if summary["failed"] and not summary["done"] and not summary["resumed"]:
         raise click.ClickException(f"no model was imported: all {summary['failed']} failed")

@@ -6,7 +6,7 @@ import sys
 
 import click
 
-from sc3d_cli.scale_options import executor_options, part_option, run_scaled, timeout_option
+from sc3d_cli.scale_options import executor_options, part_from_slurm_note, part_option, run_scaled, timeout_option
 
 
 @click.command("voxelize")
@@ -44,6 +44,9 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
     if meshes is not None and not out:
         raise click.UsageError("--meshes needs --out")
     if shards is not None and not part.whole:
+        if part_from_slurm_note(part) is not None:  # no --part: the job array's environment gave one
+            raise click.UsageError(f"this is a SLURM job array task (SLURM_ARRAY_TASK_ID/COUNT: part {part}), but "
+                                   "shards are voxelized whole: run `voxelize SHARDS` in one task, or give --part 0/1")
         raise click.UsageError("--part is for --meshes; for shards, voxelize each part folder of a partitioned "
                                "render (or render with --voxelize), then merge")
     if shards is not None and scale["executor"] != "local":
@@ -66,6 +69,8 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
             s = run_scaled(config, slurm, lambda c: voxelize_meshes(c).as_dict(), voxelize_on_slurm)
             click.echo(f"wrote {s['done']} .binvox files to {out} ({s['resumed']} already there), "
                        f"{s['failed']} failed, {s['seconds']:.1f} s")
+            if (note := part_from_slurm_note(part)) is not None:
+                click.echo(note)
             if s["failed"] and not s["done"] and not s["resumed"]:
                 raise click.ClickException(f"no .binvox was written: all {s['failed']} failed (reasons in "
                                            f"{os.path.join(out, failures_name(part))})")

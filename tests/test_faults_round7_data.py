@@ -10,6 +10,7 @@ import pytest
 
 from sc3d_data.formats.discover import discover_meshes
 from sc3d_data.formats.shapenet import resolve_front
+from test_import_r2n2 import fake_r2n2  # noqa: F401 - the fixture (fake 3D-R2N2 folders)
 
 SAMPLES = Path(__file__).resolve().parents[1] / "assets" / "sample_meshes"
 SYNSET = "03001627"
@@ -129,3 +130,31 @@ def test_r7_a_voxelize_rerun_retries_objects_that_failed(tmp_path):
     import json
 
     assert json.loads((out / "index.json").read_text())["failures"] == []
+
+
+def test_r7_a_slurm_array_task_is_told_for_voxelize_and_import(tmp_path, monkeypatch, fake_r2n2):
+    """Inside a job array (SLURM_ARRAY_TASK_ID/COUNT set, no --part) `voxelize SHARDS` said
+    '--part is for --meshes' though no --part was given; now it names the job array (and runs with
+    --part 0/1). `voxelize --meshes` and `import-r2n2` take their part from the array as render
+    does, and now say so, as render does."""
+    from sc3d_cli.data import main as data_main
+    from conftest import run_cli
+
+    m = tmp_path / "m" / "chair"
+    m.mkdir(parents=True)
+    for f in sorted((SAMPLES / "chair").glob("*.glb"))[:2]:
+        shutil.copy(f, m / f.name)
+    out = tmp_path / "s"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, "--views", "4", "--no-progress",
+                        "--workers", "1"])
+    monkeypatch.setenv("SLURM_ARRAY_TASK_ID", "1")
+    monkeypatch.setenv("SLURM_ARRAY_TASK_COUNT", "2")
+    res = run_cli(data_main, ["voxelize", out, "--no-progress"], expect_exit=2)
+    assert "SLURM job array task" in res.output and "--part 0/1" in res.output
+    run_cli(data_main, ["voxelize", out, "--no-progress", "--part", "0/1"])
+    res = run_cli(data_main, ["voxelize", "--meshes", tmp_path / "m", "--out", tmp_path / "bv", "--no-progress"])
+    assert "part 1/2 taken from SLURM_ARRAY_TASK_ID" in res.output
+    renderings, voxels, _ = fake_r2n2
+    res = run_cli(data_main, ["import-r2n2", "--renderings", renderings, "--voxels", voxels, "--out",
+                              tmp_path / "r2", "--no-progress"])
+    assert "part 1/2 taken from SLURM_ARRAY_TASK_ID" in res.output
