@@ -37,7 +37,8 @@ from sc3d_train.settings.command_config import EvalConfig
 from sc3d_train.settings.config import MAX_BATCH_SIZE, batch_size_too_large
 from sc3d_train.data.completeness import shards_complete
 from sc3d_train.data.dataset import ShardDataset
-from sc3d_train.evaluation.evaluated_data import evaluated_data_digest, selection_objects_among, training_objects_among
+from sc3d_train.evaluation.evaluated_data import (evaluated_data_digest, run_objects, selection_objects_among,
+                                                  training_objects_among)
 from sc3d_train.paper.metrics import MASK_THRESHOLD, VOXEL_THRESHOLDS, predict_dataset, summarize
 
 TABLE_COLUMNS = (("images", "n", "{:d}"), ("voxel_iou_0.4", "IoU@.4", "{:.3f}"),
@@ -151,8 +152,9 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
         raise ValueError(f"{shards}: voxels are {dataset.info['voxel_resolution']}^3 but the checkpoint "
                          f"predicts {cfg.model.voxel_resolution}^3")
     differences = differences_from_training(cfg, dataset.info)
-    trained_on = training_objects_among(cfg, dataset.objects, shards)
-    selected_on = selection_objects_among(cfg, ckpt.get("validation"), dataset.objects, shards)
+    run_refs = run_objects(cfg, shards)  # the run's objects, scanned once for both questions
+    trained_on = training_objects_among(cfg, dataset.objects, run_refs)
+    selected_on = selection_objects_among(cfg, ckpt.get("validation"), dataset.objects, shards, run_refs)
     data_sha256 = evaluated_data_digest(shards, split, dataset.objects)
     rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
                                  loss_weights=cfg.loss_weights)

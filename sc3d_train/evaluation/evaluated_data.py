@@ -39,9 +39,9 @@ def split_digest(shards: Path, split: str) -> str:
     return evaluated_data_digest(shards, split, [r for r in refs if r.split == split])
 
 
-def run_split_objects(cfg, split: str, shards: Path) -> set | None:
-    """``{(category, model_id)}`` of the objects of ``split`` as the run of ``cfg`` saw them: from
-    the run's shards while they still hold the objects it trained on (``cfg.objects_sha256``,
+def run_objects(cfg, shards: Path) -> list | None:
+    """The ``ObjectRef``s of the objects as the run of ``cfg`` saw them, read once per evaluation:
+    from the run's shards while they still hold the objects it trained on (``cfg.objects_sha256``,
     compared where recorded), else from ``shards`` (the evaluated ones) when their training split
     holds exactly the run's objects. None when neither tells: the run's shards moved (a copy on
     another machine) or were re-rendered in place with another split, and ``shards`` does not
@@ -57,31 +57,37 @@ def run_split_objects(cfg, split: str, shards: Path) -> set | None:
         recorded = cfg.objects_sha256
         if (recorded is None and need_digest) or (recorded is not None and objects_digest(refs, cfg.split) != recorded):
             continue
-        return {(r.category, r.model_id) for r in refs if r.split == split}
+        return refs
     return None
 
 
-def training_objects_among(cfg, objects, shards: Path) -> int | None:
-    """How many of ``objects`` (``ObjectRef``s of ``shards`` being evaluated) are objects the run
-    of ``cfg`` trained on, by category and model id (:func:`run_split_objects` of its ``split``);
+def split_of(refs: list | None, split: str) -> set | None:
+    """``{(category, model_id)}`` of the objects of ``split`` among ``refs`` (:func:`run_objects`),
+    None where those are unknown."""
+    return None if refs is None else {(r.category, r.model_id) for r in refs if r.split == split}
+
+
+def training_objects_among(cfg, objects, run_refs: list | None) -> int | None:
+    """How many of ``objects`` (``ObjectRef``s being evaluated) are objects the run of ``cfg``
+    trained on, by category and model id (its ``split`` among ``run_refs``, :func:`run_objects`);
     None when that cannot be told. ``eval --split train`` is a legitimate check of the training
     fit, but its figures are not of held-out objects, and ``eval`` says so."""
-    trained = run_split_objects(cfg, cfg.split, shards)
+    trained = split_of(run_refs, cfg.split)
     return None if trained is None else sum(1 for r in objects if (r.category, r.model_id) in trained)
 
 
-def selection_objects_among(cfg, validation: dict | None, objects, shards: Path) -> bool:
+def selection_objects_among(cfg, validation: dict | None, objects, shards: Path, run_refs: list | None) -> bool:
     """Whether ``objects`` (``ObjectRef``s of ``shards`` being evaluated) include objects of the
     validation split that chose the checkpoint (``validation``: its record, ``best.pt``'s
     ``validation``; None for ``last.pt`` and other checkpoints that nothing chose, then False):
     its figures on them are optimistic, the checkpoint being the best of several on exactly these
-    objects. Judged by category and model id against the run's ``validation["split"]``
-    (:func:`run_split_objects`); where that cannot be told, True when the evaluated objects hold
-    the same split name as the validation's in the same shard folder as the run's."""
+    objects. Judged by category and model id against the run's ``validation["split"]`` among
+    ``run_refs`` (:func:`run_objects`); where that cannot be told, True when the evaluated objects
+    hold the same split name as the validation's in the same shard folder as the run's."""
     if not validation:
         return False
     val_split = validation.get("split", cfg.val_split)
-    chose = run_split_objects(cfg, val_split, shards)
+    chose = split_of(run_refs, val_split)
     if chose is None:
         return Path(shards).resolve() == Path(cfg.shards).resolve() and any(r.split == val_split for r in objects)
     return any((r.category, r.model_id) in chose for r in objects)
