@@ -60,7 +60,8 @@ class ObjectRef:
 def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
     """All objects of a shard directory (reading only string fields) and facts about the data:
     ``{"image_size", "num_views", "voxel_resolution" (None without voxels),
-    "files_without_voxels", "settings", "K" (3x3 list, pixels), "distance", "left_out"}`` (camera of the
+    "files_without_voxels", "settings", "K" (3x3 list, pixels), "distance", "left_out",
+    "complete" (the index's: false while a render was cut short)}`` (camera of the
     first view of the first object: all views share intrinsics and distance, SPEC). Objects whose
     voxelization failed are left out (:func:`voxelize_failures`; ``left_out``: their
     ``category/model_id``, also told once on stderr). Clear errors for a missing/empty directory."""
@@ -94,7 +95,8 @@ def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
             "voxel_resolution": vres.pop() if len(vres) == 1 else None,
             "files_without_voxels": no_vox, "settings": reader.settings,
             "K": camera["K"], "distance": camera["distance"],
-            "left_out": [f"{r.category}/{r.model_id}" for r in left_out]}
+            "left_out": [f"{r.category}/{r.model_id}" for r in left_out],
+            "complete": reader.index.get("complete", True) is not False}
     return refs, info
 
 

@@ -35,7 +35,6 @@ from sc3d_data.io.shards import atomic_write_bytes
 from sc3d_train.loop.checkpoint import load_model, run_checkpoint
 from sc3d_train.settings.command_config import EvalConfig
 from sc3d_train.settings.config import MAX_BATCH_SIZE, batch_size_too_large
-from sc3d_train.data.completeness import shards_complete
 from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.evaluation.evaluated_data import (evaluated_data_digest, run_objects, selection_objects_among,
                                                   training_objects_among)
@@ -167,7 +166,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
               "pose_grid_elevations": [cfg.model.elevation_min, cfg.model.elevation_max],
               "trained_on": trained_on,
               "selected_on_this_split": selected_on, "data_sha256": data_sha256,
-              "shards_complete": shards_complete(shards), **summary}
+              "shards_complete": dataset.info["complete"], **summary}
     (out / "metrics.json").unlink(missing_ok=True)  # written last: it marks a finished evaluation
     plot_examples(kept, out / "predictions.png")
     atomic_write_bytes(out / "metrics.json", json.dumps(_finite(result), indent=1).encode())
