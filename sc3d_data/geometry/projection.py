@@ -97,9 +97,20 @@ def project_voxels(voxels: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarr
 
 
 def project_voxels_views(voxels: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
-                         image_size: int, views=None) -> np.ndarray:
+                         image_size: int, views=None, behind: list[int] | None = None) -> np.ndarray:
     """Silhouettes of one object's voxels through several stored cameras (for ``preview`` and
     ``check``): ``K [V,3,3]``, ``R [V,3,3]``, ``t [V,3]``; ``views`` indices (default all).
-    Returns bool ``[len(views), S, S]``."""
+    Returns bool ``[len(views), S, S]``. With ``behind`` (a list), a view whose camera has
+    occupied voxels behind it is left empty and its index appended there; without it,
+    :class:`BehindCamera` is raised."""
     views = range(len(K)) if views is None else views
-    return np.stack([project_voxels(voxels, K[v], R[v], t[v], image_size) for v in views])
+    S = int(image_size)
+    out = np.zeros((len(views), S, S), dtype=bool)
+    for i, v in enumerate(views):
+        try:
+            out[i] = project_voxels(voxels, K[v], R[v], t[v], S)
+        except BehindCamera:
+            if behind is None:
+                raise
+            behind.append(int(v))
+    return out

@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sc3d_data.geometry.projection import BehindCamera, project_voxels
+from sc3d_data.geometry.projection import project_voxels_views
 from sc3d_data.io.names import printable
 from sc3d_data.io.shard_reader import ShardReader, iter_objects, verify_shards
 from sc3d_data.io.shards import ShardError, shard_path
@@ -188,14 +188,12 @@ def view_scores(voxels: np.ndarray, masks: np.ndarray, K: np.ndarray, R: np.ndar
     S = masks.shape[-1]
     iou, cov, near = np.empty(len(masks)), np.empty(len(masks)), np.empty(len(masks))
     vox = np.asarray(voxels).astype(bool)
+    behind = [] if behind is None else behind
+    projected = project_voxels_views(vox, K, R, t, S, range(len(masks)), behind)
     for v in range(len(masks)):
-        m = masks[v].astype(bool)
-        try:
-            p = project_voxels(vox, K[v], R[v], t[v], S)
-        except BehindCamera:
+        m, p = masks[v].astype(bool), projected[v]
+        if v in behind:
             iou[v] = cov[v] = near[v] = 0.0
-            if behind is not None:
-                behind.append(v)
             continue
         inter, union = (m & p).sum(), (m | p).sum()
         iou[v] = inter / union if union else 1.0
@@ -248,10 +246,8 @@ def write_worst_png(shard_dir: Path, report: CheckReport, path: Path, n: int = 8
         v = o.worst_view
         obj = reader.read(shard_path(shard_dir, o.shard), o.row, ("images", "masks", "voxels", "K", "R", "t"))
         image, mask = obj["images"][v], obj["masks"][v].astype(bool)
-        try:
-            proj = project_voxels(obj["voxels"], obj["K"][v], obj["R"][v], obj["t"][v], mask.shape[-1])
-        except BehindCamera:  # drawn empty; the report names the view
-            proj = np.zeros_like(mask)
+        # a view with voxels behind its camera is drawn empty; the report names it
+        proj = project_voxels_views(obj["voxels"], obj["K"], obj["R"], obj["t"], mask.shape[-1], [v], [])[0]
         diff = np.zeros(mask.shape + (3,))
         diff[mask & proj] = (0, 0.8, 0)
         diff[mask & ~proj] = (1, 0, 0)

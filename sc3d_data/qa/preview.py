@@ -35,17 +35,13 @@ def pick_objects(shard_dir: Path, max_objects: int) -> list[dict]:
     return picked[:max_objects]
 
 
-def _silhouettes(o: dict, S: int, sel, notes: list[str] | None) -> list[np.ndarray]:
-    """Voxel silhouettes ``[S, S]`` of object ``o`` (arrays of ``iter_objects``) in views
-    ``sel``; empty where voxels lie behind the camera (named in ``notes``)."""
-    from sc3d_data.geometry.projection import BehindCamera, project_voxels
-    sil, behind = [], []
-    for v in sel:
-        try:
-            sil.append(project_voxels(o["voxels"].astype(bool), *(o[k][v].astype(np.float64) for k in "KRt"), S))
-        except BehindCamera:
-            sil.append(np.zeros((S, S), bool))
-            behind.append(int(v))
+def _silhouettes(o: dict, S: int, sel, notes: list[str] | None) -> np.ndarray:
+    """Voxel silhouettes ``[len(sel), S, S]`` of object ``o`` (arrays of ``iter_objects``) in
+    views ``sel``; empty where voxels lie behind the camera (named in ``notes``)."""
+    from sc3d_data.geometry.projection import project_voxels_views
+
+    behind: list[int] = []
+    sil = project_voxels_views(o["voxels"].astype(bool), *(o[k].astype(np.float64) for k in "KRt"), S, sel, behind)
     if behind and notes is not None:
         notes.append(f"{printable(o['category'] + '/' + o['model_id'])} ({o['shard']} row {o['row']}): view(s) "
                      f"{', '.join(map(str, behind))} have voxels behind the camera (its distance is under "
