@@ -249,9 +249,8 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
 
     def store(c: int, results: list, last: bool) -> None:
         path = paths[c]
-        grids = np.zeros((len(rows[c][1]),) + (resolution,) * 3, dtype=np.uint8)
-        if c in retried:  # the grids of the objects not retried are kept
-            grids = _kept_voxels(path)
+        # a retried shard keeps the grids of the objects not retried
+        grids = _kept_voxels(path) if c in retried else np.zeros((len(rows[c][1]),) + (resolution,) * 3, np.uint8)
         by_shard[c] = [f for f in by_shard[c] if f.get("row") not in {t.row for t, _, _ in results}]
         for t, status, payload in results:
             if status == "ok":
@@ -259,7 +258,8 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
                 continue
             failure = {"stage": "voxelize", "source": t.source, "category": t.category,
                        "model_id": t.model_id, "shard": path.name, "row": t.row, "reason": payload}
-            earlier = _earlier_grid(path, t.row) if rows[c][0] else None
+            # a retried shard's grids are the ones it holds (this row untouched yet): no second read
+            earlier = grids[t.row] if c in retried else _earlier_grid(path, t.row) if rows[c][0] else None
             if earlier is not None and earlier.any():  # a grid made before from the mesh as rendered
                 grids[t.row] = earlier
                 failure.update(reason=f"{payload}; its earlier grid is kept", grid_kept=True)

@@ -197,7 +197,7 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
                                          "move it away, use another OUT or --overwrite")
         for (src, dst, _), same in zip(places, kept):
             counts["kept" if same else _place(src, dst, copy)] += 1
-        for stale in {e["file"] for e in old.get("shards", [])} - {s["file"] for s in shards}:
+        for stale in listed - {s["file"] for s in shards}:
             shard_path(out, stale).unlink(missing_ok=True)  # listed by an earlier merge of other parts
         first = parts[0]
         extra = {"merged": {"parts": [p["_dir"] for p in parts], "count": first["part"]["count"],
