@@ -57,7 +57,8 @@ class PoseGrid:
     def outside(self, elevations) -> list[float]:
         """The distinct ``elevations`` (degrees, e.g. a dataset's ``settings.elevations``) outside
         ``[elevation_min, elevation_max]``, sorted: views the pose head cannot predict (its
-        elevation is a softmax expectation over the grid) and whose pose targets are clamped to it."""
+        elevation is a softmax expectation over the grid) and whose pose targets are the best-fitting
+        grid poses."""
         return sorted({float(e) for e in elevations or [] if not self.elevation_min <= e <= self.elevation_max})
 
     @property
