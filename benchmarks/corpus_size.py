@@ -50,7 +50,7 @@ def timed_render(meshes: Path, out: Path, workers: int, views: int) -> tuple[flo
     """Wall seconds of ``sc3d-data render --voxelize`` and the objects it wrote."""
     from sc3d_data.io.shards import load_index
 
-    cmd = [str(Path(sys.executable).parent / "sc3d-data"), "render", "--meshes", str(meshes), "--out", str(out),
+    cmd = [sys.executable, "-c", "from sc3d_cli.data import main; main()", "render", "--meshes", str(meshes), "--out", str(out),
            "--voxelize", "--workers", str(workers), "--views", str(views), "--no-progress"]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
