@@ -20,6 +20,7 @@ import pytest
 import torch
 
 from sc3d_cli.train import main as train_main
+from sc3d_train.loop.streams import loader_workers
 from tests.conftest import SAMPLE_MESHES, assert_same_raster, require_backend, run_cli
 from tests.test_train import TINY, interrupt_at, read_csv
 
@@ -32,7 +33,7 @@ def test_fit_on_cuda_with_the_defaults_learns(sample_shards, tmp_path):
     else fit turns on for CUDA) runs and its loss falls: the mean of the last 10 of 60 steps is
     below 0.85 x the first 5 (on the CPU the same run falls to about 0.6-0.7 x)."""
     out = tmp_path / "run"
-    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", out, "--steps", 60, "--batch-size", 8,
+    res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", out, "--steps", 60, "--batch-size", 8,
                          *TINY, "--lr", 1e-3, "--lr-schedule", "constant", "--device", "cuda"])
     rows = read_csv(out / "metrics.csv")
     total = np.array([float(r["total"]) for r in rows])
@@ -40,6 +41,10 @@ def test_fit_on_cuda_with_the_defaults_learns(sample_shards, tmp_path):
     assert total[-10:].mean() < 0.85 * total[:5].mean(), (total[:5].mean(), total[-10:].mean())
     cfg = (out / "config.yaml").read_text()
     assert "device: cuda" in cfg
+    # --workers auto on CUDA: the loader runs in worker processes where the machine has cores to spare
+    expected = loader_workers(None, "cuda", None, 1)
+    assert f"loader: {expected} worker process" in res.output, res.output
+    assert expected > 0 or len(os.sched_getaffinity(0)) < 3
 
 
 def test_a_cuda_batch_that_does_not_fit_is_one_line(sample_shards, tmp_path):

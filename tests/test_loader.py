@@ -353,3 +353,38 @@ def test_fit_option_decoded_cache_reaches_the_run_datasets(sample_shards, tmp_pa
     ds = run_datasets(cfg)["all"]
     key = _index_sha(sample_shards, Path(ds.objects[0].shard).name)
     assert (cache / key / "images.npy").is_file() and ds._decoded.folders[0] == cache / key
+
+
+def test_loader_workers_auto_by_device_cores_ranks_and_streams():
+    """``--workers`` auto (None), cases derived by hand from the rule: 0 on the CPU and with a
+    decoded cache; on CUDA ``min(4, (cores // ranks on this machine - 1) // streams)``; a number
+    given is kept whatever the device."""
+    from sc3d_train.loop.streams import loader_workers
+
+    assert loader_workers(3, "cpu", None, 1, cpus=16, ranks_here=1) == 3
+    assert loader_workers(0, "cuda", None, 1, cpus=16, ranks_here=1) == 0
+    assert loader_workers(None, "cpu", None, 1, cpus=16, ranks_here=1) == 0
+    assert loader_workers(None, "cuda", "/scratch/decoded", 1, cpus=16, ranks_here=1) == 0
+    assert loader_workers(None, "cuda", None, 1, cpus=16, ranks_here=1) == 4     # 15 spare, capped
+    assert loader_workers(None, "cuda", None, 2, cpus=6, ranks_here=1) == 2      # 5 spare, 2 streams
+    assert loader_workers(None, "cuda", None, 1, cpus=16, ranks_here=8) == 1     # 2 cores a rank
+    assert loader_workers(None, "cuda", None, 1, cpus=2, ranks_here=1) == 1
+    assert loader_workers(None, "cuda", None, 1, cpus=1, ranks_here=1) == 0
+    assert loader_workers(None, "cuda", None, 2, cpus=16, ranks_here=16) == 0    # no core to spare
+
+
+def test_fit_records_workers_auto_and_keeps_a_number_given(sample_shards, tmp_path):
+    """On the CPU, fit's default writes ``workers: null`` and says it loads with 0 workers (auto);
+    ``--workers 1`` is written as 1, with no such line."""
+    import yaml
+    from tests.conftest import run_cli
+    from sc3d_cli.train import main
+
+    args = ["--shards", sample_shards, "--steps", "2", "--batch-size", "2", "--tiny", "--no-progress",
+            "--val-every", "0"]
+    res = run_cli(main, ["fit", "--out", tmp_path / "auto", *args])
+    assert yaml.safe_load((tmp_path / "auto" / "config.yaml").read_text())["workers"] is None
+    assert "loader: 0 worker processes per stream (--workers auto on cpu" in res.output, res.output
+    res = run_cli(main, ["fit", "--out", tmp_path / "one", *args, "--workers", "1"])
+    assert "loader:" not in res.output
+    assert yaml.safe_load((tmp_path / "one" / "config.yaml").read_text())["workers"] == 1

@@ -82,7 +82,7 @@ CHECKPOINTS_PER_RUN = 10
 
 
 def run_config(name: str, preset: ClaimsPreset, shards: Path, out: Path, device: str = ClaimsConfig.device,
-               workers: int = ClaimsConfig.workers, seed: int | None = None, resume: bool = False) -> RunConfig:
+               workers: int | None = ClaimsConfig.workers, seed: int | None = None, resume: bool = False) -> RunConfig:
     """The :class:`RunConfig` of run ``name`` (one of :data:`RUNS`) with ``seed`` (None: the
     preset's). The ablations at the true pose train no pose, so their ``best.pt`` is picked by IoU.
     ``resume``: the config saved in ``out``, refused (``CheckpointError``) when that run was trained
@@ -161,7 +161,7 @@ def report_stem(pick: str) -> str:
 
 
 def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path, eval_shards: Path, out: Path,
-                       eval_split: str, device: str, workers: int, pick: str, echo,
+                       eval_split: str, device: str, workers: int | None, pick: str, echo,
                        data_digest: str | None = None) -> tuple[dict, float | None]:
     """The eval metrics of run ``name`` with ``seed``: read back when its evaluation of the eval
     shards as they are now exists (``data_digest``: their
@@ -251,7 +251,7 @@ def check_not_selection(train_shards: Path, eval_shards: Path, eval_split: str, 
 
 def run_all(train_shards: Path, eval_shards: Path, out: Path,
             preset: "str | ClaimsPreset" = ClaimsConfig.preset, eval_split: str = ClaimsConfig.eval_split,
-            device: str = ClaimsConfig.device, workers: int = ClaimsConfig.workers, runs=None,
+            device: str = ClaimsConfig.device, workers: int | None = ClaimsConfig.workers, runs=None,
             echo=print, seeds: int = ClaimsConfig.seeds, pick: str = ClaimsConfig.pick) -> dict:
     """Train and evaluate every run of ``preset`` with each of ``seeds`` seeds (skipping finished
     (run, seed) pairs); write the report. ``seeds`` and ``device`` that cannot serve, and evaluation data that cannot serve (objects trained on

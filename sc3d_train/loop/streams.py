@@ -2,6 +2,7 @@
 the list of labelled objects, and the seeded, resumable loaders of each phase."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from sc3d_train.settings.config import RunConfig
@@ -9,6 +10,10 @@ from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.data.loader import make_loader
 from sc3d_train.loop.schedule import batch_split, data_position
 
+#: most loader worker processes per stream that ``--workers`` auto gives a CUDA run: a worker
+#: builds a batch of 48 from the shards in ~4 CPU-ms (docs/benchmarks.md), so 4 outrun a step of
+#: ~8 ms several times over; more would only take cores from other ranks
+AUTO_WORKERS_MAX = 4
 #: loader seed offsets of the streams (labelled pre-training / all, unlabelled, labelled in the mix)
 STREAM_SEEDS = {"supervised": 0, "unlabeled": 7919, "labeled_mix": 104729}
 
@@ -44,16 +49,43 @@ def write_labeled_objects(path: Path, dataset: ShardDataset) -> None:
     Path(path).write_text("\n".join(lines) + "\n")
 
 
+def loader_workers(requested: int | None, device_type: str, decoded_cache: str | None, streams: int,
+                   cpus: int | None = None, ranks_here: int | None = None) -> int:
+    """Worker processes of each of a phase's ``streams`` loaders. ``requested`` (``--workers``)
+    when given; auto (None): 0 on the CPU (the step itself uses every core, and the main process
+    outruns workers on a cached split) and with ``decoded_cache`` (a batch then costs the main
+    process ~0.25 ms); on CUDA, where the main process only launches the step and building a
+    batch of 48 from gzip-compressed shards in it (~4-7 ms) is most of a compiled step's 8 ms,
+    ``min(AUTO_WORKERS_MAX, (cores of this rank - 1) // streams)``: the cores this process may
+    use (``cpus``: its affinity) shared by the ranks of this machine (``ranks_here``:
+    ``LOCAL_WORLD_SIZE``), one kept for the rank itself."""
+    if requested is not None:
+        return requested
+    if device_type != "cuda" or decoded_cache:
+        return 0
+    if cpus is None:
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    if ranks_here is None:
+        ranks_here = int(os.environ.get("LOCAL_WORLD_SIZE", 1))
+    spare = cpus // max(ranks_here, 1) - 1
+    return max(0, min(AUTO_WORKERS_MAX, spare // max(streams, 1)))
+
+
 def phase_loaders(t, step: int) -> dict:
     """Iterators over the batches of the phase that starts (or resumes) at ``step``, positioned
     where that phase's streams stopped: ``{"supervised": ...}`` and/or ``{"unsupervised": ...}``.
     ``t``: the :class:`~sc3d_train.loop.trainer.Training` of this process."""
     cfg, pos = t.cfg, data_position(t.cfg, step, t.local_batch)
+    streams = 1 if pos["phase"] == "supervised" else 1 + (batch_split(cfg, t.local_batch)[0] > 0)
+    workers = loader_workers(cfg.workers, t.device.type, cfg.decoded_cache, streams)
+    if cfg.workers is None and t.dist.is_main:
+        print(f"loader: {workers} worker process{'es' if workers != 1 else ''} per stream "
+              f"(--workers auto on {t.device.type}; --workers N sets it)")
 
     def loader(dataset, batch, stream, start):
         return iter(make_loader(dataset, batch, cfg.seed + STREAM_SEEDS[stream], start=start,
                                 rank=t.dist.rank, world_size=t.dist.world_size,
-                                workers=cfg.workers, pin_memory=t.device.type == "cuda"))
+                                workers=workers, pin_memory=t.device.type == "cuda"))
 
     if pos["phase"] == "supervised":
         return {"supervised": loader(t.labeled, t.local_batch, "supervised", pos["samples_per_rank"])}

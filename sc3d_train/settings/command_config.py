@@ -71,7 +71,7 @@ class ClaimsConfig:
                           "on 2 cores for ~200 objects); paper: full width, 20000 steps of 48, for a GPU.",
                           choices=CLAIMS_PRESETS)
     device: str = setting("auto", DEVICE_HELP)
-    workers: int = setting(0, "DataLoader workers per run.")
+    workers: int | None = setting(None, "DataLoader workers per run and stream [auto, as fit's --workers].")
     pick: str = setting("best", PICK_HELP, choices=CHECKPOINT_PICKS)
     seeds: int = setting(1, "Seeds per run (seed, seed + 1, ...; 1 to 100): each cell of claims.md becomes "
                          "mean +- standard deviation over them.")

@@ -208,7 +208,9 @@ class RunConfig(_Plain):
                                         "labelled images (0 = the paper's fine-tuning on unlabelled "
                                         "images alone).")
     # loader, device, logging
-    workers: int = setting(0, "DataLoader worker processes per rank.")
+    workers: int | None = setting(None, "DataLoader worker processes per stream and rank [auto: 0 on the "
+                                  "CPU and with --decoded-cache; on CUDA up to 4, from the cores of "
+                                  "the rank].")
     decoded_cache: str | None = setting(None, "Folder for a decoded, uncompressed, memory-mapped copy of "
                                         "the training arrays (opt-in: ~22x the shards' disk space; "
                                         "built once, keyed by each shard's SHA-256).")
@@ -269,7 +271,7 @@ class RunConfig(_Plain):
         for name in ("log_every", "checkpoint_every"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} (--{name.replace('_', '-')}) must be >= 1, got {getattr(self, name)}")
-        if self.workers < 0:
+        if self.workers is not None and self.workers < 0:
             raise ValueError(f"workers (--workers) must be >= 0, got {self.workers}")
         if not 0 <= self.seed < 2 ** 63:
             raise ValueError(f"seed (--seed) must be in [0, 2^63), got {self.seed}")
