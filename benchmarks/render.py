@@ -27,7 +27,8 @@ process (its own forkserver: start-up counts as users see it), over the meshes l
 ``--copies`` times, and prints views/s end to end, the speed-up and parallel efficiency against
 the first count of the sweep, and where the workers' wall time goes (forkserver start, GL
 context, waiting for tasks, each stage of an object, hand-off, idle at the end; the main
-process's writer): ``stage_profile.life_table``.
+process's writer): ``stage_profile.life_table``; then the forkserver's preload steps and their
+seconds (``stage_profile.preload_line``).
 
 The GL platform (``PYOPENGL_PLATFORM``) is set from ``--backend`` as the first thing this
 script does, before anything can import pyrender or PyOpenGL: pyrender imported without it
@@ -279,7 +280,8 @@ def sweep(meshes: Path, counts: list[int], copies: int, views: int) -> str:
         up = sm["views_per_s"] / v0
         lines.append(f"| {n} | {sm['done']} | {sm['seconds']:.1f} | {sm['views_per_s']:.0f} | {up:.2f}x | "
                      f"{up / (n / n0):.2f} |")
-    return "\n".join(lines) + "\n\n" + stage_profile.life_table(points)
+    return ("\n".join(lines) + "\n\n" + stage_profile.life_table(points) + "\n\n"
+            + "\n".join(f"{n} workers: {stage_profile.preload_line(p)}" for n, p in points))
 
 
 def main():

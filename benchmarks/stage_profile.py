@@ -140,6 +140,9 @@ def install_worker_hooks() -> None:
         environ = args[3] if len(args) > 3 else kwargs.get("environ") or {}
         life["entered"] = time.monotonic()
         life["pool started"] = float(environ.get(T0_ENV, life["entered"]))
+        from sc3d_data.pipeline.executors.worker_preload import PRELOAD_SECONDS
+
+        life["preload"] = dict(PRELOAD_SECONDS)  # the server's, inherited through the fork
         try:
             return main(TimedConn(conn), *args, **kwargs)
         finally:
@@ -258,7 +261,12 @@ def life_breakdown(p: dict) -> dict[str, float]:
     """Where the workers' wall time went, summed over workers (seconds): each worker's life runs
     from the main process starting the pool to the worker's end."""
     w, lives = p["worker"], p["lives"]
-    out = {"forkserver start + fork": sum(x["entered"] - x["pool started"] for x in lives),
+    # the part of each worker's wait that the server's imports still had to run when the pool
+    # started (render_dataset starts the server before it plans, so part of them is hidden)
+    preload = [max(0.0, min(x["entered"], x.get("preload", {}).get("ended", 0.0)) - x["pool started"])
+               for x in lives]
+    out = {"forkserver imports, after the pool's start": sum(preload),
+           "fork + hand-over": sum(x["entered"] - x["pool started"] for x in lives) - sum(preload),
            "GL context + renderer (Job.start)": sum(x.get("job start", 0.0) for x in lives),
            "waiting for a task (pipe empty)": sum(x.get("waiting for tasks", 0.0) - x.get("last wait", 0.0)
                                                    for x in lives)}
@@ -270,6 +278,13 @@ def life_breakdown(p: dict) -> dict[str, float]:
     out["unaccounted (exit, scheduling)"] = total - sum(out.values())
     out["total"] = total
     return out
+
+
+def preload_line(p: dict) -> str:
+    """The forkserver's preload steps and their seconds, as a worker of ``p`` inherited them."""
+    steps = next((x["preload"] for x in p["lives"] if x.get("preload")), {})
+    parts = [f"{k} {v:.2f} s" for k, v in steps.items() if k != "ended"]
+    return "forkserver preload: " + (", ".join(parts) if parts else "not recorded")
 
 
 def life_table(points: list[tuple[int, dict]]) -> str:

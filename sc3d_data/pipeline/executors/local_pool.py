@@ -7,7 +7,11 @@ Workers are forked from multiprocessing's ``forkserver``, a clean process that i
 server nor the main process ever creates a GL context, so none is inherited through a fork; a
 worker gets the main process's environment as it is when the worker starts (``_worker_main``),
 as a spawned one would. Each makes its per-worker state once (``Job.start``: for rendering ONE
-``MeshRenderer``) and handles one object at a time: the main process sends tasks down a pipe,
+``MeshRenderer``) and handles one object at a time; ``start_pool`` returns when the first worker
+is up (all of them with ``--gpus``, so that a failing device is named before any work) and the
+others take tasks as they come up (one that then fails to start stops the run with its reason;
+finished shards stay). ``render_dataset`` starts the server (``start_server_early``)
+before it plans, so its imports overlap the planning. Each worker: the main process sends tasks down a pipe,
 keeping the next one queued behind the current (``QUEUED``), and gets the result of ``job.run``
 back (``job.Job``, e.g. ``jobs.render_job.RENDER``). Per-object time limit
 (``config.timeout_s``, counted from when the worker starts the object): a worker that takes
@@ -132,10 +136,11 @@ class WorkerPool:
         self.config, self.backend, self.job = config, backend, job
         self.workers = [_Worker(self.ctx, job, config, backend, slot) for slot in range(n)]
 
-    def wait_ready(self) -> str | None:
-        """Block until every worker is set up (has a renderer); return None, or the first start-up error
-        (the pool is then closed)."""
-        while not all(w.ready for w in self.workers):
+    def wait_ready(self, every: bool = True) -> str | None:
+        """Block until every worker is set up (has a renderer), or with ``every=False`` until the
+        first one is (the backend works; ``run`` hands tasks to the others as they come up);
+        return None, or the first start-up error (the pool is then closed)."""
+        while not (all if every else any)(w.ready for w in self.workers):
             ready = wait([w.conn for w in self.workers if not w.ready], timeout=120)
             if not ready:
                 self.close()
@@ -234,6 +239,18 @@ class WorkerPool:
             w.kill()
 
 
+def start_server_early(config, job: Job) -> None:
+    """Start this process's forkserver now, for the workers ``start_pool(n, config, job)`` will
+    fork: its imports (trimesh, the voxelizer's kernels, PyOpenGL: seconds, single-threaded)
+    then run while the caller plans the run, instead of after. A no-op where workers are
+    spawned, or when the server already runs."""
+    first = job.backends(getattr(config, "backend", "auto"))[0] if job.gl else None
+    if worker_context(first).get_start_method() == "forkserver":
+        from multiprocessing import forkserver
+
+        forkserver.ensure_running()
+
+
 def start_pool(n: int, config, job: Job) -> WorkerPool:
     """Start ``n`` workers of ``job`` with ``config.backend``; ``auto`` tries EGL, then OSMesa
     (the workers themselves are the probe: the main process never creates a GL context), EGL
@@ -249,7 +266,9 @@ def start_pool(n: int, config, job: Job) -> WorkerPool:
         backends = [b for b in backends if b == "egl"]
     for backend in backends:
         pool = WorkerPool(n, config, backend, job)
-        err = pool.wait_ready()
+        # work starts with the first worker up; --gpus waits for all, so a device that fails is
+        # named before any object is rendered
+        err = pool.wait_ready(every=bool(job.gl and getattr(config, "gpus", ())))
         if err is None:
             pool.backend = backend
             return pool

@@ -19,6 +19,7 @@ state is ever inherited through a fork; a server that has it serves EGL workers 
 from __future__ import annotations
 
 import gc
+import time
 from importlib import import_module
 
 import numpy as np
@@ -35,14 +36,23 @@ def warm_voxelizer() -> None:
     voxelize_triangles(corners, faces, resolution=8)
 
 
+#: what the server's preload took: ``{step name: seconds}`` plus ``"ended"`` (``time.monotonic``,
+#: one clock for every process of the machine); the workers inherit it through the fork, and
+#: ``benchmarks/stage_profile.py`` reads it there to split a worker's wait for its start
+PRELOAD_SECONDS: dict[str, float] = {}
+
+
 def best_effort(step, *args) -> None:
     """Run ``step(*args)``; an error is dropped. The forkserver only swallows ImportError, and a
     server that dies at start-up fails every worker of the run; a worker that needs what
     failed here does it again itself and reports the error with its object."""
+    t0 = time.monotonic()
     try:
         step(*args)
     except Exception:  # noqa: BLE001 - see above
         pass
+    PRELOAD_SECONDS[getattr(step, "__name__", str(step)) + "".join(f" {a}" for a in args)] = time.monotonic() - t0
+    PRELOAD_SECONDS["ended"] = time.monotonic()
 
 
 def import_gl(backend: str) -> None:

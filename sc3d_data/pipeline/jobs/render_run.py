@@ -52,6 +52,10 @@ def render_dataset(config: RenderConfig, executor=None) -> dict:
     left open (a library caller rendering several parts in one process); else one is started
     for the run and closed at its end."""
     config.validate(config.workers or os.cpu_count() or 1)
+    if executor is None and config.executor == "local":
+        from sc3d_data.pipeline.executors.local_pool import start_server_early
+
+        start_server_early(config, RENDER)
     with locked_output(Path(config.out), "sc3d-data render", config.overwrite) as out:
         return _render_locked(config, out, executor)
 

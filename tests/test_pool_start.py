@@ -1,0 +1,55 @@
+"""The local pool starts work with its first worker up: ``start_pool`` returns once one worker
+has its per-process state (for rendering: a GL context and a renderer), and the others take
+tasks as they come up, instead of every object waiting for the slowest worker's start (16 EGL
+contexts on one GPU took ~0.6 s each to come up, contending, on the H100 box; docs/benchmarks.md).
+
+The job here is made for the test and the pool is the real one: the first worker to start
+claims a flag file and then takes ``SLOW_S`` seconds to set up, as a worker whose GL context
+is slow would; the other is up at once."""
+from __future__ import annotations
+
+import os
+import time
+
+from sc3d_data.pipeline.executors.job import ExecOptions, Job
+from sc3d_data.pipeline.executors.local_pool import start_pool
+from sc3d_data.pipeline.run.plan import Task
+
+FLAG_ENV = "SC3D_TEST_SLOW_START_FLAG"
+SLOW_S = 30.0
+
+
+def slow_first_setup(config, backend: str) -> str:
+    """The first worker to claim the flag file sleeps ``SLOW_S`` s; the others start at once."""
+    try:
+        os.close(os.open(os.environ[FLAG_ENV], os.O_CREAT | os.O_EXCL))
+    except FileExistsError:
+        return backend
+    time.sleep(SLOW_S)
+    return backend
+
+
+def which_worker(config, backend: str, task) -> tuple:
+    """The task's result: the worker's pid."""
+    return task.pos, "ok", os.getpid()
+
+
+SLOW_START = Job("slow-start test", which_worker, setup=slow_first_setup)
+
+
+def test_work_starts_with_the_first_worker_up(tmp_path, monkeypatch):
+    monkeypatch.setenv(FLAG_ENV, str(tmp_path / "slow"))
+    tasks = [Task(pos=i, path=f"object{i}", category="c", model_id=str(i), split="train") for i in range(6)]
+    t0 = time.monotonic()
+    pool = start_pool(2, ExecOptions(workers=2, timeout_s=120.0), SLOW_START)
+    try:
+        results = list(pool.run(tasks))
+        elapsed = time.monotonic() - t0
+    finally:
+        pool.close()
+    assert (tmp_path / "slow").exists()  # one worker did take the slow start
+    assert sorted(pos for pos, _, _ in results) == list(range(6))
+    assert {status for _, status, _ in results} == {"ok"}
+    assert len({pid for _, _, pid in results}) == 1, results  # all done by the worker that was up
+    # waiting for both workers would take SLOW_S (30 s); a worker's start is ~1-3 s here
+    assert elapsed < SLOW_S / 2, elapsed
