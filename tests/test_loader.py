@@ -388,3 +388,49 @@ def test_fit_records_workers_auto_and_keeps_a_number_given(sample_shards, tmp_pa
     res = run_cli(main, ["fit", "--out", tmp_path / "one", *args, "--workers", "1"])
     assert "loader:" not in res.output
     assert yaml.safe_load((tmp_path / "one" / "config.yaml").read_text())["workers"] == 1
+
+
+def test_auto_workers_fit_their_rings_in_half_of_the_free_shared_memory(sample_shards):
+    """``ring_bytes`` is what a loader with workers really maps (its ring, made when iterated);
+    ``fit_shared_memory`` keeps the most workers whose rings take at most half of the free
+    shared memory, and says so when that is fewer (a container's 64 MB /dev/shm)."""
+    from sc3d_train.data.dataset import ShardDataset
+    from sc3d_train.data.loader import make_loader, ring_bytes
+    from sc3d_train.loop.streams import fit_shared_memory
+
+    ds = ShardDataset(sample_shards, "train")
+    loader = make_loader(ds, 4, seed=0, workers=2)
+    it = iter(loader)
+    next(it)
+    assert loader.dataset.ring.data.numel() == ring_bytes(ds, 4, 2)
+    del it
+    assert ring_bytes(ds, 4, 0) == 0
+    streams = [(ds, 4), (ds, 2)]
+    need = {w: ring_bytes(ds, 4, w) + ring_bytes(ds, 2, w) for w in (1, 2, 4)}
+    assert fit_shared_memory(4, streams, free=2 * need[4]) == (4, "")
+    w, note = fit_shared_memory(4, streams, free=2 * need[2])
+    assert w == 2 and "fewer" in note and "/dev/shm" in note
+    w, note = fit_shared_memory(4, streams, free=need[1])  # half of it holds no ring
+    assert w == 0 and note.startswith(", none:")
+
+
+def test_a_dev_shm_too_small_for_the_workers_is_one_line(sample_shards, tmp_path):
+    """``fit --workers 4`` where /dev/shm holds 8 MiB (a container's is 64 MB by default) and the
+    rings need ~29 MiB: one line naming shared memory, --workers and --shm-size, not a
+    traceback. Runs in its own mount namespace (``unshare -m``, root), skipped where that is
+    not allowed."""
+    import subprocess
+    import sys
+
+    probe = subprocess.run(["unshare", "-m", "sh", "-c", "mount -t tmpfs -o size=8m tmpfs /dev/shm"],
+                           capture_output=True)
+    if probe.returncode != 0:
+        pytest.skip("needs unshare -m and mount (root in a namespace-capable container)")
+    fit = (f"{sys.executable} -c 'from sc3d_cli.train import main; main()' fit --shards {sample_shards} "
+           f"--out {tmp_path / 'run'} --steps 2 --batch-size 48 --tiny --workers 4 --no-progress --val-every 0")
+    res = subprocess.run(["unshare", "-m", "sh", "-c", f"mount -t tmpfs -o size=8m tmpfs /dev/shm && {fit}"],
+                         capture_output=True, text=True)
+    assert res.returncode == 1, res.stdout + res.stderr
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("Error:")]
+    assert len(errors) == 1 and "could not map" in errors[0] and "shared memory" in errors[0], res.stderr
+    assert "--shm-size" in errors[0] and "Traceback" not in res.stderr

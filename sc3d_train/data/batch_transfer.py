@@ -119,7 +119,12 @@ class SharedRing:
     copying and raises if a worker overwrote it (it never should)."""
 
     def __init__(self, slots: int, capacity: int):
-        self.data = torch.zeros(slots, capacity, dtype=torch.uint8).share_memory_()
+        try:
+            self.data = torch.zeros(slots, capacity, dtype=torch.uint8).share_memory_()
+        except RuntimeError as e:  # /dev/shm full or too small (a container's 64 MB default)
+            raise OSError(f"the loader could not map {slots * capacity / 2 ** 20:.0f} MiB of shared memory "
+                          f"for its workers' batches ({str(e).splitlines()[0][:120]}); use fewer --workers "
+                          f"(0: none), or give the machine more /dev/shm (docker run --shm-size)") from e
         self.seqs = torch.full((slots,), -1, dtype=torch.int64).share_memory_()
 
     @property

@@ -206,6 +206,15 @@ def make_loader(dataset: ShardDataset, batch_size: int, seed: int, start: int = 
         prefetch_factor=TASKS_AHEAD if workers else None)
 
 
+def ring_bytes(dataset: ShardDataset, batch_size: int, workers: int) -> int:
+    """Shared memory (bytes) that a loader of ``make_loader(dataset, batch_size, ...,
+    workers=workers)`` maps: its ring's ``(TASKS_AHEAD * workers + 1) * BATCHES_PER_TASK`` slots
+    (:class:`BatchLoader`); 0 without workers."""
+    if not workers:
+        return 0
+    return (TASKS_AHEAD * workers + 1) * BATCHES_PER_TASK * _RingBatches(dataset).slot_bytes(batch_size)
+
+
 def _keep(batch):
     return batch
 

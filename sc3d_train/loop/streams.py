@@ -3,11 +3,12 @@ the list of labelled objects, and the seeded, resumable loaders of each phase.""
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 
 from sc3d_train.settings.config import RunConfig
 from sc3d_train.data.dataset import ShardDataset
-from sc3d_train.data.loader import make_loader
+from sc3d_train.data.loader import make_loader, ring_bytes
 from sc3d_train.loop.schedule import batch_split, data_position
 
 #: most loader worker processes per stream that ``--workers`` auto gives a CUDA run: a worker
@@ -76,21 +77,38 @@ def phase_loaders(t, step: int) -> dict:
     where that phase's streams stopped: ``{"supervised": ...}`` and/or ``{"unsupervised": ...}``.
     ``t``: the :class:`~sc3d_train.loop.trainer.Training` of this process."""
     cfg, pos = t.cfg, data_position(t.cfg, step, t.local_batch)
-    streams = 1 if pos["phase"] == "supervised" else 1 + (batch_split(cfg, t.local_batch)[0] > 0)
-    workers = loader_workers(cfg.workers, t.device.type, cfg.decoded_cache, streams)
+    if pos["phase"] == "supervised":  # {name: (dataset, batch, stream seed, start)}
+        specs = {"supervised": (t.labeled, t.local_batch, "supervised", pos["samples_per_rank"])}
+    else:
+        n_lab, n_unl = batch_split(cfg, t.local_batch)
+        specs = {"unsupervised": (t.datasets["unlabeled"], n_unl, "unlabeled", pos["samples_per_rank"])}
+        if n_lab:
+            specs["supervised"] = (t.labeled, n_lab, "labeled_mix", pos["labeled_samples_per_rank"])
+    workers = loader_workers(cfg.workers, t.device.type, cfg.decoded_cache, len(specs))
+    note = ""
+    if cfg.workers is None and workers:
+        workers, note = fit_shared_memory(workers, [(d, b) for d, b, _, _ in specs.values()])
     if cfg.workers is None and t.dist.is_main:
         print(f"loader: {workers} worker process{'es' if workers != 1 else ''} per stream "
-              f"(--workers auto on {t.device.type}; --workers N sets it)")
+              f"(--workers auto on {t.device.type}{note}; --workers N sets it)")
+    return {name: iter(make_loader(dataset, batch, cfg.seed + STREAM_SEEDS[stream], start=start,
+                                   rank=t.dist.rank, world_size=t.dist.world_size,
+                                   workers=workers, pin_memory=t.device.type == "cuda"))
+            for name, (dataset, batch, stream, start) in specs.items()}
 
-    def loader(dataset, batch, stream, start):
-        return iter(make_loader(dataset, batch, cfg.seed + STREAM_SEEDS[stream], start=start,
-                                rank=t.dist.rank, world_size=t.dist.world_size,
-                                workers=workers, pin_memory=t.device.type == "cuda"))
 
-    if pos["phase"] == "supervised":
-        return {"supervised": loader(t.labeled, t.local_batch, "supervised", pos["samples_per_rank"])}
-    n_lab, n_unl = batch_split(cfg, t.local_batch)
-    loaders = {"unsupervised": loader(t.datasets["unlabeled"], n_unl, "unlabeled", pos["samples_per_rank"])}
-    if n_lab:
-        loaders["supervised"] = loader(t.labeled, n_lab, "labeled_mix", pos["labeled_samples_per_rank"])
-    return loaders
+def fit_shared_memory(workers: int, streams: list[tuple[ShardDataset, int]],
+                      free: int | None = None) -> tuple[int, str]:
+    """The most workers, at most ``workers``, whose loaders' rings (``ring_bytes`` of each
+    ``(dataset, batch)`` stream) take at most half of the free shared memory (``free`` bytes;
+    None: what ``/dev/shm`` has free, unlimited where there is no such folder), and a note
+    saying so when that is fewer: a container's default /dev/shm (64 MB) holds the rings of
+    few workers."""
+    if free is None:
+        if not os.path.isdir("/dev/shm"):
+            return workers, ""
+        free = shutil.disk_usage("/dev/shm").free
+    for w in range(workers, 0, -1):
+        if sum(ring_bytes(d, b, w) for d, b in streams) <= free // 2:
+            return w, "" if w == workers else f", fewer for the {free / 2 ** 20:.0f} MiB free in /dev/shm"
+    return 0, f", none: {free / 2 ** 20:.0f} MiB free in /dev/shm"
