@@ -74,7 +74,7 @@ summarise() {  # OUT/summary.md and OUT/logs.tar.gz from what has run so far
     for name in "${NAMES[@]}"; do
       echo; echo "## $name"; echo
       [ "$name" = machine ] && { cat "$WORK/logs/$name.log"; continue; }
-      grep -E '^\||samples/s|views/s|projection|flat|same curve|DIFFERENT|passed|failed|skipped|error|Error' \
+      grep -E '^\||samples/s|views/s|projection|flat|same curve|DIFFERENT|passed|failed|skipped|error|Error|^(baseline|fit default|--compile|bfloat16|per step|loader:|forkserver preload)|[0-9]s (call|setup)' \
         "$WORK/logs/$name.log" | head -150
     done
   } >"$OUT/summary.md"
@@ -111,20 +111,24 @@ mkdir -p "$WORK/runs"
 step machine 60 bash -c "nvidia-smi -L 2>&1; nproc; free -g | head -2; $PY -c 'import torch; print(torch.__version__, torch.version.cuda, torch.cuda.is_available() and torch.cuda.get_device_name(0))'; \
   for b in egl osmesa; do $PY -c \"from sc3d_data.render.probe import probe_backend; print('\$b', probe_backend('\$b'))\" 2>&1 | tail -1; done"
 step shards 240 "${DATA[@]}" render --meshes "$MESHES" --out "$WORK/shards" --voxelize --no-progress
-step train_step 200 "$PY" benchmarks/train_step.py --shards "$WORK/shards" --batch-size "$BATCH" --skip-loader --skip-semi \
-  --skip-sc --profile "${WIDTH[@]}"
+# the figures still open first (fit's in-loop speed with its default loader, render scaling, the
+# gpu tests, the --semi step); then those measured on 2026-11-27 (table 1, the curves)
 step fit_compiled 240 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/compiled" --seed 0 --compile auto
-step fit_eager 240 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/eager" --seed 0 --compile off
-# render scaling before the noise run: issue 22's two figures cost less than a third fit
+step fit_loop 30 "$PY" -c "import csv, statistics as st, sys; r = list(csv.DictReader(open(sys.argv[1])))[20:]; \
+  print('| fit, compiled: in the loop | median samples/s', round(st.median(float(x['samples_per_s']) for x in r)), \
+        '| median data_wait', round(st.median(float(x['data_wait']) for x in r), 3), '|')" "$WORK/runs/compiled/metrics.csv"
 step render_sweep 120 "$PY" benchmarks/render.py --meshes "$MESHES" --sweep "$SWEEP" --copies 3 --pipeline-only
 step corpus 150 "$PY" benchmarks/corpus_size.py --meshes "$MESHES" --sizes "$SIZES" --workers "$NPROC"
+step gpu_tests 400 "$PY" -m pytest -q -p no:cacheprovider -rs -m gpu --durations=0
+step train_step_semi 400 "$PY" benchmarks/train_step.py --shards "$WORK/shards" --batch-size "$BATCH" --skip-supervised \
+  --profile "${WIDTH[@]}"
+step train_step 200 "$PY" benchmarks/train_step.py --shards "$WORK/shards" --batch-size "$BATCH" --skip-loader --skip-semi \
+  --skip-sc --profile "${WIDTH[@]}"
+step fit_eager 240 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/eager" --seed 0 --compile off
 step fit_compiled_seed1 150 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/compiled_seed1" --seed 1 --compile auto
 # compiled seed 0 against eager seed 0, with compiled seed 1 as the run-to-run noise; the paper's 20,000 steps projected
 step curves 60 "$PY" benchmarks/compare_curves.py "$WORK/runs/eager" "$WORK/runs/compiled" --noise "$WORK/runs/compiled_seed1" \
   --out "$OUT/curves.png" --project-steps 20000 --wall-b "${SECS[fit_compiled]:-0}" --batch-size "$BATCH"
-step gpu_tests 400 "$PY" -m pytest -q -p no:cacheprovider -rs -m gpu
-step train_step_semi 400 "$PY" benchmarks/train_step.py --shards "$WORK/shards" --batch-size "$BATCH" --skip-supervised \
-  --profile "${WIDTH[@]}"
 step suite 1200 "$PY" -m pytest -q -p no:cacheprovider -rs
 SUB="$WORK/sub"   # about 40 meshes, the same number from each category folder, for the slower scripts
 for cat in "$MESHES"/*/; do

@@ -43,8 +43,8 @@ def test_fit_on_cuda_with_the_defaults_learns(sample_shards, tmp_path):
     assert "device: cuda" in cfg
     # --workers auto on CUDA: the loader runs in worker processes where the machine has cores to spare
     expected = loader_workers(None, "cuda", None, 1)
-    assert f"loader: {expected} worker process" in res.output, res.output
-    assert expected > 0 or len(os.sched_getaffinity(0)) < 3
+    assert expected > 0 or len(os.sched_getaffinity(0)) < 2
+    assert f"loader: {expected} worker process" in res.output or not expected, res.output
 
 
 def test_a_cuda_batch_that_does_not_fit_is_one_line(sample_shards, tmp_path):

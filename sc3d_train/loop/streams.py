@@ -88,7 +88,7 @@ def phase_loaders(t, step: int) -> dict:
     note = ""
     if cfg.workers is None and workers:
         workers, note = fit_shared_memory(workers, [(d, b) for d, b, _, _ in specs.values()])
-    if cfg.workers is None and t.dist.is_main:
+    if cfg.workers is None and t.dist.is_main and (workers or note):  # the CPU's 0 goes unsaid
         print(f"loader: {workers} worker process{'es' if workers != 1 else ''} per stream "
               f"(--workers auto on {t.device.type}{note}; --workers N sets it)")
     return {name: iter(make_loader(dataset, batch, cfg.seed + STREAM_SEEDS[stream], start=start,
