@@ -74,7 +74,7 @@ summarise() {  # OUT/summary.md and OUT/logs.tar.gz from what has run so far
     for name in "${NAMES[@]}"; do
       echo; echo "## $name"; echo
       [ "$name" = machine ] && { cat "$WORK/logs/$name.log"; continue; }
-      grep -E '^\||samples/s|views/s|projection|flat|same curve|DIFFERENT|passed|failed|skipped|error|Error|^(baseline|fit default|--compile|bfloat16|per step|loader:|forkserver preload)|[0-9]s (call|setup)' \
+      grep -E '^\||samples/s|views/s|projection|flat|same curve|DIFFERENT|passed|failed|skipped|error|Error|^(baseline|fit default|--compile|bfloat16|per step|loader:)|forkserver preload|[0-9]s (call|setup)' \
         "$WORK/logs/$name.log" | head -150
     done
   } >"$OUT/summary.md"
@@ -114,7 +114,7 @@ step shards 240 "${DATA[@]}" render --meshes "$MESHES" --out "$WORK/shards" --vo
 # the figures still open first (fit's in-loop speed with its default loader, render scaling, the
 # gpu tests, the --semi step); then those measured on 2026-11-27 (table 1, the curves)
 step fit_compiled 240 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/compiled" --seed 0 --compile auto
-step fit_loop 30 "$PY" -c "import csv, statistics as st, sys; r = list(csv.DictReader(open(sys.argv[1])))[20:]; \
+step fit_loop 30 "$PY" -c "import csv, statistics as st, sys; r = list(csv.DictReader(open(sys.argv[1]))); r = r[len(r) // 10:]; \
   print('| fit, compiled: in the loop | median samples/s', round(st.median(float(x['samples_per_s']) for x in r)), \
         '| median data_wait', round(st.median(float(x['data_wait']) for x in r), 3), '|')" "$WORK/runs/compiled/metrics.csv"
 step render_sweep 120 "$PY" benchmarks/render.py --meshes "$MESHES" --sweep "$SWEEP" --copies 3 --pipeline-only
