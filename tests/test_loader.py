@@ -408,11 +408,13 @@ def test_auto_workers_fit_their_rings_in_half_of_the_free_shared_memory(sample_s
     assert ring_bytes(ds, 4, 0) == 0
     streams = [(ds, 4), (ds, 2)]
     need = {w: ring_bytes(ds, 4, w) + ring_bytes(ds, 2, w) for w in (1, 2, 4)}
-    assert fit_shared_memory(4, streams, free=2 * need[4]) == (4, "")
-    w, note = fit_shared_memory(4, streams, free=2 * need[2])
+    assert fit_shared_memory(4, streams, free=2 * need[4], ranks_here=1) == (4, "")
+    w, note = fit_shared_memory(4, streams, free=2 * need[2], ranks_here=1)
     assert w == 2 and "fewer" in note and "/dev/shm" in note
-    w, note = fit_shared_memory(4, streams, free=need[1])  # half of it holds no ring
+    w, note = fit_shared_memory(4, streams, free=need[1], ranks_here=1)  # half of it holds no ring
     assert w == 0 and note.startswith(", none:")
+    # two ranks on the machine: each has a quarter of the free memory
+    assert fit_shared_memory(4, streams, free=4 * need[2], ranks_here=2)[0] == 2
 
 
 def test_a_dev_shm_too_small_for_the_workers_is_one_line(sample_shards, tmp_path):

@@ -98,17 +98,20 @@ def phase_loaders(t, step: int) -> dict:
 
 
 def fit_shared_memory(workers: int, streams: list[tuple[ShardDataset, int]],
-                      free: int | None = None) -> tuple[int, str]:
+                      free: int | None = None, ranks_here: int | None = None) -> tuple[int, str]:
     """The most workers, at most ``workers``, whose loaders' rings (``ring_bytes`` of each
-    ``(dataset, batch)`` stream) take at most half of the free shared memory (``free`` bytes;
-    None: what ``/dev/shm`` has free, unlimited where there is no such folder), and a note
-    saying so when that is fewer: a container's default /dev/shm (64 MB) holds the rings of
-    few workers."""
+    ``(dataset, batch)`` stream) take at most this rank's share of half of the free shared
+    memory (``free`` bytes; None: what ``/dev/shm`` has free, unlimited where there is no such
+    folder; shared by the ``ranks_here`` ranks of this machine, ``LOCAL_WORLD_SIZE``), and a
+    note saying so when that is fewer: a container's default /dev/shm (64 MB) holds the rings
+    of few workers."""
     if free is None:
         if not os.path.isdir("/dev/shm"):
             return workers, ""
         free = shutil.disk_usage("/dev/shm").free
+    if ranks_here is None:
+        ranks_here = int(os.environ.get("LOCAL_WORLD_SIZE", 1))
     for w in range(workers, 0, -1):
-        if sum(ring_bytes(d, b, w) for d, b in streams) <= free // 2:
+        if sum(ring_bytes(d, b, w) for d, b in streams) <= free // (2 * max(ranks_here, 1)):
             return w, "" if w == workers else f", fewer for the {free / 2 ** 20:.0f} MiB free in /dev/shm"
     return 0, f", none: {free / 2 ** 20:.0f} MiB free in /dev/shm"

@@ -10,9 +10,9 @@ as a spawned one would. Each makes its per-worker state once (``Job.start``: for
 ``MeshRenderer``) and handles one object at a time; ``start_pool`` returns when the first worker
 is up (all of them with ``--gpus``, so that a failing device is named before any work) and the
 others take tasks as they come up (one that then fails to start stops the run with its reason;
-finished shards stay). ``render_dataset`` starts the server (``start_server_early``)
-before it plans, so its imports overlap the planning. Each worker: the main process sends tasks down a pipe,
-keeping the next one queued behind the current (``QUEUED``), and gets the result of ``job.run``
+finished shards stay). ``render_dataset`` starts the server (``start_server_early``) before it
+plans, so its imports overlap the planning. To each worker the main process sends tasks down a
+pipe, keeping the next one queued behind the current (``QUEUED``), and gets the result of ``job.run``
 back (``job.Job``, e.g. ``jobs.render_job.RENDER``). Per-object time limit
 (``config.timeout_s``, counted from when the worker starts the object): a worker that takes
 longer (a loader that hangs, a huge mesh) is killed and replaced and the object is recorded as
