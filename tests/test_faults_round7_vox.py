@@ -199,3 +199,16 @@ def test_voxelize_shards_honours_timeout(tmp_path):
     [failure] = index_of(out)["failures"]
     assert failure["stage"] == "voxelize" and failure["source"] == str(gltf)
     assert "timed out after 2 s (--timeout)" in failure["reason"], failure
+
+
+def test_merge_removes_the_temporary_files_of_a_killed_merge(parts, tmp_path):
+    """A merge killed while placing a shard or writing the index leaves ``NAME.tmp`` files
+    (``_place``, the atomic index writer); render's rerun deletes those of a killed render, and
+    merge's rerun now does the same: after it the folder holds the shards and the index only."""
+    out = tmp_path / "m"
+    out.mkdir()
+    for name in ("shard-00000.h5.tmp", "shard-00007.h5.tmp", "index.json.tmp"):
+        (out / name).write_bytes(b"half of a file")
+    run_cli(data_main, ["merge", out, *parts])
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == \
+        ["index.json", "shard-00000.h5", "shard-00001.h5"]

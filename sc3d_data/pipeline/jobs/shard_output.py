@@ -69,7 +69,7 @@ def locked_output(out: Path, command: str, overwrite: bool = False, create: bool
     or cannot be made); ``overwrite``: delete what its index lists first. Stale ``*.tmp``
     files of a killed run are deleted at the start and whatever this run leaves at the end."""
     from sc3d_data.io.outlock import exclusive_lock
-    from sc3d_data.pipeline.run.resume import check_out, clean_tmp, remove_listed_outputs
+    from sc3d_data.pipeline.run.resume import check_out, remove_listed_outputs, tmp_cleaned
 
     out = Path(out)
     if create:
@@ -77,11 +77,8 @@ def locked_output(out: Path, command: str, overwrite: bool = False, create: bool
     with exclusive_lock(out, command):
         if overwrite:
             remove_listed_outputs(out)
-        clean_tmp(out)
-        try:
+        with tmp_cleaned(out):
             yield out
-        finally:
-            clean_tmp(out)
 
 
 @dataclass

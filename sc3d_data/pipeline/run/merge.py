@@ -161,6 +161,7 @@ def _place(src: Path, dst: Path, copy: bool) -> str:
 def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite: bool = False) -> MergeSummary:
     """Merge ``part_dirs`` into ``out`` (module doc)."""
     from sc3d_data.io.outlock import exclusive_lock
+    from sc3d_data.pipeline.run.resume import tmp_cleaned
 
     t0 = time.monotonic()
     out = Path(out)
@@ -169,7 +170,7 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
         raise MergeError(f"{out}: the output folder cannot be one of the parts")
     parts = check_parts(dirs)
     out.mkdir(parents=True, exist_ok=True)
-    with exclusive_lock(out, "sc3d-data merge"):
+    with exclusive_lock(out, "sc3d-data merge"), tmp_cleaned(out):  # a killed merge's *.tmp go
         old = load_index(out) if (out / INDEX_NAME).is_file() else {}
         if old and not overwrite and "merged" not in old:
             raise MergeError(f"{out}: already holds a dataset that is not a merge; use another OUT or --overwrite")

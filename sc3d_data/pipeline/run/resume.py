@@ -14,6 +14,9 @@ index would describe splits the shards do not hold.
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
+from typing import Iterator
+
 from pathlib import Path
 
 from sc3d_data.pipeline.run.plan import Task
@@ -26,6 +29,17 @@ def clean_tmp(out: Path) -> None:
             p.unlink()
         except OSError:
             pass
+
+
+@contextmanager
+def tmp_cleaned(out: Path) -> Iterator[None]:
+    """The ``with`` block of a command holding ``out``'s lock, with the temporary files a killed
+    run left in ``out`` deleted first and whatever this one leaves deleted at its end."""
+    clean_tmp(out)
+    try:
+        yield
+    finally:
+        clean_tmp(out)
 
 
 def check_unlisted_shard(path: Path, settings: dict, index_file: Path, what: str, hint: str) -> None:
