@@ -14,7 +14,7 @@ index would describe splits the shards do not hold.
 """
 from __future__ import annotations
 
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from typing import Iterator
 
 from pathlib import Path
@@ -23,18 +23,15 @@ from sc3d_data.pipeline.run.plan import Task
 
 
 def clean_tmp(out: Path) -> None:
-    """Delete temporary files a killed run left in ``out``."""
+    """Delete the temporary files (``*.tmp``) a killed run left in ``out``."""
     for p in out.glob("*.tmp"):
-        try:
+        with suppress(OSError):
             p.unlink()
-        except OSError:
-            pass
 
 
 @contextmanager
 def tmp_cleaned(out: Path) -> Iterator[None]:
-    """The ``with`` block of a command holding ``out``'s lock, with the temporary files a killed
-    run left in ``out`` deleted first and whatever this one leaves deleted at its end."""
+    """A command's ``with`` block (under ``out``'s lock), with ``clean_tmp`` before and after."""
     clean_tmp(out)
     try:
         yield
