@@ -30,11 +30,25 @@ def slow_first_setup(config, backend: str) -> str:
 
 
 def which_worker(config, backend: str, task) -> tuple:
-    """The task's result: the worker's pid."""
+    """The task's result: the worker's pid (after ``task.pos`` ms of work)."""
+    time.sleep(task.pos / 1000)
     return task.pos, "ok", os.getpid()
 
 
 SLOW_START = Job("slow-start test", which_worker, setup=slow_first_setup)
+
+
+def only_the_first_starts(config, backend: str) -> str:
+    """The first worker to claim the flag file starts; every other one fails to, as a worker
+    whose GL context the driver refuses would."""
+    try:
+        os.close(os.open(os.environ[FLAG_ENV], os.O_CREAT | os.O_EXCL))
+    except FileExistsError:
+        raise RuntimeError("no GL context for this worker") from None
+    return backend
+
+
+ONE_STARTS = Job("one-starts test", which_worker, setup=only_the_first_starts)
 
 
 def test_work_starts_with_the_first_worker_up(tmp_path, monkeypatch):
@@ -53,3 +67,19 @@ def test_work_starts_with_the_first_worker_up(tmp_path, monkeypatch):
     assert len({pid for _, _, pid in results}) == 1, results  # all done by the worker that was up
     # waiting for both workers would take SLOW_S (30 s); a worker's start is ~1-3 s here
     assert elapsed < SLOW_S / 2, elapsed
+
+
+def test_workers_that_cannot_start_after_the_first_are_left_out_with_their_reason(tmp_path, monkeypatch):
+    """Of 3 workers only the first comes up: the run goes on with it (every task done, by it)
+    and ``start_failures`` holds the two others' reason; before, the first failure after the
+    pool's start stopped the run."""
+    monkeypatch.setenv(FLAG_ENV, str(tmp_path / "first"))
+    tasks = [Task(pos=i, path=f"object{i}", category="c", model_id=str(i), split="train") for i in range(60)]
+    pool = start_pool(3, ExecOptions(workers=3, timeout_s=120.0), ONE_STARTS)
+    try:
+        results = list(pool.run(tasks))
+    finally:
+        pool.close()
+    assert sorted(pos for pos, _, _ in results) == list(range(60))  # 1.8 s of work
+    assert len({pid for _, _, pid in results}) == 1
+    assert pool.start_failures == ["RuntimeError: no GL context for this worker"] * 2

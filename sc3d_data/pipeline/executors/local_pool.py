@@ -9,13 +9,13 @@ worker gets the main process's environment as it is when the worker starts (``_w
 as a spawned one would. Each makes its per-worker state once (``Job.start``: for rendering ONE
 ``MeshRenderer``) and handles one object at a time; ``start_pool`` returns when the first worker
 is up (all of them with ``--gpus``, so that a failing device is named before any work) and the
-others take tasks as they come up (one that then fails to start stops the run with its reason;
-finished shards stay). ``render_dataset`` starts the server (``start_server_early``) before it
-plans, so its imports overlap the planning. To each worker the main process sends tasks down a
-pipe, keeping the next one queued behind the current (``QUEUED``), and gets the result of ``job.run``
-back (``job.Job``, e.g. ``jobs.render_job.RENDER``). Per-object time limit
-(``config.timeout_s``, counted from when the worker starts the object): a worker that takes
-longer (a loader that hangs, a huge mesh) is killed and replaced and the object is recorded as
+others take tasks as they come up; one that then fails to start is left out, its reason in
+``start_failures`` (``render`` warns of them). ``render_dataset`` starts the server
+(``start_server_early``) before it plans, so its imports overlap the planning. To each worker
+the main process sends tasks down a pipe, keeping the next one queued behind the current
+(``QUEUED``), and gets the result of ``job.run`` back (``job.Job``, e.g.
+``jobs.render_job.RENDER``). Per-object time limit (``config.timeout_s``, counted from when the
+worker starts the object): a worker that takes longer (a loader that hangs, a huge mesh) is killed and replaced and the object is recorded as
 a failure; a worker that crashes is handled the same way (the next run retries it,
 ``retry_failed``); the task queued behind it goes to another worker. With ``config.gpus``,
 worker slot ``i`` renders on EGL device ``gpus[i % len(gpus)]`` (``devices.py``).
@@ -135,6 +135,7 @@ class WorkerPool:
         self.ctx = worker_context(backend if job.gl else None)
         self.config, self.backend, self.job = config, backend, job
         self.workers = [_Worker(self.ctx, job, config, backend, slot) for slot in range(n)]
+        self.start_failures: list[str] = []  # why the workers left out did not start (``run``)
 
     def wait_ready(self, every: bool = True) -> str | None:
         """Block until every worker is set up (has a renderer), or with ``every=False`` until the
@@ -157,6 +158,24 @@ class WorkerPool:
                         return payload
                     w.ready = True
         return None
+
+    def _drop_unstarted(self, w: _Worker, reason: str | None) -> None:
+        """``w`` could not start (``reason``; None: it crashed). With another worker up the run
+        goes on without it and ``start_failures`` says why; else the pool is closed and the
+        error raised (``BackendError`` with a reason, ``RuntimeError`` for a crash)."""
+        w.proc.join(5)
+        why = reason or f"exited with code {w.proc.exitcode} while starting"
+        if any(o.ready for o in self.workers if o is not w):
+            w.kill()
+            self.workers.remove(w)
+            self.start_failures.append(why)
+            return
+        self.close()
+        if reason is None:
+            raise RuntimeError(f"a {self.job.name} worker died while starting (exit code {w.proc.exitcode})")
+        from sc3d_data.render.gl_backend import BackendError
+
+        raise BackendError(f"{self.job.name} worker could not start: {reason}")
 
     def _replace(self, w: _Worker) -> list[Task]:
         """Kill ``w`` and start a worker in its place; the tasks it had queued behind the one it
@@ -196,11 +215,8 @@ class WorkerPool:
                         status, pos, payload = "crash", None, None
                     if status == "ready":
                         w.ready = True
-                    elif status == "dead":
-                        self.close()
-                        from sc3d_data.render.gl_backend import BackendError
-
-                        raise BackendError(f"{self.job.name} worker could not start: {payload}")
+                    elif not w.ready:  # could not start ("dead": its reason; else it crashed)
+                        self._drop_unstarted(w, payload if status == "dead" else None)
                     elif status in ("ok", "fail"):
                         w.tasks.pop(0)
                         w.started = time.monotonic()
@@ -209,9 +225,6 @@ class WorkerPool:
                         task = w.tasks[0] if w.tasks else None
                         w.proc.join(5)
                         code = w.proc.exitcode
-                        if not w.ready:
-                            self.close()
-                            raise RuntimeError(f"a {self.job.name} worker died while starting (exit code {code})")
                         todo.extend(self._replace(w)[::-1])
                         if task is not None:
                             from sc3d_data.render.probe import exit_status
@@ -222,6 +235,13 @@ class WorkerPool:
                     task = w.tasks[0]
                     todo.extend(self._replace(w)[::-1])
                     yield task.pos, "fail", f"{task.path}: timed out after {timeout:g} s (--timeout)"
+        for w in [w for w in self.workers if not w.ready and w.conn.poll(0)]:  # failed starts not read yet
+            try:
+                status, _, payload = w.conn.recv()
+            except (EOFError, OSError):
+                status, payload = "crash", None
+            if status != "ready":
+                self._drop_unstarted(w, payload if status == "dead" else None)
 
     def write_shard(self, path, records, settings: dict) -> str:
         """Write the shard in this (the main) process (``Executor.write_shard``)."""

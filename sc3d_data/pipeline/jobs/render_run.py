@@ -83,6 +83,9 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
     finally:
         if pool is not None and executor is None:
             pool.close()
+    if failed := getattr(pool, "start_failures", None):
+        run.notes.append(f"{len(failed)} of {n_workers} render workers could not start ({failed[0]}); "
+                         f"the run went on with the others")
     seconds = time.monotonic() - t0
     views = run.done * len(config.elevations) * config.num_views
     return {"done": run.done, "resumed": run.resumed, "skipped": len(plan.skipped),
