@@ -403,6 +403,7 @@ def test_auto_workers_fit_their_rings_in_half_of_the_free_shared_memory(sample_s
     loader = make_loader(ds, 4, seed=0, workers=2)
     it = iter(loader)
     next(it)
+    assert loader.dataset.ring.slots == (2 * 2 + 1) * 4  # 2 tasks ahead per worker, 4 batches a task, + 1 task
     assert loader.dataset.ring.data.numel() == ring_bytes(ds, 4, 2)
     del it
     assert ring_bytes(ds, 4, 0) == 0

@@ -164,8 +164,7 @@ class BatchLoader(torch.utils.data.DataLoader):
     def __iter__(self):
         ring = None
         if self.num_workers:
-            slots = (self.prefetch_factor * self.num_workers + 1) * self.group
-            ring = SharedRing(slots, self.batch_bytes)
+            ring = SharedRing(ring_slots(self.num_workers, self.prefetch_factor, self.group), self.batch_bytes)
             self.dataset.ring = ring  # the workers this iteration starts take this ring with them
         for task in super().__iter__():
             for item in task:
@@ -206,13 +205,22 @@ def make_loader(dataset: ShardDataset, batch_size: int, seed: int, start: int = 
         prefetch_factor=TASKS_AHEAD if workers else None)
 
 
+def ring_slots(workers: int, tasks_ahead: int = TASKS_AHEAD, group: int = BATCHES_PER_TASK) -> int:
+    """Slots of the ring of a :class:`BatchLoader` with ``workers`` workers, each ``tasks_ahead``
+    tasks (``prefetch_factor``) of ``group`` batches ahead: one more task than the DataLoader
+    keeps ahead, so no worker writes a slot being read (``SharedRing``); 0 without workers."""
+    return (tasks_ahead * workers + 1) * group if workers else 0
+
+
+def slot_bytes(dataset: ShardDataset, batch_size: int) -> int:
+    """Bytes of one slot of the ring of ``make_loader(dataset, batch_size, ...)``: one packed batch."""
+    return _RingBatches(dataset).slot_bytes(batch_size)
+
+
 def ring_bytes(dataset: ShardDataset, batch_size: int, workers: int) -> int:
     """Shared memory (bytes) that a loader of ``make_loader(dataset, batch_size, ...,
-    workers=workers)`` maps: its ring's ``(TASKS_AHEAD * workers + 1) * BATCHES_PER_TASK`` slots
-    (:class:`BatchLoader`); 0 without workers."""
-    if not workers:
-        return 0
-    return (TASKS_AHEAD * workers + 1) * BATCHES_PER_TASK * _RingBatches(dataset).slot_bytes(batch_size)
+    workers=workers)`` maps: its ring's :func:`ring_slots` of :func:`slot_bytes` each."""
+    return ring_slots(workers) * slot_bytes(dataset, batch_size) if workers else 0
 
 
 def _keep(batch):

@@ -20,7 +20,6 @@ sample (``/usr/bin/time`` peak RSS of ``fit --tiny --steps 2`` at batch 32 and 2
 from __future__ import annotations
 
 import copy
-import os
 import weakref
 from pathlib import Path
 
@@ -166,7 +165,7 @@ def check_cpu_batch_fits(t):
     available."""
     if t.device.type != "cpu" or t.local_batch <= PROBE_ABOVE or (free := available_bytes()) is None:
         return t
-    ranks_here = int(os.environ.get("LOCAL_WORLD_SIZE", 1))
+    ranks_here = t.dist.local_world_size
     small, large = PROBE_SIZES
     peaks = [step_peak_bytes(t, n) for n in (small, large)]
     per_sample = max((peaks[1] - peaks[0]) / (large - small), 1.0)

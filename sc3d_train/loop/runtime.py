@@ -20,6 +20,8 @@ class DistInfo:
     rank: int = 0
     world_size: int = 1
     local_rank: int = 0
+    #: ranks on this machine (torchrun's ``LOCAL_WORLD_SIZE``): they share its cores and memory
+    local_world_size: int = 1
 
     @property
     def is_main(self) -> bool:
@@ -33,7 +35,8 @@ def setup_distributed(device_name: str) -> DistInfo:
         return DistInfo()
     import torch.distributed as dist
 
-    info = DistInfo(int(os.environ["RANK"]), world, int(os.environ.get("LOCAL_RANK", "0")))
+    info = DistInfo(int(os.environ["RANK"]), world, int(os.environ.get("LOCAL_RANK", "0")),
+                    int(os.environ.get("LOCAL_WORLD_SIZE", "1")))
     if not dist.is_initialized():
         use_cuda = torch.cuda.is_available() and device_name != "cpu"
         dist.init_process_group("nccl" if use_cuda else "gloo")

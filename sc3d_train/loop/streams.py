@@ -8,7 +8,7 @@ from pathlib import Path
 
 from sc3d_train.settings.config import RunConfig
 from sc3d_train.data.dataset import ShardDataset
-from sc3d_train.data.loader import make_loader, ring_bytes
+from sc3d_train.data.loader import make_loader, ring_slots, slot_bytes
 from sc3d_train.loop.schedule import batch_split, data_position
 
 #: most loader worker processes per stream that ``--workers`` auto gives a CUDA run: a worker
@@ -51,7 +51,7 @@ def write_labeled_objects(path: Path, dataset: ShardDataset) -> None:
 
 
 def loader_workers(requested: int | None, device_type: str, decoded_cache: str | None, streams: int,
-                   cpus: int | None = None, ranks_here: int | None = None) -> int:
+                   cpus: int | None = None, ranks_here: int = 1) -> int:
     """Worker processes of each of a phase's ``streams`` loaders. ``requested`` (``--workers``)
     when given; auto (None): 0 on the CPU (the step itself uses every core, and the main process
     outruns workers on a cached split) and with ``decoded_cache`` (a batch then costs the main
@@ -59,15 +59,13 @@ def loader_workers(requested: int | None, device_type: str, decoded_cache: str |
     batch of 48 from gzip-compressed shards in it (~4-7 ms) is most of a compiled step's 8 ms,
     ``min(AUTO_WORKERS_MAX, (cores of this rank - 1) // streams)``: the cores this process may
     use (``cpus``: its affinity) shared by the ranks of this machine (``ranks_here``:
-    ``LOCAL_WORLD_SIZE``), one kept for the rank itself."""
+    ``DistInfo.local_world_size``), one kept for the rank itself."""
     if requested is not None:
         return requested
     if device_type != "cuda" or decoded_cache:
         return 0
     if cpus is None:
         cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    if ranks_here is None:
-        ranks_here = int(os.environ.get("LOCAL_WORLD_SIZE", 1))
     spare = cpus // max(ranks_here, 1) - 1
     return max(0, min(AUTO_WORKERS_MAX, spare // max(streams, 1)))
 
@@ -84,10 +82,11 @@ def phase_loaders(t, step: int) -> dict:
         specs = {"unsupervised": (t.datasets["unlabeled"], n_unl, "unlabeled", pos["samples_per_rank"])}
         if n_lab:
             specs["supervised"] = (t.labeled, n_lab, "labeled_mix", pos["labeled_samples_per_rank"])
-    workers = loader_workers(cfg.workers, t.device.type, cfg.decoded_cache, len(specs))
+    here = t.dist.local_world_size
+    workers = loader_workers(cfg.workers, t.device.type, cfg.decoded_cache, len(specs), ranks_here=here)
     note = ""
     if cfg.workers is None and workers:
-        workers, note = fit_shared_memory(workers, [(d, b) for d, b, _, _ in specs.values()])
+        workers, note = fit_shared_memory(workers, [(d, b) for d, b, _, _ in specs.values()], ranks_here=here)
     if cfg.workers is None and t.dist.is_main and (workers or note):  # the CPU's 0 goes unsaid
         print(f"loader: {workers} worker process{'es' if workers != 1 else ''} per stream "
               f"(--workers auto on {t.device.type}{note}; --workers N sets it)")
@@ -98,20 +97,19 @@ def phase_loaders(t, step: int) -> dict:
 
 
 def fit_shared_memory(workers: int, streams: list[tuple[ShardDataset, int]],
-                      free: int | None = None, ranks_here: int | None = None) -> tuple[int, str]:
+                      free: int | None = None, ranks_here: int = 1) -> tuple[int, str]:
     """The most workers, at most ``workers``, whose loaders' rings (``ring_bytes`` of each
     ``(dataset, batch)`` stream) take at most this rank's share of half of the free shared
     memory (``free`` bytes; None: what ``/dev/shm`` has free, unlimited where there is no such
-    folder; shared by the ``ranks_here`` ranks of this machine, ``LOCAL_WORLD_SIZE``), and a
+    folder; shared by the ``ranks_here`` ranks of this machine, ``DistInfo.local_world_size``), and a
     note saying so when that is fewer: a container's default /dev/shm (64 MB) holds the rings
     of few workers."""
     if free is None:
         if not os.path.isdir("/dev/shm"):
             return workers, ""
         free = shutil.disk_usage("/dev/shm").free
-    if ranks_here is None:
-        ranks_here = int(os.environ.get("LOCAL_WORLD_SIZE", 1))
+    slots = sum(slot_bytes(d, b) for d, b in streams)  # one slot of each stream's ring, read once
     for w in range(workers, 0, -1):
-        if sum(ring_bytes(d, b, w) for d, b in streams) <= free // (2 * max(ranks_here, 1)):
+        if ring_slots(w) * slots <= free // (2 * max(ranks_here, 1)):
             return w, "" if w == workers else f", fewer for the {free / 2 ** 20:.0f} MiB free in /dev/shm"
     return 0, f", none: {free / 2 ** 20:.0f} MiB free in /dev/shm"
