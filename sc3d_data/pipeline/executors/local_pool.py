@@ -15,8 +15,8 @@ others take tasks as they come up; one that then fails to start is left out, its
 the main process sends tasks down a pipe, keeping the next one queued behind the current
 (``QUEUED``), and gets the result of ``job.run`` back (``job.Job``, e.g.
 ``jobs.render_job.RENDER``). Per-object time limit (``config.timeout_s``, counted from when the
-worker starts the object): a worker that takes longer (a loader that hangs, a huge mesh) is killed and replaced and the object is recorded as
-a failure; a worker that crashes is handled the same way (the next run retries it,
+worker starts the object): a worker that takes longer (a loader that hangs, a huge mesh) is
+killed and replaced and the object is recorded as a failure; a worker that crashes is handled the same way (the next run retries it,
 ``retry_failed``); the task queued behind it goes to another worker. With ``config.gpus``,
 worker slot ``i`` renders on EGL device ``gpus[i % len(gpus)]`` (``devices.py``).
 
@@ -117,6 +117,14 @@ class _Worker:
         self.tasks: list[Task] = []  # sent, no result yet; the first is the one being worked on
         self.started = 0.0  # when the first of ``tasks`` started (its time limit runs from here)
 
+    def receive(self) -> tuple:
+        """The worker's next message ``(status, pos, payload)``; ``("crash", None, None)`` when
+        its pipe is closed (the process died)."""
+        try:
+            return self.conn.recv()
+        except (EOFError, OSError):
+            return "crash", None, None
+
     def kill(self) -> None:
         if self.proc.is_alive():
             self.proc.kill()
@@ -209,10 +217,7 @@ class WorkerPool:
             ready = wait([w.conn for w in self.workers], timeout=max(0.0, min(wait_s, 1.0)))
             for w in list(self.workers):
                 if w.conn in ready:
-                    try:
-                        status, pos, payload = w.conn.recv()
-                    except (EOFError, OSError):
-                        status, pos, payload = "crash", None, None
+                    status, pos, payload = w.receive()
                     if status == "ready":
                         w.ready = True
                     elif not w.ready:  # could not start ("dead": its reason; else it crashed)
@@ -236,10 +241,7 @@ class WorkerPool:
                     todo.extend(self._replace(w)[::-1])
                     yield task.pos, "fail", f"{task.path}: timed out after {timeout:g} s (--timeout)"
         for w in [w for w in self.workers if not w.ready and w.conn.poll(0)]:  # failed starts not read yet
-            try:
-                status, _, payload = w.conn.recv()
-            except (EOFError, OSError):
-                status, payload = "crash", None
+            status, _, payload = w.receive()
             if status != "ready":
                 self._drop_unstarted(w, payload if status == "dead" else None)
 
