@@ -15,6 +15,10 @@ SAMPLE_MESHES = REPO / "assets" / "sample_meshes"
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+# the CPU tests train on the CPU on a GPU machine too (their bounds and exact comparisons are the
+# CPU's; `--device auto` would pick CUDA, inductor and bf16 there): SC3D_AUTO_DEVICE is what auto
+# means (sc3d_train.loop.runtime.AUTO_DEVICE_ENV); the `gpu` tests ask for `--device cuda`
+os.environ.setdefault("SC3D_AUTO_DEVICE", "cpu")
 
 #: where ``assert_learnt`` appends each figure it checks, one JSON line each (set by
 #: scripts/test_spread.py, which reruns the training tests under several seeds and thread counts)

@@ -47,6 +47,19 @@ def test_fit_on_cuda_with_the_defaults_learns(sample_shards, tmp_path):
     assert f"loader: {expected} worker process" in res.output or not expected, res.output
 
 
+def test_the_suites_cpu_tests_train_on_the_cpu_here(sample_shards, tmp_path):
+    """The CPU tests run ``fit`` with ``--device auto``; in the suite (``SC3D_AUTO_DEVICE=cpu``,
+    conftest.py) that is the CPU on this GPU machine too, so their CPU bounds and bit-for-bit
+    comparisons hold here; a user's ``auto`` (the variable unset) is CUDA."""
+    res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", tmp_path / "run", "--steps", 1, *TINY,
+                               "--val-every", 0])
+    assert "samples/s on cpu;" in res.output, res.output
+    env = {k: v for k, v in os.environ.items() if k != "SC3D_AUTO_DEVICE"}
+    r = subprocess.run([sys.executable, "-c", "from sc3d_train.loop.runtime import auto_device; print(auto_device())"],
+                       env=env, capture_output=True, text=True, check=True)
+    assert r.stdout.strip() == "cuda", r.stdout + r.stderr
+
+
 def test_a_cuda_batch_that_does_not_fit_is_one_line(sample_shards, tmp_path):
     """``--batch-size 100000`` on CUDA (terabytes of activations; 4 GiB of host batch) ends with
     one line saying the GPU's memory ran out and to lower ``--batch-size``, not a traceback.

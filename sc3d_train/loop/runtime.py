@@ -14,6 +14,11 @@ import torch
 
 from sc3d_train.settings.config import DEVICE_HELP, RunConfig
 
+#: environment variable naming what ``--device auto`` picks on this machine: ``cpu`` or ``cuda``
+#: (unset or empty: CUDA when torch sees a GPU, else the CPU). The test suite sets ``cpu``
+#: (``tests/conftest.py``) so that its CPU tests train on the CPU on a GPU machine too.
+AUTO_DEVICE_ENV = "SC3D_AUTO_DEVICE"
+
 
 @dataclass
 class DistInfo:
@@ -38,7 +43,8 @@ def setup_distributed(device_name: str) -> DistInfo:
     info = DistInfo(int(os.environ["RANK"]), world, int(os.environ.get("LOCAL_RANK", "0")),
                     int(os.environ.get("LOCAL_WORLD_SIZE", "1")))
     if not dist.is_initialized():
-        use_cuda = torch.cuda.is_available() and device_name != "cpu"
+        kind = auto_device() if device_name == "auto" else device_name
+        use_cuda = torch.cuda.is_available() and kind != "cpu"
         dist.init_process_group("nccl" if use_cuda else "gloo")
         atexit.register(teardown_distributed)  # once, when this process exits (several fits may share the group)
     return info
@@ -54,15 +60,27 @@ def teardown_distributed() -> None:
         dist.destroy_process_group()
 
 
+def auto_device() -> str:
+    """``cpu`` or ``cuda``: what ``--device auto`` means here (:data:`AUTO_DEVICE_ENV`, else CUDA
+    when torch sees a GPU). ``ValueError`` naming the variable when it is set to anything else."""
+    pick = os.environ.get(AUTO_DEVICE_ENV, "").strip()
+    if pick not in ("", "cpu", "cuda"):
+        raise ValueError(f"{AUTO_DEVICE_ENV}={pick!r}: --device auto can mean cpu or cuda (unset: CUDA if present)")
+    if pick == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"{AUTO_DEVICE_ENV}=cuda: CUDA is not available here (torch sees no GPU); unset it "
+                         f"or use --device cpu")
+    return pick or ("cuda" if torch.cuda.is_available() else "cpu")
+
+
 def resolve_device(name: str, dist: DistInfo | None = None) -> torch.device:
     """The device of ``--device name`` (``fit``, ``eval``, ``predict``, ``claims``): ``auto`` is CUDA
-    (this rank's local GPU) when available, else CPU. ``ValueError`` naming the option when
+    (this rank's local GPU) when available, else CPU (:func:`auto_device`). ``ValueError`` naming the option when
     ``name`` is none of auto, cpu, cuda, cuda:N or asks for a GPU this machine lacks."""
     dist = dist or DistInfo()
     if not re.fullmatch(r"auto|cpu|cuda(:\d+)?", name):
         raise ValueError(f"--device {name!r}: not a device; use {DEVICE_HELP}")
     if name == "auto":
-        name = "cuda" if torch.cuda.is_available() else "cpu"
+        name = auto_device()
     if name == "cuda":
         name = f"cuda:{dist.local_rank}"
     device = torch.device(name)

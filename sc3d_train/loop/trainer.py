@@ -220,7 +220,8 @@ def mean_scalars(t: Training, losses: dict) -> dict:
 
 def fit(cfg: RunConfig, resume: bool = False) -> dict:
     """Train according to ``cfg`` (see module doc). Returns a summary dict: ``step``, ``last_losses``,
-    ``samples_per_s``, ``checkpoint`` (path of last.pt), ``best`` (validation record of best.pt, or None).
+    ``samples_per_s``, ``device`` (where it trained, e.g. ``cuda:0``), ``checkpoint`` (path of
+    last.pt), ``best`` (validation record of best.pt, or None).
 
     Raises :class:`TrainingDiverged` on a non-finite loss, ``DataError`` / ``CheckpointError``
     on bad inputs, before any training step."""
@@ -296,5 +297,5 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
         if progress is not None:
             progress.close()
         log.close()
-    return {"step": cfg.steps, "last_losses": last_losses, "samples_per_s": rate,
+    return {"step": cfg.steps, "last_losses": last_losses, "samples_per_s": rate, "device": str(t.device),
             "checkpoint": str(last_path(t.run_dir)), "best": validator.best if validator else None}
