@@ -220,8 +220,7 @@ def mean_scalars(t: Training, losses: dict) -> dict:
 
 def fit(cfg: RunConfig, resume: bool = False) -> dict:
     """Train according to ``cfg`` (see module doc). Returns a summary dict: ``step``, ``last_losses``,
-    ``samples_per_s``, ``device`` (where it trained, e.g. ``cuda:0``), ``checkpoint`` (path of
-    last.pt), ``best`` (validation record of best.pt, or None).
+    ``samples_per_s``, ``device`` (e.g. ``cuda:0``), ``checkpoint`` (last.pt), ``best`` (best.pt's record or None).
 
     Raises :class:`TrainingDiverged` on a non-finite loss, ``DataError`` / ``CheckpointError``
     on bad inputs, before any training step."""

@@ -24,8 +24,7 @@ from sc3d_data.formats.splits import SPLIT_NAMES
 from sc3d_train.settings.config_io import ConfigError, check_choices, dump_yaml, from_plain, load_yaml, setting
 
 #: the help of every ``--device`` option
-DEVICE_HELP = ("auto (CUDA if present; the environment variable SC3D_AUTO_DEVICE, cpu or cuda, overrides), "
-               "cpu, cuda or cuda:N.")
+DEVICE_HELP = "auto (CUDA if present), cpu, cuda or cuda:N."
 #: the largest --batch-size of ``fit`` and ``eval``: 2^24 images of 64x64 RGB are 200 GB even as
 #: bytes, so no batch that could run is refused, while a mistyped one (1e20) is, in one line
 #: (unbounded, it failed deep inside the data loader, or built index lists until memory ran out)
