@@ -66,10 +66,11 @@ def auto_device() -> str:
     pick = os.environ.get(AUTO_DEVICE_ENV, "").strip()
     if pick not in ("", "cpu", "cuda"):
         raise ValueError(f"{AUTO_DEVICE_ENV}={pick!r}: --device auto can mean cpu or cuda (unset: CUDA if present)")
-    if pick == "cuda" and not torch.cuda.is_available():
+    has_cuda = torch.cuda.is_available()
+    if pick == "cuda" and not has_cuda:
         raise ValueError(f"{AUTO_DEVICE_ENV}=cuda: CUDA is not available here (torch sees no GPU); unset it "
                          f"or use --device cpu")
-    return pick or ("cuda" if torch.cuda.is_available() else "cpu")
+    return pick or ("cuda" if has_cuda else "cpu")
 
 
 def resolve_device(name: str, dist: DistInfo | None = None) -> torch.device:

@@ -108,8 +108,8 @@ def fit_shared_memory(workers: int, streams: list[tuple[ShardDataset, int]],
         if not os.path.isdir("/dev/shm"):
             return workers, ""
         free = shutil.disk_usage("/dev/shm").free
-    slots = sum(slot_bytes(d, b) for d, b in streams)  # one slot of each stream's ring, read once
+    slot_of_each = sum(slot_bytes(d, b) for d, b in streams)  # bytes: one slot of every stream's ring
     for w in range(workers, 0, -1):
-        if ring_slots(w) * slots <= free // (2 * max(ranks_here, 1)):
+        if ring_slots(w) * slot_of_each <= free // (2 * max(ranks_here, 1)):
             return w, "" if w == workers else f", fewer for the {free / 2 ** 20:.0f} MiB free in /dev/shm"
     return 0, f", none: {free / 2 ** 20:.0f} MiB free in /dev/shm"

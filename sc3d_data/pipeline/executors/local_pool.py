@@ -156,9 +156,8 @@ class WorkerPool:
                 return f"{self.job.name} workers did not start within 120 s"
             for w in self.workers:
                 if w.conn in ready:
-                    try:
-                        status, _, payload = w.conn.recv()
-                    except (EOFError, OSError):
+                    status, _, payload = w.receive()
+                    if status == "crash":
                         w.proc.join(5)
                         status, payload = "dead", f"worker exited with code {w.proc.exitcode}"
                     if status == "dead":

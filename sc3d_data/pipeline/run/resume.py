@@ -15,9 +15,8 @@ index would describe splits the shards do not hold.
 from __future__ import annotations
 
 from contextlib import contextmanager, suppress
-from typing import Iterator
-
 from pathlib import Path
+from typing import Iterator
 
 from sc3d_data.pipeline.run.plan import Task
 
