@@ -111,15 +111,25 @@ mkdir -p "$WORK/runs"
 step machine 60 bash -c "nvidia-smi -L 2>&1; nproc; free -g | head -2; $PY -c 'import torch; print(torch.__version__, torch.version.cuda, torch.cuda.is_available() and torch.cuda.get_device_name(0))'; \
   for b in egl osmesa; do $PY -c \"from sc3d_data.render.probe import probe_backend; print('\$b', probe_backend('\$b'))\" 2>&1 | tail -1; done"
 step shards 240 "${DATA[@]}" render --meshes "$MESHES" --out "$WORK/shards" --voxelize --no-progress
+# where a render's fixed start goes on this machine: the interpreter, then the forkserver's preload
+# module by module (-X importtime, cumulative microseconds, the 25 largest)
+step startup 60 bash -c "TIMEFORMAT='| python -c pass | %R s |'; for i in 1 2; do time $PY -c pass; done; \
+  $PY -X importtime -c 'import sc3d_data.pipeline.executors.worker_preload_egl as m; from sc3d_data.pipeline.executors.worker_preload import PRELOAD_SECONDS as p; print(\"| preload steps |\", {k: round(v, 3) for k, v in p.items() if k != \"ended\"}, \"|\")' 2>$WORK/imp.txt; \
+  grep -E '^import time: +[0-9]' $WORK/imp.txt | sort -t'|' -k2 -n -r | head -25 | sed 's/^import time:/| import/'"
 # the figures still open first (fit's in-loop speed with its default loader, render scaling, the
 # gpu tests, the --semi step); then those measured on 2026-11-27 (table 1, the curves)
 step fit_compiled 240 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/compiled" --seed 0 --compile auto
 step fit_loop 30 "$PY" -c "import csv, statistics as st, sys; r = list(csv.DictReader(open(sys.argv[1]))); r = r[len(r) // 10:]; \
   print('| fit, compiled: in the loop | median samples/s', round(st.median(float(x['samples_per_s']) for x in r)), \
         '| median data_wait', round(st.median(float(x['data_wait']) for x in r), 3), '|')" "$WORK/runs/compiled/metrics.csv"
+# fit's loader worker count against its in-loop speed (what --workers auto should pick on CUDA)
+step fit_workers 200 bash -c "for w in 0 4 8; do ${TRAIN[*]@Q} fit ${FIT[*]@Q} --steps 600 --workers \$w --out $WORK/runs/w\$w --seed 0 \
+  --compile auto 2>&1 | grep -E '^(done|loader)'; $PY -c \"import csv, statistics as st, sys; r = list(csv.DictReader(open(sys.argv[1]))); r = r[len(r) // 5:]; \
+  print('| fit --workers', sys.argv[2], '| median samples/s', round(st.median(float(x['samples_per_s']) for x in r)), \
+        '| median data_wait', round(st.median(float(x['data_wait']) for x in r), 3), '|')\" $WORK/runs/w\$w/metrics.csv \$w; done"
 step render_sweep 120 "$PY" benchmarks/render.py --meshes "$MESHES" --sweep "$SWEEP" --copies 3 --pipeline-only
 step corpus 150 "$PY" benchmarks/corpus_size.py --meshes "$MESHES" --sizes "$SIZES" --workers "$NPROC"
-step gpu_tests 400 "$PY" -m pytest -q -p no:cacheprovider -rs -m gpu --durations=0
+step gpu_tests 400 "$PY" -m pytest -v -p no:cacheprovider -rs -m gpu --durations=0
 step train_step_semi 400 "$PY" benchmarks/train_step.py --shards "$WORK/shards" --batch-size "$BATCH" --skip-supervised \
   --profile "${WIDTH[@]}"
 step train_step 200 "$PY" benchmarks/train_step.py --shards "$WORK/shards" --batch-size "$BATCH" --skip-loader --skip-semi \

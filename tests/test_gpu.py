@@ -20,7 +20,6 @@ import pytest
 import torch
 
 from sc3d_cli.train import main as train_main
-from sc3d_train.loop.streams import loader_workers
 from tests.conftest import SAMPLE_MESHES, assert_same_raster, require_backend, run_cli
 from tests.test_train import TINY, interrupt_at, read_csv
 
@@ -41,10 +40,7 @@ def test_fit_on_cuda_with_the_defaults_learns(sample_shards, tmp_path):
     assert total[-10:].mean() < 0.85 * total[:5].mean(), (total[:5].mean(), total[-10:].mean())
     cfg = (out / "config.yaml").read_text()
     assert "device: cuda" in cfg
-    # --workers auto on CUDA: the loader runs in worker processes where the machine has cores to spare
-    expected = loader_workers(None, "cuda", None, 1)
-    assert expected > 0 or len(os.sched_getaffinity(0)) < 2
-    assert f"loader: {expected} worker process" in res.output or not expected, res.output
+    assert "samples/s on cuda" in res.output, res.output
 
 
 def test_the_suites_cpu_tests_train_on_the_cpu_here(sample_shards, tmp_path):
@@ -61,11 +57,23 @@ def test_the_suites_cpu_tests_train_on_the_cpu_here(sample_shards, tmp_path):
 
 
 def test_a_cuda_batch_that_does_not_fit_is_one_line(sample_shards, tmp_path):
-    """``--batch-size 100000`` on CUDA (terabytes of activations; 4 GiB of host batch) ends with
-    one line saying the GPU's memory ran out and to lower ``--batch-size``, not a traceback.
-    Eager (``--compile off``): compiling a step that cannot run would only cost time."""
-    res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", tmp_path / "run", "--steps", 1,
-                               "--batch-size", 100000, *TINY, "--device", "cuda", "--compile", "off"], expect_exit=1)
+    """A batch whose step does not fit the GPU's memory ends ``fit`` with one line saying the
+    GPU's memory ran out and to lower ``--batch-size``, not a traceback. The process may use
+    1 GiB of the GPU here (``torch.cuda.set_per_process_memory_fraction``: the caching allocator
+    itself raises ``torch.OutOfMemoryError`` beyond it, as it does at a card's end), and batch
+    2,048 of the tiny network needs several GiB (about 10 MiB a sample on the CPU, 2026-11-26):
+    a real out-of-memory, reached in seconds. (A batch too large for the whole card, 100,000,
+    first spends minutes building its 5 GB host batch: the lease of 2026-11-27 cut the gpu
+    tests there.) Eager (``--compile off``): compiling a step that cannot run would only cost time."""
+    limit = min(1.0, 2**30 / torch.cuda.get_device_properties(0).total_memory)
+    torch.cuda.set_per_process_memory_fraction(limit)
+    try:
+        res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", tmp_path / "run", "--steps", 1,
+                                   "--batch-size", 2048, *TINY, "--device", "cuda", "--compile", "off"],
+                      expect_exit=1)
+    finally:
+        torch.cuda.set_per_process_memory_fraction(1.0)
+        torch.cuda.empty_cache()
     errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
     assert len(errors) == 1 and errors[0].startswith("Error: out of GPU memory while training ("), res.output
     assert errors[0].endswith("use a smaller one"), errors[0]
