@@ -55,6 +55,24 @@ def test_shared_ring_round_trip_fallback_and_overwrite_check():
         ring.take(first)
 
 
+def test_the_default_cache_holds_2_gib_of_decoded_objects(sample_shards):
+    """By default a dataset caches as many decoded objects as 2 GiB hold: one object of the
+    sample shards (64 px, 24 views, 48 px self-consistency masks, 32^3 voxels) is, by hand,
+    24 x (64*64*3 image + 64*64 mask + 48*48 mask + 1 flag + 24 float32 of camera) + 32^3 =
+    483,608 bytes, what its cached arrays hold, so 4,440 objects; the sample split fits, and its
+    batches come from the cache."""
+    from sc3d_train.data.dataset import ShardDataset, decoded_object_bytes
+
+    by_hand = 24 * (64 * 64 * 3 + 64 * 64 + 48 * 48 + 1 + 24 * 4) + 32 ** 3
+    assert by_hand == 483_608 == decoded_object_bytes(64, 24, 48, 32)
+    ds = ShardDataset(sample_shards, "train")
+    assert sum(a.nbytes for a in ds.object_arrays(0).values()) == by_hand
+    assert ds.cache_objects == 2 * 2**30 // by_hand == 4440
+    ds.compact_batch([5, 30, 77])
+    assert {0, 1, 3} <= set(ds._cache)
+    assert ShardDataset(sample_shards, "train", require_voxels=False).cache_objects == 2 * 2**30 // (by_hand - 32 ** 3)
+
+
 def test_workers_send_every_batch_through_the_ring(sample_shards, monkeypatch):
     """With workers, no batch takes the per-batch tensor path (``pack`` raising in the forked
     workers would surface here), and batches kept while the loader wraps its ring 3 times stay
@@ -355,67 +373,36 @@ def test_fit_option_decoded_cache_reaches_the_run_datasets(sample_shards, tmp_pa
     assert (cache / key / "images.npy").is_file() and ds._decoded.folders[0] == cache / key
 
 
-def test_loader_workers_auto_by_device_cores_ranks_and_streams():
-    """``--workers`` auto (None), cases derived by hand from the rule: 0 on the CPU and with a
-    decoded cache; on CUDA ``min(4, (cores // ranks on this machine - 1) // streams)``; a number
-    given is kept whatever the device."""
-    from sc3d_train.loop.streams import loader_workers
-
-    assert loader_workers(3, "cpu", None, 1, cpus=16, ranks_here=1) == 3
-    assert loader_workers(0, "cuda", None, 1, cpus=16, ranks_here=1) == 0
-    assert loader_workers(None, "cpu", None, 1, cpus=16, ranks_here=1) == 0
-    assert loader_workers(None, "cuda", "/scratch/decoded", 1, cpus=16, ranks_here=1) == 0
-    assert loader_workers(None, "cuda", None, 1, cpus=16, ranks_here=1) == 4     # 15 spare, capped
-    assert loader_workers(None, "cuda", None, 2, cpus=6, ranks_here=1) == 2      # 5 spare, 2 streams
-    assert loader_workers(None, "cuda", None, 1, cpus=16, ranks_here=8) == 1     # 2 cores a rank
-    assert loader_workers(None, "cuda", None, 1, cpus=2, ranks_here=1) == 1
-    assert loader_workers(None, "cuda", None, 1, cpus=1, ranks_here=1) == 0
-    assert loader_workers(None, "cuda", None, 2, cpus=16, ranks_here=16) == 0    # no core to spare
-
-
 def test_fit_records_workers_auto_and_keeps_a_number_given(sample_shards, tmp_path):
-    """On the CPU, fit's default writes ``workers: null`` (auto) and loads in its own process,
-    without a word (the line is for a CUDA run's workers: tests/test_gpu.py);
-    ``--workers 1`` is written as 1, with no such line."""
+    """fit's default writes ``workers: null`` (auto: the batches are built in the training
+    process, on the CPU and on CUDA alike); ``--workers 1`` is written as 1."""
     import yaml
     from tests.conftest import run_cli
     from sc3d_cli.train import main
 
     args = ["--shards", sample_shards, "--steps", "2", "--batch-size", "2", "--tiny", "--no-progress",
             "--val-every", "0"]
-    res = run_cli(main, ["fit", "--out", tmp_path / "auto", *args])
+    run_cli(main, ["fit", "--out", tmp_path / "auto", *args])
     assert yaml.safe_load((tmp_path / "auto" / "config.yaml").read_text())["workers"] is None
-    assert "loader:" not in res.output, res.output
-    res = run_cli(main, ["fit", "--out", tmp_path / "one", *args, "--workers", "1"])
-    assert "loader:" not in res.output
+    run_cli(main, ["fit", "--out", tmp_path / "one", *args, "--workers", "1"])
     assert yaml.safe_load((tmp_path / "one" / "config.yaml").read_text())["workers"] == 1
 
 
-def test_auto_workers_fit_their_rings_in_half_of_the_free_shared_memory(sample_shards):
-    """``ring_bytes`` is what a loader with workers really maps (its ring, made when iterated);
-    ``fit_shared_memory`` keeps the most workers whose rings take at most half of the free
-    shared memory, and says so when that is fewer (a container's 64 MB /dev/shm)."""
+def test_a_loader_with_workers_maps_one_ring_of_the_slots_it_needs(sample_shards):
+    """A loader with workers maps one shared-memory ring when iterated: one slot per batch of
+    every task the DataLoader keeps ahead (2 per worker, 4 batches a task) plus one task, each
+    slot one packed batch; without workers, none."""
     from sc3d_train.data.dataset import ShardDataset
-    from sc3d_train.data.loader import make_loader, ring_bytes
-    from sc3d_train.loop.streams import fit_shared_memory
+    from sc3d_train.data.loader import make_loader
 
     ds = ShardDataset(sample_shards, "train")
     loader = make_loader(ds, 4, seed=0, workers=2)
     it = iter(loader)
     next(it)
-    assert loader.dataset.ring.slots == (2 * 2 + 1) * 4  # 2 tasks ahead per worker, 4 batches a task, + 1 task
-    assert loader.dataset.ring.data.numel() == ring_bytes(ds, 4, 2)
+    assert loader.dataset.ring.slots == (2 * 2 + 1) * 4
+    assert loader.dataset.ring.data.numel() == loader.dataset.ring.slots * loader.batch_bytes > 0
     del it
-    assert ring_bytes(ds, 4, 0) == 0
-    streams = [(ds, 4), (ds, 2)]
-    need = {w: ring_bytes(ds, 4, w) + ring_bytes(ds, 2, w) for w in (1, 2, 4)}
-    assert fit_shared_memory(4, streams, free=2 * need[4], ranks_here=1) == (4, "")
-    w, note = fit_shared_memory(4, streams, free=2 * need[2], ranks_here=1)
-    assert w == 2 and "fewer" in note and "/dev/shm" in note
-    w, note = fit_shared_memory(4, streams, free=need[1], ranks_here=1)  # half of it holds no ring
-    assert w == 0 and note.startswith(", none:")
-    # two ranks on the machine: each has a quarter of the free memory
-    assert fit_shared_memory(4, streams, free=4 * need[2], ranks_here=2)[0] == 2
+    assert make_loader(ds, 4, seed=0, workers=0).batch_bytes == 0
 
 
 def test_a_dev_shm_too_small_for_the_workers_is_one_line(sample_shards, tmp_path):

@@ -85,6 +85,20 @@ def interrupt_at(run: Path, copy: Path, step: int) -> None:
         w.writerow({**rows[step], "total": "999"})
 
 
+def test_the_done_line_gives_the_median_rate_of_the_loop(sample_shards, tmp_path):
+    """``fit``'s last line gives the median of the logged intervals' samples/s, the first
+    (compiling, first batches) left out, not the last interval's: computed here from
+    ``metrics.csv`` with ``statistics.median``."""
+    import re
+    import statistics
+
+    res = run_cli(main, ["fit", "--shards", sample_shards, "--out", tmp_path / "run", "--steps", 7,
+                         "--batch-size", 2, *TINY, "--val-every", 0])
+    rates = [float(r["samples_per_s"]) for r in read_csv(tmp_path / "run" / "metrics.csv")]
+    said = float(re.search(r"done: step 7, ([0-9.]+) samples/s", res.output).group(1))
+    assert said == pytest.approx(statistics.median(rates[1:]), abs=0.06), (said, rates)
+
+
 def test_resume_equals_uninterrupted(sample_shards, tmp_path):
     args = ["--shards", sample_shards, "--batch-size", "4", *TINY, "--checkpoint-every", "3", "--seed", "5"]
     whole, parts = tmp_path / "whole", tmp_path / "parts"

@@ -153,6 +153,23 @@ def background_of(info: dict) -> list[int]:
 
 
 # ----------------------------------------------------------------------------- dataset
+#: bytes of decoded objects a dataset keeps per process by default (``cache_objects=None``): a
+#: split that fits is decoded once and each batch gathers from memory (~0.5 CPU-ms per batch of
+#: 48 against ~4 from the gzip-compressed files on the CPU box, docs/benchmarks.md); 2 GiB holds
+#: the ~4,400 objects of a 64 px dataset, so the 136 training objects of the bundled 195 meshes
+#: and single-category subsets up to that size
+CACHE_BYTES = 2 * 2**30
+
+
+def decoded_object_bytes(image_size: int, num_views: int, mask_size: int, voxel_resolution: int) -> int:
+    """Bytes of one decoded object in the cache: per view an RGB image ``[S,S,3]`` uint8, a mask
+    ``[S,S]`` uint8, a mask ``[M,M]`` bool at the self-consistency size and its flag, the camera
+    (K, R: 9 float32 each; t: 3; distance, azimuth, elevation: 1 each); and the voxel grid
+    ``[G,G,G]`` uint8 (``voxel_resolution`` 0: none)."""
+    per_view = image_size * image_size * 4 + mask_size * mask_size + 1 + (9 + 9 + 3 + 3) * 4
+    return num_views * per_view + voxel_resolution ** 3
+
+
 class ShardDataset(Dataset):
     """Views of the objects of one split; item ``i`` is view ``i % V`` of object ``i // V``.
 
@@ -160,9 +177,11 @@ class ShardDataset(Dataset):
     :func:`choose_labeled` (``labeled_fraction``, ``seed``). ``require_voxels`` (training,
     evaluation) fails before any work when a shard has no ``voxels``. ``image_size``, when
     given, must match the shards (e.g. the size a checkpoint was trained at).
-    ``cache_objects``: decoded objects kept per process (LRU; ~0.45 MB each at 64 px, 24 views).
-    Batches use it only when the whole split fits (``num_objects <= cache_objects``); larger
-    splits read just the views a batch needs (:meth:`compact_batch`). ``decoded_cache``: a
+    ``cache_objects``: decoded objects kept per process (LRU); None: as many as
+    :data:`CACHE_BYTES` holds (:func:`decoded_object_bytes`: ~0.47 MB each at 64 px, 24 views,
+    32^3 voxels, so ~4,400 objects). Batches use it only when the whole split fits
+    (``num_objects <= cache_objects``); larger splits read just the views a batch needs
+    (:meth:`compact_batch`). ``decoded_cache``: a
     folder for a decoded, memory-mapped copy of the arrays (:mod:`sc3d_train.data.decoded_cache`;
     opt-in, ~22x the shards' disk space), built here where missing; batches then gather from it.
     """
@@ -170,7 +189,7 @@ class ShardDataset(Dataset):
     def __init__(self, shard_dir: Path, split: str = "train", subset: str = "all",
                  labeled_fraction: float = 1.0, seed: int = 0, mask_size: int = MASK_SIZE,
                  require_voxels: bool = True, image_size: int | None = None,
-                 cache_objects: int = 128, decoded_cache: Path | str | None = None):
+                 cache_objects: int | None = None, decoded_cache: Path | str | None = None):
         refs, info = scan_objects(shard_dir)
         self.shard_dir, self.split, self.subset = str(shard_dir), split, subset
         if require_voxels and info["files_without_voxels"]:
@@ -194,7 +213,8 @@ class ShardDataset(Dataset):
         self.info = info
         self.image_size, self.num_views = info["image_size"], info["num_views"]
         self.mask_size, self.require_voxels = mask_size, require_voxels
-        self.cache_objects = cache_objects
+        self.cache_objects = cache_objects if cache_objects is not None else CACHE_BYTES // decoded_object_bytes(
+            self.image_size, self.num_views, mask_size, info["voxel_resolution"] if require_voxels else 0)
         self._reader = ShardReader(shard_dir)
         self._shards = sorted({r.shard for r in self.objects})
         number = {shard: i for i, shard in enumerate(self._shards)}

@@ -212,17 +212,6 @@ def ring_slots(workers: int, tasks_ahead: int = TASKS_AHEAD, group: int = BATCHE
     return (tasks_ahead * workers + 1) * group if workers else 0
 
 
-def slot_bytes(dataset: ShardDataset, batch_size: int) -> int:
-    """Bytes of one slot of the ring of ``make_loader(dataset, batch_size, ...)``: one packed batch."""
-    return _RingBatches(dataset).slot_bytes(batch_size)
-
-
-def ring_bytes(dataset: ShardDataset, batch_size: int, workers: int) -> int:
-    """Shared memory (bytes) that a loader of ``make_loader(dataset, batch_size, ...,
-    workers=workers)`` maps: its ring's :func:`ring_slots` of :func:`slot_bytes` each."""
-    return ring_slots(workers) * slot_bytes(dataset, batch_size) if workers else 0
-
-
 def _keep(batch):
     return batch
 

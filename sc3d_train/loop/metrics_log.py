@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import statistics
 import time
 from pathlib import Path
 
@@ -75,6 +76,14 @@ class MetricsLog:
     def close(self):
         if self.enabled:
             self.tb.close()
+
+
+def in_loop_rate(rates: list[float]) -> float:
+    """The run's samples/s in the loop: the median of its logging intervals' rates, the first
+    left out where there are more (it holds compiling and the first batches); 0 without any."""
+    if not rates:
+        return 0.0
+    return float(statistics.median(rates[1:] if len(rates) > 1 else rates))
 
 
 class DataWaitClock:

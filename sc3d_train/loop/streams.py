@@ -2,19 +2,13 @@
 the list of labelled objects, and the seeded, resumable loaders of each phase."""
 from __future__ import annotations
 
-import os
-import shutil
 from pathlib import Path
 
 from sc3d_train.settings.config import RunConfig
 from sc3d_train.data.dataset import ShardDataset
-from sc3d_train.data.loader import make_loader, ring_slots, slot_bytes
+from sc3d_train.data.loader import make_loader
 from sc3d_train.loop.schedule import batch_split, data_position
 
-#: most loader worker processes per stream that ``--workers`` auto gives a CUDA run: a worker
-#: builds a batch of 48 from the shards in ~4 CPU-ms (docs/benchmarks.md), so 4 outrun a step of
-#: ~8 ms several times over; more would only take cores from other ranks
-AUTO_WORKERS_MAX = 4
 #: loader seed offsets of the streams (labelled pre-training / all, unlabelled, labelled in the mix)
 STREAM_SEEDS = {"supervised": 0, "unlabeled": 7919, "labeled_mix": 104729}
 
@@ -50,26 +44,6 @@ def write_labeled_objects(path: Path, dataset: ShardDataset) -> None:
     Path(path).write_text("\n".join(lines) + "\n")
 
 
-def loader_workers(requested: int | None, device_type: str, decoded_cache: str | None, streams: int,
-                   cpus: int | None = None, ranks_here: int = 1) -> int:
-    """Worker processes of each of a phase's ``streams`` loaders. ``requested`` (``--workers``)
-    when given; auto (None): 0 on the CPU (the step itself uses every core, and the main process
-    outruns workers on a cached split) and with ``decoded_cache`` (a batch then costs the main
-    process ~0.25 ms); on CUDA, where the main process only launches the step and building a
-    batch of 48 from gzip-compressed shards in it (~4-7 ms) is most of a compiled step's 8 ms,
-    ``min(AUTO_WORKERS_MAX, (cores of this rank - 1) // streams)``: the cores this process may
-    use (``cpus``: its affinity) shared by the ranks of this machine (``ranks_here``:
-    ``DistInfo.local_world_size``), one kept for the rank itself."""
-    if requested is not None:
-        return requested
-    if device_type != "cuda" or decoded_cache:
-        return 0
-    if cpus is None:
-        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    spare = cpus // max(ranks_here, 1) - 1
-    return max(0, min(AUTO_WORKERS_MAX, spare // max(streams, 1)))
-
-
 def phase_loaders(t, step: int) -> dict:
     """Iterators over the batches of the phase that starts (or resumes) at ``step``, positioned
     where that phase's streams stopped: ``{"supervised": ...}`` and/or ``{"unsupervised": ...}``.
@@ -82,34 +56,11 @@ def phase_loaders(t, step: int) -> dict:
         specs = {"unsupervised": (t.datasets["unlabeled"], n_unl, "unlabeled", pos["samples_per_rank"])}
         if n_lab:
             specs["supervised"] = (t.labeled, n_lab, "labeled_mix", pos["labeled_samples_per_rank"])
-    here = t.dist.local_world_size
-    workers = loader_workers(cfg.workers, t.device.type, cfg.decoded_cache, len(specs), ranks_here=here)
-    note = ""
-    if cfg.workers is None and workers:
-        workers, note = fit_shared_memory(workers, [(d, b) for d, b, _, _ in specs.values()], ranks_here=here)
-    if cfg.workers is None and t.dist.is_main and (workers or note):  # the CPU's 0 goes unsaid
-        print(f"loader: {workers} worker process{'es' if workers != 1 else ''} per stream "
-              f"(--workers auto on {t.device.type}{note}; --workers N sets it)")
+    # --workers auto (None) is 0, the batches built in this process: on the CPU the step uses every
+    # core, and on an H100 with 16 cores 0 beat 4 and 8 worker processes (docs/benchmarks.md)
+    workers = cfg.workers or 0
     return {name: iter(make_loader(dataset, batch, cfg.seed + STREAM_SEEDS[stream], start=start,
                                    rank=t.dist.rank, world_size=t.dist.world_size,
                                    workers=workers, pin_memory=t.device.type == "cuda"))
             for name, (dataset, batch, stream, start) in specs.items()}
 
-
-def fit_shared_memory(workers: int, streams: list[tuple[ShardDataset, int]],
-                      free: int | None = None, ranks_here: int = 1) -> tuple[int, str]:
-    """The most workers, at most ``workers``, whose loaders' rings (``ring_bytes`` of each
-    ``(dataset, batch)`` stream) take at most this rank's share of half of the free shared
-    memory (``free`` bytes; None: what ``/dev/shm`` has free, unlimited where there is no such
-    folder; shared by the ``ranks_here`` ranks of this machine, ``DistInfo.local_world_size``), and a
-    note saying so when that is fewer: a container's default /dev/shm (64 MB) holds the rings
-    of few workers."""
-    if free is None:
-        if not os.path.isdir("/dev/shm"):
-            return workers, ""
-        free = shutil.disk_usage("/dev/shm").free
-    slot_of_each = sum(slot_bytes(d, b) for d, b in streams)  # bytes: one slot of every stream's ring
-    for w in range(workers, 0, -1):
-        if ring_slots(w) * slot_of_each <= free // (2 * max(ranks_here, 1)):
-            return w, "" if w == workers else f", fewer for the {free / 2 ** 20:.0f} MiB free in /dev/shm"
-    return 0, f", none: {free / 2 ** 20:.0f} MiB free in /dev/shm"

@@ -19,7 +19,6 @@ for a labelled image is the candidate with the lowest L_sc between the image's g
 and mask, searched once per object before training (:func:`~sc3d_train.paper.pose_search.dataset_pose_targets`),
 and for an unlabelled image the same search between the predicted voxels and mask.
 The labelled objects of ``semi`` / ``labeled-only`` are listed in ``RUN_DIR/labeled_objects.txt``.
-
 The ground-truth pose (``azimuth``, ``elevation``, ``R``, ``t``) is removed from every training
 batch before the model and the losses see it; in the unsupervised phase the voxels and masks
 are removed too. The camera's intrinsics and distance (fixed by the dataset) stay.
@@ -53,7 +52,7 @@ from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.data.device_prefetch import DevicePrefetcher
 from sc3d_train.loop.loss_window import LossWindow
 from sc3d_train.loop.memory_check import check_cpu_batch_fits
-from sc3d_train.loop.metrics_log import DataWaitClock, MetricsLog, gpu_utilisation, plot_curves
+from sc3d_train.loop.metrics_log import DataWaitClock, MetricsLog, gpu_utilisation, in_loop_rate, plot_curves
 from sc3d_train.loop.phase_step import augment_step, training_batch
 from sc3d_train.loop.runtime import (DistInfo, all_gather, all_mean, all_min, channels_last_on, resolve_amp,
                                      check_same_weights, resolve_device, seed_everything, setup_distributed)
@@ -220,7 +219,7 @@ def mean_scalars(t: Training, losses: dict) -> dict:
 
 def fit(cfg: RunConfig, resume: bool = False) -> dict:
     """Train according to ``cfg`` (see module doc). Returns a summary dict: ``step``, ``last_losses``,
-    ``samples_per_s``, ``device`` (e.g. ``cuda:0``), ``checkpoint`` (last.pt), ``best`` (best.pt's record or None).
+    ``samples_per_s`` (:func:`in_loop_rate`), ``device`` (e.g. ``cuda:0``), ``checkpoint`` (last.pt), ``best``.
 
     Raises :class:`TrainingDiverged` on a non-finite loss, ``DataError`` / ``CheckpointError``
     on bad inputs, before any training step."""
@@ -252,7 +251,7 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
         progress = progress_bar(total=cfg.steps, initial=start_step, unit="step", desc="train")
 
     phase, loaders, last_losses = None, {}, {}
-    t_log, n_log, rate, wait = time.perf_counter(), 0, 0.0, DataWaitClock()
+    t_log, n_log, rates, wait = time.perf_counter(), 0, [], DataWaitClock()
     try:
         for step in range(start_step, cfg.steps):
             if phase_at(cfg, step) != phase:
@@ -272,7 +271,8 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
                     torch.cuda.synchronize()
                 now = time.perf_counter()
                 wait_share = wait.seconds / max(now - t_log, 1e-9)
-                rate, t_log, n_log, wait.seconds = n_log / max(now - t_log, 1e-9), now, 0, 0.0
+                rates.append(rate := n_log / max(now - t_log, 1e-9))
+                t_log, n_log, wait.seconds = now, 0, 0.0
                 last_losses = mean_scalars(t, losses)
                 gpu = gpu_utilisation(t.device)
                 log.log(step, {"phase": phase, **last_losses, "lr": lr_at(cfg, step),
@@ -296,5 +296,5 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
         if progress is not None:
             progress.close()
         log.close()
-    return {"step": cfg.steps, "last_losses": last_losses, "samples_per_s": rate, "device": str(t.device),
-            "checkpoint": str(last_path(t.run_dir)), "best": validator.best if validator else None}
+    return {"step": cfg.steps, "last_losses": last_losses, "samples_per_s": in_loop_rate(rates),
+            "device": str(t.device), "checkpoint": str(last_path(t.run_dir)), "best": validator.best if validator else None}

@@ -208,9 +208,9 @@ class RunConfig(_Plain):
                                         "labelled images (0 = the paper's fine-tuning on unlabelled "
                                         "images alone).")
     # loader, device, logging
-    workers: int | None = setting(None, "DataLoader worker processes per stream and rank [auto: 0 on the "
-                                  "CPU and with --decoded-cache; on CUDA up to 4, from the cores of "
-                                  "the rank].")
+    workers: int | None = setting(None, "DataLoader worker processes per stream and rank [auto: 0, the "
+                                  "batches built in the training process: fastest on the CPU and on "
+                                  "an H100 with 16 cores].")
     decoded_cache: str | None = setting(None, "Folder for a decoded, uncompressed, memory-mapped copy of "
                                         "the training arrays (opt-in: ~22x the shards' disk space; "
                                         "built once, keyed by each shard's SHA-256).")
