@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# What a GPU machine should show, in one command and in priority order: the figures issues 21
-# and 22 wait for first (training step, fit compiled and eager, render scaling, ShapeNet-sized
-# projection), then the gpu tests, then the whole suite and every other script in benchmarks/.
+# What a GPU machine should show, in one command and in priority order: fit's in-loop speed
+# (issue 21), the gpu tests, the suite (across processes where pytest-xdist is installed), the
+# --semi step, render scaling and the ShapeNet-sized projection (issue 22); then what was measured
+# before (training step, fit eager and compiled, their curves) and every other script in benchmarks/.
 #
 #   bash scripts/gpu_check.sh [--out gpu_check] [--meshes ../shared/meshes] [--kit .gpu]
 #                             [--budget SECONDS] [--only STEP,...] [--skip STEP,...] [--steps 2000]
@@ -116,22 +117,26 @@ step shards 240 "${DATA[@]}" render --meshes "$MESHES" --out "$WORK/shards" --vo
 step startup 60 bash -c "TIMEFORMAT='| python -c pass | %R s |'; for i in 1 2; do time $PY -c pass; done; \
   $PY -X importtime -c 'import sc3d_data.pipeline.executors.worker_preload_egl as m; from sc3d_data.pipeline.executors.worker_preload import PRELOAD_SECONDS as p; print(\"| preload steps |\", {k: round(v, 3) for k, v in p.items() if k != \"ended\"}, \"|\")' 2>$WORK/imp.txt; \
   grep -E '^import time: +[0-9]' $WORK/imp.txt | sort -t'|' -k2 -n -r | head -25 | sed 's/^import time:/| import/'"
-# the figures still open first (fit's in-loop speed with its default loader, render scaling, the
-# gpu tests, the --semi step); then those measured on 2026-11-27 (table 1, the curves)
+# the figures still open first (fit's in-loop speed with its default loader, the gpu tests, the
+# suite, the --semi step, render scaling); then those measured on 2026-11-27 (table 1, the curves)
 step fit_compiled 240 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/compiled" --seed 0 --compile auto
 step fit_loop 30 "$PY" -c "import csv, statistics as st, sys; r = list(csv.DictReader(open(sys.argv[1]))); r = r[len(r) // 10:]; \
   print('| fit, compiled: in the loop | median samples/s', round(st.median(float(x['samples_per_s']) for x in r)), \
         '| median data_wait', round(st.median(float(x['data_wait']) for x in r), 3), '|')" "$WORK/runs/compiled/metrics.csv"
+step gpu_tests 400 "$PY" -m pytest -v -p no:cacheprovider -rs -m gpu --durations=0
+# the whole suite but the gpu tests: across 8 processes of 2 threads where pytest-xdist is there
+# (652 tests in ~5 min with -n 2 on the 2-core CPU box), else in one process
+XDIST=(); "$PY" -c "import xdist" 2>/dev/null && XDIST=(-n 8)
+step suite 900 env OMP_NUM_THREADS=2 "$PY" -m pytest -q -p no:cacheprovider -rs -m "not gpu" "${XDIST[@]}"
+step train_step_semi 400 "$PY" benchmarks/train_step.py --shards "$WORK/shards" --batch-size "$BATCH" --skip-supervised \
+  --profile "${WIDTH[@]}"
+step render_sweep 120 "$PY" benchmarks/render.py --meshes "$MESHES" --sweep "$SWEEP" --copies 3 --pipeline-only
+step corpus 150 "$PY" benchmarks/corpus_size.py --meshes "$MESHES" --sizes "$SIZES" --workers "$NPROC"
 # fit's loader worker count against its in-loop speed (what --workers auto should pick on CUDA)
 step fit_workers 200 bash -c "for w in 0 4 8; do ${TRAIN[*]@Q} fit ${FIT[*]@Q} --steps 600 --workers \$w --out $WORK/runs/w\$w --seed 0 \
   --compile auto 2>&1 | grep -E '^(done|loader)'; $PY -c \"import csv, statistics as st, sys; r = list(csv.DictReader(open(sys.argv[1]))); r = r[len(r) // 5:]; \
   print('| fit --workers', sys.argv[2], '| median samples/s', round(st.median(float(x['samples_per_s']) for x in r)), \
         '| median data_wait', round(st.median(float(x['data_wait']) for x in r), 3), '|')\" $WORK/runs/w\$w/metrics.csv \$w; done"
-step render_sweep 120 "$PY" benchmarks/render.py --meshes "$MESHES" --sweep "$SWEEP" --copies 3 --pipeline-only
-step corpus 150 "$PY" benchmarks/corpus_size.py --meshes "$MESHES" --sizes "$SIZES" --workers "$NPROC"
-step gpu_tests 400 "$PY" -m pytest -v -p no:cacheprovider -rs -m gpu --durations=0
-step train_step_semi 400 "$PY" benchmarks/train_step.py --shards "$WORK/shards" --batch-size "$BATCH" --skip-supervised \
-  --profile "${WIDTH[@]}"
 step train_step 200 "$PY" benchmarks/train_step.py --shards "$WORK/shards" --batch-size "$BATCH" --skip-loader --skip-semi \
   --skip-sc --profile "${WIDTH[@]}"
 step fit_eager 240 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/eager" --seed 0 --compile off
@@ -139,7 +144,6 @@ step fit_compiled_seed1 150 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/comp
 # compiled seed 0 against eager seed 0, with compiled seed 1 as the run-to-run noise; the paper's 20,000 steps projected
 step curves 60 "$PY" benchmarks/compare_curves.py "$WORK/runs/eager" "$WORK/runs/compiled" --noise "$WORK/runs/compiled_seed1" \
   --out "$OUT/curves.png" --project-steps 20000 --wall-b "${SECS[fit_compiled]:-0}" --batch-size "$BATCH"
-step suite 1200 "$PY" -m pytest -q -p no:cacheprovider -rs
 SUB="$WORK/sub"   # about 40 meshes, the same number from each category folder, for the slower scripts
 for cat in "$MESHES"/*/; do
   find "$cat" -type f \( -name '*.glb' -o -name '*.obj' -o -name '*.ply' -o -name '*.off' -o -name '*.stl' \) | sort | head -n 7 |

@@ -154,7 +154,7 @@ def background_of(info: dict) -> list[int]:
 
 # ----------------------------------------------------------------------------- dataset
 #: bytes of decoded objects a dataset keeps per process by default (``cache_objects=None``): a
-#: split that fits is decoded once and each batch gathers from memory (~0.5 CPU-ms per batch of
+#: split that fits is decoded once and each batch gathers from memory (~0.9 CPU-ms per batch of
 #: 48 against ~4 from the gzip-compressed files on the CPU box, docs/benchmarks.md); 2 GiB holds
 #: the ~4,400 objects of a 64 px dataset, so the 136 training objects of the bundled 195 meshes
 #: and single-category subsets up to that size
@@ -178,7 +178,7 @@ class ShardDataset(Dataset):
     evaluation) fails before any work when a shard has no ``voxels``. ``image_size``, when
     given, must match the shards (e.g. the size a checkpoint was trained at).
     ``cache_objects``: decoded objects kept per process (LRU); None: as many as
-    :data:`CACHE_BYTES` holds (:func:`decoded_object_bytes`: ~0.47 MB each at 64 px, 24 views,
+    :data:`CACHE_BYTES` holds (:func:`decoded_object_bytes`: ~0.48 MB each at 64 px, 24 views,
     32^3 voxels, so ~4,400 objects). Batches use it only when the whole split fits
     (``num_objects <= cache_objects``); larger splits read just the views a batch needs
     (:meth:`compact_batch`). ``decoded_cache``: a

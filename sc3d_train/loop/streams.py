@@ -63,4 +63,3 @@ def phase_loaders(t, step: int) -> dict:
                                    rank=t.dist.rank, world_size=t.dist.world_size,
                                    workers=workers, pin_memory=t.device.type == "cuda"))
             for name, (dataset, batch, stream, start) in specs.items()}
-
