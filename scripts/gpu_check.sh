@@ -75,7 +75,7 @@ summarise() {  # OUT/summary.md and OUT/logs.tar.gz from what has run so far
     for name in "${NAMES[@]}"; do
       echo; echo "## $name"; echo
       [ "$name" = machine ] && { cat "$WORK/logs/$name.log"; continue; }
-      grep -E '^\||samples/s|views/s|projection|flat|same curve|DIFFERENT|passed|failed|skipped|error|Error|^(baseline|fit default|--compile|bfloat16|per step|loader:)|forkserver preload|[0-9]s (call|setup)' \
+      grep -E '^\||samples/s|views/s|ms a step|projection|flat|same curve|DIFFERENT|passed|failed|skipped|error|Error|^(baseline|fit default|--compile|bfloat16|per step|loader:)|forkserver preload|[0-9]s (call|setup)' \
         "$WORK/logs/$name.log" | head -150
     done
   } >"$OUT/summary.md"
@@ -123,6 +123,9 @@ step fit_compiled 240 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/compiled" 
 step fit_loop 30 "$PY" -c "import csv, statistics as st, sys; r = list(csv.DictReader(open(sys.argv[1]))); r = r[len(r) // 10:]; \
   print('| fit, compiled: in the loop | median samples/s', round(st.median(float(x['samples_per_s']) for x in r)), \
         '| median data_wait', round(st.median(float(x['data_wait']) for x in r), 3), '|')" "$WORK/runs/compiled/metrics.csv"
+# where the loop's host time goes, after compiling (torch.profiler over the last 20% of the run)
+step fit_profile 180 "$PY" benchmarks/fit_profile.py --shards "$WORK/shards" --steps "$STEPS" --batch-size "$BATCH" \
+  --skip-share 0.8 "${WIDTH[@]}"
 step gpu_tests 400 "$PY" -m pytest -v -p no:cacheprovider -rs -m gpu --durations=0
 # the whole suite but the gpu tests: across 8 processes of 2 threads where pytest-xdist is there
 # (652 tests in ~5 min with -n 2 on the 2-core CPU box), else in one process
