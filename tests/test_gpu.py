@@ -60,9 +60,9 @@ def test_a_cuda_batch_that_does_not_fit_is_one_line(sample_shards, tmp_path):
     """A batch whose step does not fit the GPU's memory ends ``fit`` with one line saying the
     GPU's memory ran out and to lower ``--batch-size``, not a traceback. The process may use
     1 GiB of the GPU here (``torch.cuda.set_per_process_memory_fraction``: the caching allocator
-    itself raises ``torch.OutOfMemoryError`` beyond it, as it does at a card's end), and batch
-    2,048 of the tiny network needs several GiB (about 10 MiB a sample on the CPU, 2026-11-26):
-    a real out-of-memory, reached in seconds. (A batch too large for the whole card, 100,000,
+    itself raises ``torch.OutOfMemoryError`` beyond it, as it does at a card's end), and a step
+    of batch 2,048 of the tests' tiny network (4 base channels) needs more (it ran out on an
+    H100, 2026-11-27): a real out-of-memory, reached in seconds. (A batch too large for the whole card, 100,000,
     first spends minutes building its 5 GB host batch: the lease of 2026-11-27 cut the gpu
     tests there.) Eager (``--compile off``): compiling a step that cannot run would only cost time."""
     limit = min(1.0, 2**30 / torch.cuda.get_device_properties(0).total_memory)
