@@ -154,7 +154,7 @@ def background_of(info: dict) -> list[int]:
 
 # ----------------------------------------------------------------------------- dataset
 #: bytes of decoded objects a dataset keeps per process by default (``cache_objects=None``): a
-#: split that fits is decoded once and each batch gathers from memory (~0.9 CPU-ms per batch of
+#: split that fits is decoded once and each batch gathers from memory (~0.6 CPU-ms per batch of
 #: 48 against ~4 from the gzip-compressed files on the CPU box, docs/benchmarks.md); 2 GiB holds
 #: the ~4,400 objects of a 64 px dataset, so the 136 training objects of the bundled 195 meshes
 #: and single-category subsets up to that size
@@ -227,8 +227,7 @@ class ShardDataset(Dataset):
                                          require_voxels) if decoded_cache else None
         except ShardError as e:
             raise DataError(str(e)) from e
-        self._cameras = None if self._decoded is None and self.cache_objects >= self.num_objects \
-            else self._read_cameras()
+        self._cameras = self._read_cameras()  # every path gathers a batch's cameras from these
 
     def __len__(self) -> int:
         return len(self.objects) * self.num_views
@@ -303,7 +302,8 @@ class ShardDataset(Dataset):
             masks_sc = got["masks_sc"]
         elif self.cache_objects >= self.num_objects:
             arrays = [self._object(int(o)) for o in objs]
-            got = {name: np.stack([a[name][v] for a, v in zip(arrays, views)]) for name in VIEW_FIELDS}
+            got = {name: np.stack([a[name][v] for a, v in zip(arrays, views)]) for name in ("images", "masks")}
+            got.update({k: a[objs, views] for k, a in self._cameras.items()})
             if self.require_voxels:
                 got["voxels"] = np.stack([a["voxels"] for a in arrays])
             masks_sc = self._masks_sc(arrays, views, got["masks"])
