@@ -73,6 +73,23 @@ def test_the_default_cache_holds_2_gib_of_decoded_objects(sample_shards):
     assert ShardDataset(sample_shards, "train", require_voxels=False).cache_objects == 2 * 2**30 // (by_hand - 32 ** 3)
 
 
+def test_a_split_larger_than_the_cache_keeps_no_object(sample_shards):
+    """Objects are kept only when the whole split fits: with room for 2 of the 8 training
+    objects, reading objects (as the pose targets' one pass does) keeps none, and batches read
+    their views from the files; with room for all, each object read is kept."""
+    from sc3d_train.data.dataset import ShardDataset
+
+    small = ShardDataset(sample_shards, "train", cache_objects=2)
+    assert small.num_objects == 8
+    for i in range(small.num_objects):
+        small.object_arrays(i)
+    small.compact_batch([5, 30, 77])
+    assert small._cache == {}
+    whole = ShardDataset(sample_shards, "train", cache_objects=8)
+    whole.object_arrays(2)
+    assert list(whole._cache) == [2]
+
+
 def test_workers_send_every_batch_through_the_ring(sample_shards, monkeypatch):
     """With workers, no batch takes the per-batch tensor path (``pack`` raising in the forked
     workers would surface here), and batches kept while the loader wraps its ring 3 times stay

@@ -20,7 +20,6 @@ views read per batch, a decoded cache folder) must give the same batch from the 
 from __future__ import annotations
 
 import os
-from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -177,7 +176,7 @@ class ShardDataset(Dataset):
     :func:`choose_labeled` (``labeled_fraction``, ``seed``). ``require_voxels`` (training,
     evaluation) fails before any work when a shard has no ``voxels``. ``image_size``, when
     given, must match the shards (e.g. the size a checkpoint was trained at).
-    ``cache_objects``: decoded objects kept per process (LRU); None: as many as
+    ``cache_objects``: how many decoded objects a process may keep; None: as many as
     :data:`CACHE_BYTES` holds (:func:`decoded_object_bytes`: ~0.48 MB each at 64 px, 24 views,
     32^3 voxels, so ~4,400 objects). Batches use it only when the whole split fits
     (``num_objects <= cache_objects``); larger splits read just the views a batch needs
@@ -220,7 +219,7 @@ class ShardDataset(Dataset):
         number = {shard: i for i, shard in enumerate(self._shards)}
         self._shard_index = np.array([number[r.shard] for r in self.objects], dtype=np.int64)
         self._rows = np.array([r.row for r in self.objects], dtype=np.int64)
-        self._cache: OrderedDict[int, dict] = OrderedDict()
+        self._cache: dict[int, dict] = {}
         self._pid = None
         try:
             self._decoded = DecodedCache(Path(decoded_cache), Path(shard_dir), self._shards, mask_size,
@@ -238,7 +237,7 @@ class ShardDataset(Dataset):
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        state["_cache"], state["_pid"] = OrderedDict(), None
+        state["_cache"], state["_pid"] = {}, None
         return state
 
     def close(self) -> None:
@@ -251,13 +250,14 @@ class ShardDataset(Dataset):
         return self._object(obj_i)
 
     def _object(self, obj_i: int) -> dict:
-        """All arrays of object ``obj_i`` (every view, as stored), from this process's LRU cache
-        (used when the whole split fits in it: each object is then decoded once)."""
+        """All arrays of object ``obj_i`` (every view, as stored), kept in this process's cache
+        when the whole split fits in ``cache_objects`` (each object is then decoded once; a
+        larger split's objects are read when asked for and not kept: one pass over them, as the
+        pose targets' search makes, would only fill memory)."""
         if self._pid != os.getpid():  # new process (forked worker): its own cache
-            self._cache, self._pid = OrderedDict(), os.getpid()
+            self._cache, self._pid = {}, os.getpid()
         arrays = self._cache.get(obj_i)
         if arrays is not None:
-            self._cache.move_to_end(obj_i)
             return arrays
         ref = self.objects[obj_i]
         names = VIEW_FIELDS + (("voxels",) if self.require_voxels else ())
@@ -268,10 +268,8 @@ class ShardDataset(Dataset):
         m = self.mask_size
         arrays["masks_sc"] = np.zeros((self.num_views, m, m), dtype=bool)  # filled per view
         arrays["has_sc"] = np.zeros(self.num_views, dtype=bool)            # by _masks_sc
-        if self.cache_objects > 0:
+        if self.cache_objects >= self.num_objects:
             self._cache[obj_i] = arrays
-            while len(self._cache) > self.cache_objects:
-                self._cache.popitem(last=False)
         return arrays
 
     def __getitem__(self, index: int) -> dict:
@@ -291,7 +289,7 @@ class ShardDataset(Dataset):
         ``azimuth``, ``elevation`` float32, ``labeled`` bool, ``index`` int64; strings:
         ``category``, ``model_id``. With a ``decoded_cache`` the arrays are gathered from it. When the
         split fits in ``cache_objects``, objects are decoded
-        whole once (LRU cache) and the 48 px masks computed once per (object, view); otherwise
+        whole once (cache) and the 48 px masks computed once per (object, view); otherwise
         (large datasets: an object comes back once per epoch, so a cache would only miss) only
         the batch's views are read, grouped by shard (``ShardReader.read_views``)."""
         idx = np.asarray(indices, dtype=np.int64).reshape(-1)
