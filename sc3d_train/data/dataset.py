@@ -36,8 +36,9 @@ from sc3d_train.data.decoded_cache import DecodedCache
 
 #: the per-view cameras and poses of a sample (small: read whole per shard for large splits)
 CAMERA_FIELDS = ("K", "R", "t", "distance", "azimuth", "elevation")
-#: the per-view datasets a sample reads (with ``voxels``, per object, when voxels are required)
-VIEW_FIELDS = ("images", "masks") + CAMERA_FIELDS
+#: the per-view pictures of a sample, read from the files (with ``voxels``, per object, when
+#: voxels are required); its cameras come from :data:`CAMERA_FIELDS`, read once per split
+IMAGE_FIELDS = ("images", "masks")
 
 
 class DataError(ValueError):
@@ -260,11 +261,12 @@ class ShardDataset(Dataset):
         if arrays is not None:
             return arrays
         ref = self.objects[obj_i]
-        names = VIEW_FIELDS + (("voxels",) if self.require_voxels else ())
+        names = IMAGE_FIELDS + (("voxels",) if self.require_voxels else ())
         try:
             arrays = self._reader.read(ref.shard, ref.row, names)
         except ShardError as e:  # checksum / gzip error: the reader names the file and row
             raise DataError(f"{e} (object {ref.model_id})") from e
+        arrays.update({k: a[obj_i] for k, a in self._cameras.items()})  # read once, at the start
         m = self.mask_size
         arrays["masks_sc"] = np.zeros((self.num_views, m, m), dtype=bool)  # filled per view
         arrays["has_sc"] = np.zeros(self.num_views, dtype=bool)            # by _masks_sc
@@ -300,7 +302,7 @@ class ShardDataset(Dataset):
             masks_sc = got["masks_sc"]
         elif self.cache_objects >= self.num_objects:
             arrays = [self._object(int(o)) for o in objs]
-            got = {name: np.stack([a[name][v] for a, v in zip(arrays, views)]) for name in ("images", "masks")}
+            got = {name: np.stack([a[name][v] for a, v in zip(arrays, views)]) for name in IMAGE_FIELDS}
             got.update({k: a[objs, views] for k, a in self._cameras.items()})
             if self.require_voxels:
                 got["voxels"] = np.stack([a["voxels"] for a in arrays])
@@ -340,10 +342,10 @@ class ShardDataset(Dataset):
         return out
 
     def _read_views(self, objs: np.ndarray, views: np.ndarray) -> dict[str, np.ndarray]:
-        """``VIEW_FIELDS`` (+ ``voxels``) of the B (object, view) pairs, ``[B, ...]`` as stored:
-        images, masks and voxels read from the files (one ``read_views`` per shard the batch
-        touches), the cameras from :meth:`_read_cameras`."""
-        names = ("images", "masks") + (("voxels",) if self.require_voxels else ())
+        """``IMAGE_FIELDS`` and ``CAMERA_FIELDS`` (+ ``voxels``) of the B (object, view) pairs,
+        ``[B, ...]`` as stored: images, masks and voxels read from the files (one ``read_views``
+        per shard the batch touches), the cameras from :meth:`_read_cameras`."""
+        names = IMAGE_FIELDS + (("voxels",) if self.require_voxels else ())
         shard_of = self._shard_index[objs]
         out: dict[str, np.ndarray] = {k: a[objs, views] for k, a in self._cameras.items()}
         for s in np.unique(shard_of).tolist():
