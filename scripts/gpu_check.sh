@@ -120,9 +120,12 @@ step startup 60 bash -c "TIMEFORMAT='| python -c pass | %R s |'; for i in 1 2; d
 # the figures still open first (fit's in-loop speed with its default loader, the gpu tests, the
 # suite, the --semi step, render scaling); then those measured on 2026-11-27 (table 1, the curves)
 step fit_compiled 240 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/compiled" --seed 0 --compile auto
-step fit_loop 30 "$PY" -c "import csv, statistics as st, sys; r = list(csv.DictReader(open(sys.argv[1]))); r = r[len(r) // 10:]; \
-  print('| fit, compiled: in the loop | median samples/s', round(st.median(float(x['samples_per_s']) for x in r)), \
-        '| median data_wait', round(st.median(float(x['data_wait']) for x in r), 3), '|')" "$WORK/runs/compiled/metrics.csv"
+# a run's loop (python -c "$LOOP" METRICS_CSV LABEL SKIP): median samples/s and data_wait of its
+# logged intervals, the first 1/SKIP of them (compiling, warm-up) left out
+LOOP="import csv, statistics as st, sys; r = list(csv.DictReader(open(sys.argv[1]))); r = r[len(r) // int(sys.argv[3]):]; \
+print('|', sys.argv[2], '| median samples/s', round(st.median(float(x['samples_per_s']) for x in r)), \
+      '| median data_wait', round(st.median(float(x['data_wait']) for x in r), 3), '|')"
+step fit_loop 30 "$PY" -c "$LOOP" "$WORK/runs/compiled/metrics.csv" "fit, compiled: in the loop" 10
 # where the loop's host time goes, after compiling (torch.profiler over the last 20% of the run)
 step fit_profile 180 "$PY" benchmarks/fit_profile.py --shards "$WORK/shards" --steps "$STEPS" --batch-size "$BATCH" \
   --skip-share 0.8 "${WIDTH[@]}"
@@ -137,9 +140,7 @@ step render_sweep 120 "$PY" benchmarks/render.py --meshes "$MESHES" --sweep "$SW
 step corpus 150 "$PY" benchmarks/corpus_size.py --meshes "$MESHES" --sizes "$SIZES" --workers "$NPROC"
 # fit's loader worker count against its in-loop speed (what --workers auto should pick on CUDA)
 step fit_workers 200 bash -c "for w in 0 4 8; do ${TRAIN[*]@Q} fit ${FIT[*]@Q} --steps 600 --workers \$w --out $WORK/runs/w\$w --seed 0 \
-  --compile auto 2>&1 | grep -E '^(done|loader)'; $PY -c \"import csv, statistics as st, sys; r = list(csv.DictReader(open(sys.argv[1]))); r = r[len(r) // 5:]; \
-  print('| fit --workers', sys.argv[2], '| median samples/s', round(st.median(float(x['samples_per_s']) for x in r)), \
-        '| median data_wait', round(st.median(float(x['data_wait']) for x in r), 3), '|')\" $WORK/runs/w\$w/metrics.csv \$w; done"
+  --compile auto 2>&1 | grep -E '^done'; $PY -c ${LOOP@Q} $WORK/runs/w\$w/metrics.csv \"fit --workers \$w\" 5; done"
 step train_step 200 "$PY" benchmarks/train_step.py --shards "$WORK/shards" --batch-size "$BATCH" --skip-loader --skip-semi \
   --skip-sc --profile "${WIDTH[@]}"
 step fit_eager 240 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/eager" --seed 0 --compile off
