@@ -1,18 +1,21 @@
 """Where ``fit``'s training loop spends the host's time (issue 21): the whole loop, not one step.
 
-    python benchmarks/fit_profile.py --shards SHARDS [--steps 400] [--batch-size 48] [--tiny]
-                                     [--skip-share 0.5] [--top 25] [-- FIT OPTIONS...]
+    python benchmarks/fit_profile.py --shards SHARDS [--steps 400] [--active 50] [--batch-size 48] [--tiny]
+                                     [--top 25] [-- FIT OPTIONS...]
 
 Runs ``sc3d-train fit`` in this process (``--device auto``, its defaults otherwise, options after
-``--`` added) under ``torch.profiler`` (CPU, and CUDA where present) and keeps the events that
-start in the last ``1 - --skip-share`` of the profiled wall time, after compiling and the first
-batches. Prints the host operations of that stretch by self CPU time (ms per training step and
-calls per step), then the CUDA runtime calls that make the host wait for the GPU or page-lock
-memory (``cudaStreamSynchronize``, ``cudaDeviceSynchronize``, ``cudaEventSynchronize``,
-``cudaMemcpy``, ``cudaHostAlloc``, ``cudaFreeHost``, ``cudaGraphLaunch``) with their calls and
-ms per step. The question it answers: does the loop build the next batch while the GPU runs the
-current step, or does something make the two take turns (on an H100 with 16 cores, 2026-11-27,
-the loop took about the loader's time plus the step's)?
+``--`` added) and profiles (``torch.profiler``: CPU, and CUDA where present) only its last
+``--active`` training steps: before them the profiler is off (compiling, warm-up, the decoded
+cache filling), so a run at the paper's width on a GPU ends in about the time of ``fit`` itself
+(profiling every step, compiling included, passed 180 s for 500 steps on the H100). Prints, per
+training step of that stretch: its wall time; the spans of the loop's parts (labelled with
+``record_function``: the next batch (loader, copy to the device, expansion), the step itself
+(forward, losses, backward, Adam), the loss window); the GPU's kernel time; the host operations by
+self CPU time; the CUDA runtime calls that make the host wait for the GPU or page-lock memory
+(``cudaStreamSynchronize``, ``cudaDeviceSynchronize``, ``cudaEventSynchronize``, ``cudaMemcpy``,
+``cudaHostAlloc``, ``cudaFreeHost``, ``cudaGraphLaunch``). The question it answers: what does the
+loop do beyond the training step that ``train_step.py`` times (on an H100 with 16 cores,
+2026-11-27: ~15 ms a step in the loop against ~8 ms for the step alone)?
 """
 from __future__ import annotations
 
@@ -23,32 +26,65 @@ from collections import defaultdict
 from pathlib import Path
 
 import torch
-from torch.profiler import ProfilerActivity, profile
+from torch.profiler import ProfilerActivity, profile, schedule
 
 #: CUDA runtime calls that block the host on the GPU or page-lock host memory
 WAITING_CALLS = ("cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaEventSynchronize", "cudaMemcpy",
                  "cudaMemcpyAsync", "cudaHostAlloc", "cudaFreeHost", "cudaGraphLaunch")
 
 
-def late_host_events(events, skip_share: float) -> tuple[list, float]:
-    """The CPU-side events of ``events`` (``prof.events()``) starting after ``skip_share`` of the
-    span from the first event's start to the last event's end, and that stretch's length (ms)."""
-    host = [e for e in events if e.device_type == torch.autograd.DeviceType.CPU]
-    if not host:
-        return [], 0.0
-    t0 = min(e.time_range.start for e in host)
-    t1 = max(e.time_range.end for e in host)
-    cut = t0 + skip_share * (t1 - t0)
-    return [e for e in host if e.time_range.start >= cut], (t1 - cut) / 1000.0
+#: the loop's parts, as record_function spans: (label, module, attribute) wrapped for the profile;
+#: the first is each next() of the phase's device batches (trainer.device_batches' iterators)
+PARTS = (("loop: next batch (loader, to the device, expansion)", "sc3d_train.loop.trainer", "device_batches"),
+         ("loop: training step (forward, losses, backward, Adam)", "sc3d_train.loop.train_step", "TrainStep.__call__"),
+         ("loop: loss window", "sc3d_train.loop.loss_window", "LossWindow.record"))
 
 
-def per_name(events) -> dict[str, tuple[int, float]]:
-    """``{name: (calls, self CPU ms)}`` of ``events``."""
-    out: dict[str, list] = defaultdict(lambda: [0, 0.0])
+def annotate(label: str, fn):
+    """``fn`` inside ``record_function(label)``."""
+    def wrapped(*a, **k):
+        with torch.profiler.record_function(label):
+            return fn(*a, **k)
+    return wrapped
+
+
+def annotate_batches(label: str, fn):
+    """``fn`` (``device_batches``) whose iterators' ``next`` runs inside ``record_function(label)``."""
+    def wrapped(*a, **k):
+        return {p: map(lambda _, it=it: annotate(label, next)(it), iter(int, 1)) for p, it in fn(*a, **k).items()}
+    return wrapped
+
+
+def patch_loop(prof) -> None:
+    """Wrap the loop's parts (:data:`PARTS`) in spans, and ``trainer.train_step`` so that each
+    training step advances the profiler's schedule (``prof.step()``)."""
+    import importlib
+
+    from sc3d_train.loop import trainer
+
+    for i, (label, module, attr) in enumerate(PARTS):
+        owner = importlib.import_module(module)
+        if "." in attr:
+            owner, attr = getattr(owner, attr.split(".")[0]), attr.split(".")[1]
+        setattr(owner, attr, (annotate_batches if i == 0 else annotate)(label, getattr(owner, attr)))
+    step = trainer.train_step
+
+    def stepped(*a, **k):
+        out = step(*a, **k)
+        prof.step()
+        return out
+    trainer.train_step = stepped
+
+
+def per_name(events) -> dict[str, tuple[int, float, float]]:
+    """``{name: (calls, self CPU ms, total CPU ms)}`` of the host events of ``events``."""
+    out: dict[str, list] = defaultdict(lambda: [0, 0.0, 0.0])
     for e in events:
-        out[e.name][0] += 1
-        out[e.name][1] += e.self_cpu_time_total / 1000.0
-    return {k: (c, ms) for k, (c, ms) in out.items()}
+        if e.device_type == torch.autograd.DeviceType.CPU:
+            out[e.name][0] += 1
+            out[e.name][1] += e.self_cpu_time_total / 1000.0
+            out[e.name][2] += e.cpu_time_total / 1000.0
+    return {k: tuple(v) for k, v in out.items()}
 
 
 def main() -> None:
@@ -58,44 +94,59 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--shards", type=Path, required=True)
     ap.add_argument("--steps", type=int, default=400)
+    ap.add_argument("--active", type=int, default=50, help="training steps profiled, the last of the run")
     ap.add_argument("--batch-size", type=int, default=48)
     ap.add_argument("--tiny", action="store_true")
-    ap.add_argument("--skip-share", type=float, default=0.5)
     ap.add_argument("--top", type=int, default=25)
     args = ap.parse_args(argv)
-    if not 0 <= args.skip_share < 1:
-        raise SystemExit("fit_profile: --skip-share must be in [0, 1)")
+    if not 0 < args.active < args.steps:
+        raise SystemExit("fit_profile: --active must be between 1 and --steps - 1")
     from sc3d_cli.train import main as train_main
 
     activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if torch.cuda.is_available() else [])
+    # the schedule counts prof.step() calls: one per training step; the last (active + 1) steps are warm-up + active
+    wait = args.steps - args.active - 1
     with tempfile.TemporaryDirectory() as tmp:
         fit_args = ["fit", "--shards", str(args.shards), "--out", str(Path(tmp) / "run"), "--steps", str(args.steps),
                     "--batch-size", str(args.batch_size), "--val-every", "0", "--no-progress",
                     *(["--tiny"] if args.tiny else []), *extra]
-        with profile(activities=activities) as prof:
+        done = {}
+        with profile(activities=activities, schedule=schedule(wait=wait, warmup=1, active=args.active, repeat=1),
+                     on_trace_ready=lambda p: done.setdefault("events", p.events())) as prof:
+            patch_loop(prof)
             try:
                 train_main(fit_args, standalone_mode=False)
             except SystemExit as e:
                 if e.code:
                     raise
-        events, ms = late_host_events(prof.events(), args.skip_share)
+    events = done.get("events")
+    if not events:
+        raise SystemExit("fit_profile: the profiled steps did not complete")
+    host = [e for e in events if e.device_type == torch.autograd.DeviceType.CPU]
+    steps = args.active
+    wall = (max(e.time_range.end for e in host) - min(e.time_range.start for e in host)) / 1000.0
+    gpu = sum(e.device_time_total for e in events if e.device_type == torch.autograd.DeviceType.CUDA) / 1000.0
     names = per_name(events)
-    # the optimiser's step (torch.optim's record_function) happens once a training step
-    steps = sum(c for n, (c, _) in names.items() if n.startswith("Optimizer.step#"))
-    if not steps:
-        raise SystemExit("fit_profile: no optimiser step in the profiled stretch (lower --skip-share)")
-    print(f"\nfit's loop, last {100 * (1 - args.skip_share):.0f}% of the profiled time: {ms:.0f} ms, "
-          f"{steps} steps, {ms / steps:.2f} ms a step; torch's host operations "
-          f"{sum(c for _, c in names.values()) / steps:.2f} ms of self CPU a step (all threads), the rest "
-          "is Python: the loader's reads and the loop")
-    print(f"| host operation (top {args.top} by self CPU) | calls a step | self CPU ms a step |")
+    print(f"\nfit's last {steps} steps: {wall / steps:.2f} ms of wall time a step "
+          f"({args.batch_size * steps / wall * 1000:.0f} samples/s); GPU kernels {gpu / steps:.2f} ms a step")
+    print("| part of the loop | calls a step | wall ms a step (span) |")
     print("|---|---|---|")
-    for name, (calls, cpu) in sorted(names.items(), key=lambda kv: -kv[1][1])[:args.top]:
+    spans = 0.0
+    for label, *_ in PARTS:
+        calls, _, total = names.get(label, (0, 0.0, 0.0))
+        spans += total
+        print(f"| {label} | {calls / steps:.1f} | {total / steps:.3f} |")
+    print(f"| rest: the loop's own Python, lr, logging (its host sync every --log-every steps), checkpoints | - | "
+          f"{(wall - spans) / steps:.3f} |")
+    print(f"\n| host operation (top {args.top} by self CPU) | calls a step | self CPU ms a step |")
+    print("|---|---|---|")
+    ops = {n: v for n, v in names.items() if n not in {p[0] for p in PARTS}}
+    for name, (calls, cpu, _) in sorted(ops.items(), key=lambda kv: -kv[1][1])[:args.top]:
         print(f"| {name[:80]} | {calls / steps:.1f} | {cpu / steps:.3f} |")
     print("\n| CUDA runtime call | calls a step | self CPU ms a step |")
     print("|---|---|---|")
     for name in WAITING_CALLS:
-        calls, cpu = names.get(name, (0, 0.0))
+        calls, cpu, _ = names.get(name, (0, 0.0, 0.0))
         print(f"| {name} | {calls / steps:.2f} | {cpu / steps:.3f} |")
 
 

@@ -6,6 +6,7 @@
 #
 #   bash scripts/gpu_check.sh [--out gpu_check] [--meshes ../shared/meshes] [--kit .gpu]
 #                             [--budget SECONDS] [--only STEP,...] [--skip STEP,...] [--steps 2000]
+#                             [--baseline TAR]
 #
 # --kit DIR: install first from a folder made by `bash scripts/gpu_kit.sh` (GL loader debs,
 #   the wheels the machine lacks, the meshes; sc3d runs from this tree through PYTHONPATH): for a
@@ -14,6 +15,9 @@
 #   own cap or at the budget, whichever comes first (a step cut off says "timeout" in the
 #   summary). Without it, every step runs to its end.
 # --only / --skip: step names (the first column of the summary), e.g. to finish a cut-off run.
+# --baseline TAR: an older source tree (`git archive REV -o TAR`): step fit_baseline trains with
+#   its sc3d_train, the same command as fit_compiled at half the steps, so that fit_loop compares
+#   the loop's speed on the same machine in the same run.
 #
 # OUT holds summary.md (a row per step: exit code, seconds, command; then the tables of every
 # log), logs.tar.gz (every step's log and the fit runs' metrics) and curves.png (compiled against
@@ -22,7 +26,7 @@
 # that is how the script itself is checked. Exit code 1 when any step failed.
 set -uo pipefail
 cd "$(dirname "$0")/.."
-OUT=gpu_check; MESHES=../shared/meshes; KIT=""; BUDGET=0; ONLY=""; SKIP=""; STEPS=2000
+OUT=gpu_check; MESHES=../shared/meshes; KIT=""; BUDGET=0; ONLY=""; SKIP=""; STEPS=2000; BASELINE=
 while [ $# -gt 0 ]; do
   case "$1" in
     --out) OUT=$2; shift 2 ;;
@@ -32,6 +36,7 @@ while [ $# -gt 0 ]; do
     --only) ONLY=",$2,"; shift 2 ;;
     --skip) SKIP=",$2,"; shift 2 ;;
     --steps) STEPS=$2; shift 2 ;;
+    --baseline) BASELINE=$(cd "$(dirname "$2")" && pwd)/$(basename "$2"); shift 2 ;;
     *) echo "gpu_check: unknown option $1" >&2; exit 2 ;;
   esac
 done
@@ -125,10 +130,17 @@ step fit_compiled 240 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/compiled" 
 LOOP="import csv, statistics as st, sys; r = list(csv.DictReader(open(sys.argv[1]))); r = r[len(r) // int(sys.argv[3]):]; \
 print('|', sys.argv[2], '| median samples/s', round(st.median(float(x['samples_per_s']) for x in r)), \
       '| median data_wait', round(st.median(float(x['data_wait']) for x in r), 3), '|')"
-step fit_loop 30 "$PY" -c "$LOOP" "$WORK/runs/compiled/metrics.csv" "fit, compiled: in the loop" 10
-# where the loop's host time goes, after compiling (torch.profiler over the last 20% of the run)
-step fit_profile 180 "$PY" benchmarks/fit_profile.py --shards "$WORK/shards" --steps "$STEPS" --batch-size "$BATCH" \
-  --skip-share 0.8 "${WIDTH[@]}"
+if [ -n "$BASELINE" ]; then   # the same fit from the older tree (its sc3d_train first on the path)
+  mkdir -p "$WORK/base" && tar -xf "$BASELINE" -C "$WORK/base"
+  step fit_baseline 180 env PYTHONPATH="$WORK/base:${PYTHONPATH:-}" "${TRAIN[@]}" fit "${FIT[@]}" --steps $((STEPS / 2)) \
+    --out "$WORK/runs/baseline" --seed 0 --compile auto
+fi
+step fit_loop 30 bash -c "$PY -c ${LOOP@Q} $WORK/runs/compiled/metrics.csv 'fit, compiled: in the loop' 10; \
+  [ ! -f $WORK/runs/baseline/metrics.csv ] || $PY -c ${LOOP@Q} $WORK/runs/baseline/metrics.csv 'the same, --baseline tree' 10"
+# where the loop's time goes, after compiling: the last 50 of a quarter of the steps profiled (the loop's
+# parts, host operations, waiting CUDA calls, GPU time a step)
+step fit_profile 180 "$PY" benchmarks/fit_profile.py --shards "$WORK/shards" --steps $((STEPS / 4)) --active $((STEPS / 40 > 2 ? STEPS / 40 : 2)) \
+  --batch-size "$BATCH" "${WIDTH[@]}"
 step gpu_tests 400 "$PY" -m pytest -v -p no:cacheprovider -rs -m gpu --durations=0
 # the whole suite but the gpu tests: across 8 processes of 2 threads where pytest-xdist is there
 # (652 tests in ~5 min with -n 2 on the 2-core CPU box), else in one process
