@@ -165,6 +165,7 @@ for cat in "$MESHES"/*/; do
   find "$cat" -type f \( -name '*.glb' -o -name '*.obj' -o -name '*.ply' -o -name '*.off' -o -name '*.stl' \) | sort | head -n 7 |
     while read -r f; do c=$(basename "$cat"); mkdir -p "$SUB/$c"; ln -s "$f" "$SUB/$c/$(basename "$f")"; done
 done
+step checkpoint 120 "$PY" benchmarks/checkpoint.py "${WIDTH[@]}"
 step voxelize 300 "$PY" benchmarks/voxelize.py "$SUB"
 step shard_write 300 "$PY" benchmarks/shard_write.py "$WORK/shards" --repeat 1
 step pose_search 300 "$PY" benchmarks/pose_search.py --shards "$WORK/shards"

@@ -289,12 +289,12 @@ def test_t9_an_interrupt_after_a_checkpoint_names_that_checkpoint(sample_shards,
     checkpoint before it as the last good one (the loop had not noted the new one yet). Now the
     message names the ``last.pt`` on disk: the checkpoint of step 2 here. The interrupt is raised
     where Ctrl-C landed in the attack: in the curves' redraw after the checkpoint."""
-    import sc3d_train.loop.trainer as trainer
+    import sc3d_train.loop.metrics_log as metrics_log
 
     def ctrl_c(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(trainer, "plot_curves", ctrl_c)
+    monkeypatch.setattr(metrics_log, "plot_curves", ctrl_c)
     out = tmp_path / "run"
     res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", out, "--steps", 4, "--batch-size", 4, *TINY,
                                "--checkpoint-every", 2, "--val-every", 0, "--device", "cpu"], expect_exit=None)

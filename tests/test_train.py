@@ -99,6 +99,27 @@ def test_the_done_line_gives_the_median_rate_of_the_loop(sample_shards, tmp_path
     assert said == pytest.approx(statistics.median(rates[1:]), abs=0.06), (said, rates)
 
 
+def test_curves_are_drawn_at_most_once_a_minute_and_at_the_end(tmp_path, monkeypatch):
+    """``MetricsLog.draw_curves``: the first checkpoint draws ``curves.png``; one within
+    CURVES_EVERY_S of it does not (the file, removed, stays away); the run's last does; and once
+    the interval has passed (the clock moved past it) the next checkpoint draws again."""
+    import sc3d_train.loop.metrics_log as metrics_log
+
+    log = metrics_log.MetricsLog(tmp_path, 0)
+    for step in range(9, 40, 10):
+        log.log(step, {"phase": "supervised", "total": 1.0 / step, "samples_per_s": 100.0})
+    png = tmp_path / "curves.png"
+    assert log.draw_curves(png) and png.stat().st_size > 0
+    png.unlink()
+    assert not log.draw_curves(png) and not png.exists()
+    assert log.draw_curves(png, final=True) and png.is_file()
+    png.unlink()
+    clock = metrics_log.time.monotonic() + metrics_log.CURVES_EVERY_S + 1
+    monkeypatch.setattr(metrics_log.time, "monotonic", lambda: clock)
+    assert log.draw_curves(png) and png.is_file()
+    log.close()
+
+
 def test_resume_equals_uninterrupted(sample_shards, tmp_path):
     args = ["--shards", sample_shards, "--batch-size", "4", *TINY, "--checkpoint-every", "3", "--seed", "5"]
     whole, parts = tmp_path / "whole", tmp_path / "parts"

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from sc3d_train.loop.atomic_save import save_atomically
 from sc3d_train.settings.config import RunConfig
 from sc3d_train.settings.torch_floor import SAFE_TORCH, torch_is_safe
 
@@ -126,8 +127,7 @@ def save_best(run_dir: Path, payload: dict) -> Path:
     tmp = path.with_name(path.name + ".tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        torch.save({"format_version": FORMAT_VERSION, **payload}, tmp)
-        os.replace(tmp, path)
+        save_atomically({"format_version": FORMAT_VERSION, **payload}, tmp, path)
     except (OSError, RuntimeError) as e:
         tmp.unlink(missing_ok=True)
         raise CheckpointError(f"{path}: cannot write checkpoint ({' '.join(str(e).split())})") from e
@@ -135,8 +135,11 @@ def save_best(run_dir: Path, payload: dict) -> Path:
 
 
 def save_checkpoint(run_dir: Path, payload: dict) -> Path:
-    """Write ``payload`` as ``checkpoints/step_XXXXXX.pt`` and copy it to ``last.pt``
-    (both atomically). Returns the step file."""
+    """Write ``payload`` as ``checkpoints/step_XXXXXX.pt`` and make ``last.pt`` the same file
+    (both atomically): a hard link where the file system has them, so the checkpoint is written
+    once (~126 MB at the paper's width with Adam's moments), else a copy. Nothing writes into a
+    checkpoint after it is made (each is a new file put in place by ``os.replace``), so the two
+    names never differ; deleting ``step_*.pt`` leaves ``last.pt`` whole. Returns the step file."""
     path = step_path(run_dir, payload["step"])
     payload = {"format_version": FORMAT_VERSION, **payload}
     tmp = path.with_name(path.name + ".tmp")
@@ -145,12 +148,15 @@ def save_checkpoint(run_dir: Path, payload: dict) -> Path:
     target = path
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        torch.save(payload, tmp)
-        os.replace(tmp, path)
+        save_atomically(payload, tmp, path)
         target = last
-        shutil.copyfile(path, tmp_last)
+        tmp_last.unlink(missing_ok=True)  # left by a run killed here
+        try:
+            os.link(path, tmp_last)
+        except OSError:  # no hard links here (some network and FAT file systems): a copy
+            shutil.copyfile(path, tmp_last)
         os.replace(tmp_last, last)
-    except (OSError, RuntimeError) as e:  # torch.save reports a full disk as RuntimeError
+    except (OSError, RuntimeError) as e:
         for t in (tmp, tmp_last):
             try:
                 t.unlink()

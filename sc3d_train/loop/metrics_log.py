@@ -11,6 +11,9 @@ import time
 from pathlib import Path
 
 CSV_NAME = "metrics.csv"
+#: seconds between two drawings of ``curves.png`` at checkpoints (:meth:`MetricsLog.draw_curves`):
+#: on an H100 a checkpoint comes every ~8 s and a drawing costs ~0.3-1 s of the loop's host time
+CURVES_EVERY_S = 60.0
 
 
 def complete_rows(path: Path) -> list[dict]:
@@ -72,6 +75,17 @@ class MetricsLog:
         for k, v in values.items():
             if isinstance(v, (int, float)):
                 self.tb.add_scalar(k if "/" in k else f"train/{k}", v, step)
+
+    def draw_curves(self, png_path: Path, final: bool = False) -> bool:
+        """:func:`plot_curves` of this log into ``png_path`` when ``final`` (the run's last
+        checkpoint) or when none was drawn in the last :data:`CURVES_EVERY_S` seconds; returns
+        whether it drew."""
+        now = time.monotonic()
+        if not self.enabled or not (final or now - getattr(self, "_drawn_at", -math.inf) >= CURVES_EVERY_S):
+            return False
+        plot_curves(self.path, png_path)
+        self._drawn_at = now
+        return True
 
     def close(self):
         if self.enabled:

@@ -52,7 +52,7 @@ from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.data.device_prefetch import DevicePrefetcher
 from sc3d_train.loop.loss_window import LossWindow
 from sc3d_train.loop.memory_check import check_cpu_batch_fits
-from sc3d_train.loop.metrics_log import DataWaitClock, MetricsLog, gpu_utilisation, in_loop_rate, plot_curves
+from sc3d_train.loop.metrics_log import DataWaitClock, MetricsLog, gpu_utilisation, in_loop_rate
 from sc3d_train.loop.phase_step import augment_step, training_batch
 from sc3d_train.loop.runtime import (DistInfo, all_gather, all_mean, all_min, channels_last_on, resolve_amp,
                                      check_same_weights, resolve_device, seed_everything, setup_distributed)
@@ -163,8 +163,8 @@ def wrap_ddp(t: Training) -> None:
 
 
 def save(t: Training, step_done: int, log: MetricsLog) -> Path | None:
-    """Checkpoint after ``step_done`` steps (every rank's RNG state; written by rank 0, which also
-    redraws ``curves.png``) once every rank holds the same weights (``check_same_weights``)."""
+    """Checkpoint after ``step_done`` steps (every rank's RNG state; rank 0 writes it and redraws
+    ``curves.png``: ``MetricsLog.draw_curves``) once every rank holds the same weights."""
     check_same_weights(t.model, t.dist, step_done)
     states = all_gather(rng_state(), t.dist)
     if not t.dist.is_main:
@@ -174,7 +174,7 @@ def save(t: Training, step_done: int, log: MetricsLog) -> Path | None:
         "scaler": t.scaler.state_dict() if t.scaler is not None else None, "rng": states,
         "step": step_done, "config": t.cfg.to_dict(),
         "data_position": data_position(t.cfg, step_done, t.local_batch)})
-    plot_curves(log.path, t.run_dir / "curves.png")
+    log.draw_curves(t.run_dir / "curves.png", final=step_done >= t.cfg.steps)
     return path
 
 

@@ -1,0 +1,41 @@
+"""``torch.save`` to a file that appears whole or not at all, and whose failed write names its
+cause: checkpoints (:mod:`sc3d_train.loop.checkpoint`) are written through it."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import torch
+
+
+def save_atomically(payload: dict, tmp: Path, path: Path) -> None:
+    """``torch.save(payload)`` to ``tmp``, then renamed to ``path``. Written through a file
+    object whose writes are watched: ``torch.save`` reports a failed write (a full disk) only as
+    "unexpected pos 704 vs 598", so the write's own ``OSError`` ("No space left on device") is
+    raised instead."""
+    with open(tmp, "wb") as f:
+        out = _WatchedFile(f)
+        try:
+            torch.save(payload, out)
+        except RuntimeError as e:
+            if out.error is not None:
+                raise out.error from e
+            raise
+    os.replace(tmp, path)
+
+
+class _WatchedFile:
+    """A binary file for ``torch.save`` that keeps the ``OSError`` of a failed write."""
+
+    def __init__(self, f):
+        self.f, self.error = f, None
+
+    def write(self, data) -> int:
+        try:
+            return self.f.write(data)
+        except OSError as e:
+            self.error = e
+            raise
+
+    def flush(self) -> None:
+        self.f.flush()
