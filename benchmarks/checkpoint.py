@@ -4,14 +4,13 @@
 
 At the paper's width (or ``--tiny``) with Adam's moments (one step taken, so they exist), on
 ``--device``: the model's and the optimiser's state written as ``fit`` writes them
-(``save_checkpoint``: written once, ``last.pt`` a hard link to the step file) against the
-previous way (``torch.save`` to the step file, then ``last.pt`` copied from it: the checkpoint
-written twice); and ``curves.png`` drawn from a ``metrics.csv`` of 2,000 and
+(``save_checkpoint``: ``torch.save`` through a file whose failed write is named, then copied to
+``last.pt``) against the previous way (``torch.save`` to the path, then the copy); and ``curves.png`` drawn from a ``metrics.csv`` of 2,000 and
 of 20,000 steps (one row per 10). Each is the median of ``--repeat`` runs, in ``--dir`` (default:
 a temporary folder; give one on the disk your runs write to). Last, the paper's supervised run
 (20,000 steps, a checkpoint every 500) at a given loop speed: seconds its 40 checkpoints cost the
-loop before (each written twice and the curves redrawn) and now (written once; the curves at
-most once a minute, ``metrics_log.CURVES_EVERY_S``, and at the end).
+loop before (the curves redrawn at each) and now (the curves at most once a minute,
+``metrics_log.CURVES_EVERY_S``, and at the end).
 """
 from __future__ import annotations
 
@@ -31,7 +30,7 @@ sys.path.insert(0, str(REPO))
 
 
 def previous_save(run_dir: Path, payload: dict) -> None:
-    """The previous ``save_checkpoint``: ``torch.save`` to the step file, then a copy to ``last.pt``."""
+    """The previous ``save_checkpoint``: ``torch.save`` to the step file's path, then a copy to ``last.pt``."""
     folder = run_dir / "checkpoints"
     folder.mkdir(parents=True, exist_ok=True)
     step = folder / f"step_{payload['step']:06d}.pt"
@@ -102,19 +101,19 @@ def main() -> None:
           f"moments on {device}; {args.repeat} runs each, median; folder on {args.dir or tempfile.gettempdir()}")
     print("| what | seconds | baseline, same run (ratio) |")
     print("|---|---|---|")
-    print(f"| checkpoint as `fit` writes it (once; `last.pt` a hard link) | {now:.3f} | "
-          f"torch.save + copy to last.pt: {before:.3f} ({before / now:.2f}x) |")
+    print(f"| checkpoint as `fit` writes it (step file + copy to last.pt) | {now:.3f} | "
+          f"torch.save to the path + copy: {before:.3f} ({before / now:.2f}x) |")
     for steps, sec in plots.items():
         print(f"| `curves.png` from {steps:,} steps of `metrics.csv` | {sec:.3f} | |")
     checkpoints = 20000 // 500
     interval = 500 * 48 / args.loop_samples_per_s  # seconds between checkpoints in the loop
     draws = min(checkpoints, int(checkpoints * interval // CURVES_EVERY_S) + 1)
     plot = statistics.mean(plots.values())
-    was = checkpoints * (before + plot)
+    was = checkpoints * (now + plot)
     is_ = checkpoints * now + draws * plot
     print(f"| the paper's run (20,000 steps, batch 48, a checkpoint every 500, loop at "
           f"{args.loop_samples_per_s:,.0f} samples/s: one every {interval:.0f} s): its {checkpoints} checkpoints "
-          f"| {is_:.1f} ({draws} drawings) | written twice, drawn each time: {was:.1f} ({was / is_:.2f}x) |")
+          f"| {is_:.1f} ({draws} drawings) | drawn at each: {was:.1f} ({was / is_:.2f}x) |")
 
 
 if __name__ == "__main__":

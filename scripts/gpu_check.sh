@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
-# What a GPU machine should show, in one command and in priority order: fit's in-loop speed
-# (issue 21), the gpu tests, the suite (across processes where pytest-xdist is installed), the
-# --semi step, render scaling and the ShapeNet-sized projection (issue 22); then what was measured
-# before (training step, fit eager and compiled, their curves) and every other script in benchmarks/.
+# What a GPU machine should show, in one command and in priority order: where fit's loop spends
+# its time and its in-loop speed (issue 21), what a checkpoint costs, the gpu tests, the suite
+# (across processes where pytest-xdist is installed), the --semi step, render scaling and the
+# ShapeNet-sized projection (issue 22), the render's start; then what was measured before
+# (loader workers, training step, fit eager and compiled, their curves) and every other script
+# in benchmarks/.
 #
 #   bash scripts/gpu_check.sh [--out gpu_check] [--meshes ../shared/meshes] [--kit .gpu]
 #                             [--budget SECONDS] [--only STEP,...] [--skip STEP,...] [--steps 2000]
@@ -117,13 +119,12 @@ mkdir -p "$WORK/runs"
 step machine 60 bash -c "nvidia-smi -L 2>&1; nproc; free -g | head -2; $PY -c 'import torch; print(torch.__version__, torch.version.cuda, torch.cuda.is_available() and torch.cuda.get_device_name(0))'; \
   for b in egl osmesa; do $PY -c \"from sc3d_data.render.probe import probe_backend; print('\$b', probe_backend('\$b'))\" 2>&1 | tail -1; done"
 step shards 240 "${DATA[@]}" render --meshes "$MESHES" --out "$WORK/shards" --voxelize --no-progress
-# where a render's fixed start goes on this machine: the interpreter, then the forkserver's preload
-# module by module (-X importtime, cumulative microseconds, the 25 largest)
-step startup 60 bash -c "TIMEFORMAT='| python -c pass | %R s |'; for i in 1 2; do time $PY -c pass; done; \
-  $PY -X importtime -c 'import sc3d_data.pipeline.executors.worker_preload_egl as m; from sc3d_data.pipeline.executors.worker_preload import PRELOAD_SECONDS as p; print(\"| preload steps |\", {k: round(v, 3) for k, v in p.items() if k != \"ended\"}, \"|\")' 2>$WORK/imp.txt; \
-  grep -E '^import time: +[0-9]' $WORK/imp.txt | sort -t'|' -k2 -n -r | head -25 | sed 's/^import time:/| import/'"
-# the figures still open first (fit's in-loop speed with its default loader, the gpu tests, the
-# suite, the --semi step, render scaling); then those measured on 2026-11-27 (table 1, the curves)
+# where the loop's time goes, after compiling: the last 50 of a quarter of the steps profiled (the loop's
+# parts, host operations, waiting CUDA calls, GPU time a step)
+step fit_profile 180 "$PY" benchmarks/fit_profile.py --shards "$WORK/shards" --steps $((STEPS / 4)) --active $((STEPS / 40 > 2 ? STEPS / 40 : 2)) \
+  --batch-size "$BATCH" "${WIDTH[@]}"
+# the figures still open (fit's in-loop speed with its default loader, the gpu tests, the suite,
+# the --semi step, render scaling); then those measured on 2026-11-27 (table 1, the curves)
 step fit_compiled 240 "${TRAIN[@]}" fit "${FIT[@]}" --out "$WORK/runs/compiled" --seed 0 --compile auto
 # a run's loop (python -c "$LOOP" METRICS_CSV LABEL SKIP): median samples/s and data_wait of its
 # logged intervals, the first 1/SKIP of them (compiling, warm-up) left out
@@ -137,10 +138,8 @@ if [ -n "$BASELINE" ]; then   # the same fit from the older tree (its sc3d_train
 fi
 step fit_loop 30 bash -c "$PY -c ${LOOP@Q} $WORK/runs/compiled/metrics.csv 'fit, compiled: in the loop' 10; \
   [ ! -f $WORK/runs/baseline/metrics.csv ] || $PY -c ${LOOP@Q} $WORK/runs/baseline/metrics.csv 'the same, --baseline tree' 10"
-# where the loop's time goes, after compiling: the last 50 of a quarter of the steps profiled (the loop's
-# parts, host operations, waiting CUDA calls, GPU time a step)
-step fit_profile 180 "$PY" benchmarks/fit_profile.py --shards "$WORK/shards" --steps $((STEPS / 4)) --active $((STEPS / 40 > 2 ? STEPS / 40 : 2)) \
-  --batch-size "$BATCH" "${WIDTH[@]}"
+# what a checkpoint costs the loop (written once, curves at most once a minute)
+step checkpoint 120 "$PY" benchmarks/checkpoint.py "${WIDTH[@]}"
 step gpu_tests 400 "$PY" -m pytest -v -p no:cacheprovider -rs -m gpu --durations=0
 # the whole suite but the gpu tests: across 8 processes of 2 threads where pytest-xdist is there
 # (652 tests in ~5 min with -n 2 on the 2-core CPU box), else in one process
@@ -150,6 +149,11 @@ step train_step_semi 400 "$PY" benchmarks/train_step.py --shards "$WORK/shards" 
   --profile "${WIDTH[@]}"
 step render_sweep 120 "$PY" benchmarks/render.py --meshes "$MESHES" --sweep "$SWEEP" --copies 3 --pipeline-only
 step corpus 150 "$PY" benchmarks/corpus_size.py --meshes "$MESHES" --sizes "$SIZES" --workers "$NPROC"
+# where a render's fixed start goes on this machine: the interpreter, then the forkserver's preload
+# module by module (-X importtime, cumulative microseconds, the 25 largest)
+step startup 60 bash -c "TIMEFORMAT='| python -c pass | %R s |'; for i in 1 2; do time $PY -c pass; done; \
+  $PY -X importtime -c 'import sc3d_data.pipeline.executors.worker_preload_egl as m; from sc3d_data.pipeline.executors.worker_preload import PRELOAD_SECONDS as p; print(\"| preload steps |\", {k: round(v, 3) for k, v in p.items() if k != \"ended\"}, \"|\")' 2>$WORK/imp.txt; \
+  grep -E '^import time: +[0-9]' $WORK/imp.txt | sort -t'|' -k2 -n -r | head -25 | sed 's/^import time:/| import/'"
 # fit's loader worker count against its in-loop speed (what --workers auto should pick on CUDA)
 step fit_workers 200 bash -c "for w in 0 4 8; do ${TRAIN[*]@Q} fit ${FIT[*]@Q} --steps 600 --workers \$w --out $WORK/runs/w\$w --seed 0 \
   --compile auto 2>&1 | grep -E '^done'; $PY -c ${LOOP@Q} $WORK/runs/w\$w/metrics.csv \"fit --workers \$w\" 5; done"
@@ -165,7 +169,6 @@ for cat in "$MESHES"/*/; do
   find "$cat" -type f \( -name '*.glb' -o -name '*.obj' -o -name '*.ply' -o -name '*.off' -o -name '*.stl' \) | sort | head -n 7 |
     while read -r f; do c=$(basename "$cat"); mkdir -p "$SUB/$c"; ln -s "$f" "$SUB/$c/$(basename "$f")"; done
 done
-step checkpoint 120 "$PY" benchmarks/checkpoint.py "${WIDTH[@]}"
 step voxelize 300 "$PY" benchmarks/voxelize.py "$SUB"
 step shard_write 300 "$PY" benchmarks/shard_write.py "$WORK/shards" --repeat 1
 step pose_search 300 "$PY" benchmarks/pose_search.py --shards "$WORK/shards"

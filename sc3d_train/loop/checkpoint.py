@@ -135,11 +135,10 @@ def save_best(run_dir: Path, payload: dict) -> Path:
 
 
 def save_checkpoint(run_dir: Path, payload: dict) -> Path:
-    """Write ``payload`` as ``checkpoints/step_XXXXXX.pt`` and make ``last.pt`` the same file
-    (both atomically): a hard link where the file system has them, so the checkpoint is written
-    once (~126 MB at the paper's width with Adam's moments), else a copy. Nothing writes into a
-    checkpoint after it is made (each is a new file put in place by ``os.replace``), so the two
-    names never differ; deleting ``step_*.pt`` leaves ``last.pt`` whole. Returns the step file."""
+    """Write ``payload`` as ``checkpoints/step_XXXXXX.pt`` and copy it to ``last.pt``
+    (both atomically). A copy, not a hard link: a ``last.pt`` damaged later (truncated,
+    overwritten in place) then leaves the step file whole, and ``--resume`` falls back to it
+    (``resume_checkpoint``). Returns the step file."""
     path = step_path(run_dir, payload["step"])
     payload = {"format_version": FORMAT_VERSION, **payload}
     tmp = path.with_name(path.name + ".tmp")
@@ -150,11 +149,7 @@ def save_checkpoint(run_dir: Path, payload: dict) -> Path:
         path.parent.mkdir(parents=True, exist_ok=True)
         save_atomically(payload, tmp, path)
         target = last
-        tmp_last.unlink(missing_ok=True)  # left by a run killed here
-        try:
-            os.link(path, tmp_last)
-        except OSError:  # no hard links here (some network and FAT file systems): a copy
-            shutil.copyfile(path, tmp_last)
+        shutil.copyfile(path, tmp_last)
         os.replace(tmp_last, last)
     except (OSError, RuntimeError) as e:
         for t in (tmp, tmp_last):
