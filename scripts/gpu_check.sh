@@ -140,7 +140,9 @@ step fit_loop 30 bash -c "$PY -c ${LOOP@Q} $WORK/runs/compiled/metrics.csv 'fit,
   [ ! -f $WORK/runs/baseline/metrics.csv ] || $PY -c ${LOOP@Q} $WORK/runs/baseline/metrics.csv 'the same, --baseline tree' 10"
 # what a checkpoint costs the loop (written once, curves at most once a minute)
 step checkpoint 120 "$PY" benchmarks/checkpoint.py "${WIDTH[@]}"
-step gpu_tests 400 "$PY" -m pytest -v -p no:cacheprovider -rs -m gpu --durations=0
+# the gpu tests not yet seen to pass on a GPU first: the training step's (no host sync, graph replays), then
+# test_gpu.py in its order (eval and the EGL render before resume, which passed on 2026-11-27)
+step gpu_tests 400 "$PY" -m pytest -v -p no:cacheprovider -rs -m gpu --durations=0 tests/test_train_step.py tests/test_gpu.py
 # the whole suite but the gpu tests: across 8 processes of 2 threads where pytest-xdist is there
 # (652 tests in ~5 min with -n 2 on the 2-core CPU box), else in one process
 XDIST=(); "$PY" -c "import xdist" 2>/dev/null && XDIST=(-n 8)
