@@ -37,6 +37,7 @@ class MetricsLog:
     def __init__(self, run_dir: Path, start_step: int, enabled: bool = True):
         self.path = Path(run_dir) / CSV_NAME
         self.enabled = enabled
+        self._drawn_at = -math.inf  # time.monotonic() of the last draw_curves drawing
         self.rows: list[dict] = []
         if not enabled:
             return
@@ -81,7 +82,7 @@ class MetricsLog:
         checkpoint) or when none was drawn in the last :data:`CURVES_EVERY_S` seconds; returns
         whether it drew."""
         now = time.monotonic()
-        if not self.enabled or not (final or now - getattr(self, "_drawn_at", -math.inf) >= CURVES_EVERY_S):
+        if not self.enabled or not (final or now - self._drawn_at >= CURVES_EVERY_S):
             return False
         plot_curves(self.path, png_path)
         self._drawn_at = now
