@@ -33,13 +33,6 @@ WAITING_CALLS = ("cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaEventSyn
                  "cudaMemcpyAsync", "cudaHostAlloc", "cudaFreeHost", "cudaGraphLaunch")
 
 
-#: the loop's parts, as record_function spans: (label, module, attribute) wrapped for the profile;
-#: the first is each next() of the phase's device batches (trainer.device_batches' iterators)
-PARTS = (("loop: next batch (loader, to the device, expansion)", "sc3d_train.loop.trainer", "device_batches"),
-         ("loop: training step (forward, losses, backward, Adam)", "sc3d_train.loop.train_step", "TrainStep.__call__"),
-         ("loop: loss window", "sc3d_train.loop.loss_window", "LossWindow.record"))
-
-
 def annotate(label: str, fn):
     """``fn`` inside ``record_function(label)``."""
     def wrapped(*a, **k):
@@ -49,10 +42,28 @@ def annotate(label: str, fn):
 
 
 def annotate_batches(label: str, fn):
-    """``fn`` (``device_batches``) whose iterators' ``next`` runs inside ``record_function(label)``."""
+    """``fn`` (``trainer.device_batches``) whose iterators' ``next`` runs inside
+    ``record_function(label)``."""
+    def spanned(batches):
+        while True:
+            with torch.profiler.record_function(label):
+                try:
+                    batch = next(batches)
+                except StopIteration:
+                    return
+            yield batch
+
     def wrapped(*a, **k):
-        return {p: map(lambda _, it=it: annotate(label, next)(it), iter(int, 1)) for p, it in fn(*a, **k).items()}
+        return {p: spanned(it) for p, it in fn(*a, **k).items()}
     return wrapped
+
+
+#: the loop's parts, as record_function spans: (label, module, attribute, wrapper) for the profile
+PARTS = (("loop: next batch (loader, to the device, expansion)", "sc3d_train.loop.trainer", "device_batches",
+          annotate_batches),
+         ("loop: training step (forward, losses, backward, Adam)", "sc3d_train.loop.train_step", "TrainStep.__call__",
+          annotate),
+         ("loop: loss window", "sc3d_train.loop.loss_window", "LossWindow.record", annotate))
 
 
 def patch_loop(prof) -> None:
@@ -62,11 +73,11 @@ def patch_loop(prof) -> None:
 
     from sc3d_train.loop import trainer
 
-    for i, (label, module, attr) in enumerate(PARTS):
+    for label, module, attr, wrapper in PARTS:
         owner = importlib.import_module(module)
         if "." in attr:
             owner, attr = getattr(owner, attr.split(".")[0]), attr.split(".")[1]
-        setattr(owner, attr, (annotate_batches if i == 0 else annotate)(label, getattr(owner, attr)))
+        setattr(owner, attr, wrapper(label, getattr(owner, attr)))
     step = trainer.train_step
 
     def stepped(*a, **k):
