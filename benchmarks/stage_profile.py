@@ -5,8 +5,10 @@ restructured for it): in each spawned render worker ``load_mesh`` (load), the no
 (``to_canonical_transform`` + ``apply_transform``), ``mesh_parts`` (CPU-side preparation of the
 vertex arrays and texture images), ``MeshRenderer._texture`` (texture conversion, upload and
 mipmaps), the rest of ``MeshRenderer._draw_part`` (vertex buffer upload and the draw call's
-submission), the rest of ``MeshRenderer.render`` (rasterisation, which the
-driver runs when the pixels are read back, and the readback), ``voxelize_triangles`` and the
+submission), the rest of ``MeshRenderer.draw`` and ``MeshRenderer.read`` (the flush, the
+rasterisation that the driver has not finished while the job voxelized between the two, and the
+readback; on llvmpipe the raster thread's CPU during voxelizing counts to voxelize, as all CPU
+time of the process counts to the stage running), ``voxelize_triangles`` and the
 worker's ``send`` of the finished object (pickling and the pipe, including any wait for the main
 process to read); in the main process the ``recv`` of each object, ``write_shard``
 (stacking, gzip compression and writing) and ``write_index``.
@@ -92,7 +94,8 @@ def install_worker_hooks() -> None:
             yield item
 
     render.mesh_parts = timed_parts
-    _wrap(render.MeshRenderer, "render", "render (all)")
+    _wrap(render.MeshRenderer, "draw", "render (all)")  # the job voxelizes between the two
+    _wrap(render.MeshRenderer, "read", "render (all)")
     one = job.render_one
 
     def render_one(renderer, task, config):

@@ -176,6 +176,70 @@ def test_shading_of_grey_vertex_colour_and_texture_matches_the_hand_derived_mode
         r.close()
 
 
+def test_parts_sharing_one_texture_image_upload_it_once_and_each_part_draws_its_own():
+    """Three squares seen face-on, the first and third sharing one PIL image (red), the second
+    with its own (blue): as a GLB whose parts share a material. The image is uploaded once per
+    object (two textures made, not three), and each square's centre has its own texture's colour
+    by the hand-derived model of the test above: sRGB 255 -> linear 1 -> 0.67746 -> 214 (the
+    third square drawn red after the blue one, so the shared texture is bound again)."""
+    import trimesh
+    from PIL import Image
+
+    from sc3d_data.geometry.camera import ViewSettings
+    from sc3d_data.render.renderer import MeshRenderer
+
+    red, blue = Image.new("RGB", (4, 4), (255, 0, 0)), Image.new("RGB", (4, 4), (0, 0, 255))
+    uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+    scene, centres = trimesh.Scene(), (-0.4, 0.0, 0.4)
+    for i, (x, image) in enumerate(zip(centres, (red, blue, red))):
+        v = np.array([[-0.15, -0.15, 0.0], [0.15, -0.15, 0.0], [0.15, 0.15, 0.0], [-0.15, 0.15, 0.0]]) + [x, 0, 0]
+        visual = trimesh.visual.TextureVisuals(uv=uv, material=trimesh.visual.material.PBRMaterial(
+            baseColorTexture=image, baseColorFactor=[255, 255, 255, 255]))
+        scene.add_geometry(trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3]], process=False, visual=visual), f"part{i}")
+    views = ViewSettings(num_views=4)
+    r = MeshRenderer(views)
+    made = []
+    texture = r._texture
+    r._texture = lambda image: made.append(image) or texture(image)
+    try:
+        R = np.repeat(np.diag([1.0, -1.0, -1.0])[None], 4, axis=0)  # camera at (0, 0, 2) looking down -z
+        t = np.repeat(np.array([[0.0, 0.0, 2.0]]), 4, axis=0)
+        out = r.render(scene, np.eye(4), R=R, t=t)
+    finally:
+        r.close()
+    assert len(made) == 2 and made[0] is red and made[1] is blue
+    K = views.cameras()["K"][0]
+    for x, expected in zip(centres, ([214, 0, 0], [0, 0, 214], [214, 0, 0])):
+        u, v = int(K[0, 0] * x / 2 + K[0, 2]), int(K[1, 2])
+        pixel = out["images"][0, v, u].astype(int)
+        assert (np.abs(pixel - expected) <= 1).all(), (x, pixel, expected)
+
+
+def test_a_draw_not_read_is_dropped_by_the_next_and_read_needs_a_draw():
+    """``draw`` then ``read`` (the job voxelizes between them): after an object interrupted
+    between the two, the next object's pixels are its own (a cube, not the first object's
+    sphere, whose silhouettes differ); a ``read`` without a ``draw`` is an error, not stale pixels."""
+    import trimesh
+
+    from sc3d_data.geometry.camera import ViewSettings
+    from sc3d_data.render.renderer import MeshRenderer
+
+    r = MeshRenderer(ViewSettings(num_views=4))
+    try:
+        sphere = trimesh.Scene(trimesh.creation.icosphere(radius=0.4))
+        cube = trimesh.Scene(trimesh.creation.box(extents=(0.8, 0.8, 0.8)))
+        alone = r.render(cube, np.eye(4))
+        r.draw(sphere, np.eye(4))
+        r.draw(cube, np.eye(4))
+        after = r.read()
+        assert (after["masks"] == alone["masks"]).all() and (after["images"] == alone["images"]).all()
+        assert (r.render(sphere, np.eye(4))["masks"] != alone["masks"]).any()
+        with pytest.raises(RuntimeError, match="without draw"):
+            r.read()
+    finally:
+        r.close()
+
+
 def test_used_vertices_are_the_rows_np_unique_names_in_index_order():
     from sc3d_data.geometry.normalize import used_vertices
 

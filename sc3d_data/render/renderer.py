@@ -8,6 +8,10 @@ readback per view); here ALL views of an object are drawn into ONE framebuffer, 
 (``gl_InstanceID`` = view) and read back with one ``glReadPixels`` (plus one for depth when
 asked for). Each instance's clip-space position is remapped onto its tile and clipped to it with
 ``gl_ClipDistance``, so a tile holds exactly what a separate ``S x S`` render would.
+``draw`` submits an object's draws and flushes them, ``read`` reads the atlas back (``render``
+does both): a caller with other work for the object (the render job voxelizes it) does it in
+between, while a GPU draws, instead of waiting in ``glReadPixels``. Parts that share a texture
+image (one material of a GLB used by many meshes) upload it once per object.
 
 Look: per mesh part, base colour = material colour factor x texture (sRGB -> linear, mipmapped;
 textures over ``MAX_TEXTURE_SIZE`` are box-downscaled first) x vertex/face colours, as pyrender
@@ -255,6 +259,7 @@ class MeshRenderer:
         self.proj = gl_projection(self.cameras["K"][0], S, ZNEAR, self.zfar)
         self.views_gl = gl_view_matrices(self.cameras["R"], self.cameras["t"])
         self._platform = self._context(backend, S * self.cols, S * self.rows)
+        self._pending: tuple[list, dict, bool] | None = None  # draw() submitted, read() not yet
         self._init_gl()
 
     @staticmethod
@@ -361,11 +366,14 @@ class MeshRenderer:
             GL.glTexParameteri(GL.GL_TEXTURE_2D, p, GL.GL_REPEAT)
         return tex
 
-    def _draw_part(self, model, pos, faces, colors, uv, base, image) -> tuple[list, list]:
+    def _draw_part(self, model, pos, faces, colors, uv, base, image, textures: dict) -> list:
+        """Upload and draw one part (``mesh_parts``); returns its buffers. ``textures`` maps
+        ``id(image)`` to ``(image, texture)`` for the textures this object has made so far: parts
+        that share one image (a GLB's material used by many meshes) upload it once."""
         GL = self.gl
         has_tex = image is not None and uv is not None
         loc = self._program(colors is not None, has_tex)
-        buffers, textures = list(GL.glGenBuffers(4)), []
+        buffers = list(GL.glGenBuffers(4))
         for attr, data, size, dtype, norm in ((0, pos, 3, GL.GL_FLOAT, False),
                                               (1, colors, 4, GL.GL_UNSIGNED_BYTE, True),
                                               (2, uv if has_tex else None, 2, GL.GL_FLOAT, False)):
@@ -379,11 +387,14 @@ class MeshRenderer:
         GL.glBindBuffer(GL.GL_ELEMENT_ARRAY_BUFFER, buffers[3])
         GL.glBufferData(GL.GL_ELEMENT_ARRAY_BUFFER, faces.nbytes, faces, GL.GL_STATIC_DRAW)
         if has_tex:
-            textures.append(self._texture(image))
+            if id(image) not in textures:  # the image is kept in the dict, so its id stays its own
+                textures[id(image)] = (image, self._texture(image))
+            GL.glActiveTexture(GL.GL_TEXTURE0)
+            GL.glBindTexture(GL.GL_TEXTURE_2D, textures[id(image)][1])
         GL.glUniform4f(loc["base_color"], *[float(x) for x in base])
         GL.glUniformMatrix4fv(loc["model"], 1, GL.GL_TRUE, model.astype(np.float32))
         GL.glDrawElementsInstanced(GL.GL_TRIANGLES, faces.size, GL.GL_UNSIGNED_INT, None, self.V)
-        return buffers, textures
+        return buffers
 
     def _tiles(self, atlas: np.ndarray) -> np.ndarray:
         """``[rows*S, cols*S, ...]`` (OpenGL rows: bottom first) -> ``[V, S, S, ...]`` (top first)."""
@@ -393,20 +404,40 @@ class MeshRenderer:
 
     def render(self, scene, to_canonical: np.ndarray, R: np.ndarray | None = None,
                t: np.ndarray | None = None) -> dict[str, np.ndarray]:
-        """Render all views of one object (see class doc for shapes)."""
+        """Render all views of one object (see class doc for shapes): :meth:`draw`, then :meth:`read`."""
+        self.draw(scene, to_canonical, R, t)
+        return self.read()
+
+    def draw(self, scene, to_canonical: np.ndarray, R: np.ndarray | None = None,
+             t: np.ndarray | None = None) -> None:
+        """Submit all draws of one object (cameras as :meth:`render`) and flush them, without
+        waiting: a GPU draws while the caller goes on (e.g. voxelizes the object), and
+        :meth:`read` finds the pixels ready instead of waiting for them in ``glReadPixels``.
+        A ``draw`` not yet read is dropped by the next ``draw``."""
         GL = self.gl
+        if self._pending is not None:  # an object interrupted between draw and read: drop it
+            self._release_pending()
         self._platform.make_current()
         if R is not None:
             if len(R) != self.V:
                 raise ValueError(f"expected {self.V} cameras, got {len(R)}")
             self._use_views(gl_view_matrices(np.asarray(R, np.float64), np.asarray(t, np.float64)))
+        self._pending = ([], {}, R is not None)  # buffers, textures, cameras to put back
         GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)
-        buffers, textures = [], []
         try:
             for part in mesh_parts(scene, to_canonical):
-                b, tx = self._draw_part(*part)
-                buffers += b
-                textures += tx
+                self._pending[0].extend(self._draw_part(*part, self._pending[1]))
+            GL.glFlush()
+        except BaseException:
+            self._release_pending()
+            raise
+
+    def read(self) -> dict[str, np.ndarray]:
+        """The images and masks (and depth) of the object of the last :meth:`draw` (class doc)."""
+        GL = self.gl
+        if self._pending is None:
+            raise RuntimeError("MeshRenderer.read called without draw")
+        try:
             W, H = self.S * self.cols, self.S * self.rows
             rgba = np.frombuffer(GL.glReadPixels(0, 0, W, H, GL.GL_RGBA, GL.GL_UNSIGNED_BYTE),
                                  dtype=np.uint8).reshape(H, W, 4)
@@ -421,13 +452,20 @@ class MeshRenderer:
                 z = (2.0 * n * f / ((f + n) - (2.0 * d.astype(np.float64) - 1.0) * (f - n)))
                 out["depth"] = np.where(out["masks"] > 0, z, 0.0).astype(np.float32)
         finally:
-            if buffers:
-                GL.glDeleteBuffers(len(buffers), buffers)
-            if textures:
-                GL.glDeleteTextures(textures)
-            if R is not None:
-                self._use_views(self.views_gl)
+            self._release_pending()
         return out
+
+    def _release_pending(self) -> None:
+        """Delete the buffers and textures of the last :meth:`draw`; its cameras back to the default."""
+        GL = self.gl
+        buffers, textures, own_cameras = self._pending
+        self._pending = None
+        if buffers:
+            GL.glDeleteBuffers(len(buffers), buffers)
+        if textures:
+            GL.glDeleteTextures([tex for _, tex in textures.values()])
+        if own_cameras:
+            self._use_views(self.views_gl)
 
     def close(self) -> None:
         """Free the GL context; the renderer cannot be used afterwards. With EGL the context is

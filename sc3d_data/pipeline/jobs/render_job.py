@@ -147,15 +147,16 @@ class RenderConfig:
 
 
 def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord, list[str]]:
-    """Load, validate, normalise, render (and voxelize) one object in this process.
-    Returns the shard record and warnings; raises on bad input."""
-    from sc3d_data.io.meshes import load_mesh
-    from sc3d_data.geometry.normalize import apply_transform, to_canonical_transform
+    """Load, validate, normalise, render (and voxelize) one object in this process: the draws
+    are submitted first and the pixels read after voxelizing (``MeshRenderer.draw`` / ``read``),
+    so a GPU renders while the CPU voxelizes; an empty silhouette is reported before an error of
+    the voxelizer, as when the two ran in turn. Returns the shard record and warnings; raises on
+    bad input."""
     from sc3d_data.formats.shapenet import resolve_front
-
-    from sc3d_data.io.meshes import MeshError
-
+    from sc3d_data.geometry.normalize import to_canonical_transform
+    from sc3d_data.io.meshes import MeshError, load_mesh
     from sc3d_data.io.source_fingerprint import fingerprint
+    from sc3d_data.pipeline.jobs.voxel_job import voxelize_canonical
 
     source_file = fingerprint(task.path)  # before reading: an edit during the render counts as a change
     root = Path(config.meshes)
@@ -168,19 +169,24 @@ def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord
                                               resolve_front(config.front, task.path))
     except ValueError as e:
         raise MeshError(f"{task.path}: {e}") from e
-    arrays = renderer.render(scene, to_canonical)
+    renderer.draw(scene, to_canonical)  # a GPU draws while this process voxelizes
+    voxels, voxel_error = None, None
+    try:
+        voxels = voxelize_canonical(vertices, faces, to_canonical, config.voxel_resolution) if config.voxelize else None
+    except Exception as e:  # noqa: BLE001 - raised after the pixels are read and checked
+        voxel_error = e
+    arrays = renderer.read()
     if not np.asarray(arrays["masks"]).any():
         raise MeshError(f"{task.path}: the silhouette is empty in every view after normalisation (geometry "
                         "collapsed to under a pixel, e.g. by an outlier vertex far from the rest)")
+    if voxel_error is not None:
+        raise voxel_error
     cams = renderer.cameras
     arrays.update({k: cams[k] for k in ("K", "R", "t", "azimuth", "elevation", "distance")})
     arrays["clipped"] = border_clipped(arrays["masks"])
     arrays["to_canonical"] = to_canonical
-    if config.voxelize:
-        from sc3d_data.voxel.voxelize import voxelize_triangles
-
-        arrays["voxels"] = voxelize_triangles(apply_transform(vertices, to_canonical), faces,
-                                              resolution=config.voxel_resolution)
+    if voxels is not None:
+        arrays["voxels"] = voxels
     record = ObjectRecord(model_id=task.model_id, category=task.category, split=task.split,
                           source=task.path, arrays=arrays, source_file=source_file)
     return record, warnings
