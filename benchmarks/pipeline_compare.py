@@ -3,13 +3,15 @@ views/s of ``render --voxelize --workers N`` (the figure ``sc3d-data render`` pr
 whether the two datasets hold the same values.
 
     git archive <OLD_COMMIT> | tar -x -C /tmp/old
-    python benchmarks/pipeline_compare.py /tmp/old [MESH_FOLDER] [--workers 2] [--repeat 3]
+    python benchmarks/pipeline_compare.py /tmp/old [MESH_FOLDER] [--workers 2] [--repeat 3] [--copies 1]
 
 Each run is a fresh Python process calling ``render_dataset`` of its tree (``sys.path`` puts the
 tree first) on the same meshes into a temporary folder; one uncounted run per tree first (numba
 compiles a tree's kernels into its own cache, the OS caches the files), then the trees
 alternate, ``--repeat`` runs each, so a change in the machine's load hits both. Prints every run and the median per tree
 with the ratio, then compares the last two datasets array by array (values, not file bytes).
+``--copies N`` lists the meshes N times (``stage_profile.replicate_meshes``), so that on a
+many-core machine the run is long beside its start (the 16-core GPU box: ``--copies 5 --workers 16``).
 """
 from __future__ import annotations
 
@@ -72,10 +74,17 @@ def differing_values(a: Path, b: Path) -> dict[str, int]:
 def main() -> None:
     ap = old_tree_parser(__doc__)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--copies", type=int, default=1, help="list the meshes this many times")
     args = ap.parse_args()
     trees = {"old": args.old_tree, "new": REPO}
     runs: dict[str, list[dict]] = {k: [] for k in trees}
     with tempfile.TemporaryDirectory(prefix="sc3d-pipeline-") as tmp:
+        if args.copies > 1:
+            from sc3d_data.io.meshes import MESH_SUFFIXES
+            from stage_profile import replicate_meshes  # this script's folder is on sys.path
+
+            paths = sorted(p for p in args.meshes.rglob("*") if p.suffix.lower() in MESH_SUFFIXES)
+            args.meshes = replicate_meshes(paths, args.meshes, args.copies, Path(tmp) / "meshes")
         for name, tree in trees.items():
             run_once(tree, args.meshes, Path(tmp) / f"warm-{name}", args.workers)
         for i in range(args.repeat):
@@ -86,7 +95,7 @@ def main() -> None:
                       f"{r['views_per_s']:.0f} views/s", flush=True)
         diff = differing_values(Path(tmp) / f"old{args.repeat - 1}", Path(tmp) / f"new{args.repeat - 1}")
     med = {k: statistics.median(r["views_per_s"] for r in v) for k, v in runs.items()}
-    print(f"\n| render --voxelize --workers {args.workers} | median views/s | median s |")
+    print(f"\n| render --voxelize --workers {args.workers}, {runs['new'][0]['done']} objects | median views/s | median s |")
     print("|---|---|---|")
     for k in trees:
         print(f"| {k} ({trees[k]}) | {med[k]:.0f} | {statistics.median(r['seconds'] for r in runs[k]):.2f} |")

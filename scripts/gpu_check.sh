@@ -19,7 +19,9 @@
 # --only / --skip: step names (the first column of the summary), e.g. to finish a cut-off run.
 # --baseline TAR: an older source tree (`git archive REV -o TAR`): step fit_baseline trains with
 #   its sc3d_train, the same command as fit_compiled at half the steps, so that fit_loop compares
-#   the loop's speed on the same machine in the same run.
+#   the loop's speed on the same machine in the same run; step render_baseline runs
+#   benchmarks/pipeline_compare.py against it (render --voxelize on all cores, the meshes listed 5
+#   times, the trees alternating; the datasets' values compared).
 #
 # OUT holds summary.md (a row per step: exit code, seconds, command; then the tables of every
 # log), logs.tar.gz (every step's log and the fit runs' metrics) and curves.png (compiled against
@@ -82,7 +84,7 @@ summarise() {  # OUT/summary.md and OUT/logs.tar.gz from what has run so far
     for name in "${NAMES[@]}"; do
       echo; echo "## $name"; echo
       [ "$name" = machine ] && { cat "$WORK/logs/$name.log"; continue; }
-      grep -E '^\||samples/s|views/s|ms a step|projection|flat|same curve|DIFFERENT|passed|failed|skipped|error|Error|^(baseline|fit default|--compile|bfloat16|per step|loader:)|forkserver preload|[0-9]s (call|setup)' \
+      grep -E '^\||samples/s|views/s|ms a step|projection|flat|same curve|DIFFERENT|values differing|passed|failed|skipped|error|Error|^(baseline|fit default|--compile|bfloat16|per step|loader:)|forkserver preload|[0-9]s (call|setup)' \
         "$WORK/logs/$name.log" | head -150
     done
   } >"$OUT/summary.md"
@@ -151,6 +153,8 @@ step train_step_semi 400 "$PY" benchmarks/train_step.py --shards "$WORK/shards" 
   --profile "${WIDTH[@]}"
 step render_sweep 120 "$PY" benchmarks/render.py --meshes "$MESHES" --sweep "$SWEEP" --copies 3 --pipeline-only
 step corpus 150 "$PY" benchmarks/corpus_size.py --meshes "$MESHES" --sizes "$SIZES" --workers "$NPROC"
+[ -n "$BASELINE" ] || SKIP="$SKIP,render_baseline,"
+step render_baseline 200 "$PY" benchmarks/pipeline_compare.py "$WORK/base" "$MESHES" --copies 5 --workers "$NPROC" --repeat 2
 # where a render's fixed start goes on this machine: the interpreter, then the forkserver's preload
 # module by module (-X importtime, cumulative microseconds, the 25 largest)
 step startup 60 bash -c "TIMEFORMAT='| python -c pass | %R s |'; for i in 1 2; do time $PY -c pass; done; \
