@@ -4,8 +4,8 @@ Timing hooks wrap the pipeline's own functions (nothing in ``sc3d_data`` is chan
 restructured for it): in each spawned render worker ``load_mesh`` (load), the normalisation
 (``to_canonical_transform`` + ``apply_transform``), ``mesh_parts`` (CPU-side preparation of the
 vertex arrays and texture images), ``MeshRenderer._texture`` (texture conversion, upload and
-mipmaps), the rest of ``MeshRenderer._draw_part`` (vertex buffer upload and the draw call's
-submission), the rest of ``MeshRenderer.draw`` and ``MeshRenderer.read`` (the flush, the
+mipmaps), ``MeshRenderer._upload`` and the rest of ``MeshRenderer._draw_part`` (the vertex
+buffers' upload and the draw calls' submission), the rest of ``MeshRenderer.draw`` and ``MeshRenderer.read`` (the flush, the
 rasterisation that the driver has not finished while the job voxelized between the two, and the
 readback; on llvmpipe the raster thread's CPU during voxelizing counts to voxelize, as all CPU
 time of the process counts to the stage running), ``voxelize_triangles`` and the
@@ -79,6 +79,7 @@ def install_worker_hooks() -> None:
     _wrap(normalize, "apply_transform", "normalise")
     _wrap(voxelize, "voxelize_triangles", "voxelize")
     _wrap(job, "encode_arrays", "compress chunks")
+    _wrap(render.MeshRenderer, "_upload", "upload + draw call")  # all parts' vertex data, once per object
     _wrap(render.MeshRenderer, "_draw_part", "upload + draw call")
     _wrap(render.MeshRenderer, "_texture", "texture upload + mipmaps")
     parts = render.mesh_parts

@@ -215,6 +215,34 @@ def test_parts_sharing_one_texture_image_upload_it_once_and_each_part_draws_its_
         assert (np.abs(pixel - expected) <= 1).all(), (x, pixel, expected)
 
 
+def test_parts_with_and_without_vertex_colours_each_draw_their_own_data():
+    """All parts' vertex data go into shared buffers at per-part offsets (``MeshRenderer._upload``):
+    three squares, red vertex colours, none (grey), blue vertex colours, each at its own place
+    with its own colour by the hand-derived model above (red 214, grey 124, blue 214): the
+    third part's colours come after the first's though the second has none."""
+    import trimesh
+
+    from sc3d_data.geometry.camera import ViewSettings
+    from sc3d_data.render.renderer import MeshRenderer
+
+    scene, centres = trimesh.Scene(), (-0.4, 0.0, 0.4)
+    for i, (x, colour) in enumerate(zip(centres, ([255, 0, 0, 255], None, [0, 0, 255, 255]))):
+        v = np.array([[-0.15, -0.15, 0.0], [0.15, -0.15, 0.0], [0.15, 0.15, 0.0], [-0.15, 0.15, 0.0]]) + [x, 0, 0]
+        visual = {} if colour is None else {"vertex_colors": np.tile(colour, (4, 1))}
+        scene.add_geometry(trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3]], process=False, **visual), f"part{i}")
+    views = ViewSettings(num_views=4)
+    r = MeshRenderer(views)
+    try:
+        R = np.repeat(np.diag([1.0, -1.0, -1.0])[None], 4, axis=0)  # camera at (0, 0, 2) looking down -z
+        out = r.render(scene, np.eye(4), R=R, t=np.repeat(np.array([[0.0, 0.0, 2.0]]), 4, axis=0))
+    finally:
+        r.close()
+    K = views.cameras()["K"][0]
+    for x, expected in zip(centres, ([214, 0, 0], [124, 124, 124], [0, 0, 214])):
+        pixel = out["images"][0, int(K[1, 2]), int(K[0, 0] * x / 2 + K[0, 2])].astype(int)
+        assert (np.abs(pixel - expected) <= 1).all(), (x, pixel, expected)
+
+
 def test_a_draw_not_read_is_dropped_by_the_next_and_read_needs_a_draw():
     """``draw`` then ``read`` (the job voxelizes between them): after an object interrupted
     between the two, the next object's pixels are its own (a cube, not the first object's

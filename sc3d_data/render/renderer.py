@@ -10,8 +10,10 @@ asked for). Each instance's clip-space position is remapped onto its tile and cl
 ``gl_ClipDistance``, so a tile holds exactly what a separate ``S x S`` render would.
 ``draw`` submits an object's draws and flushes them, ``read`` reads the atlas back (``render``
 does both): a caller with other work for the object (the render job voxelizes it) does it in
-between, while a GPU draws, instead of waiting in ``glReadPixels``. Parts that share a texture
-image (one material of a GLB used by many meshes) upload it once per object.
+between, while a GPU draws, instead of waiting in ``glReadPixels``. The vertex data of all parts
+of an object go into four buffers made once per renderer, one upload each per object, and each
+part draws from its offsets there; parts that share a texture image (one material of a GLB used
+by many meshes) upload it once per object.
 
 Look: per mesh part, base colour = material colour factor x texture (sRGB -> linear, mipmapped;
 textures over ``MAX_TEXTURE_SIZE`` are box-downscaled first) x vertex/face colours, as pyrender
@@ -35,6 +37,7 @@ of OpenGL state; split, each part would reach into the others' GL objects.
 """
 from __future__ import annotations
 
+import ctypes
 import math
 import os
 from dataclasses import dataclass
@@ -259,7 +262,7 @@ class MeshRenderer:
         self.proj = gl_projection(self.cameras["K"][0], S, ZNEAR, self.zfar)
         self.views_gl = gl_view_matrices(self.cameras["R"], self.cameras["t"])
         self._platform = self._context(backend, S * self.cols, S * self.rows)
-        self._pending: tuple[list, dict, bool] | None = None  # draw() submitted, read() not yet
+        self._pending: tuple[dict, bool] | None = None  # draw() submitted, read() not yet
         self._init_gl()
 
     @staticmethod
@@ -309,6 +312,8 @@ class MeshRenderer:
         GL.glClearColor(bg[0], bg[1], bg[2], 0.0)  # alpha 0 = background, 1 = object
         self.vao = GL.glGenVertexArrays(1)
         GL.glBindVertexArray(self.vao)
+        # positions, colours, uv, indices of all parts of the object being drawn (_upload)
+        self.buffers = list(GL.glGenBuffers(4))
 
     def _program(self, color: bool, texture: bool) -> dict:
         """Use (compile on first use) the program variant with the optional ``color`` and
@@ -366,26 +371,43 @@ class MeshRenderer:
             GL.glTexParameteri(GL.GL_TEXTURE_2D, p, GL.GL_REPEAT)
         return tex
 
-    def _draw_part(self, model, pos, faces, colors, uv, base, image, textures: dict) -> list:
-        """Upload and draw one part (``mesh_parts``); returns its buffers. ``textures`` maps
-        ``id(image)`` to ``(image, texture)`` for the textures this object has made so far: parts
-        that share one image (a GLB's material used by many meshes) upload it once."""
+    def _upload(self, parts: list) -> list[tuple[int, int, int, int]]:
+        """The vertex data of all ``parts`` (``mesh_parts``) into the renderer's four buffers, one
+        upload each (the buffers' storage is re-specified per object: no buffer is made or deleted
+        per part); per part the byte offsets of its positions, colours, uv and indices there."""
+        GL = self.gl
+        arrays: list[list[np.ndarray]] = [[], [], [], []]
+        offsets, at = [], [0, 0, 0, 0]
+        for _, pos, faces, colors, uv, _, image in parts:
+            has_tex = image is not None and uv is not None
+            offsets.append(tuple(at))
+            for k, data in enumerate((pos, colors, uv if has_tex else None, faces)):
+                if data is not None:
+                    arrays[k].append(data)
+                    at[k] += data.nbytes
+        for k, target in enumerate((GL.GL_ARRAY_BUFFER,) * 3 + (GL.GL_ELEMENT_ARRAY_BUFFER,)):
+            if arrays[k]:
+                data = np.concatenate([a.reshape(-1) for a in arrays[k]])
+                GL.glBindBuffer(target, self.buffers[k])
+                GL.glBufferData(target, data.nbytes, data, GL.GL_STREAM_DRAW)
+        return offsets
+
+    def _draw_part(self, model, pos, faces, colors, uv, base, image, offsets: tuple, textures: dict) -> None:
+        """Draw one part (``mesh_parts``) from its data at ``offsets`` in the buffers (``_upload``).
+        ``textures`` maps ``id(image)`` to ``(image, texture)`` for the textures this object has
+        made so far: parts that share one image (a GLB's material used by many meshes) upload it once."""
         GL = self.gl
         has_tex = image is not None and uv is not None
         loc = self._program(colors is not None, has_tex)
-        buffers = list(GL.glGenBuffers(4))
         for attr, data, size, dtype, norm in ((0, pos, 3, GL.GL_FLOAT, False),
                                               (1, colors, 4, GL.GL_UNSIGNED_BYTE, True),
                                               (2, uv if has_tex else None, 2, GL.GL_FLOAT, False)):
             if data is None:
                 GL.glDisableVertexAttribArray(attr)
                 continue
-            GL.glBindBuffer(GL.GL_ARRAY_BUFFER, buffers[attr])
-            GL.glBufferData(GL.GL_ARRAY_BUFFER, data.nbytes, data, GL.GL_STATIC_DRAW)
-            GL.glVertexAttribPointer(attr, size, dtype, norm, 0, None)
+            GL.glBindBuffer(GL.GL_ARRAY_BUFFER, self.buffers[attr])
+            GL.glVertexAttribPointer(attr, size, dtype, norm, 0, ctypes.c_void_p(offsets[attr]))
             GL.glEnableVertexAttribArray(attr)
-        GL.glBindBuffer(GL.GL_ELEMENT_ARRAY_BUFFER, buffers[3])
-        GL.glBufferData(GL.GL_ELEMENT_ARRAY_BUFFER, faces.nbytes, faces, GL.GL_STATIC_DRAW)
         if has_tex:
             if id(image) not in textures:  # the image is kept in the dict, so its id stays its own
                 textures[id(image)] = (image, self._texture(image))
@@ -393,8 +415,8 @@ class MeshRenderer:
             GL.glBindTexture(GL.GL_TEXTURE_2D, textures[id(image)][1])
         GL.glUniform4f(loc["base_color"], *[float(x) for x in base])
         GL.glUniformMatrix4fv(loc["model"], 1, GL.GL_TRUE, model.astype(np.float32))
-        GL.glDrawElementsInstanced(GL.GL_TRIANGLES, faces.size, GL.GL_UNSIGNED_INT, None, self.V)
-        return buffers
+        GL.glDrawElementsInstanced(GL.GL_TRIANGLES, faces.size, GL.GL_UNSIGNED_INT, ctypes.c_void_p(offsets[3]),
+                                   self.V)
 
     def _tiles(self, atlas: np.ndarray) -> np.ndarray:
         """``[rows*S, cols*S, ...]`` (OpenGL rows: bottom first) -> ``[V, S, S, ...]`` (top first)."""
@@ -422,11 +444,12 @@ class MeshRenderer:
             if len(R) != self.V:
                 raise ValueError(f"expected {self.V} cameras, got {len(R)}")
             self._use_views(gl_view_matrices(np.asarray(R, np.float64), np.asarray(t, np.float64)))
-        self._pending = ([], {}, R is not None)  # buffers, textures, cameras to put back
+        self._pending = ({}, R is not None)  # textures, cameras to put back
         GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)
         try:
-            for part in mesh_parts(scene, to_canonical):
-                self._pending[0].extend(self._draw_part(*part, self._pending[1]))
+            parts = list(mesh_parts(scene, to_canonical))
+            for part, offsets in zip(parts, self._upload(parts)):
+                self._draw_part(*part, offsets, self._pending[0])
             GL.glFlush()
         except BaseException:
             self._release_pending()
@@ -456,12 +479,10 @@ class MeshRenderer:
         return out
 
     def _release_pending(self) -> None:
-        """Delete the buffers and textures of the last :meth:`draw`; its cameras back to the default."""
+        """Delete the textures of the last :meth:`draw`; its cameras back to the default."""
         GL = self.gl
-        buffers, textures, own_cameras = self._pending
+        textures, own_cameras = self._pending
         self._pending = None
-        if buffers:
-            GL.glDeleteBuffers(len(buffers), buffers)
         if textures:
             GL.glDeleteTextures([tex for _, tex in textures.values()])
         if own_cameras:
