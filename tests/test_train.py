@@ -120,6 +120,31 @@ def test_curves_are_drawn_at_most_once_a_minute_and_at_the_end(tmp_path, monkeyp
     log.close()
 
 
+def test_gpu_utilisation_is_read_at_most_every_five_seconds_and_never_off_cuda():
+    """``GpuUtilisation``: on CUDA the first log reads the utilisation; logs within ``every_s``
+    of that read log the same value without reading again; the first log after it reads anew.
+    A reader that fails (no NVML) gives None. On the CPU nothing is read at all. The reader here
+    is a list of values with a counter (NVML does not run on this machine); the clock is a list
+    of seconds."""
+    from sc3d_train.loop.metrics_log import GpuUtilisation
+
+    values, reads = iter([0.40, 0.90]), []
+    clock = [100.0]
+
+    def read():
+        reads.append(clock[0])
+        return next(values)
+
+    probe = GpuUtilisation(torch.device("cuda", 0), every_s=5.0, read=read, clock=lambda: clock[0])
+    seen = []
+    for t in (100.0, 101.0, 104.9, 105.0, 107.0):
+        clock[0] = t
+        seen.append(probe())
+    assert seen == [0.40, 0.40, 0.40, 0.90, 0.90] and reads == [100.0, 105.0]
+    assert GpuUtilisation(torch.device("cuda", 0), read=lambda: 1 / 0)() is None
+    assert GpuUtilisation(torch.device("cpu"), read=lambda: 1 / 0)() is None
+
+
 def test_resume_equals_uninterrupted(sample_shards, tmp_path):
     args = ["--shards", sample_shards, "--batch-size", "4", *TINY, "--checkpoint-every", "3", "--seed", "5"]
     whole, parts = tmp_path / "whole", tmp_path / "parts"

@@ -1,6 +1,6 @@
 """The training log of a run: ``metrics.csv`` (one row per logged step), TensorBoard scalars
 (``tb/``) and the ``curves.png`` plot; and two of the measures it logs: the time the loop waits
-for data (:class:`DataWaitClock`) and the GPU's utilisation (:func:`gpu_utilisation`)."""
+for data (:class:`DataWaitClock`) and the GPU's utilisation (:class:`GpuUtilisation`)."""
 from __future__ import annotations
 
 import csv
@@ -121,17 +121,35 @@ class DataWaitClock:
             yield batch
 
 
-def gpu_utilisation(device) -> float | None:
-    """The device's utilisation over the driver's last sample period (0-1; NVML via
-    ``torch.cuda.utilization``), None off CUDA or without NVML."""
-    if device.type != "cuda":
-        return None
-    import torch
+class GpuUtilisation:
+    """``probe()``: the device's utilisation (0-1) over the driver's last sample period (NVML via
+    ``torch.cuda.utilization``, or ``read``), read at most once every ``every_s`` seconds and the
+    last reading in between; None off CUDA or without NVML. Each ``torch.cuda.utilization`` call
+    initialises NVML again, NVML samples every 1/6 to 1 s, and ``fit`` logs every 10 steps,
+    ~15 times a second on an H100: reading it at every log would cost the loop and tell nothing new."""
 
-    try:
-        return torch.cuda.utilization(device) / 100.0
-    except Exception:  # noqa: BLE001 - pynvml missing or the driver does not report it
-        return None
+    def __init__(self, device, every_s: float = 5.0, read=None, clock=time.monotonic):
+        self.device, self.every_s, self.clock = device, every_s, clock
+        self.read = read if read is not None else self._nvml
+        self.last: float | None = None
+        self.read_at = -math.inf
+
+    def _nvml(self) -> float:
+        import torch
+
+        return torch.cuda.utilization(self.device) / 100.0
+
+    def __call__(self) -> float | None:
+        if self.device.type != "cuda":
+            return None
+        now = self.clock()
+        if now - self.read_at >= self.every_s:
+            self.read_at = now
+            try:
+                self.last = self.read()
+            except Exception:  # noqa: BLE001 - pynvml missing or the driver does not report it
+                self.last = None
+        return self.last
 
 
 def plot_curves(csv_path: Path, png_path: Path) -> None:

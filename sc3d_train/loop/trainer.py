@@ -52,7 +52,7 @@ from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.data.device_prefetch import DevicePrefetcher
 from sc3d_train.loop.loss_window import LossWindow
 from sc3d_train.loop.memory_check import check_cpu_batch_fits
-from sc3d_train.loop.metrics_log import DataWaitClock, MetricsLog, gpu_utilisation, in_loop_rate
+from sc3d_train.loop.metrics_log import DataWaitClock, GpuUtilisation, MetricsLog, in_loop_rate
 from sc3d_train.loop.phase_step import augment_step, training_batch
 from sc3d_train.loop.runtime import (DistInfo, all_gather, all_mean, all_min, channels_last_on, resolve_amp,
                                      check_same_weights, resolve_device, seed_everything, setup_distributed)
@@ -251,7 +251,7 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
         progress = progress_bar(total=cfg.steps, initial=start_step, unit="step", desc="train")
 
     phase, loaders, last_losses = None, {}, {}
-    t_log, n_log, rates, wait = time.perf_counter(), 0, [], DataWaitClock()
+    t_log, n_log, rates, wait, gpu_util = time.perf_counter(), 0, [], DataWaitClock(), GpuUtilisation(t.device)
     try:
         for step in range(start_step, cfg.steps):
             if phase_at(cfg, step) != phase:
@@ -274,7 +274,7 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
                 rates.append(rate := n_log / max(now - t_log, 1e-9))
                 t_log, n_log, wait.seconds = now, 0, 0.0
                 last_losses = mean_scalars(t, losses)
-                gpu = gpu_utilisation(t.device)
+                gpu = gpu_util()
                 log.log(step, {"phase": phase, **last_losses, "lr": lr_at(cfg, step),
                                "samples_per_s": round(rate, 2), "data_wait": round(wait_share, 4),
                                **({"gpu_util": gpu} if gpu is not None else {})})
