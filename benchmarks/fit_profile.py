@@ -10,7 +10,8 @@ cache filling), so a run at the paper's width on a GPU ends in about the time of
 (profiling every step, compiling included, passed 180 s for 500 steps on the H100). Prints, per
 training step of that stretch: its wall time; the spans of the loop's parts (labelled with
 ``record_function``: the next batch (loader, copy to the device, expansion), the step itself
-(forward, losses, backward, Adam), the loss window); the GPU's kernel time; the host operations by
+(forward, losses, backward, Adam, each also on its own), the loss window, the logging); the GPU's
+kernel time; the host operations by
 self CPU time; the CUDA runtime calls that make the host wait for the GPU or page-lock memory
 (``cudaStreamSynchronize``, ``cudaDeviceSynchronize``, ``cudaEventSynchronize``, ``cudaMemcpy``,
 ``cudaHostAlloc``, ``cudaFreeHost``, ``cudaGraphLaunch``). The question it answers: what does the
@@ -58,12 +59,27 @@ def annotate_batches(label: str, fn):
     return wrapped
 
 
-#: the loop's parts, as record_function spans: (label, module, attribute, wrapper) for the profile
+#: the loop's parts, as record_function spans: (label, module, attribute, wrapper); a label that
+#: starts with a space is a part of the part above it (its span lies inside that one's) and does
+#: not count again in the sum the rest is found from; one label may wrap several functions
 PARTS = (("loop: next batch (loader, to the device, expansion)", "sc3d_train.loop.trainer", "device_batches",
           annotate_batches),
+         ("  of it: to the device + expansion (training_batch)", "sc3d_train.loop.trainer", "training_batch", annotate),
          ("loop: training step (forward, losses, backward, Adam)", "sc3d_train.loop.train_step", "TrainStep.__call__",
           annotate),
-         ("loop: loss window", "sc3d_train.loop.loss_window", "LossWindow.record", annotate))
+         ("  of it: noise", "sc3d_train.loop.train_step", "draw_noise", annotate),
+         ("  of it: forward + losses (the compiled call)", "sc3d_train.loop.train_step", "TrainStep._forward", annotate),
+         ("  of it: backward", "sc3d_train.loop.train_step", "backward", annotate),
+         ("  of it: Adam", "sc3d_train.loop.train_step", "optimizer_step", annotate),
+         ("loop: loss window", "sc3d_train.loop.loss_window", "LossWindow.record", annotate),
+         ("loop: logging (finiteness check, losses read back, metrics.csv + TensorBoard, GPU utilisation)",
+          "sc3d_train.loop.trainer", "check_finite", annotate),
+         ("loop: logging (finiteness check, losses read back, metrics.csv + TensorBoard, GPU utilisation)",
+          "sc3d_train.loop.trainer", "mean_scalars", annotate),
+         ("loop: logging (finiteness check, losses read back, metrics.csv + TensorBoard, GPU utilisation)",
+          "sc3d_train.loop.metrics_log", "MetricsLog.log", annotate),
+         ("loop: logging (finiteness check, losses read back, metrics.csv + TensorBoard, GPU utilisation)",
+          "sc3d_train.loop.metrics_log", "GpuUtilisation.__call__", annotate))
 
 
 def patch_loop(prof) -> None:
@@ -143,11 +159,11 @@ def main() -> None:
     print("| part of the loop | calls a step | wall ms a step (span) |")
     print("|---|---|---|")
     spans = 0.0
-    for label, *_ in PARTS:
+    for label in dict.fromkeys(p[0] for p in PARTS):  # each label once, in order
         calls, _, total = names.get(label, (0, 0.0, 0.0))
-        spans += total
-        print(f"| {label} | {calls / steps:.1f} | {total / steps:.3f} |")
-    print(f"| rest: the loop's own Python, lr, logging (its host sync every --log-every steps), checkpoints | - | "
+        spans += 0.0 if label.startswith(" ") else total
+        print(f"| {label} | {calls / steps:.2f} | {total / steps:.3f} |")
+    print(f"| rest: the loop's own Python, lr, the host sync before each log, checkpoints | - | "
           f"{(wall - spans) / steps:.3f} |")
     print(f"\n| host operation (top {args.top} by self CPU) | calls a step | self CPU ms a step |")
     print("|---|---|---|")
