@@ -132,11 +132,26 @@ def validate_triangles(vertices: np.ndarray, faces: np.ndarray, source: str = "m
     if big.any():
         raise MeshError(f"{source}: {int(big.sum())} vertices with coordinates beyond +-{FLOAT32_SAFE:.0e} "
                         f"(largest {np.abs(used).max():.3g}); the renderer draws in float32")
-    tri = vertices[faces]
-    with np.errstate(over="ignore", invalid="ignore"):
-        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
-    if not area > 0:
+    if not has_area(vertices, faces):
         raise MeshError(f"{source}: zero surface area (all {len(faces)} triangles degenerate)")
+
+
+#: triangles per chunk of :func:`has_area`
+AREA_CHUNK = 2048
+
+
+def has_area(vertices: np.ndarray, faces: np.ndarray) -> bool:
+    """Whether the triangles' total area is above 0 (``vertices [n,3]`` finite, as
+    :func:`validate_triangles` checks first; ``faces [m,3]``): the sum of their areas, a chunk of
+    ``AREA_CHUNK`` triangles at a time, stopping at the first chunk whose sum is above 0 (every
+    area is >= 0, so the total is above 0 exactly when some chunk's is); a real mesh is decided
+    by its first chunk, a degenerate one is summed whole."""
+    for lo in range(0, len(faces), AREA_CHUNK):
+        tri = vertices[faces[lo:lo + AREA_CHUNK]]
+        with np.errstate(over="ignore", invalid="ignore"):
+            if np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum() > 0:
+                return True
+    return False
 
 
 # ----------------------------------------------------------------------------- the file itself
