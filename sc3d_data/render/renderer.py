@@ -182,7 +182,8 @@ def _color_factor(c) -> np.ndarray:
 def mesh_parts(scene, to_canonical: np.ndarray):
     """``(model [4,4], positions [N,3] f32, faces [M,3] u32, colors [N,4] u8 or None,
     uv [N,2] f32 or None, base_color [4], texture image or None)`` per geometry of a
-    ``trimesh.Scene``, with pyrender's reading of trimesh visuals.
+    ``trimesh.Scene``, with pyrender's reading of trimesh visuals; ``uv`` and the texture image
+    are both given or both None.
 
     ``positions`` are the part's source-frame vertices less the centre of their bounding box
     (subtracted in float64), and ``model`` maps them to the canonical frame (``to_canonical @
@@ -212,10 +213,10 @@ def mesh_parts(scene, to_canonical: np.ndarray):
                 base, image = _color_factor(mat.baseColorFactor), mat.baseColorTexture
             elif isinstance(mat, trimesh.visual.material.SimpleMaterial):
                 base, image = _color_factor(mat.diffuse), mat.image
-            if vis.uv is not None and len(vis.uv) == len(pos):
+            if image is not None and vis.uv is not None and len(vis.uv) == len(pos):
                 uv = vis.uv
             else:
-                image = None
+                image = None  # a texture needs uv, and uv is read only for a texture
         pos = np.asarray(pos, dtype=np.float64)
         centre = (pos.min(axis=0) + pos.max(axis=0)) / 2
         shift = np.eye(4)
@@ -378,10 +379,9 @@ class MeshRenderer:
         GL = self.gl
         arrays: list[list[np.ndarray]] = [[], [], [], []]
         offsets, at = [], [0, 0, 0, 0]
-        for _, pos, faces, colors, uv, _, image in parts:
-            has_tex = image is not None and uv is not None
+        for _, pos, faces, colors, uv, _, _ in parts:
             offsets.append(tuple(at))
-            for k, data in enumerate((pos, colors, uv if has_tex else None, faces)):
+            for k, data in enumerate((pos, colors, uv, faces)):
                 if data is not None:
                     arrays[k].append(data)
                     at[k] += data.nbytes
@@ -397,11 +397,11 @@ class MeshRenderer:
         ``textures`` maps ``id(image)`` to ``(image, texture)`` for the textures this object has
         made so far: parts that share one image (a GLB's material used by many meshes) upload it once."""
         GL = self.gl
-        has_tex = image is not None and uv is not None
+        has_tex = image is not None  # then uv too (mesh_parts)
         loc = self._program(colors is not None, has_tex)
         for attr, data, size, dtype, norm in ((0, pos, 3, GL.GL_FLOAT, False),
                                               (1, colors, 4, GL.GL_UNSIGNED_BYTE, True),
-                                              (2, uv if has_tex else None, 2, GL.GL_FLOAT, False)):
+                                              (2, uv, 2, GL.GL_FLOAT, False)):
             if data is None:
                 GL.glDisableVertexAttribArray(attr)
                 continue
