@@ -59,6 +59,8 @@ def annotate_batches(label: str, fn):
     return wrapped
 
 
+#: the logging's span: the four functions that log every --log-every steps
+LOGGING = "loop: logging (finiteness check, losses read back, metrics.csv + TensorBoard, GPU utilisation)"
 #: the loop's parts, as record_function spans: (label, module, attribute, wrapper); a label that
 #: starts with a space is a part of the part above it (its span lies inside that one's) and does
 #: not count again in the sum the rest is found from; one label may wrap several functions
@@ -72,14 +74,10 @@ PARTS = (("loop: next batch (loader, to the device, expansion)", "sc3d_train.loo
          ("  of it: backward", "sc3d_train.loop.train_step", "backward", annotate),
          ("  of it: Adam", "sc3d_train.loop.train_step", "optimizer_step", annotate),
          ("loop: loss window", "sc3d_train.loop.loss_window", "LossWindow.record", annotate),
-         ("loop: logging (finiteness check, losses read back, metrics.csv + TensorBoard, GPU utilisation)",
-          "sc3d_train.loop.trainer", "check_finite", annotate),
-         ("loop: logging (finiteness check, losses read back, metrics.csv + TensorBoard, GPU utilisation)",
-          "sc3d_train.loop.trainer", "mean_scalars", annotate),
-         ("loop: logging (finiteness check, losses read back, metrics.csv + TensorBoard, GPU utilisation)",
-          "sc3d_train.loop.metrics_log", "MetricsLog.log", annotate),
-         ("loop: logging (finiteness check, losses read back, metrics.csv + TensorBoard, GPU utilisation)",
-          "sc3d_train.loop.metrics_log", "GpuUtilisation.__call__", annotate))
+         (LOGGING, "sc3d_train.loop.trainer", "check_finite", annotate),
+         (LOGGING, "sc3d_train.loop.trainer", "mean_scalars", annotate),
+         (LOGGING, "sc3d_train.loop.metrics_log", "MetricsLog.log", annotate),
+         (LOGGING, "sc3d_train.loop.metrics_log", "GpuUtilisation.__call__", annotate))
 
 
 def patch_loop(prof) -> None:
