@@ -163,21 +163,26 @@ def check_cpu_batch_fits(t):
     ``LOCAL_WORLD_SIZE``), would need more memory than is available (module doc). Checks nothing
     on CUDA, for batches up to :data:`PROBE_ABOVE`, or where Linux does not report the memory
     available."""
-    if t.device.type != "cpu" or t.local_batch <= PROBE_ABOVE or (free := available_bytes()) is None:
+    from sc3d_train.loop.schedule import mixed_batch
+
+    largest = max(t.local_batch, mixed_batch(t.cfg, t.local_batch) if t.cfg.mode == "semi" else 0)
+    if t.device.type != "cpu" or largest <= PROBE_ABOVE or (free := available_bytes()) is None:
         return t
     ranks_here = t.dist.local_world_size
     small, large = PROBE_SIZES
     peaks = [step_peak_bytes(t, n) for n in (small, large)]
     per_sample = max((peaks[1] - peaks[0]) / (large - small), 1.0)
     fixed = max(peaks[0] - small * per_sample, 0.0)
-    need = ranks_here * (fixed + per_sample * t.local_batch)
+    need = ranks_here * (fixed + per_sample * largest)
     usable = USABLE_SHARE * free
     if need > usable:
         # the suggestion keeps a tenth in reserve: the memory available moves from one run to the next
         most = int(SUGGESTED_SHARE * (usable / ranks_here - fixed) // per_sample) * t.dist.world_size
-        advice = f"use --batch-size {most} or less" if most >= 1 else "not even a batch of 1 fits: free memory first"
+        option, size = ("--semi-batch-size", t.cfg.semi_batch_size) if largest > t.local_batch else \
+            ("--batch-size", t.cfg.batch_size)
+        advice = f"use {option} {most} or less" if most >= 1 else "not even a batch of 1 fits: free memory first"
         raise ValueError(
-            f"--batch-size {t.cfg.batch_size} needs about {need / GIB:.1f} GiB of memory a step on the CPU "
+            f"{option} {size} needs about {need / GIB:.1f} GiB of memory a step on the CPU "
             f"({per_sample / MIB:.1f} MiB a sample, measured), more than the {usable / GIB:.1f} GiB a step may take "
             f"({USABLE_SHARE:.0%} of the {free / GIB:.1f} GiB available); {advice}")
     return t

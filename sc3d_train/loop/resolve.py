@@ -155,7 +155,8 @@ def _resumed(options: dict, model_options: dict, tiny: bool = False) -> RunConfi
 
 #: options that only some modes read, and those modes
 MODE_ONLY_OPTIONS = {"labeled_fraction": ("semi", "labeled-only"), "pretrain_steps": ("semi",),
-                     "semi_lr": ("semi",), "semi_labeled_share": ("semi",)}
+                     "semi_lr": ("semi",), "semi_labeled_share": ("semi",),
+                     "semi_batch_size": ("semi",)}
 
 
 def check_mode_options(cfg: RunConfig, given: dict) -> None:

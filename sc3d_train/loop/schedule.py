@@ -46,13 +46,34 @@ def batch_split(cfg: RunConfig, local_batch: int) -> tuple[int, int]:
     return labeled, local_batch - labeled
 
 
+def mixed_batch(cfg: RunConfig, local_batch: int) -> int:
+    """Samples per rank of a mixed-phase step (labelled and unlabelled): ``local_batch`` (the
+    rank's share of ``batch_size``) scaled to ``semi_batch_size`` when that is set. Raises
+    ``ValueError`` when ``semi_batch_size`` does not split evenly over the ranks."""
+    if cfg.semi_batch_size is None:
+        return local_batch
+    per_rank, rest = divmod(cfg.semi_batch_size * local_batch, cfg.batch_size)
+    if rest:
+        raise ValueError(f"semi batch size {cfg.semi_batch_size} is not divisible by "
+                         f"{cfg.batch_size // local_batch} ranks")
+    return per_rank
+
+
+def step_samples(cfg: RunConfig, step: int) -> int:
+    """Images of optimiser step ``step`` over all ranks: ``batch_size``, or in the mixed phase
+    ``semi_batch_size`` when that is set (what ``fit`` counts in its samples/s)."""
+    if phase_at(cfg, step) == "unsupervised" and cfg.semi_batch_size is not None:
+        return cfg.semi_batch_size
+    return cfg.batch_size
+
+
 def data_position(cfg: RunConfig, step: int, local_batch: int) -> dict:
     """Samples of this phase's streams consumed by each rank before ``step`` (saved in every
     checkpoint and checked at resume)."""
     phase = phase_at(cfg, step)
     start = phase_start(cfg, step)
     if phase == "unsupervised":
-        labeled, unlabeled = batch_split(cfg, local_batch)
+        labeled, unlabeled = batch_split(cfg, mixed_batch(cfg, local_batch))
         return {"phase": phase, "phase_start": start, "samples_per_rank": (step - start) * unlabeled,
                 "labeled_samples_per_rank": (step - start) * labeled}
     return {"phase": phase, "phase_start": start, "samples_per_rank": (step - start) * local_batch}

@@ -7,7 +7,7 @@ from pathlib import Path
 from sc3d_train.settings.config import RunConfig
 from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.data.loader import make_loader
-from sc3d_train.loop.schedule import batch_split, data_position
+from sc3d_train.loop.schedule import batch_split, data_position, mixed_batch
 
 #: loader seed offsets of the streams (labelled pre-training / all, unlabelled, labelled in the mix)
 STREAM_SEEDS = {"supervised": 0, "unlabeled": 7919, "labeled_mix": 104729}
@@ -52,7 +52,7 @@ def phase_loaders(t, step: int) -> dict:
     if pos["phase"] == "supervised":  # {name: (dataset, batch, stream seed, start)}
         specs = {"supervised": (t.labeled, t.local_batch, "supervised", pos["samples_per_rank"])}
     else:
-        n_lab, n_unl = batch_split(cfg, t.local_batch)
+        n_lab, n_unl = batch_split(cfg, mixed_batch(cfg, t.local_batch))
         specs = {"unsupervised": (t.datasets["unlabeled"], n_unl, "unlabeled", pos["samples_per_rank"])}
         if n_lab:
             specs["supervised"] = (t.labeled, n_lab, "labeled_mix", pos["labeled_samples_per_rank"])

@@ -176,8 +176,9 @@ class RunConfig(_Plain):
     ``steps`` counts optimiser steps over all phases. In semi-supervised mode the first
     ``pretrain_steps`` steps train on the labelled subset (supervised loss, ``lr``); the rest
     train on mixed batches at ``semi_lr`` (``None``: ``lr``): a share ``semi_labeled_share`` of
-    each batch are labelled images (supervised loss: keeps the canonical frame and what the
-    labelled phase learnt), the others unlabelled images (self-consistency + KL + pose search on
+    each batch (``semi_batch_size`` images, ``batch_size`` when None) are labelled images
+    (supervised loss: keeps the canonical frame and what the labelled phase learnt), the others
+    unlabelled images (self-consistency + KL + pose search on
     the predictions). ``semi_labeled_share = 0`` is the paper's pure unlabelled fine-tuning.
     ``batch_size`` is the global batch (split evenly over DDP ranks).
     """
@@ -207,6 +208,10 @@ class RunConfig(_Plain):
     semi_labeled_share: float = setting(0.5, "semi: share of each batch of the second phase that are "
                                         "labelled images (0 = the paper's fine-tuning on unlabelled "
                                         "images alone).")
+    semi_batch_size: int | None = setting(None, "semi: global batch of the second phase, labelled and unlabelled "
+                                          "images together [batch size] (twice the batch size adds the "
+                                          "unlabelled images to a whole labelled batch instead of taking "
+                                          "half of it).")
     # loader, device, logging
     workers: int | None = setting(None, "DataLoader worker processes per stream and rank [auto: 0, the "
                                   "batches built in the training process: fastest on the CPU and on "
@@ -257,8 +262,11 @@ class RunConfig(_Plain):
         check_choices(self)
         if self.steps < 1 or self.batch_size < 1:
             raise ValueError("steps and batch size must be positive")
-        if self.batch_size > MAX_BATCH_SIZE:
-            raise ValueError(batch_size_too_large(self.batch_size))
+        for size in (self.batch_size, self.semi_batch_size or 1):
+            if size > MAX_BATCH_SIZE:
+                raise ValueError(batch_size_too_large(size))
+        if self.semi_batch_size is not None and self.semi_batch_size < 2:
+            raise ValueError(f"semi batch size must be at least 2 (a labelled and an unlabelled image), got {self.semi_batch_size}")
         if not 0.0 < self.labeled_fraction <= 1.0:
             raise ValueError(f"labeled fraction must be in (0, 1], got {self.labeled_fraction}")
         if not 0.0 <= self.semi_labeled_share < 1.0:
