@@ -58,6 +58,18 @@ def test_voxelize_shards_matches_render_and_resumes(sample_shards, shards_copy):
     assert "voxelized 0 objects" in res.output  # resume: nothing left to do
 
 
+def record_in_index(shard_dir: Path, shard: Path) -> None:
+    """Write ``shard``'s size and SHA-256 into ``shard_dir``'s index.json (after a test edited the
+    shard by hand; voxelize refuses a shard that is not the one the index records)."""
+    from sc3d_data.io.hashing import file_sha256
+
+    index_file = shard_dir / "index.json"
+    index = json.loads(index_file.read_text())
+    entry = next(e for e in index["shards"] if e["file"] == shard.name)
+    entry.update(bytes=shard.stat().st_size, sha256=file_sha256(shard))
+    index_file.write_text(json.dumps(index))
+
+
 def test_voxelize_records_failures_and_other_resolutions(shards_copy):
     path = shard_files(shards_copy)[0]
     with h5py.File(path, "a") as f:  # point one object at a mesh that is gone
@@ -65,6 +77,7 @@ def test_voxelize_records_failures_and_other_resolutions(shards_copy):
         src[0] = b"/nonexistent/mesh.glb"
         del f["source"]
         f.create_dataset("source", data=src, dtype=h5py.string_dtype("utf-8"))
+    record_in_index(shards_copy, path)  # as a mesh moved away after rendering: the shard is the one indexed
     run_cli(main, ["voxelize", shards_copy, "--resolution", "64", "--no-progress"])
     with h5py.File(path, "r") as f:
         assert f["voxels"].shape[1:] == (64, 64, 64)

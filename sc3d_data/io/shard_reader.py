@@ -257,6 +257,15 @@ def verify_shard(shard_dir: Path, entry: dict, full: bool = True) -> str | None:
     return None
 
 
+def refuse_changed(shard_dir: Path, entries: list[dict], consequence: str) -> None:
+    """``ShardError`` (one line: the problem, then ``consequence``) at the first shard of index
+    ``entries`` that is not the file the index records (:func:`verify_shard`: missing, size,
+    SHA-256, unreadable), for a command about to rewrite those shards."""
+    for entry in entries:
+        if (problem := verify_shard(shard_dir, entry)) is not None:
+            raise ShardError(f"{problem}; {consequence}")
+
+
 def verify_shards(shard_dir: Path, full: bool = True) -> list[str]:
     """Problems (one line each, naming the file) of every shard listed in the index."""
     return [p for e in load_index(shard_dir).get("shards", []) if (p := verify_shard(shard_dir, e, full))]

@@ -34,10 +34,13 @@ from pathlib import Path
 import numpy as np
 
 from sc3d_data.io.shards import index_path, replace_dataset_atomically
-from sc3d_data.io.shard_reader import read_strings
+from sc3d_data.io.shard_reader import read_strings, refuse_changed
 from sc3d_data.pipeline.executors.job import ExecOptions, Job
 from sc3d_data.pipeline.run.plan import Task
 
+#: what a shard that differs from the index would cost a rewrite (``shard_reader.refuse_changed``)
+REWRITE_REFUSAL = ("voxelize would copy the damage into the rewritten shard and record it as good, so no shard "
+                   "was changed: restore the file or render it again (render --overwrite)")
 OCCUPANCY_RULE = ("surface-touching voxels + voxel centres with |winding number| >= 0.5 "
                   "+ enclosed voxels (sc3d_data/voxel/voxelize.py)")
 
@@ -235,6 +238,10 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
         todo += [RowTask(c * K + r, resolve_source(sources[r], settings.get("meshes")), cats[r], ids[r], "",
                          sources[r], r, to_canonical[r], entries.get((paths[c].name, r), {}).get("source_file"))
                  for r in sorted(rows_todo)]
+    # a shard to rewrite must be the one indexed (the rewrite copies its chunks undecoded: damage would be
+    # carried over and recorded as good), unless a voxelize killed before writing the index replaced it
+    replaced = {c for c, r in enumerate(rows) if r[0] and index.shards[c].get("bytes") not in (None, paths[c].stat().st_size)}
+    refuse_changed(shard_dir, [index.shards[c] for c in sorted({t.pos // K for t in todo} - replaced)], REWRITE_REFUSAL)
     fresh = [t for t in todo if t.pos // K not in retried]  # a retried failure may well fail again
     if fresh and not any(Path(t.path).is_file() for t in fresh):
         under = f", also looked for under {settings['meshes']}" if settings.get("meshes") else ""
