@@ -58,3 +58,32 @@ def test_voxelize_refuses_a_damaged_shard_instead_of_recording_the_damage_as_goo
     res = run_cli(data_main, ["info", out, "--verify"], expect_exit=1)
     assert f"{damaged}: SHA-256 differs from the index" in res.output
 
+
+def test_voxelize_meshes_takes_the_folders_write_lock_and_parts_share_it(tmp_path):
+    """Two ``voxelize --meshes`` into one --out (one at 64^3, one at 32^3 with --overwrite) both ran
+    to the end and left a folder of 32^3 and 64^3 files under a voxelize.json saying 32. Now a
+    whole run holds the folder's lock alone, and the parts of one ``--part I/N`` job (which
+    write into one folder by design) share it, each holding its own part's lock: the other
+    process is played here by this one, holding the locks the other command would hold."""
+    from sc3d_data.io.outlock import exclusive_lock
+    from sc3d_data.pipeline.jobs.voxel_meshes import folder_locks
+    from sc3d_data.pipeline.run.partition import Part
+
+    meshes, out = tmp_path / "m", tmp_path / "vox"
+    shutil.copytree(SAMPLE_MESHES / "chair", meshes / "chair")
+    out.mkdir()
+    run = ["voxelize", "--meshes", meshes, "--out", out, "--no-progress", "--workers", "1"]
+    with exclusive_lock(out, "sc3d-data voxelize --meshes"):  # a whole run at work
+        line = _one_error(run_cli(data_main, run, expect_exit=1).output)
+        assert f"{out}: another process (PID {os.getpid()}: sc3d-data voxelize --meshes)" in line
+        line = _one_error(run_cli(data_main, [*run, "--part", "1/2"], expect_exit=1).output)
+        assert "is writing to this folder" in line
+    assert not list(out.rglob("*.binvox"))
+    with folder_locks(out, Part(0, 2)):  # part 0 of 2 at work: part 1 runs, part 0 and a whole run do not
+        run_cli(data_main, [*run, "--part", "1/2"])
+        done = sorted(out.rglob("*.binvox"))
+        assert 0 < len(done) < 4
+        _one_error(run_cli(data_main, [*run, "--part", "0/2"], expect_exit=1).output)
+        _one_error(run_cli(data_main, run, expect_exit=1).output)
+    run_cli(data_main, run)  # alone: the whole folder
+    assert len(sorted(out.rglob("*.binvox"))) == 4

@@ -319,7 +319,9 @@ def test_voxelize_meshes_in_parts_share_one_folder(tmp_path):
 
 # ----------------------------------------------------------------------------- voxelize --meshes, import-r2n2
 def _files(folder: Path) -> dict:
-    return {p.relative_to(folder): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+    """The files under ``folder`` with their bytes, but the write locks (``.sc3d.lock*``)."""
+    return {p.relative_to(folder): p.read_bytes() for p in folder.rglob("*")
+            if p.is_file() and not p.name.startswith(".sc3d.lock")}
 
 
 def test_voxelize_meshes_on_ray_equals_local_file_by_file(ray_cluster, tmp_path):

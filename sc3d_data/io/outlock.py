@@ -1,7 +1,8 @@
 """One writer per dataset folder: an exclusive, non-blocking ``flock`` on ``FOLDER/.sc3d.lock``.
 
-``render``, ``voxelize`` (shards), ``import-r2n2``, ``merge`` and ``sc3d-train fit`` (on its run
-folder) hold it for their whole run; a second writer is refused at once with one line naming the folder
+``render``, ``voxelize`` (shards and ``--meshes``), ``import-r2n2``, ``merge`` and ``sc3d-train
+fit`` (on its run folder) hold it for their whole run (the parts of ``voxelize --meshes --part
+I/N``, which share one folder, hold it shared, and each its own part's lock exclusively); a second writer is refused at once with one line naming the folder
 (and the PID that holds it), and the first one is not disturbed. The lock is released by the
 kernel when the holder exits, also on SIGKILL, so a stale lock file never blocks a rerun.
 """
@@ -36,29 +37,33 @@ class LockError(RuntimeError):
 
 
 @contextmanager
-def exclusive_lock(folder: Path, command: str = "sc3d-data", create: bool = False) -> Iterator[Path]:
+def exclusive_lock(folder: Path, command: str = "sc3d-data", create: bool = False, shared: bool = False,
+                   name: str = LOCK_NAME) -> Iterator[Path]:
     """Hold the write lock of ``folder`` for the ``with`` block; raises ``LockError`` when another
     process holds it. ``create``: make ``folder`` (and its parents) if missing, and remove it
     again at the end when the block left nothing in it but the lock file (a command that failed
-    on its inputs leaves no empty folder behind)."""
+    on its inputs leaves no empty folder behind). ``shared``: a lock that other shared holders
+    may hold at the same time but no exclusive one (the parts of one ``voxelize --meshes
+    --part I/N`` job, each of which also holds an exclusive lock of its own ``name``)."""
     folder = Path(folder)
     made = create and not folder.exists()
     if create:
         folder.mkdir(parents=True, exist_ok=True)
-    path = folder / LOCK_NAME
+    path = folder / name
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
     held = False
     try:
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(fd, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
         except BlockingIOError:
             pid, _, what = os.pread(fd, 200, 0).decode(errors="replace").strip().partition(" ")
             raise LockError(f"{folder}: another process (PID {pid or '?'}: {what or 'unknown'}) is writing to this folder; "
                             f"wait for it to finish or use another --out") from None
         held = True
         _HELD.add(fd)
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()} {command}\n".encode(), 0)
+        if not shared:  # shared holders leave the file alone: the last one's line would win
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()} {command}\n".encode(), 0)
         yield path
     finally:
         _HELD.discard(fd)

@@ -101,8 +101,6 @@ def voxelize_meshes(config: VoxelMeshesConfig) -> VoxelizeSummary:
     """One ``.binvox`` per mesh under ``config.meshes``, same relative paths under ``config.out``
     (module doc), on the executor of ``config.executor`` (local pool or Ray; per-mesh time
     limit ``config.timeout_s``)."""
-    from sc3d_data.pipeline.executors.executor import start_executor
-    from sc3d_data.pipeline.run.partition import part_of
     from sc3d_data.formats.discover import discover_meshes, no_meshes_found
 
     from sc3d_data.formats.shapenet import check_axes
@@ -114,6 +112,37 @@ def voxelize_meshes(config: VoxelMeshesConfig) -> VoxelizeSummary:
     if not entries and not problems:
         raise no_meshes_found(config.meshes)
     out.mkdir(parents=True, exist_ok=True)
+    with folder_locks(out, part):
+        return _voxelize_entries(config, out, part, entries, problems, t0)
+
+
+def folder_locks(out: Path, part: Part):
+    """The write locks of ``out`` (``sc3d_data.io.outlock``) for ``voxelize --meshes``: a whole run
+    holds the folder's lock alone; a part shares it with the other parts of its job and holds
+    its own part's lock alone (two runs of one part, or a whole run beside a part, would
+    write the same files)."""
+    from contextlib import ExitStack
+
+    from sc3d_data.io.outlock import LOCK_NAME, exclusive_lock
+
+    stack = ExitStack()
+    command = "sc3d-data voxelize --meshes" + ("" if part.whole else f" --part {part.index}/{part.count}")
+    try:
+        stack.enter_context(exclusive_lock(out, command, shared=not part.whole))
+        if not part.whole:
+            stack.enter_context(exclusive_lock(out, command, name=f"{LOCK_NAME}.{part.dirname()}"))
+    except BaseException:
+        stack.close()
+        raise
+    return stack
+
+
+def _voxelize_entries(config: VoxelMeshesConfig, out: Path, part: Part, entries: list, problems: list,
+                      t0: float) -> VoxelizeSummary:
+    """:func:`voxelize_meshes` once ``out``'s locks are held."""
+    from sc3d_data.pipeline.executors.executor import start_executor
+    from sc3d_data.pipeline.run.partition import part_of
+
     check_grid_settings(config)
     summary = VoxelizeSummary()
     if not part.whole:
