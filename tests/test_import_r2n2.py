@@ -283,6 +283,31 @@ def _copy_model(renderings, voxels, src, dst_id, root):
     return root / "R" / syn / dst_id / "rendering", root / "V" / syn / dst_id / "model.binvox"
 
 
+def test_extreme_distance_ratios_fail_their_model_in_one_line(fake_r2n2, tmp_path):
+    """A distance ratio of 1e300 overflowed into cameras of inf and one of 1e-300 into a camera at
+    the object's centre (elevation 90), both imported with numpy warnings. Each now fails its
+    model, naming the metadata file and the view; the good model is imported."""
+    renderings, voxels, _ = fake_r2n2
+    src = f"{CHAIR}/chair2_blendswap"
+    _copy_model(renderings, voxels, src, "good", tmp_path)
+    for name, view, ratio in (("far", 3, "1e300"), ("near", 0, "1e-300")):
+        rdir, _ = _copy_model(renderings, voxels, src, name, tmp_path)
+        lines = (rdir / "rendering_metadata.txt").read_text().splitlines()
+        fields = lines[view].split()
+        lines[view] = " ".join(fields[:3] + [ratio] + fields[4:])
+        (rdir / "rendering_metadata.txt").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    res = cli(["import-r2n2", "--renderings", tmp_path / "R", "--voxels", tmp_path / "V", "--out", out,
+               "--no-progress"])
+    assert "imported 1 of 3 models" in res.output
+    index = load_index(out)
+    assert [o["model_id"] for o in index["objects"]] == ["good"]
+    reasons = {Path(f["source"]).name: f["reason"] for f in index["failures"]}
+    assert "rendering_metadata.txt: view 3 (distance ratio 1e+300)" in reasons["far"]
+    assert "rendering_metadata.txt: view 0 (distance ratio 1e-300)" in reasons["near"]
+    assert all("must be finite and more than 0.866" in r for r in reasons.values())
+
+
 def test_bad_input_reported_rest_imported(fake_r2n2, tmp_path):
     renderings, voxels, _ = fake_r2n2
     src = f"{CHAIR}/chair2_blendswap"

@@ -207,6 +207,21 @@ def r2n2_cameras(views: list[R2N2View], image_size: int,
     return {"K": K, "R": R, "t": t, "azimuth": az, "elevation": el, "distance": dist}
 
 
+def check_cameras(cameras: dict, metadata: Path, views: list[R2N2View]) -> None:
+    """``ValueError`` naming ``metadata`` and its first view whose camera (``r2n2_cameras``, canonical
+    frame) the shards cannot hold (not finite as float32) or that sits inside the voxel grid's cube
+    (distance <= sqrt(3)/2, which ``render --distance`` refuses too): an extreme distance ratio."""
+    big = float(np.finfo(np.float32).max)
+    t, dist = np.asarray(cameras["t"]), np.asarray(cameras["distance"])
+    ok = np.isfinite(t).all(-1) & (np.abs(t).max(-1) < big) & np.isfinite(dist) & (dist < big)
+    ok &= dist > camera.MIN_DISTANCE
+    if not ok.all():
+        v = int(np.flatnonzero(~ok)[0])
+        raise ValueError(f"{metadata}: view {v} (distance ratio {views[v].distance_ratio:g}) puts the camera "
+                         f"{dist[v]:g} from the object's centre in the canonical frame; it must be finite and more "
+                         f"than {camera.MIN_DISTANCE:.3f} (sqrt(3)/2, outside the voxel grid's cube)")
+
+
 # ----------------------------------------------------------------------------- images
 def load_rendering(path: Path, image_size: int, background=(255, 255, 255)
                    ) -> tuple[np.ndarray, np.ndarray]:
@@ -319,7 +334,9 @@ def load_r2n2_object(model: R2N2Model, split: str, image_size: int = 64, backgro
             raise
         except Exception as e:  # PIL's errors on truncated / non-image files
             raise ValueError(f"{png}: cannot read image ({type(e).__name__}: {e})") from None
-    arrays = r2n2_cameras(views, S, to_canonical)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # checked next, in one line
+        arrays = r2n2_cameras(views, S, to_canonical)
+    check_cameras(arrays, model.rendering_dir / "rendering_metadata.txt", views)
     arrays.update({"images": images, "masks": masks, "clipped": border_clipped(masks),
                    "to_canonical": to_canonical, "voxels": grid.astype(np.uint8)})
     return ObjectRecord(model_id=model.model_id, category=model.category, split=split,
