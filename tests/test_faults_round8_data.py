@@ -87,3 +87,24 @@ def test_voxelize_meshes_takes_the_folders_write_lock_and_parts_share_it(tmp_pat
         _one_error(run_cli(data_main, run, expect_exit=1).output)
     run_cli(data_main, run)  # alone: the whole folder
     assert len(sorted(out.rglob("*.binvox"))) == 4
+
+
+def test_reports_never_write_through_a_hard_link_to_the_dataset(tmp_path):
+    """``check --json`` and ``preview --out`` refused the dataset's own files by name and through
+    symlinks, but a hard link (another name of the same inode) was written in place: the index
+    became the report, the shard was truncated. Each is now one line and the dataset keeps its
+    bytes; a report beside the data still works."""
+    meshes = tmp_path / "m"
+    shutil.copytree(SAMPLE_MESHES / "chair", meshes / "chair")
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", meshes, "--out", out, "--voxelize", *FAST])
+    index, shard = out / "index.json", out / "shard-00000.h5"
+    os.link(index, tmp_path / "report.json")
+    os.link(shard, tmp_path / "sheet.png")
+    before = {p: p.read_bytes() for p in (index, shard)}
+    res = run_cli(data_main, ["check", out, "--json", tmp_path / "report.json", "--no-progress"], expect_exit=1)
+    assert "the same file as the dataset's index.json" in _one_error(res.output) and "hard link" in res.output
+    res = run_cli(data_main, ["preview", out, "--out", tmp_path / "sheet.png"], expect_exit=1)
+    assert "the same file as the dataset's shard-00000.h5" in _one_error(res.output)
+    assert {p: p.read_bytes() for p in before} == before
+    run_cli(data_main, ["check", out, "--json", tmp_path / "check.json", "--no-progress"])
