@@ -108,3 +108,29 @@ def test_reports_never_write_through_a_hard_link_to_the_dataset(tmp_path):
     assert "the same file as the dataset's shard-00000.h5" in _one_error(res.output)
     assert {p: p.read_bytes() for p in before} == before
     run_cli(data_main, ["check", out, "--json", tmp_path / "check.json", "--no-progress"])
+
+
+def test_files_that_are_no_mesh_fail_with_what_is_wrong_with_them(tmp_path):
+    """Each of these failed its object, but the reason did not say what was wrong: a truncated
+    .gltf read "FileNotFoundError: model.gltf: not found" (a file that does not exist), a .gltf
+    holding ``[]`` "AttributeError: 'list' object has no attribute 'get'", a .glb without its
+    header "buffer size must be a multiple of element size", an OBJ with 2-coordinate vertices a
+    numpy matmul error. Each reason now names the file and the problem; the good mesh renders."""
+    meshes = tmp_path / "m" / "chair"
+    meshes.mkdir(parents=True)
+    shutil.copy(SAMPLE_MESHES / "chair" / "chair2_blendswap.glb", meshes / "good.glb")
+    (meshes / "trunc.gltf").write_text('{"asset":{"version":"2.0"')
+    (meshes / "list.gltf").write_text("[]")
+    (meshes / "magic.glb").write_bytes(b"NOTGLB_____________")
+    (meshes / "short.glb").write_bytes(b"glTF")
+    (meshes / "flat.obj").write_text("v 1 2\nv 0 0\nv 1 1\nf 1 2 3\n")
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    index = index_of(out)
+    assert [o["model_id"] for o in index["objects"]] == ["good"]
+    reasons = {Path(f["source"]).name: f["reason"] for f in index["failures"]}
+    assert "trunc.gltf: not a glTF document: invalid JSON (Expecting ',' delimiter at line 1 column 26)" in reasons["trunc.gltf"]
+    assert "list.gltf: not a glTF document: its JSON is list [], not an object" in reasons["list.gltf"]
+    for name in ("magic.glb", "short.glb"):
+        assert f"{name}: not a GLB file (no glTF header and JSON chunk)" in reasons[name]
+    assert "flat.obj: the vertices of 'flat.obj' have 2 coordinates, expected 3" in reasons["flat.obj"]

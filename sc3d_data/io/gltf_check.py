@@ -10,7 +10,8 @@ from the JSON alone (for a GLB only its JSON chunk is read, never the binary one
 Only what the loader draws is judged: the meshes of the nodes reachable from the scene it uses
 (``scene``, else the first; every mesh without scenes), their surface primitives' POSITION and ``indices`` accessors.
 Points and lines (modes 0-3) carry no surface and are not drawn, which is right: left alone.
-A document that does not parse is left for the loader to report.
+A file that is no glTF document (JSON that does not parse, or is not an object; a GLB without its
+header) is refused in one line saying so; a document malformed inside is left for the loader.
 """
 from __future__ import annotations
 
@@ -92,16 +93,29 @@ def gltf_problems(doc: dict) -> list[str]:
 
 def gltf_refusal(path: Path, shown: int = 3) -> str | None:
     """The one-line reason (naming ``path``; the first ``shown`` problems and how many more) to
-    refuse glTF/GLB ``path`` because it draws geometry the loader would not read as written
-    (module doc), or None. Other files, and documents that do not parse, pass (the loader reports
+    refuse glTF/GLB ``path`` because it is no glTF document (JSON that does not parse or is not an
+    object, a GLB without its header) or draws geometry the loader would not read as written
+    (module doc), or None. Other files, and documents malformed inside, pass (the loader reports
     those)."""
     path = Path(path)
     if path.suffix.lower() not in GLTF_SUFFIXES:
         return None
     try:
-        problems = gltf_problems(read_gltf(path)[0])
-    except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error, RecursionError):
-        return None  # not a well-formed glTF document: the loader reports it
+        doc = read_gltf(path)[0]
+    except json.JSONDecodeError as e:
+        return f"{path}: not a glTF document: invalid JSON ({e.msg} at line {e.lineno} column {e.colno}); not read"
+    except UnicodeDecodeError:
+        return f"{path}: not a glTF document: its JSON is not UTF-8 text; not read"
+    except ValueError as e:  # read_gltf: a GLB without its header and JSON chunk (names the file)
+        return f"{e}; not read"
+    except (OSError, struct.error, RecursionError):
+        return None  # the loader reports it
+    if not isinstance(doc, dict):
+        return f"{path}: not a glTF document: its JSON is {type(doc).__name__} {json.dumps(doc)[:20]}, not an object; not read"
+    try:
+        problems = gltf_problems(doc)
+    except (KeyError, IndexError, TypeError, AttributeError, ValueError, RecursionError):
+        return None  # a malformed document: the loader reports it
     if not problems:
         return None
     more = f"; and {len(problems) - shown} more like these" if len(problems) > shown else ""

@@ -172,7 +172,7 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn")
             refs, embedded = _gltf_refs(path)
         else:
             return report
-    except (OSError, ValueError, KeyError, IndexError, TypeError, struct.error):
+    except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):
         return report  # not parseable: the loader reports it
     inside = []
     for name, ref in refs:

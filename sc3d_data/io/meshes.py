@@ -94,9 +94,10 @@ def check_obj_indices(path: Path) -> None:
                             "OBJ indices count from 1 (an exporter that writes 0-based indices?); not read")
 
 
-def scene_triangles(scene) -> tuple[np.ndarray, np.ndarray]:
+def scene_triangles(scene, source: str = "mesh") -> tuple[np.ndarray, np.ndarray]:
     """All triangles of a ``trimesh.Scene`` with node transforms baked in:
-    ``(vertices [n,3] float64, faces [m,3] int64)`` in the scene's (source) frame."""
+    ``(vertices [n,3] float64, faces [m,3] int64)`` in the scene's (source) frame. ``MeshError``
+    naming ``source`` when a geometry's vertices do not have 3 coordinates (an OBJ ``v 1 2``)."""
     import trimesh
 
     verts, faces, offset = [], [], 0
@@ -106,6 +107,9 @@ def scene_triangles(scene) -> tuple[np.ndarray, np.ndarray]:
         if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
             continue
         v = np.asarray(geom.vertices, dtype=np.float64)
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise MeshError(f"{source}: the vertices of {name!r} have {v.shape[-1] if v.ndim else 0} coordinates, "
+                            "expected 3 (x y z)")
         with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf: validate_triangles names the file
             v = v @ transform[:3, :3].T + transform[:3, 3]
         verts.append(v)
@@ -202,6 +206,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     if outside_textures not in OUTSIDE_TEXTURES:
         raise ValueError(f"outside_textures must be one of {OUTSIDE_TEXTURES}, not {outside_textures!r}")
     check_mesh_file(path, max_file_bytes)
+    if (refusal := gltf_refusal(path)) is not None:  # glTF/GLB only: not a glTF document, or unread geometry
+        raise MeshError(refusal)
     try:
         report = material_report(path, root, outside_textures)
     except ValueError as e:
@@ -211,14 +217,12 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
                         "material colours)")
     if path.suffix.lower() == ".obj":
         check_obj_indices(path)
-    if (refusal := gltf_refusal(path)) is not None:  # glTF/GLB only
-        raise MeshError(refusal)
     resolver = make_resolver(path, root)
     scene = load_scene(path, resolver)
     missed = loader_misses(resolver, report)
     if missed and bad_texture == "fail":
         raise MeshError(f"{path}: {'; '.join(missed)} (use --bad-texture fallback to render with material colours)")
-    vertices, faces = scene_triangles(scene)
+    vertices, faces = scene_triangles(scene, str(path))
     validate_triangles(vertices, faces, str(path), max_faces)
     warnings = ([f"{path}: {p}; rendered with material colours" for p in report.problems + missed]
                 + [f"{path}: {n}" for n in report.warnings + report.outside])
