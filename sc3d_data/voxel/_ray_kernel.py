@@ -14,15 +14,20 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def _axis_histogram(vi, f, G, a, hist):
+def _axis_histogram(vi, f, G, a, hist, first, last):
     """Rasterises the triangles (``vi``, ``f``) along axis ``a`` (0 x, 1 y, 2 z): for the
     ray line through voxel centres (ib + 0.5, ic + 0.5) of the other two axes b = a + 1,
     c = a + 2 (mod 3), ``hist [G, G, G + 1]`` (zeroed here) gets at [ib, ic, n] the signed
     crossings (+1 where the triangle's normal points along +a) that lie between the centres
-    n - 1 and n along a (n = 0: below the first centre, n = G: above the last)."""
+    n - 1 and n along a (n = 0: below the first centre, n = G: above the last), and
+    ``first [G, G]`` / ``last [G, G]`` the lowest / highest such n of any crossing of the line
+    whatever its sign (G + 1 / -1 where the line meets no triangle): crossings of opposite
+    sign in one bin cancel in ``hist`` but still count there."""
     b = (a + 1) % 3
     c = (a + 2) % 3
     hist[:] = 0
+    first[:] = G + 1
+    last[:] = -1
     for t in range(f.shape[0]):
         b0, b1, b2 = vi[f[t, 0], b], vi[f[t, 1], b], vi[f[t, 2], b]
         c0, c1, c2 = vi[f[t, 0], c], vi[f[t, 1], c], vi[f[t, 2], c]
@@ -52,6 +57,10 @@ def _axis_histogram(vi, f, G, a, hist):
                 d = (w0 * d0 + w1 * d1 + w2 * d2) / area
                 below = min(max(int(math.ceil(d - 0.5)), 0), G)
                 hist[ib, ic, below] += sgn
+                if below < first[ib, ic]:
+                    first[ib, ic] = below
+                if below > last[ib, ic]:
+                    last[ib, ic] = below
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -84,18 +93,37 @@ def rays_kernel(vi, f, G, crossings, nonzero):
     """Signed crossing counts of the six axis rays (+x, -x, +y, -y, +z, -z) from every voxel
     centre (see ``axis_ray_crossings``): written into ``crossings [6, G, G, G]`` int32 if it
     has that shape (pass ``[6, 0, 0, 0]`` to skip them), and the number of rays with a non-zero
-    count added into ``nonzero [G, G, G]`` uint8 (zeroed by the caller)."""
+    count added into ``nonzero [G, G, G]`` uint8 (zeroed by the caller). ``rays_spans_kernel``
+    also marks the spanned voxels."""
+    rays_spans_kernel(vi, f, G, crossings, nonzero, np.zeros((0, 0, 0), dtype=np.bool_))
+
+
+@njit(cache=True, nogil=True)
+def rays_spans_kernel(vi, f, G, crossings, nonzero, spanned):
+    """``rays_kernel``, and sets ``spanned [G, G, G]`` bool (zeroed by the caller; pass
+    ``[0, 0, 0]`` to skip it) True at every voxel whose centre lies between two crossings of one
+    axis line: some triangle on the ray along +a and some on the ray along -a, for some axis a
+    (a crossing exactly at the centre counts on the -a side). A point inside a closed surface is
+    spanned along every axis; a voxel cell entirely outside the bounding box of the triangles
+    (its centre beyond their extent along some axis, so no line through it meets one on both
+    sides) is spanned along none."""
     full = crossings.shape[1] == G
+    spans = spanned.shape[0] == G
     hist = np.empty((G, G, G + 1), dtype=np.int32)
+    first = np.empty((G, G), dtype=np.int32)
+    last = np.empty((G, G), dtype=np.int32)
     col = np.empty((2, G), dtype=np.int32)
     for a in range(3):
-        _axis_histogram(vi, f, G, a, hist)
+        _axis_histogram(vi, f, G, a, hist, first, last)
         for ib in range(G):
             for ic in range(G):
                 _column_counts(hist, ib, ic, G, col)
+                lo, hi = first[ib, ic], last[ib, ic]  # spanned along a: lo <= ia < hi
                 for ia in range(G):
                     x, y, z = _voxel_of(a, ia, ib, ic)
                     if full:
                         crossings[2 * a, x, y, z] = col[0, ia]
                         crossings[2 * a + 1, x, y, z] = col[1, ia]
                     nonzero[x, y, z] += (col[0, ia] != 0) + (col[1, ia] != 0)
+                    if spans and lo <= ia < hi:
+                        spanned[x, y, z] = True

@@ -13,13 +13,20 @@ A voxel is occupied when at least one of these holds:
    round-off). A face lying exactly on a plane between two voxels therefore marks both.
    Every point of the mesh inside [-0.5, 0.5]^3 lies in an occupied voxel, so the projected
    voxel cubes cover the rendered silhouette from any camera (``sc3d-data check`` measures it).
-2. **inside**: the generalized winding number of the mesh (the fast winding number of
-   Barill et al. 2018, as libigl's: exact solid angles of nearby triangles, second-order
-   expansions of the field of octree clusters, and of single triangles, farther than 2x their
-   radius; works on triangle soups) at the voxel centre has absolute value >= 0.5. The
+2. **inside**: the voxel centre is *spanned* (the line through it along some axis meets the
+   surface on both sides of it) and the generalized winding number of the mesh (the fast
+   winding number of Barill et al. 2018, as libigl's: exact solid angles of nearby triangles,
+   second-order expansions of the field of octree clusters, and of single triangles, farther
+   than 2x their radius; works on triangle soups) there has absolute value >= 0.5. The
    absolute value makes meshes with inverted orientation come out solid too. Open meshes
    (a car body without a floor, a box with a deleted face) have winding numbers near 1 in
-   most of their interior and near 0 outside, so 0.5 separates them.
+   most of their interior and near 0 outside, so 0.5 separates them. Winding numbers add up
+   over overlapping sheets, so open sheets stacked with the same facing (a floor pan of two
+   layers and a plate over it, all facing into the car; a roof over a same-facing inner
+   panel) reach 0.5 in a slab of empty space on their outer side, beyond the object: the
+   span condition drops such points. Every point inside a closed surface is spanned along all
+   three axes, so closed meshes lose nothing, and no voxel cell entirely outside the bounding
+   box of the triangles is ever occupied (its centre is spanned along no axis).
 3. **enclosed**: the voxel is empty by 1 and 2 but cannot be reached from outside the grid
    through a 6-connected path of empty voxels (as ``scipy.ndimage.binary_fill_holes``). This
    closes cavities and holes smaller than a voxel that winding numbers alone leave.
@@ -27,11 +34,12 @@ A voxel is occupied when at least one of these holds:
 How it is computed (``voxelize_triangles``): rule 1 by a compiled (numba) separating-axis
 test of each triangle against the voxels of its bounding box; the signed crossing counts of
 the six axis-aligned rays from every voxel centre (``axis_ray_crossings``, one 2D
-rasterisation of the triangles per axis) decide rule 2 where all six agree (all non-zero:
-inside; all zero: outside); winding numbers are evaluated only at the remaining voxel centres
-that are not enclosed by the surface and six-ray-inside voxels (those are occupied by rule 3
-whatever their winding number). Geometry outside [-0.5, 0.5]^3 is ignored (clipped by
-the grid) except that all triangles count for winding numbers. The winding-number queries
+rasterisation of the triangles per axis, which also gives the spanned centres) decide rule 2
+where all six agree (all non-zero: inside; all zero: outside); winding numbers are evaluated
+only at the remaining spanned voxel centres that are not enclosed by the surface and
+six-ray-inside voxels (those are occupied by rule 3 whatever their winding number). Geometry
+outside [-0.5, 0.5]^3 is ignored (clipped by the grid) except that all triangles count for
+winding numbers and for spans. The winding-number queries
 walk the octree in blocks of nearby voxel centres, deciding a cluster once for the whole
 block where it is clearly near or far and point by point otherwise, and sum the exact solid
 angles as the argument of a complex product; both give every point the same value as the
@@ -49,7 +57,7 @@ import numpy as np
 from sc3d_data.geometry.voxel_grid import centre_grid, world_to_index
 
 from ._fill_kernel import fill_holes_kernel
-from ._ray_kernel import rays_kernel
+from ._ray_kernel import rays_kernel, rays_spans_kernel
 from ._surface_kernel import surface_kernel
 from ._winding_kernels import BETA, winding_exact_kernel, winding_kernel
 
@@ -156,12 +164,13 @@ def voxelize_triangles(vertices: np.ndarray, faces: np.ndarray, resolution: int 
     surface_kernel(vi, f, G, surface)
     lap("surface")
     nonzero = np.zeros((G, G, G), dtype=np.uint8)  # rays with a non-zero crossing count, 0..6
-    rays_kernel(vi, f, G, np.zeros((6, 0, 0, 0), dtype=np.int32), nonzero)
+    spanned = np.zeros((G, G, G), dtype=bool)  # centre between two crossings of an axis line
+    rays_spans_kernel(vi, f, G, np.zeros((6, 0, 0, 0), dtype=np.int32), nonzero, spanned)
     lap("rays")
     # rule 3 applied early: voxels enclosed by surface and six-ray-inside voxels end up occupied
     # whatever the winding numbers say (filling is monotone), so they need no query
     occupied = fill_holes_kernel(surface | (nonzero == 6))
-    ambiguous = ~occupied & (nonzero > 0)
+    ambiguous = ~occupied & (nonzero > 0) & spanned  # rule 2 needs a spanned centre
     lap("enclosed")
     pts = np.argwhere(ambiguous).astype(np.float64) + 0.5  # voxel centres, voxel units
     added = False

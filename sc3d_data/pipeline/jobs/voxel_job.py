@@ -41,7 +41,7 @@ from sc3d_data.pipeline.run.plan import Task
 #: what a shard that differs from the index would cost a rewrite (``shard_reader.refuse_changed``)
 REWRITE_REFUSAL = ("voxelize would copy the damage into the rewritten shard and record it as good, so no shard "
                    "was changed: restore the file or render it again (render --overwrite)")
-OCCUPANCY_RULE = ("surface-touching voxels + voxel centres with |winding number| >= 0.5 "
+OCCUPANCY_RULE = ("surface-touching voxels + spanned voxel centres with |winding number| >= 0.5 "
                   "+ enclosed voxels (sc3d_data/voxel/voxelize.py)")
 
 
