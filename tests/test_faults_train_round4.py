@@ -35,7 +35,7 @@ def tiny_run(sample_shards, tmp_path_factory):
 
 # ----------------------------------------------------------------------------- T1
 @pytest.mark.parametrize("option, message", [
-    (["--steps", "0"], "steps and batch size must be positive"),
+    (["--steps", "0"], "steps (--steps) must be >= 1, got 0"),
     (["--steps", "4", "--log-every", "0"], "log_every (--log-every) must be >= 1, got 0"),
     (["--steps", "4", "--checkpoint-every", "0"], "checkpoint_every (--checkpoint-every) must be >= 1, got 0"),
     (["--steps", "4", "--workers", "-1"], "workers (--workers) must be >= 0, got -1"),

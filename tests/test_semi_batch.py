@@ -56,8 +56,14 @@ def test_bad_semi_batch_sizes_are_refused_in_one_line(sample_shards, tmp_path):
     base = ["fit", "--shards", sample_shards, "--out", tmp_path / "run", "--steps", "2", "--batch-size", "4", *TINY]
     r = run_cli(main, base + ["--semi-batch-size", "8"], expect_exit=1)
     assert "--semi-batch-size (read by semi runs)" in r.output
+    r = run_cli(main, base + ["--labeled-only", "--semi-batch-size", "8"], expect_exit=1)
+    assert "not read by a labeled-only run" in r.output and "reads it (--semi) or leave it out" in r.output
     r = run_cli(main, base + ["--semi", "--semi-batch-size", "1"], expect_exit=1)
-    assert "semi batch size must be at least 2" in r.output
+    assert "semi_batch_size (--semi-batch-size) must be at least 2" in r.output
+    r = run_cli(main, base + ["--semi", "--semi-batch-size", str(2 ** 24 + 1)], expect_exit=1)
+    assert f"semi_batch_size (--semi-batch-size) must be at most {2 ** 24}" in r.output
+    r = run_cli(main, base + ["--batch-size", "0"], expect_exit=1)
+    assert "batch_size (--batch-size) must be >= 1, got 0" in r.output
     assert not (tmp_path / "run" / "checkpoints").exists()
 
 

@@ -167,8 +167,9 @@ def check_mode_options(cfg: RunConfig, given: dict) -> None:
     if ignored:
         names = ", ".join(f"--{k.replace('_', '-')} (read by {' and '.join(MODE_ONLY_OPTIONS[k])} runs)"
                           for k in ignored)
+        modes = sorted({m for k in ignored for m in MODE_ONLY_OPTIONS[k]})
         raise ValueError(f"{names}: not read by a {cfg.mode} run (config.yaml would record it, training ignore it); "
-                         "train in a mode that reads it (--semi, --labeled-only) or leave it out")
+                         f"train in a mode that reads it ({', '.join('--' + m for m in modes)}) or leave it out")
 
 
 def pose_grid_warning(cfg: RunConfig) -> str | None:

@@ -77,10 +77,10 @@ class _Plain:
         return from_plain(cls, d)
 
 
-def batch_size_too_large(batch_size: int) -> str:
-    """The one-line refusal of a ``--batch-size`` above :data:`MAX_BATCH_SIZE`."""
-    return (f"batch_size (--batch-size) must be at most {MAX_BATCH_SIZE} (2^24 images of 64x64 RGB are 200 GB "
-            f"even as bytes), got {batch_size}")
+def batch_size_too_large(batch_size: int, name: str = "batch_size") -> str:
+    """The one-line refusal of a ``--batch-size`` (or the setting ``name``) above :data:`MAX_BATCH_SIZE`."""
+    return (f"{name} (--{name.replace('_', '-')}) must be at most {MAX_BATCH_SIZE} (2^24 images of 64x64 RGB "
+            f"are 200 GB even as bytes), got {batch_size}")
 
 
 @dataclass
@@ -260,13 +260,15 @@ class RunConfig(_Plain):
 
     def __post_init__(self):
         check_choices(self)
-        if self.steps < 1 or self.batch_size < 1:
-            raise ValueError("steps and batch size must be positive")
-        for size in (self.batch_size, self.semi_batch_size or 1):
-            if size > MAX_BATCH_SIZE:
-                raise ValueError(batch_size_too_large(size))
+        for name in ("steps", "batch_size"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} (--{name.replace('_', '-')}) must be >= 1, got {getattr(self, name)}")
+        for name in ("batch_size", "semi_batch_size"):
+            if (getattr(self, name) or 0) > MAX_BATCH_SIZE:
+                raise ValueError(batch_size_too_large(getattr(self, name), name))
         if self.semi_batch_size is not None and self.semi_batch_size < 2:
-            raise ValueError(f"semi batch size must be at least 2 (a labelled and an unlabelled image), got {self.semi_batch_size}")
+            raise ValueError("semi_batch_size (--semi-batch-size) must be at least 2 (a labelled and an unlabelled "
+                             f"image), got {self.semi_batch_size}")
         if not 0.0 < self.labeled_fraction <= 1.0:
             raise ValueError(f"labeled fraction must be in (0, 1], got {self.labeled_fraction}")
         if not 0.0 <= self.semi_labeled_share < 1.0:
