@@ -47,6 +47,7 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     if stale:  # a run without last.pt (deleted, or its write failed): eval/--resume would read these
         raise CheckpointError(f"{out}: already holds checkpoints of a run ({', '.join(stale)}) but no "
                               f"last.pt; use --resume to continue it, or choose another --out")
+    check_no_foreign_files(out)
     facts = shard_facts(Path(plain["shards"]), plain.get("split", "train"))
     model = dict(plain.get("model", {}))
     if tiny:
@@ -55,6 +56,29 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
                  voxel_resolution=facts.pop("model.voxel_resolution"))
     plain.update(model=model, **facts)
     return RunConfig.from_dict(plain)
+
+
+#: what a run writes into its folder besides ``checkpoints/`` (a new run replaces them)
+RUN_FILES = ("config.yaml", "metrics.csv", "validation.csv", "curves.png", "labeled_objects.txt", "tb")
+
+
+def check_no_foreign_files(out: Path) -> None:
+    """``CheckpointError`` when the folder of a new run holds files named like the ones the run
+    writes (:data:`RUN_FILES`) that are not the leftovers of an sc3d run: a new run would replace
+    them. A ``config.yaml`` that loads as a run's config marks the leftovers of a run stopped
+    before its first checkpoint, which the new run may replace (as rerunning its command does)."""
+    from sc3d_train.loop.checkpoint import CheckpointError
+
+    present = [name for name in RUN_FILES if (out / name).exists()]
+    if not present:
+        return
+    try:
+        RunConfig.load(RunConfig.path_in(out))
+        return
+    except Exception:  # noqa: BLE001 - missing, unreadable or not a run's config: not ours to replace
+        pass
+    raise CheckpointError(f"{out}: holds {', '.join(present)}, not from an sc3d-train run, which a new run would "
+                          "overwrite; choose another --out (or move them)")
 
 
 def given_paths(options: dict) -> dict:
