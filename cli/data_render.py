@@ -107,4 +107,16 @@ def render(elevations, background, part, slurm, **options):
     if (note := part_from_slurm_note(part)) is not None:
         click.echo(note)
     if s["failed"] and not s["done"] and not s["resumed"]:
-        raise click.ClickException(f"no object was rendered: all {s['failed']} failed")
+        raise click.ClickException(f"no object was rendered: all {s['failed']} failed{_first_reason(s['out'])}")
+
+
+def _first_reason(out) -> str:
+    """``" (first: REASON)"`` of the first failure the index of ``out`` lists, or ``""``."""
+    from sc3d_data.io.names import printable
+    from sc3d_data.io.shards import load_index
+
+    try:
+        reason = load_index(Path(out))["failures"][0]["reason"]
+    except (OSError, ValueError, LookupError, TypeError):
+        return ""
+    return f" (first: {printable(str(reason))})"

@@ -134,3 +134,15 @@ def test_files_that_are_no_mesh_fail_with_what_is_wrong_with_them(tmp_path):
     for name in ("magic.glb", "short.glb"):
         assert f"{name}: not a GLB file (no glTF header and JSON chunk)" in reasons[name]
     assert "flat.obj: the vertices of 'flat.obj' have 2 coordinates, expected 3" in reasons["flat.obj"]
+
+
+def test_a_render_whose_every_mesh_failed_says_why_the_first_did(tmp_path):
+    """``render`` of one broken mesh said only "no object was rendered: all 1 failed"; the reason
+    took another command (``info``). The error line now carries the first failure's reason."""
+    meshes = tmp_path / "m" / "chair"
+    meshes.mkdir(parents=True)
+    (meshes / "list.gltf").write_text("[]")
+    res = run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", tmp_path / "out", *FAST], expect_exit=1)
+    line = _one_error(res.output)
+    assert line.startswith("Error: no object was rendered: all 1 failed (first: ")
+    assert f"{meshes / 'list.gltf'}: not a glTF document" in line
