@@ -38,8 +38,16 @@ print(json.dumps({{k: s[k] for k in ("done", "failed", "seconds", "views_per_s")
 
 
 def run_once(tree: Path, meshes: Path, out: Path, workers: int) -> dict:
+    """One ``render --voxelize`` of ``tree``'s code in a fresh process. The tree goes first on
+    ``PYTHONPATH`` too: the workers are forked from multiprocessing's forkserver, a new
+    interpreter that on Python 3.11 does not take the caller's ``sys.path`` (it imported the
+    installed sc3d, so the workers ran the current code whatever the tree), but does read
+    ``PYTHONPATH``."""
+    import os
+
     code = RUN_ONE.format(tree=str(tree.resolve()), out=str(out), meshes=str(meshes.resolve()), workers=workers)
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tree.resolve()), os.environ.get("PYTHONPATH", "")])}
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False, env=env)
     if res.returncode:
         raise SystemExit(f"{tree}: render failed:\n{res.stderr[-2000:]}")
     return json.loads(res.stdout.strip().splitlines()[-1])
