@@ -35,6 +35,7 @@ import time
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
+from sc3d_train.evaluation.claims_data import check_evaluable, check_held_out, check_not_selection
 from sc3d_train.evaluation.claims_report import RUNS, aggregate, write_report
 from sc3d_train.evaluation.evaluated_data import split_digest
 from sc3d_train.evaluation.shape_baselines import shape_baselines
@@ -214,55 +215,23 @@ def evaluated_on(metrics_file: Path, shards: Path, split: str, data_digest: str 
     return saved.get("data_sha256") == (data_digest or split_digest(shards, split))
 
 
-def split_objects(shards: Path, split: str) -> set:
-    """``{(category, model_id)}`` of the objects of ``split`` of ``shards``."""
-    from sc3d_train.data.dataset import scan_objects
-
-    return {(r.category, r.model_id) for r in scan_objects(Path(shards))[0] if r.split == split}
-
-
-def check_held_out(train_shards: Path, eval_shards: Path, eval_split: str, train_split: str) -> None:
-    """``DataError`` when an object of ``eval_split`` of ``eval_shards`` (by category and model id)
-    is one of the ``train_split`` objects of ``train_shards`` that the runs train on: their
-    figures would not be of held-out objects (``--eval-split train``, or shards split otherwise)."""
-    seen = sorted(split_objects(eval_shards, eval_split) & split_objects(train_shards, train_split))
-    if seen:
-        raise DataError(f"{eval_shards}: {len(seen)} object(s) of split {eval_split!r} are {train_split!r} objects of "
-                        f"{train_shards} that the runs train on (e.g. {'/'.join(seen[0])}); claims evaluates on "
-                        f"objects never trained on: choose another --eval-split or --eval-shards")
-
-
-def check_not_selection(train_shards: Path, eval_shards: Path, eval_split: str, preset: ClaimsPreset,
-                        pick: str) -> None:
-    """``DataError`` when an object of ``eval_split`` of ``eval_shards`` is one of the validation
-    objects of ``train_shards`` that pick each run's ``best.pt`` (``pick="best"``, validation on
-    and at least ``val_min_objects`` of them, as ``fit`` keeps a best.pt): the figures of a
-    checkpoint chosen as the best on these very objects are optimistic."""
-    settings = {**_FIT, **preset.extra}
-    if pick != "best" or settings["val_every"] <= 0:
-        return
-    chose = split_objects(train_shards, settings["val_split"])
-    seen = sorted(split_objects(eval_shards, eval_split) & chose)
-    if seen and len(chose) >= settings["val_min_objects"]:
-        raise DataError(f"{eval_shards}: {len(seen)} object(s) of split {eval_split!r} are the {settings['val_split']!r} "
-                        f"objects of {train_shards} that choose each run's best.pt (e.g. {'/'.join(seen[0])}): its "
-                        f"figures on them would be optimistic; choose another --eval-split (test) or --pick last")
-
-
 def run_all(train_shards: Path, eval_shards: Path, out: Path,
             preset: "str | ClaimsPreset" = ClaimsConfig.preset, eval_split: str = ClaimsConfig.eval_split,
             device: str = ClaimsConfig.device, workers: int | None = ClaimsConfig.workers, runs=None,
             echo=print, seeds: int = ClaimsConfig.seeds, pick: str = ClaimsConfig.pick) -> dict:
     """Train and evaluate every run of ``preset`` with each of ``seeds`` seeds (skipping finished
-    (run, seed) pairs); write the report. ``seeds`` and ``device`` that cannot serve, and evaluation data that cannot serve (objects trained on
-    or that choose the runs' best.pt, an empty split, shards without voxels) is refused before any training. Returns
+    (run, seed) pairs); write the report. ``seeds`` and ``device`` that cannot serve, and evaluation
+    data that cannot serve (of another image size or voxel resolution than the training shards,
+    objects trained on or that choose the runs' best.pt, an empty split, shards without voxels)
+    is refused before any training. Returns
     ``{run name: aggregate}`` (:func:`aggregate`)."""
     p = PRESETS[preset] if isinstance(preset, str) else preset
     seed_values = check_study_options(p, seeds, device)
     for shards in dict.fromkeys((train_shards, eval_shards)):
         require_complete(Path(shards))
+    check_evaluable(train_shards, eval_shards)  # what eval refuses of a checkpoint trained on train_shards
     check_held_out(train_shards, eval_shards, eval_split, p.extra.get("split", _FIT["split"]))
-    check_not_selection(train_shards, eval_shards, eval_split, p, pick)
+    check_not_selection(train_shards, eval_shards, eval_split, {**_FIT, **p.extra}, pick)
     ShardDataset(eval_shards, eval_split, require_voxels=True).close()  # an empty split, no voxels: refused now
     data_digest = split_digest(eval_shards, eval_split)  # what each finished evaluation must have measured
     out = Path(out)

@@ -145,6 +145,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     dev = resolve_device(device)
     checkpoint = run_checkpoint(checkpoint, pick)
     model, cfg, ckpt = load_model(checkpoint, dev)
+    require_finite_weights(checkpoint, model)
     dataset = ShardDataset(shards, split, subset="all", mask_size=cfg.model.mask_size,
                            require_voxels=True, image_size=cfg.model.image_size)
     if dataset.info["voxel_resolution"] != cfg.model.voxel_resolution:
@@ -173,6 +174,21 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     result["table"] = format_table(summary)
     result["out"] = str(out)
     return result
+
+
+def require_finite_weights(checkpoint: Path, model: torch.nn.Module) -> None:
+    """``CheckpointError`` naming ``checkpoint`` when a weight or buffer of its loaded ``model`` is
+    NaN or infinite: every prediction would be NaN (``eval``'s figures nan and 0.000, ``predict``'s
+    marching cubes failing), so ``eval`` and ``predict`` refuse it once, at load, before anything is
+    computed or written."""
+    from sc3d_train.loop.checkpoint import CheckpointError
+
+    bad = [name for name, t in model.state_dict().items()
+           if t.is_floating_point() and not bool(torch.isfinite(t).all())]
+    if bad:
+        raise CheckpointError(f"{checkpoint}: its weights are not finite (NaN or inf in {len(bad)} tensor(s), e.g. "
+                              f"{bad[0]}): its run diverged or the file was altered; use an earlier checkpoint of "
+                              "the run, or train again")
 
 
 def differences_from_training(cfg, info: dict) -> list[str]:

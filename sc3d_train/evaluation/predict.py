@@ -18,6 +18,9 @@ L and P are converted to RGBA and alpha-composited onto the training data's back
 (stored in the checkpoint), so a transparent PNG looks like the renders; other modes (CMYK,
 16-bit, float, 1-bit) are refused. An EXIF orientation tag (a camera's JPEG) is applied, so the
 image is used as viewers show it; an animated image (several frames) is refused.
+
+A checkpoint whose weights are not finite (a diverged run, a damaged file), or whose prediction of
+an input is not (NaN, inf), is refused in one line before any output is written.
 """
 from __future__ import annotations
 
@@ -84,9 +87,14 @@ def voxel_mesh(probabilities: np.ndarray, threshold: float) -> tuple[np.ndarray,
 
     G = probabilities.shape[0]
     padded = np.pad(probabilities.astype(np.float32), 1)
-    if padded.max() < threshold:
+    top = float(padded.max())
+    if top < threshold or top <= 0.0:  # all zero: no level separates the grid from its zero padding
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
-    verts, faces, _, _ = marching_cubes(padded, level=threshold)
+    level = float(threshold)
+    if top == level:  # occupied voxels exactly at the threshold (a probability saturated at 1.0 with
+        # threshold 1): marching cubes finds no surface at the grid's maximum, so take the float32 just below
+        level = float(np.nextafter(np.float32(level), np.float32(0.0)))
+    verts, faces, _, _ = marching_cubes(padded, level=level)
     verts = voxel_centres(verts - 1, G)  # undo the padding: vertex coordinates are voxel indices
     # skimage's faces wind inwards for a solid of high values (negative signed volume): flip
     return verts, faces[:, ::-1].copy()
@@ -126,11 +134,14 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
             pick: str = PredictConfig.pick) -> list[dict]:
     """Predict every image (all are checked before the model runs) with ``checkpoint`` (a file,
     or a run folder: its ``pick`` checkpoint, :func:`~sc3d_train.loop.checkpoint.run_checkpoint`);
-    returns one dict per image (the content of its JSON file). ``pose_from``: ``"search"`` (the
-    default of every entry point, :data:`~sc3d_train.settings.command_config.DEFAULT_POSE_SOURCE`)
-    or ``"head"``, as in ``eval``."""
+    a checkpoint whose weights, or prediction of an image, are not finite (NaN, inf) is refused
+    (``CheckpointError``) before anything is written; returns one dict per image (the content of
+    its JSON file). ``pose_from``: ``"search"`` (the default of every entry point,
+    :data:`~sc3d_train.settings.command_config.DEFAULT_POSE_SOURCE`) or ``"head"``, as in ``eval``."""
     from sc3d_data.io.binvox import write_binvox
-    from sc3d_train.evaluation.evaluate import voxel_silhouette
+    from sc3d_data.io.names import printable
+    from sc3d_train.evaluation.evaluate import require_finite_weights, voxel_silhouette
+    from sc3d_train.loop.checkpoint import CheckpointError
 
     check_pose_source(pose_from)
     if not images:
@@ -145,24 +156,20 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
     check_inputs_kept(images, outputs, out)
     dev = resolve_device(device)
     model, cfg, _ = load_model(checkpoint, dev)
+    require_finite_weights(checkpoint, model)
     size = cfg.model.image_size
     arrays = [load_image(Path(p), size, cfg.background) for p in images]
     K = np.asarray(cfg.intrinsics if cfg.intrinsics is not None else _default_K(size), dtype=np.float64)
+    # every prediction first, so that one that is not finite is refused before anything is written
+    predictions = [predict_one(model, cfg, arr, K, dev, pose_from) for arr in arrays]
+    for path, (probs, mask, az, el) in zip(images, predictions):
+        if not (np.isfinite(probs).all() and np.isfinite(mask).all() and np.isfinite([az, el]).all()):
+            raise CheckpointError(f"{checkpoint}: its prediction for {printable(path)} is not finite (NaN or inf "
+                                  "voxels, mask or pose) although its weights are: the network overflows on this "
+                                  "input; nothing written")
     out.mkdir(parents=True, exist_ok=True)
     results = []
-    for path, arr, files in zip(images, arrays, outputs):
-        x = torch.from_numpy(arr.transpose(2, 0, 1).copy())[None].to(dev)
-        res = model(x)
-        if pose_from == "search":  # test-time self-consistency, as in `eval`
-            from sc3d_train.paper.pose_search import self_consistent_pose
-
-            res.azimuth, res.elevation = self_consistent_pose(
-                res, torch.as_tensor(K, dtype=torch.float32, device=dev)[None],
-                torch.tensor([float(cfg.camera_distance)], device=dev), model.pose_grid,
-                cfg.loss_weights)
-        probs = torch.sigmoid(res.voxel_logits.float())[0].cpu().numpy()
-        mask = torch.sigmoid(res.mask_logits.float())[0].cpu().numpy()
-        az, el = float(res.azimuth[0]), float(res.elevation[0])
+    for path, arr, files, (probs, mask, az, el) in zip(images, arrays, outputs, predictions):
         voxels = probs >= threshold
         write_binvox(files["binvox"], voxels)
         np.savez_compressed(files["npz"], probabilities=probs.astype(np.float32), voxels=voxels,
@@ -176,6 +183,25 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
         files["json"].write_text(json.dumps(info, indent=1))
         results.append(info)
     return results
+
+
+@torch.no_grad()
+def predict_one(model, cfg, image: np.ndarray, K: np.ndarray, dev, pose_from: str) -> tuple:
+    """``(probabilities [G,G,G], mask [S,S], azimuth, elevation)`` of ``model`` (run config ``cfg``)
+    for ``image`` ``[S,S,3]``; the pose is the self-consistent one for ``pose_from="search"``, as in
+    ``eval``, else the pose head's."""
+    x = torch.from_numpy(image.transpose(2, 0, 1).copy())[None].to(dev)
+    res = model(x)
+    if pose_from == "search":  # test-time self-consistency, as in `eval`
+        from sc3d_train.paper.pose_search import self_consistent_pose
+
+        res.azimuth, res.elevation = self_consistent_pose(
+            res, torch.as_tensor(K, dtype=torch.float32, device=dev)[None],
+            torch.tensor([float(cfg.camera_distance)], device=dev), model.pose_grid,
+            cfg.loss_weights)
+    probs = torch.sigmoid(res.voxel_logits.float())[0].cpu().numpy()
+    mask = torch.sigmoid(res.mask_logits.float())[0].cpu().numpy()
+    return probs, mask, float(res.azimuth[0]), float(res.elevation[0])
 
 
 def output_files(images: list[Path], out: Path) -> list[dict]:
