@@ -33,24 +33,33 @@ from pathlib import Path
 from sc3d_data.pipeline.jobs.render_run import RenderConfig, render_dataset
 s = render_dataset(RenderConfig(out=Path({out!r}), meshes=Path({meshes!r}), voxelize=True,
                                 workers={workers}, progress=False, bad_texture="fallback"))
-print(json.dumps({{k: s[k] for k in ("done", "failed", "seconds", "views_per_s")}}))
+import multiprocessing as mp  # where the workers' sc3d_data came from: a child of the same forkserver
+with mp.get_context("forkserver").Pool(1) as pool:
+    s["worker_sc3d"] = pool.apply(eval, ("__import__('sc3d_data').__file__",))
+print(json.dumps({{k: s[k] for k in ("done", "failed", "seconds", "views_per_s", "worker_sc3d")}}))
 """
 
 
 def run_once(tree: Path, meshes: Path, out: Path, workers: int) -> dict:
-    """One ``render --voxelize`` of ``tree``'s code in a fresh process. The tree goes first on
-    ``PYTHONPATH`` too: the workers are forked from multiprocessing's forkserver, a new
-    interpreter that on Python 3.11 does not take the caller's ``sys.path`` (it imported the
-    installed sc3d, so the workers ran the current code whatever the tree), but does read
-    ``PYTHONPATH``."""
+    """One ``render --voxelize`` of ``tree``'s code in a fresh process, run in ``out``'s parent
+    folder with the tree first on ``PYTHONPATH`` too. The workers are forked from
+    multiprocessing's forkserver, a new interpreter that on Python 3.11 does not take the
+    caller's ``sys.path`` but puts its working directory first, then ``PYTHONPATH``: run from the
+    repository, the workers imported the current code whatever the tree (until 2026-11-27 both
+    "trees" ran the current code in their workers)."""
     import os
 
     code = RUN_ONE.format(tree=str(tree.resolve()), out=str(out), meshes=str(meshes.resolve()), workers=workers)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tree.resolve()), os.environ.get("PYTHONPATH", "")])}
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False, env=env)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (str(tree.resolve()), os.environ.get("PYTHONPATH"))
+                                                       if p)}
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False, env=env,
+                         cwd=out.parent)
     if res.returncode:
         raise SystemExit(f"{tree}: render failed:\n{res.stderr[-2000:]}")
-    return json.loads(res.stdout.strip().splitlines()[-1])
+    r = json.loads(res.stdout.strip().splitlines()[-1])
+    if not Path(r["worker_sc3d"]).resolve().is_relative_to(tree.resolve()):
+        raise SystemExit(f"{tree}: its render's workers imported {r['worker_sc3d']}, not this tree's code")
+    return r
 
 
 def differing_values(a: Path, b: Path) -> dict[str, int]:
