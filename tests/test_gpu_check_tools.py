@@ -75,3 +75,30 @@ def test_corpus_size_refuses_sizes_it_cannot_list(tmp_path, bad):
     out = subprocess.run([sys.executable, str(REPO / "benchmarks" / "corpus_size.py"), "--meshes",
                           str(REPO / "assets" / "sample_meshes"), "--sizes", bad], capture_output=True, text=True)
     assert out.returncode != 0 and "Traceback" not in out.stderr
+
+
+def test_pipeline_compare_runs_each_trees_own_code_in_the_workers(tmp_path):
+    """``pipeline_compare.py`` runs an older tree against this one. Its render workers are forked
+    from a forkserver, which (Python 3.11) took sc3d from the working directory, not from the
+    tree: both "trees" ran this code in their workers, and a changed voxelizer showed "values
+    differing: none". Here the old tree is this one with every voxel grid emptied in the worker
+    (``voxelize_canonical`` returns zeros): the comparison must see the voxels differ and
+    nothing else."""
+    import shutil
+
+    old = tmp_path / "old"
+    shutil.copytree(REPO / "sc3d_data", old / "sc3d_data")  # numba caches too: no compiling
+    job = old / "sc3d_data" / "pipeline" / "jobs" / "voxel_job.py"
+    text = job.read_text()
+    marker = "    return voxelize_triangles(apply_transform(vertices, to_canonical), faces, resolution)\n"
+    assert marker in text
+    job.write_text(text.replace(marker, "    return np.zeros((resolution,) * 3, dtype=bool)\n"))
+    meshes = tmp_path / "m" / "chair"
+    meshes.mkdir(parents=True)
+    shutil.copy(REPO / "assets" / "sample_meshes" / "chair" / "chair2_blendswap.glb", meshes)
+    out = subprocess.run([sys.executable, str(REPO / "benchmarks" / "pipeline_compare.py"), str(old),
+                          str(tmp_path / "m"), "--repeat", "1", "--workers", "1"],
+                         capture_output=True, text=True, check=True, cwd=REPO).stdout
+    line = [ln for ln in out.splitlines() if ln.startswith("values differing")]
+    assert len(line) == 1 and line[0].startswith("values differing between old and new: voxels: "), out
+    assert "images" not in line[0] and "masks" not in line[0]
