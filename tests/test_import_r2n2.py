@@ -308,6 +308,38 @@ def test_extreme_distance_ratios_fail_their_model_in_one_line(fake_r2n2, tmp_pat
     assert all("must be finite and more than 0.866" in r for r in reasons.values())
 
 
+def test_files_linked_out_of_their_model_folder_are_not_read(fake_r2n2, tmp_path):
+    """A rendering PNG (or a binvox) that is a symbolic link to a file outside its model's folder
+    was read (render treats a texture linked out of its folder as outside and never opens it).
+    Such a model now fails in one line naming the link; a model whose whole folder is a link (a
+    dataset on another disk) is imported."""
+    renderings, voxels, _ = fake_r2n2
+    src = f"{CHAIR}/chair2_blendswap"
+    _copy_model(renderings, voxels, src, "good", tmp_path)
+    rdir, _ = _copy_model(renderings, voxels, src, "pnglink", tmp_path)
+    outside = tmp_path / "outside.png"
+    shutil.copy(rdir / "05.png", outside)
+    (rdir / "05.png").unlink()
+    (rdir / "05.png").symlink_to(outside)
+    _, bv = _copy_model(renderings, voxels, src, "voxlink", tmp_path)
+    shutil.move(bv, tmp_path / "outside.binvox")
+    bv.symlink_to(tmp_path / "outside.binvox")
+    elsewhere = tmp_path / "disk2"
+    rdir, _ = _copy_model(renderings, voxels, src, "linkedfolder", tmp_path)
+    shutil.move(rdir.parent, elsewhere)
+    rdir.parent.symlink_to(elsewhere, target_is_directory=True)
+    out = tmp_path / "out"
+    res = cli(["import-r2n2", "--renderings", tmp_path / "R", "--voxels", tmp_path / "V", "--out", out,
+               "--no-progress"])
+    assert "imported 2 of 4 models" in res.output
+    index = load_index(out)
+    assert sorted(o["model_id"] for o in index["objects"]) == ["good", "linkedfolder"]
+    reasons = {f["model_id"] if "model_id" in f else Path(f["source"]).name: f["reason"] for f in index["failures"]}
+    text = " ".join(reasons.values())
+    assert f"05.png: a link to {outside}, outside" in text and "refused (not read)" in text
+    assert f"model.binvox: a link to {tmp_path / 'outside.binvox'}, outside" in text
+
+
 def test_bad_input_reported_rest_imported(fake_r2n2, tmp_path):
     renderings, voxels, _ = fake_r2n2
     src = f"{CHAIR}/chair2_blendswap"

@@ -302,6 +302,16 @@ def find_r2n2_models(renderings: Path, voxels: Path, categories=None
     return models, problems
 
 
+def refuse_link_out(path: Path, folder: Path) -> None:
+    """``ValueError`` naming ``path`` when it is a symbolic link whose target lies outside
+    ``folder`` (as resolved: a model folder that is itself a link, to a dataset on another disk,
+    is fine), as ``render`` treats textures and material files linked out of their folder: an
+    import reads nothing outside the model's folders. A missing ``path`` passes (the reader
+    reports it)."""
+    if path.is_symlink() and not path.resolve().is_relative_to(folder.resolve()):
+        raise ValueError(f"{path}: a link to {path.resolve()}, outside {folder}; refused (not read)")
+
+
 def load_r2n2_object(model: R2N2Model, split: str, image_size: int = 64, background=(255, 255, 255),
                      voxel_frame: str = "cube", front: str = R2N2_FRONT):
     """Read one model into a :class:`sc3d_data.io.shards.ObjectRecord` (cameras, voxels and
@@ -311,6 +321,8 @@ def load_r2n2_object(model: R2N2Model, split: str, image_size: int = 64, backgro
     from sc3d_data.io.binvox import read_binvox
     from sc3d_data.io.shards import ObjectRecord, border_clipped
 
+    for f in (model.rendering_dir / "rendering_metadata.txt", model.rendering_dir / "renderings.txt", model.binvox):
+        refuse_link_out(f, f.parent)
     views = read_rendering_metadata(model.rendering_dir / "rendering_metadata.txt")
     names = read_rendering_list(model.rendering_dir)
     vox = read_binvox(model.binvox)
@@ -326,6 +338,7 @@ def load_r2n2_object(model: R2N2Model, split: str, image_size: int = 64, backgro
     masks = np.empty((len(views), S, S), dtype=np.uint8)
     for v, name in enumerate(names):
         png = model.rendering_dir / name
+        refuse_link_out(png, model.rendering_dir)
         if not png.is_file():
             raise ValueError(f"{png}: missing rendering (view {v})")
         try:
