@@ -146,3 +146,25 @@ def test_a_render_whose_every_mesh_failed_says_why_the_first_did(tmp_path):
     line = _one_error(res.output)
     assert line.startswith("Error: no object was rendered: all 1 failed (first: ")
     assert f"{meshes / 'list.gltf'}: not a glTF document" in line
+
+
+def test_info_says_each_failure_once_and_a_gltf_texture_is_a_texture_once(tmp_path):
+    """``info`` printed ``bad/cat/degen.obj: bad/cat/degen.obj: zero surface area`` (the reason
+    already names its file), and a glTF image that is missing read ``texture texture image 0
+    (...) not found``."""
+    import json
+
+    from test_gltf_primitives import _cube, _write_gltf
+
+    meshes = tmp_path / "m" / "chair"
+    meshes.mkdir(parents=True)
+    (meshes / "degen.obj").write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n")
+    doc = _write_gltf(meshes / "untextured.gltf", [(*_cube(), 4)])
+    doc["images"] = [{"uri": "missing.png"}]
+    (meshes / "untextured.gltf").write_text(json.dumps(doc))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST], expect_exit=1)
+    info = run_cli(data_main, ["info", out]).output
+    degen = [ln.strip() for ln in info.splitlines() if "degen.obj" in ln]
+    assert degen and all(ln.count(str(meshes / "degen.obj")) == 1 for ln in degen), info
+    assert "texture image 0 (missing.png) not found" in info and "texture texture" not in info, info

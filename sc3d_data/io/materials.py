@@ -154,6 +154,11 @@ def _gltf_refs(path: Path) -> tuple[list[tuple[str, Path]], list[tuple[str, byte
     return external, embedded
 
 
+def _texture(name: str) -> str:
+    """``name`` (an OBJ's texture file, a glTF's "texture image N (uri)") said as a texture once."""
+    return name if name.startswith("texture ") else f"texture {name}"
+
+
 def material_report(path: Path, root: Path | None = None, outside: str = "warn") -> MaterialReport:
     """The materials of mesh ``path`` (module doc), judged against :func:`texture_root`.
 
@@ -187,9 +192,9 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn")
     for name, ref in inside:
         report.reported.add(str(ref.resolve()))
         if not ref.is_file():
-            report.problems.append(f"texture {name} not found")
+            report.problems.append(f"{_texture(name)} not found")
         elif (p := _image_problem(ref)) is not None:
-            report.problems.append(f"texture {name} unreadable ({p})")
+            report.problems.append(f"{_texture(name)} unreadable ({p})")
     for name, data in embedded:
         if (p := _image_problem(data)) is not None:
             report.problems.append(f"{name} unreadable ({p})")

@@ -15,6 +15,12 @@ def integrity_report(shard_dir: Path, full: bool = False) -> list[str]:
     return verify_shards(shard_dir, full=full)
 
 
+def _said_once(source: str, reason: str) -> str:
+    """``SOURCE: REASON``, or ``REASON`` alone when it already starts with the source (most
+    loaders' reasons name their file)."""
+    return reason if reason.startswith(f"{source}:") else f"{source}: {reason}"
+
+
 def index_report(shard_dir: Path, max_failures: int = 50) -> str:
     """Counts per category and split (with the part of a ``--part I/N`` run), settings, shards, clipped views, failures with reasons,
     skipped files and warnings, as plain text; names from disk in ``io.names.printable`` form
@@ -46,13 +52,13 @@ def index_report(shard_dir: Path, max_failures: int = 50) -> str:
     lines.append(f"\nfailures: {len(failures)}")
     for f in failures[:max_failures]:
         tries = f" (attempts: {f['attempts']})" if f.get("attempts", 1) > 1 else ""
-        lines.append(f"  {printable(f.get('source'))}: {printable(f.get('reason'))}{tries}")
+        lines.append(f"  {_said_once(printable(f.get('source')), printable(f.get('reason')))}{tries}")
     if len(failures) > max_failures:
         lines.append(f"  ... {len(failures) - max_failures} more (see index.json)")
     skipped = index.get("skipped", [])
     if skipped:
         lines.append(f"\nskipped: {len(skipped)}")
-        lines.extend(f"  {printable(s.get('source'))}: {printable(s.get('reason'))}" for s in skipped[:max_failures])
+        lines.extend(f"  {_said_once(printable(s.get('source')), printable(s.get('reason')))}" for s in skipped[:max_failures])
     warnings = index.get("warnings", [])
     if warnings:
         lines.append(f"\nwarnings: {len(warnings)}")
