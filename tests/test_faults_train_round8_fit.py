@@ -37,3 +37,17 @@ def test_a_new_run_never_overwrites_files_that_are_not_of_a_run(sample_shards, t
     shutil.rmtree(stopped / "checkpoints")  # as if killed before its first checkpoint
     run_cli(train_main, ["fit", "--shards", sample_shards, "--out", stopped, *QUICK])
     assert (stopped / "checkpoints" / "last.pt").is_file()
+
+
+def test_resume_of_a_run_stopped_before_its_first_checkpoint_says_to_start_it_again(sample_shards, tmp_path):
+    """``fit --resume`` of a run killed before its first checkpoint said only "checkpoints/last.pt:
+    checkpoint not found"; it now says what to do, and doing it works."""
+    from sc3d_cli.train import main as train_main
+
+    run = tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, *QUICK])
+    shutil.rmtree(run / "checkpoints")  # as if killed before its first checkpoint
+    res = run_cli(train_main, ["fit", "--out", run, "--resume", "--no-progress"], expect_exit=1)
+    assert "the run stopped before its first checkpoint: start it again without --resume" in res.output
+    run_cli(train_main, ["fit", "--config", run / "config.yaml", "--out", run, "--no-progress"])
+    assert (run / "checkpoints" / "last.pt").is_file()

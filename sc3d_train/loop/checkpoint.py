@@ -248,8 +248,11 @@ def resume_checkpoint(run_dir: Path, say=None) -> tuple[Path, dict]:
         return p, ckpt
     if last is not None:
         return last_path(run_dir), last
+    early = not errors and not steps and (Path(run_dir) / "config.yaml").is_file()  # stopped before its first
     raise CheckpointError(f"{last_path(run_dir)}: checkpoint not found"
-                          + (f" (and no complete step_*.pt: {errors[0]})" if errors else ""))
+                          + (f" (and no complete step_*.pt: {errors[0]})" if errors else "")
+                          + ("; the run stopped before its first checkpoint: start it again without --resume"
+                             if early else ""))
 
 
 def checkpoint_config(path: Path, ckpt: dict) -> RunConfig:
