@@ -199,3 +199,20 @@ def test_p2_mesh_of_probabilities_saturated_at_the_threshold():
     np.testing.assert_allclose(verts.max(axis=0), [0.0625] * 3, atol=1e-5)
     verts, faces = voxel_mesh(np.zeros((8, 8, 8), dtype=np.float32), 0.0)
     assert verts.shape == (0, 3) and faces.shape == (0, 3)
+
+
+def test_a_checkpoint_whose_config_has_ragged_intrinsics_is_named_in_one_line(tiny_run, tmp_path):
+    """A checkpoint whose stored config held ``intrinsics: [[1, 2], [3]]`` failed ``predict`` with
+    numpy's "setting an array element with a sequence" and no file name; it is now refused as a
+    config this version does not read, naming the file."""
+    from sc3d_train.loop.checkpoint import load_checkpoint
+
+    ckpt = dict(load_checkpoint(tiny_run / "checkpoints" / "last.pt"))
+    ckpt["config"] = {**ckpt["config"], "intrinsics": [[1, 2], [3]]}
+    bad = tmp_path / "K.pt"
+    torch.save(ckpt, bad)
+    res = run_cli(train_main, ["predict", "--checkpoint", bad, CHAIR, "--out", tmp_path / "pred", "--device", "cpu"],
+                  expect_exit=1)
+    errors = _errors(res.output)
+    assert len(errors) == 1 and f"{bad}: its config is not one this version reads" in errors[0], res.output
+    assert "intrinsics must be a 3x3 list of finite numbers" in errors[0]

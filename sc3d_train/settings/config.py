@@ -291,6 +291,11 @@ class RunConfig(_Plain):
                 raise ValueError(f"{name} (--{name.replace('_', '-')}) must be a positive finite number, got {value}")
         if not 0.0 <= self.lr_min_ratio <= 1.0:
             raise ValueError(f"lr_min_ratio (--lr-min-ratio) must be in [0, 1] (a share of the lr), got {self.lr_min_ratio}")
+        K = self.intrinsics
+        if K is not None and not (isinstance(K, list) and len(K) == 3 and all(
+                isinstance(row, list) and len(row) == 3 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                                and math.isfinite(x) for x in row) for row in K)):
+            raise ValueError(f"intrinsics must be a 3x3 list of finite numbers (K in pixels), got {K!r}"[:200])
         if self.mode == "semi":
             if self.pretrain_steps is None:
                 self.pretrain_steps = self.steps // 2
