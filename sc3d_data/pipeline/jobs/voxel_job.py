@@ -38,7 +38,7 @@ from sc3d_data.io.shard_reader import read_strings, refuse_changed
 from sc3d_data.pipeline.executors.job import ExecOptions, Job
 from sc3d_data.pipeline.run.plan import Task
 
-#: what a shard that differs from the index would cost a rewrite (``shard_reader.refuse_changed``)
+#: why a shard to rewrite (its chunks copied undecoded) must be the one indexed (``refuse_changed``)
 REWRITE_REFUSAL = ("voxelize would copy the damage into the rewritten shard and record it as good, so no shard "
                    "was changed: restore the file or render it again (render --overwrite)")
 OCCUPANCY_RULE = ("surface-touching voxels + spanned voxel centres with |winding number| >= 0.5 "
@@ -225,11 +225,14 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
                 for p in paths]  # the voxelize failures of each shard, kept for a skipped shard
     todo, entries = [], {(o.get("shard"), o.get("row")): o for o in index.objects}
     retried: dict[int, set] = {}  # shard -> the rows whose voxelize failed, done again (the others kept)
+    replaced = set()  # shards a voxelize killed before writing the index replaced: not checked, redone
     for c, (has, sources, ids, cats, to_canonical) in enumerate(rows):
         rows_todo = range(len(sources))
         # a shard whose size is not the index's was replaced by a voxelize killed before it wrote
         # the index (its voxels are whole: the replacement is atomic): done again, index recorded
-        if has and not overwrite and index.shards[c].get("bytes") in (None, paths[c].stat().st_size):
+        if has and index.shards[c].get("bytes") not in (None, paths[c].stat().st_size):
+            replaced.add(c)
+        elif has and not overwrite:
             rows_todo = retried[c] = {f.get("row") for f in by_shard[c]} & set(rows_todo)
             summary.reused += len(sources) - len(rows_todo)
             if not rows_todo:
@@ -238,9 +241,6 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
         todo += [RowTask(c * K + r, resolve_source(sources[r], settings.get("meshes")), cats[r], ids[r], "",
                          sources[r], r, to_canonical[r], entries.get((paths[c].name, r), {}).get("source_file"))
                  for r in sorted(rows_todo)]
-    # a shard to rewrite must be the one indexed (the rewrite copies its chunks undecoded: damage would be
-    # carried over and recorded as good), unless a voxelize killed before writing the index replaced it
-    replaced = {c for c, r in enumerate(rows) if r[0] and index.shards[c].get("bytes") not in (None, paths[c].stat().st_size)}
     refuse_changed(shard_dir, [index.shards[c] for c in sorted({t.pos // K for t in todo} - replaced)], REWRITE_REFUSAL)
     fresh = [t for t in todo if t.pos // K not in retried]  # a retried failure may well fail again
     if fresh and not any(Path(t.path).is_file() for t in fresh):
