@@ -446,17 +446,13 @@ def refuse_dataset_file(shard_dir: Path, path: Path, option: str) -> None:
     if target.parent == Path(shard_dir).resolve() and (target.name == INDEX_NAME or target.suffix.lower() == ".h5"):
         raise ValueError(f"{option} {path}: that is the dataset's own {target.name} in {shard_dir}; refused "
                          "(write the report elsewhere)")
-    try:  # another name of one of those files (a hard link): writing it in place writes the data
-        inode = (target.stat().st_dev, target.stat().st_ino)
-    except OSError:
+    if not target.exists():
         return
     for own in [Path(shard_dir) / INDEX_NAME, *sorted(Path(shard_dir).glob("*.h5"))]:
-        try:
-            if (own.stat().st_dev, own.stat().st_ino) == inode:
-                raise ValueError(f"{option} {path}: the same file as the dataset's {own.name} in {shard_dir} (a "
-                                 "hard link); refused (write the report elsewhere)")
-        except OSError:
-            continue
+        # another name of one of those files (a hard link): writing it in place writes the data
+        if own.exists() and os.path.samefile(target, own):
+            raise ValueError(f"{option} {path}: the same file as the dataset's {own.name} in {shard_dir} (a "
+                             "hard link); refused (write the report elsewhere)")
 
 
 def load_index(shard_dir: Path) -> dict:
