@@ -146,17 +146,12 @@ def _gltf_refs(path: Path) -> tuple[list[tuple[str, Path]], list[tuple[str, byte
     external, embedded = [], []
     for i, image in enumerate(doc.get("images", [])):
         if "uri" in image and not image["uri"].startswith("data:"):
-            external.append((f"texture image {i} ({image['uri']})", gltf_uri_path(path.parent, image["uri"])))
+            external.append((f"image {i} ({image['uri']})", gltf_uri_path(path.parent, image["uri"])))
         elif "bufferView" in image and binary is not None:
             view = doc["bufferViews"][image["bufferView"]]
             start = view.get("byteOffset", 0)
             embedded.append((f"texture image {i}", binary[start:start + view["byteLength"]]))
     return external, embedded
-
-
-def _texture(name: str) -> str:
-    """``name`` (an OBJ's texture file, a glTF's "texture image N (uri)") said as a texture once."""
-    return name if name.startswith("texture ") else f"texture {name}"
 
 
 def material_report(path: Path, root: Path | None = None, outside: str = "warn") -> MaterialReport:
@@ -192,9 +187,9 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn")
     for name, ref in inside:
         report.reported.add(str(ref.resolve()))
         if not ref.is_file():
-            report.problems.append(f"{_texture(name)} not found")
+            report.problems.append(f"texture {name} not found")
         elif (p := _image_problem(ref)) is not None:
-            report.problems.append(f"{_texture(name)} unreadable ({p})")
+            report.problems.append(f"texture {name} unreadable ({p})")
     for name, data in embedded:
         if (p := _image_problem(data)) is not None:
             report.problems.append(f"{name} unreadable ({p})")
