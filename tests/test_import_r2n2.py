@@ -283,6 +283,16 @@ def _copy_model(renderings, voxels, src, dst_id, root):
     return root / "R" / syn / dst_id / "rendering", root / "V" / syn / dst_id / "model.binvox"
 
 
+def _import_copies(root: Path, *extra) -> tuple[str, dict, dict]:
+    """``import-r2n2`` of the models :func:`_copy_model` put under ``root`` into ``root/out``:
+    ``(output, index, {model folder or file name: failure reason})``."""
+    out = root / "out"
+    res = cli(["import-r2n2", "--renderings", root / "R", "--voxels", root / "V", "--out", out, *extra,
+               "--no-progress"])
+    index = load_index(out)
+    return res.output, index, {Path(f["source"]).name: f["reason"] for f in index["failures"]}
+
+
 def test_extreme_distance_ratios_fail_their_model_in_one_line(fake_r2n2, tmp_path):
     """A distance ratio of 1e300 overflowed into cameras of inf and one of 1e-300 into a camera at
     the object's centre (elevation 90), both imported with numpy warnings. Each now fails its
@@ -296,13 +306,9 @@ def test_extreme_distance_ratios_fail_their_model_in_one_line(fake_r2n2, tmp_pat
         fields = lines[view].split()
         lines[view] = " ".join(fields[:3] + [ratio] + fields[4:])
         (rdir / "rendering_metadata.txt").write_text("\n".join(lines) + "\n")
-    out = tmp_path / "out"
-    res = cli(["import-r2n2", "--renderings", tmp_path / "R", "--voxels", tmp_path / "V", "--out", out,
-               "--no-progress"])
-    assert "imported 1 of 3 models" in res.output
-    index = load_index(out)
+    output, index, reasons = _import_copies(tmp_path)
+    assert "imported 1 of 3 models" in output
     assert [o["model_id"] for o in index["objects"]] == ["good"]
-    reasons = {Path(f["source"]).name: f["reason"] for f in index["failures"]}
     assert "rendering_metadata.txt: view 3 (distance ratio 1e+300)" in reasons["far"]
     assert "rendering_metadata.txt: view 0 (distance ratio 1e-300)" in reasons["near"]
     assert all("must be finite and more than 0.866" in r for r in reasons.values())
@@ -328,13 +334,9 @@ def test_files_linked_out_of_their_model_folder_are_not_read(fake_r2n2, tmp_path
     rdir, _ = _copy_model(renderings, voxels, src, "linkedfolder", tmp_path)
     shutil.move(rdir.parent, elsewhere)
     rdir.parent.symlink_to(elsewhere, target_is_directory=True)
-    out = tmp_path / "out"
-    res = cli(["import-r2n2", "--renderings", tmp_path / "R", "--voxels", tmp_path / "V", "--out", out,
-               "--no-progress"])
-    assert "imported 2 of 4 models" in res.output
-    index = load_index(out)
+    output, index, reasons = _import_copies(tmp_path)
+    assert "imported 2 of 4 models" in output
     assert sorted(o["model_id"] for o in index["objects"]) == ["good", "linkedfolder"]
-    reasons = {f["model_id"] if "model_id" in f else Path(f["source"]).name: f["reason"] for f in index["failures"]}
     text = " ".join(reasons.values())
     assert f"05.png: a link to {outside}, outside" in text and "refused (not read)" in text
     assert f"model.binvox: a link to {tmp_path / 'outside.binvox'}, outside" in text
@@ -362,13 +364,9 @@ def test_bad_input_reported_rest_imported(fake_r2n2, tmp_path):
     split = tmp_path / "split.txt"
     split.write_text("".join(f"train {CHAIR}/{m}\n" for m in
                              ["good", "badmeta", "shortmeta", "nopng", "nometa", "vox16", "ghost"]))
-    out = tmp_path / "out"
-    res = cli(["import-r2n2", "--renderings", tmp_path / "R", "--voxels", tmp_path / "V", "--out", out,
-               "--split-file", split, "--no-progress"])
-    assert "imported 1 of 6 models" in res.output
-    index = load_index(out)
+    output, index, reasons = _import_copies(tmp_path, "--split-file", split)
+    assert "imported 1 of 6 models" in output
     assert [o["model_id"] for o in index["objects"]] == ["good"]
-    reasons = {Path(f["source"]).name: f["reason"] for f in index["failures"]}
     assert "rendering_metadata.txt:5: not numbers" in reasons["badmeta"]
     assert "20 metadata lines, expected 24" in reasons["shortmeta"]
     assert "07.png: missing rendering" in reasons["nopng"]
@@ -378,8 +376,9 @@ def test_bad_input_reported_rest_imported(fake_r2n2, tmp_path):
     assert "without rendering/" in reasons["emptyfolder"]
     assert any("'03001627/ghost'" in p["reason"] for p in index["skipped"])
     for name in ("badmeta", "shortmeta", "nopng", "nometa", "vox16"):
-        assert "failed: " in res.output and name in res.output
+        assert "failed: " in output and name in output
     # a second run into the same folder resumes (nothing to do); with other settings it is refused
+    out = tmp_path / "out"
     res = cli(["import-r2n2", "--renderings", tmp_path / "R", "--voxels", tmp_path / "V", "--out", out,
                "--split-file", split, "--no-progress"])
     assert "imported 0 of 6 models" in res.output and "(1 already there, 7 failed" in res.output
