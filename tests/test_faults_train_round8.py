@@ -3,8 +3,8 @@ voxel resolution) than its training shards, trained every run, and only then fai
 now they are refused before any training, in one line naming both folders and the difference.
 P1: ``predict`` with a checkpoint of NaN weights wrote ``NAME.binvox`` and ``NAME.npz`` and then
 crashed in marching cubes with a traceback, and ``eval`` reported nan / 0.000 without a word; both
-now refuse such a checkpoint at load in one line, and ``predict`` refuses a prediction that is not
-finite before writing anything. P2: ``predict --threshold 1`` crashed the same way when a
+now refuse such a checkpoint at load in one line, and both refuse predictions that are not finite
+(finite weights that overflow) before writing anything. P2: ``predict --threshold 1`` crashed the same way when a
 probability saturated at exactly 1.0. Real shards, real tiny trainings, no mocks."""
 from __future__ import annotations
 
@@ -164,6 +164,21 @@ def test_p1_predict_refuses_a_prediction_that_is_not_finite_before_writing(tiny_
                   expect_exit=1)
     errors = _errors(res.output)
     assert len(errors) == 1 and f"{huge}: its prediction for {CHAIR} is not finite" in errors[0], res.output
+    assert "Traceback" not in res.output and not out.exists(), res.output
+
+
+def test_p1_eval_refuses_predictions_that_are_not_finite_and_writes_nothing(tiny_run, sample_shards, tmp_path):
+    """The checkpoint of the test above (finite weights, NaN predictions on white pixels). Before:
+    ``eval`` exited 0 and wrote metrics.json with IoU 0.000 and nan pose errors. Now one line names
+    the checkpoint, how many of the split's images overflow and the first of them; nothing written."""
+    huge = _altered(tiny_run, tmp_path / "huge.pt", 3e38)
+    out = tmp_path / "eval"
+    res = run_cli(train_main, ["eval", "--checkpoint", huge, "--shards", sample_shards, "--split", "test",
+                               "--out", out, "--device", "cpu", "--examples", 0], expect_exit=1)
+    errors = _errors(res.output)
+    assert len(errors) == 1 and f"{huge}: its predictions are not finite" in errors[0], res.output
+    # the test split of the sample shards is one object (24 views), and every view has white pixels
+    assert "for 24 of 24 images (first: " in errors[0], errors[0]
     assert "Traceback" not in res.output and not out.exists(), res.output
 
 

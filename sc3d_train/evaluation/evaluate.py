@@ -158,6 +158,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     data_sha256 = evaluated_data_digest(shards, split, dataset.objects)
     rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
                                  loss_weights=cfg.loss_weights)
+    require_finite_predictions(checkpoint, rows)
     summary = summarize(rows)
     out = Path(out) if out is not None else default_output_dir(checkpoint, f"eval_{split}")
     out.mkdir(parents=True, exist_ok=True)
@@ -189,6 +190,22 @@ def require_finite_weights(checkpoint: Path, model: torch.nn.Module) -> None:
         raise CheckpointError(f"{checkpoint}: its weights are not finite (NaN or inf in {len(bad)} tensor(s), e.g. "
                               f"{bad[0]}): its run diverged or the file was altered; use an earlier checkpoint of "
                               "the run, or train again")
+
+
+def require_finite_predictions(checkpoint: Path, rows: list[dict]) -> None:
+    """``CheckpointError`` naming ``checkpoint`` when its prediction of an image (``rows`` of
+    ``predict_dataset``) is not finite although its weights are (the network overflows on these
+    inputs): the figures would count those images as IoU 0 and their pose errors as nan, so
+    ``eval`` refuses before writing anything, as ``predict`` does."""
+    from sc3d_train.loop.checkpoint import CheckpointError
+
+    bad = [r for r in rows if not r["finite"]]
+    if bad:
+        first = bad[0]
+        raise CheckpointError(f"{checkpoint}: its predictions are not finite (NaN or inf voxels, mask or pose) for "
+                              f"{len(bad)} of {len(rows)} images (first: {first['category']}/{first['model_id']} "
+                              f"view {first['view']}) although its weights are: the network overflows on these "
+                              "inputs; nothing written")
 
 
 def differences_from_training(cfg, info: dict) -> list[str]:

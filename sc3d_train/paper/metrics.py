@@ -44,7 +44,8 @@ def predict_dataset(model, dataset, device, batch_size: int = 64,
     image (category, model_id, view, iou_0.4, iou_0.5, mask_iou, azimuth/elevation predicted and
     true, rotation_error) and, for the first ``keep`` objects of every category, views
     ``keep_views`` (default 3 and 15: opposite sides) with input, masks, voxels and poses (numpy)
-    for the figure.
+    for the figure. A row's ``finite`` is False where the image's predicted occupancy, mask or
+    pose holds NaN or inf (a network that overflows on it; its IoU then counts as 0).
 
     ``pose_from`` (one of :data:`~sc3d_train.settings.command_config.POSE_SOURCES`): ``"search"``
     (the default of every entry point,
@@ -81,6 +82,8 @@ def predict_dataset(model, dataset, device, batch_size: int = 64,
         ious = {thr: iou(probs >= thr, gt) for thr in VOXEL_THRESHOLDS}
         mask_iou = iou(mask_prob >= MASK_THRESHOLD, gt_mask > 0.5)
         az, el = out.azimuth.float().cpu(), out.elevation.float().cpu()
+        finite = (probs.flatten(1).isfinite().all(1) & mask_prob.flatten(1).isfinite().all(1)
+                  & az.isfinite() & el.isfinite())
         rot_err = rotation_error_deg(look_at_rotation(az.double(), el.double()), batch["R"].double())
         for i in range(len(probs)):
             obj, view = divmod(int(batch["index"][i]), dataset.num_views)
@@ -90,7 +93,7 @@ def predict_dataset(model, dataset, device, batch_size: int = 64,
                          "azimuth_pred": float(az[i]), "elevation_pred": float(el[i]),
                          "azimuth_true": float(batch["azimuth"][i]),
                          "elevation_true": float(batch["elevation"][i]),
-                         "rotation_error": float(rot_err[i])})
+                         "rotation_error": float(rot_err[i]), "finite": bool(finite[i])})
             category, model_id = batch["category"][i], batch["model_id"][i]
             chosen = kept_objects[category]
             if model_id not in chosen and len(chosen) < keep:
