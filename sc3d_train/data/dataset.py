@@ -59,8 +59,8 @@ class ObjectRef:
 
 def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
     """All objects of a shard directory (reading only string fields) and facts about the data:
-    ``{"image_size", "num_views", "voxel_resolution" (None without voxels),
-    "files_without_voxels", "settings", "K" (3x3 list, pixels), "distance", "left_out",
+    ``{"image_size", "num_views", "voxel_resolution" (None without voxels or where the shards
+    disagree), "files_without_voxels", "voxel_resolutions" ({G: first shard file of G^3 grids}), "settings", "K" (3x3 list, pixels), "distance", "left_out",
     "complete" (the index's: false while a render was cut short)}`` (camera of the
     first view of the first object: all views share intrinsics and distance, SPEC). Objects whose
     voxelization failed are left out (:func:`voxelize_failures`; ``left_out``: their
@@ -87,17 +87,32 @@ def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
     image_sizes = {sm.image_size for sm in summaries}
     views = {sm.num_views for sm in summaries}
     vres = {sm.voxel_resolution for sm in summaries if sm.voxel_resolution is not None}
+    vres_files = {}  # {resolution: the first shard file of it}
+    for sm in summaries:
+        if sm.voxel_resolution is not None:
+            vres_files.setdefault(sm.voxel_resolution, sm.path.name)
     no_vox = [str(sm.path) for sm in summaries if sm.voxel_resolution is None]
     camera = {"K": summaries[0].K.tolist(), "distance": summaries[0].distance}
     if len(image_sizes) != 1 or len(views) != 1:
         raise DataError(f"{shard_dir}: shards disagree on image size {image_sizes} or views {views}")
     info = {"image_size": image_sizes.pop(), "num_views": views.pop(),
             "voxel_resolution": vres.pop() if len(vres) == 1 else None,
-            "files_without_voxels": no_vox, "settings": reader.settings,
+            "files_without_voxels": no_vox, "voxel_resolutions": vres_files, "settings": reader.settings,
             "K": camera["K"], "distance": camera["distance"],
             "left_out": [f"{r.category}/{r.model_id}" for r in left_out],
             "complete": reader.index.get("complete", True) is not False}
     return refs, info
+
+
+def require_one_voxel_resolution(shard_dir: Path, info: dict) -> None:
+    """``DataError`` when the shards of ``shard_dir`` (``info`` of :func:`scan_objects`) hold voxel
+    grids of more than one resolution: what a ``voxelize --resolution`` cut short leaves."""
+    found = info["voxel_resolutions"]
+    if len(found) > 1:
+        sizes = ", ".join(f"{g}^3 in {name}" for g, name in sorted(found.items()))
+        raise DataError(f"{shard_dir}: shards disagree on voxel resolution ({sizes}; a voxelize at another "
+                        f"--resolution cut short?): run `sc3d-data voxelize {shard_dir} --resolution G --overwrite` "
+                        "with the one G to train on")
 
 
 def voxelize_failures(index: dict) -> set[tuple[str, int]]:
@@ -192,6 +207,8 @@ class ShardDataset(Dataset):
                  cache_objects: int | None = None, decoded_cache: Path | str | None = None):
         refs, info = scan_objects(shard_dir)
         self.shard_dir, self.split, self.subset = str(shard_dir), split, subset
+        if require_voxels:
+            require_one_voxel_resolution(shard_dir, info)
         if require_voxels and info["files_without_voxels"]:
             raise DataError(f"{info['files_without_voxels'][0]}: shard has no 'voxels' dataset; "
                             f"run `sc3d-data voxelize {shard_dir}` first")

@@ -91,13 +91,14 @@ def shard_facts(shards: Path, split: str) -> dict:
     """What a run takes from its shards, keyed like :func:`run_facts`: the model's image size
     and voxel resolution, the dataset facts (views, background, intrinsics, camera distance) and
     ``objects_sha256``, the SHA-256 of the sorted ``category/model_id`` of the objects of
-    ``split`` (the objects the run trains on). ``DataError`` when the shards have no voxels or a
-    render left them incomplete."""
+    ``split`` (the objects the run trains on). ``DataError`` when the shards have no voxels, voxels of
+    two resolutions, or a render left them incomplete."""
     from sc3d_train.data.completeness import require_complete
-    from sc3d_train.data.dataset import DataError, background_of, scan_objects
+    from sc3d_train.data.dataset import DataError, background_of, require_one_voxel_resolution, scan_objects
 
     require_complete(Path(shards))
     refs, info = scan_objects(Path(shards))
+    require_one_voxel_resolution(Path(shards), info)
     if info["voxel_resolution"] is None:
         raise DataError(f"{shards}: shards have no voxels; run `sc3d-data voxelize` first")
     return {"model.image_size": info["image_size"], "model.voxel_resolution": info["voxel_resolution"],
