@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # What a GPU machine should show, in one command and in priority order: where fit's loop spends
-# its time and its in-loop speed (issue 21), what a checkpoint costs, the gpu tests, the suite
+# its time and its in-loop speed (issue 21), the paper's width against the tiny network on held-out
+# objects (issue 24 item 2), what a checkpoint costs, the gpu tests, the suite
 # (across processes where pytest-xdist is installed), the --semi step, render scaling and the
 # ShapeNet-sized projection (issue 22), the render's start; then what was measured before
 # (loader workers, training step, fit eager and compiled, their curves) and every other script
@@ -140,6 +141,17 @@ if [ -n "$BASELINE" ]; then   # the same fit from the older tree (its sc3d_train
 fi
 step fit_loop 30 bash -c "$PY -c ${LOOP@Q} $WORK/runs/compiled/metrics.csv 'fit, compiled: in the loop' 10; \
   [ ! -f $WORK/runs/baseline/metrics.csv ] || $PY -c ${LOOP@Q} $WORK/runs/baseline/metrics.csv 'the same, --baseline tree' 10"
+# issue 24 item 2 on a GPU: the paper's width against the tiny network of the cpu preset (700 steps of 32),
+# each trained on the train split with best.pt chosen on val, evaluated on the test split (never trained on)
+if [ "$CUDA" = 1 ]; then HELD=(700 32 6000 48); else HELD=(20 8 20 8); fi
+HELDOUT="import json, sys; m = json.load(open(sys.argv[1])); c = m['per_category']; \
+print('|', sys.argv[2], '| held-out IoU@0.4 mean', round(m['mean']['voxel_iou_0.4'], 3), '| per category', \
+      {k: round(v['voxel_iou_0.4'], 3) for k, v in c.items()}, '| rot. median', \
+      {k: round(v['pose_rotation_median'], 1) for k, v in c.items()}, '| step', m['step'], '|')"
+step heldout 360 bash -c "for run in 'tiny ${HELD[0]} ${HELD[1]} --tiny' 'paper ${HELD[2]} ${HELD[3]}'; do set -- \$run; \
+  ${TRAIN[*]@Q} fit --shards $WORK/shards --out $WORK/runs/held_\$1 --steps \$2 --batch-size \$3 \${4:-} --seed 0 --no-progress \
+    | grep -E '^done' && ${TRAIN[*]@Q} eval --checkpoint $WORK/runs/held_\$1 --shards $WORK/shards --split test --examples 0 \
+    --out $WORK/runs/held_\$1/eval_test >/dev/null && $PY -c ${HELDOUT@Q} $WORK/runs/held_\$1/eval_test/metrics.json \"\$1 \$2 x \$3\"; done"
 # what a checkpoint costs the loop (written once, curves at most once a minute)
 step checkpoint 120 "$PY" benchmarks/checkpoint.py "${WIDTH[@]}"
 # the gpu tests not yet seen to pass on a GPU first: the training step's (no host sync, graph replays), then
