@@ -5,19 +5,28 @@ TRIANGLES (4) and TRIANGLE_STRIP (5) only: a TRIANGLE_FAN (6) primitive is skipp
 log line, and an accessor's ``sparse`` substitution is never applied (the base values, or zeros,
 are read). Either way the object would render and voxelize as other geometry than the file's,
 with no warning. :func:`gltf_refusal` says why to refuse such a file before it is loaded, judging
-from the JSON alone (for a GLB only its JSON chunk is read, never the binary one).
+from the JSON alone (for a GLB only its JSON chunk and its BIN chunk's 8-byte header are read,
+never the binary data; an external buffer file is only stat'ed).
 
-Only what the loader draws is judged: the meshes of the nodes reachable from the scene it uses
-(``scene``, else the first; every mesh without scenes), their surface primitives' POSITION and ``indices`` accessors.
+Modes and sparse accessors are judged where the loader draws them: the meshes of the nodes
+reachable from the scene it uses (``scene``, else the first; every mesh without scenes), their
+surface primitives' POSITION and ``indices`` accessors.
 Points and lines (modes 0-3) carry no surface and are not drawn, which is right: left alone.
 A file that is no glTF document (JSON that does not parse, or is not an object; a GLB without its
-header) is refused in one line saying so; a document malformed inside is left for the loader.
+header) is refused in one line saying so. A data layout the loader cannot read (a buffer without
+its data, a bufferView or accessor naming what the file lacks or reaching beyond it, an unknown
+component type; :mod:`sc3d_data.io.gltf_accessors`, which judges every buffer, bufferView and
+accessor, as the loader reads every one) is refused in one line naming the buffer, bufferView
+or accessor and its use; a document malformed otherwise (its scenes, nodes, materials) is left
+for the loader.
 """
 from __future__ import annotations
 
 import json
 import struct
 from pathlib import Path
+
+from sc3d_data.io.gltf_accessors import layout_problems
 
 __all__ = ["GLTF_SUFFIXES", "SKIPPED_SURFACE_MODES", "gltf_refusal", "read_gltf"]
 
@@ -94,9 +103,9 @@ def gltf_problems(doc: dict) -> list[str]:
 def gltf_refusal(path: Path, shown: int = 3) -> str | None:
     """The one-line reason (naming ``path``; the first ``shown`` problems and how many more) to
     refuse glTF/GLB ``path`` because it is no glTF document (JSON that does not parse or is not an
-    object, a GLB without its header) or draws geometry the loader would not read as written
-    (module doc), or None. Other files, and documents malformed inside, pass (the loader reports
-    those)."""
+    object, a GLB without its header), has a data layout the loader cannot read, or draws
+    geometry the loader would not read as written (module doc), or None. Other files, and
+    documents malformed otherwise, pass (the loader reports those)."""
     path = Path(path)
     if path.suffix.lower() not in GLTF_SUFFIXES:
         return None
@@ -112,10 +121,13 @@ def gltf_refusal(path: Path, shown: int = 3) -> str | None:
         return None  # the loader reports it
     if not isinstance(doc, dict):
         return f"{path}: not a glTF document: its JSON is {type(doc).__name__} {json.dumps(doc)[:20]}, not an object; not read"
-    try:
-        problems = gltf_problems(doc)
-    except (KeyError, IndexError, TypeError, AttributeError, ValueError, RecursionError):
-        return None  # a malformed document: the loader reports it
+    problems = []  # each judge alone: what one cannot follow (a node that is no object) hides nothing of the other
+    for judge, args in ((layout_problems, (path, doc)), (gltf_problems, (doc,))):
+        try:
+            problems += judge(*args)
+        except (KeyError, IndexError, TypeError, AttributeError, ValueError, RecursionError, OSError,
+                struct.error):
+            pass  # a malformed document: the loader reports it
     if not problems:
         return None
     more = f"; and {len(problems) - shown} more like these" if len(problems) > shown else ""
