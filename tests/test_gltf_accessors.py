@@ -194,3 +194,20 @@ def test_external_buffers_are_judged_inside_the_folder_only(tmp_path):
     with pytest.raises(MeshError, match="zero surface area"):
         load_mesh(zeros)
 
+
+def test_indices_past_the_last_vertex_fail_in_one_line(tmp_path):
+    """A layout that reads well whose index data name vertex 99 of the cube's 8: before,
+    ``load_mesh`` crashed with an uncaught ``IndexError`` (index 99 is out of bounds for axis 0
+    with size 8) instead of a ``MeshError``; now one line says how many corners name no vertex
+    and the range. (An OBJ face naming vertex 9 of 3 already fails in trimesh's parser, reported
+    as "cannot parse mesh file (IndexError: ...)".)"""
+    from sc3d_data.io.meshes import MeshError, load_mesh
+
+    vertices, indices = _cube()
+    indices = indices.copy()
+    indices[[5, 17]] = 99
+    path = tmp_path / "cube.gltf"
+    _write_gltf(path, [(vertices, indices, 4)])
+    with pytest.raises(MeshError) as e:
+        load_mesh(path)
+    assert str(e.value) == f"{path}: 2 triangle corners name no vertex (indices from 0 to 99, but it has 8 vertices)"

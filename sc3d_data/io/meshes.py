@@ -123,11 +123,17 @@ def scene_triangles(scene, source: str = "mesh") -> tuple[np.ndarray, np.ndarray
 def validate_triangles(vertices: np.ndarray, faces: np.ndarray, source: str = "mesh",
                        max_faces: int = DEFAULT_MAX_FACES) -> None:
     """Raise ``MeshError`` naming ``source`` when the triangles cannot make an object:
-    no triangles, more than ``max_faces``, non-finite coordinates, or zero total area."""
+    no triangles, more than ``max_faces``, a corner naming no vertex (an index below 0 or past
+    the last vertex: a file's index data out of range, which trimesh keeps), non-finite
+    coordinates, or zero total area."""
     if len(faces) == 0:
         raise MeshError(f"{source}: empty mesh (no triangles)")
     if max_faces and len(faces) > max_faces:
         raise MeshError(f"{source}: {len(faces):,} triangles, more than the limit of {max_faces:,} (--max-faces)")
+    outside = (faces < 0) | (faces >= len(vertices))
+    if outside.any():
+        raise MeshError(f"{source}: {int(outside.sum()):,} triangle corners name no vertex (indices from "
+                        f"{int(faces.min()):,} to {int(faces.max()):,}, but it has {len(vertices):,} vertices)")
     used = used_vertices(vertices, faces)
     bad = ~np.isfinite(used).all(axis=1)
     if bad.any():
