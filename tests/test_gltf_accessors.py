@@ -147,10 +147,12 @@ def test_malformed_layouts_fail_in_one_line_and_the_good_cubes_render(tmp_path):
     (lambda d: _set(d["bufferViews"][1], buffer=3), "bufferView 1 names buffer 3, but the file has 1"),
     (lambda d: d["bufferViews"][1].pop("byteLength"), "bufferView 1 has no byteLength"),
     (lambda d: _set(d["buffers"][0], uri=7), "buffer 0 has uri 7, which is not text"),
+    (lambda d: _set(d["buffers"][0], uri=d["buffers"][0]["uri"][:-8]),  # 320 base64 characters (240 bytes) less 8
+     "bufferView 1 (bytes 96 to 240) reaches beyond the end of buffer 0, whose data URI holds 234 bytes"),
     (lambda d: _set(d["meshes"][0]["primitives"][0], indices=9),
      "mesh 0 primitive 0's indices names accessor 9, but the file has 2"),
 ], ids=["float-count", "negative-count", "componentType", "type", "accessor-offset", "stride", "short-stride",
-        "buffer-index", "no-byteLength", "uri-not-text", "accessor-index"])
+        "buffer-index", "no-byteLength", "uri-not-text", "short-data-uri", "accessor-index"])
 def test_each_layout_problem_is_named(tmp_path, edit, problem):
     from sc3d_data.io.gltf_check import gltf_refusal
 

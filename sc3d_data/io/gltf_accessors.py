@@ -10,9 +10,10 @@ bufferView and accessor is judged here, and every primitive's accessor reference
 
 Judged: a buffer of a .gltf without ``uri``; in a .glb, buffer 0 without ``uri`` and no BIN
 chunk, or another buffer without ``uri``; a bufferView naming no buffer of the file or reaching
-beyond its buffer's ``byteLength`` (or the data there is: the BIN chunk's header, or the size of
-an external file named as written that lies in the mesh's own folder; nothing else is opened,
-no uri is followed out of the folder, a missing file is left to the loader, which names it); an
+beyond its buffer's ``byteLength`` (or the data there is: the BIN chunk's header, the length of
+a base64 data URI, or the size of an external file named as written that lies in the mesh's own
+folder; nothing else is opened, no uri is followed out of the folder, a missing file is left to
+the loader, which names it); an
 accessor naming no bufferView of the file, with a ``count`` that is not a whole number >= 0, an
 unknown ``componentType`` or ``type``, or elements reaching beyond its bufferView (accessor
 ``byteOffset`` + ``count`` elements, at the view's ``byteStride`` when it has one); a primitive
@@ -61,6 +62,13 @@ def _glb_bin_bytes(path: Path) -> int | None:
         return min(struct.unpack_from("<I", head)[0], os.fstat(f.fileno()).st_size - f.tell())
 
 
+def _base64_bytes(text: str) -> int:
+    """Bytes that base64 ``text`` decodes to (4 characters hold 3 bytes, ``=`` pads the last
+    group), counted without decoding it."""
+    text = text.strip()
+    return len(text) // 4 * 3 - (len(text) - len(text.rstrip("=")))
+
+
 def _file_bytes(path: Path, uri: str) -> int | None:
     """Size of the regular file ``uri`` names beside ``path`` (symlinks resolved), as written:
     the first name the resolver tries, so the file it reads when that lies in this folder; None
@@ -92,6 +100,9 @@ def _buffer_ends(path: Path, doc: dict, problems: list[str]) -> list[tuple[int, 
                                                         else ", which a .gltf needs to name its data"))
         elif not isinstance(uri, str):
             problems.append(f"buffer {i} has uri {json.dumps(uri)}, which is not text")
+        elif uri.startswith("data:") and "base64," in uri:
+            size = _base64_bytes(uri.split("base64,", 1)[1])
+            known.append((size, f"buffer {i}, whose data URI holds {size:,} bytes"))
         elif "base64," not in uri and (size := _file_bytes(path, uri)) is not None:
             known.append((size, f"buffer {i}, whose file {uri} holds {size:,} bytes"))
         ends.append(min(known) if known else None)
