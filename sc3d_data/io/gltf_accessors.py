@@ -63,10 +63,9 @@ def _glb_bin_bytes(path: Path) -> int | None:
 
 
 def _base64_bytes(text: str) -> int:
-    """Bytes that base64 ``text`` decodes to (4 characters hold 3 bytes, ``=`` pads the last
-    group), counted without decoding it."""
-    text = text.strip()
-    return len(text) // 4 * 3 - (len(text) - len(text.rstrip("=")))
+    """Bytes that base64 ``text`` decodes to (each character holds 6 bits; ``=`` pads the last
+    group, or is left out), counted without decoding it."""
+    return len(text.strip().rstrip("=")) * 3 // 4
 
 
 def _file_bytes(path: Path, uri: str) -> int | None:
