@@ -213,3 +213,16 @@ def test_indices_past_the_last_vertex_fail_in_one_line(tmp_path):
     with pytest.raises(MeshError) as e:
         load_mesh(path)
     assert str(e.value) == f"{path}: 2 triangle corners name no vertex (indices from 0 to 99, but it has 8 vertices)"
+
+
+@pytest.mark.parametrize("n", range(0, 13))
+def test_a_data_uri_is_measured_as_base64_decodes_it(n):
+    """The length the check counts from a data URI's text equals what ``base64`` decodes from it,
+    with its ``=`` padding or without (an undercount would refuse a good file)."""
+    import base64
+
+    from sc3d_data.io.gltf_accessors import _base64_bytes
+
+    text = base64.b64encode(bytes(range(n))).decode()
+    assert _base64_bytes(text) == len(base64.b64decode(text)) == n
+    assert _base64_bytes(text.rstrip("=")) == n
