@@ -192,6 +192,16 @@ def file_kind(mode: int) -> str:
 
 
 # ----------------------------------------------------------------------------- public API
+def match_ply_face_colors(scene, path: Path) -> None:
+    """One face colour per triangle in each PLY geometry of ``scene`` whose quads or polygons the
+    loader split into triangles (``io.ply_colors``); ``MeshError`` where that cannot be done."""
+    from sc3d_data.io.ply_colors import per_triangle_face_colors
+
+    for geometry in scene.geometry.values():
+        if hasattr(geometry, "faces") and (refusal := per_triangle_face_colors(geometry, str(path))):
+            raise MeshError(refusal)
+
+
 def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str = "fail",
               root: Path | None = None, outside_textures: str = "warn",
               max_file_bytes: int = DEFAULT_MAX_FILE_BYTES):
@@ -228,6 +238,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     missed = loader_misses(resolver, report)
     if missed and bad_texture == "fail":
         raise MeshError(f"{path}: {'; '.join(missed)} (use --bad-texture fallback to render with material colours)")
+    if path.suffix.lower() == ".ply":
+        match_ply_face_colors(scene, path)
     vertices, faces = scene_triangles(scene, str(path))
     validate_triangles(vertices, faces, str(path), max_faces)
     warnings = ([f"{path}: {p}; rendered with material colours" for p in report.problems + missed]

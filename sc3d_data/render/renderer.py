@@ -205,6 +205,8 @@ def mesh_parts(scene, to_canonical: np.ndarray):
         if vis.defined and vis.kind == "vertex":
             colors, base = vis.vertex_colors, np.ones(4)
         elif vis.defined and vis.kind == "face":  # un-index: one colour per corner
+            if len(vis.face_colors) != len(faces):  # never read past the colours (io.ply_colors matches PLYs)
+                raise ValueError(f"{name!r} has {len(vis.face_colors):,} face colours for {len(faces):,} triangles")
             pos, colors, base = pos[faces].reshape(-1, 3), np.repeat(vis.face_colors, 3, axis=0), np.ones(4)
             faces = np.arange(len(pos)).reshape(-1, 3)
         elif vis.kind == "texture":
