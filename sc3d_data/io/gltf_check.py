@@ -17,8 +17,11 @@ header) is refused in one line saying so. A data layout the loader cannot read (
 its data, a bufferView or accessor naming what the file lacks or reaching beyond it, an unknown
 component type; :mod:`sc3d_data.io.gltf_accessors`, which judges every buffer, bufferView and
 accessor, as the loader reads every one) is refused in one line naming the buffer, bufferView
-or accessor and its use; a document malformed otherwise (its scenes, nodes, materials) is left
-for the loader.
+or accessor and its use. Extensions the loader cannot decode that the file requires (Draco,
+meshopt), and base colour textures of drawn meshes read through another ``texCoord`` than 0 or
+moved by ``KHR_texture_transform``, which the loader ignores, are refused the same way
+(:mod:`sc3d_data.io.gltf_features`). A document malformed otherwise (its scenes, nodes,
+materials) is left for the loader.
 """
 from __future__ import annotations
 
@@ -27,6 +30,7 @@ import struct
 from pathlib import Path
 
 from sc3d_data.io.gltf_accessors import layout_problems
+from sc3d_data.io.gltf_features import feature_problems
 
 __all__ = ["GLTF_SUFFIXES", "SKIPPED_SURFACE_MODES", "gltf_refusal", "read_gltf"]
 
@@ -122,7 +126,8 @@ def gltf_refusal(path: Path, shown: int = 3) -> str | None:
     if not isinstance(doc, dict):
         return f"{path}: not a glTF document: its JSON is {type(doc).__name__} {json.dumps(doc)[:20]}, not an object; not read"
     problems = []  # each judge alone: what one cannot follow (a node that is no object) hides nothing of the other
-    for judge, args in ((layout_problems, (path, doc)), (gltf_problems, (doc,))):
+    for judge, args in ((layout_problems, (path, doc)), (gltf_problems, (doc,)),
+                        (lambda d: feature_problems(d, _drawn_meshes(d)), (doc,))):
         try:
             problems += judge(*args)
         except (KeyError, IndexError, TypeError, AttributeError, ValueError, RecursionError, OSError,

@@ -213,7 +213,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     ``bad_texture="fallback"``, missing ``.mtl`` files, material files outside the folder
     ``root``, never read: refused when ``outside_textures="refuse"``). Raises ``MeshError`` on
     bad input (see module doc)."""
-    from sc3d_data.io.gltf_check import gltf_refusal
+    from sc3d_data.io.gltf_check import GLTF_SUFFIXES, gltf_refusal, read_gltf
+    from sc3d_data.io.gltf_features import apply_texture_transforms
     from sc3d_data.io.materials import loader_misses, make_resolver, material_report
 
     path = Path(path)
@@ -240,6 +241,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
         raise MeshError(f"{path}: {'; '.join(missed)} (use --bad-texture fallback to render with material colours)")
     if path.suffix.lower() == ".ply":
         match_ply_face_colors(scene, path)
+    elif path.suffix.lower() in GLTF_SUFFIXES:
+        apply_texture_transforms(scene, read_gltf(path)[0])
     vertices, faces = scene_triangles(scene, str(path))
     validate_triangles(vertices, faces, str(path), max_faces)
     warnings = ([f"{path}: {p}; rendered with material colours" for p in report.problems + missed]

@@ -1,0 +1,132 @@
+"""glTF features the loader would ignore, so that an object would render other than the file says.
+
+trimesh's glTF loader (``trimesh.exchange.gltf``, 5.x) without ``DracoPy`` installed cannot decode
+``KHR_draco_mesh_compression`` (it logs two lines naming no file and reads zeros, which then fail
+as "zero surface area", blaming the mesh), never decodes ``EXT_meshopt_compression`` or
+``KHR_meshopt_compression``, always maps a base colour texture with ``TEXCOORD_0`` whatever its
+``texCoord`` says, and ignores ``KHR_texture_transform`` (the offset, rotation and scale with
+which Blender tiles a fabric or gltfpack packs an atlas): the texture is drawn at the wrong place.
+
+:func:`feature_problems` names from the JSON alone what cannot be read as written, so that the
+file is refused in one line whatever ``--bad-texture`` says (the loader would draw a texture, at
+the wrong place, and which of its parts to draw plain cannot be told from what it loaded):
+
+* an extension in ``extensionsRequired`` that the loader cannot decode (:data:`UNDECODED`; Draco
+  only where ``DracoPy`` is missing): the file itself says it cannot be read without it;
+* a primitive of a drawn mesh (the meshes ``sc3d_data.io.gltf_check`` judges) whose material's
+  base colour texture (``pbrMetallicRoughness.baseColorTexture``, or the ``diffuseTexture`` of
+  ``KHR_materials_pbrSpecularGlossiness``: the textures the renderer draws) reads another
+  ``texCoord`` than 0 (also through its transform), or is moved by a ``KHR_texture_transform``
+  that cannot be applied after loading: its material's name is missing or shared with another
+  material, so the loaded geometry that uses it cannot be told.
+
+:func:`apply_texture_transforms` applies every other ``KHR_texture_transform`` to the texture
+coordinates of the loaded geometries whose material has that name (an identity transform, offset
+0, scale 1, rotation 0, is no change and is not applied).
+"""
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+
+__all__ = ["UNDECODED", "apply_texture_transforms", "feature_problems", "transform_matrix"]
+
+#: required extensions the loader cannot decode: ``{name: what it is}``
+UNDECODED = {"KHR_draco_mesh_compression": "Draco mesh compression",
+             "EXT_meshopt_compression": "meshoptimizer compression",
+             "KHR_meshopt_compression": "meshoptimizer compression"}
+
+
+def _undecoded(name: str) -> bool:
+    if name == "KHR_draco_mesh_compression":
+        return importlib.util.find_spec("DracoPy") is None  # trimesh decodes Draco through DracoPy
+    return name in UNDECODED
+
+
+def _moves(transform: dict) -> bool:
+    """Whether a ``KHR_texture_transform`` changes the texture coordinates."""
+    return (list(transform.get("offset", [0, 0])) != [0, 0] or list(transform.get("scale", [1, 1])) != [1, 1]
+            or transform.get("rotation", 0) != 0 or transform.get("texCoord", 0) != 0)
+
+
+def transform_matrix(transform: dict) -> np.ndarray:
+    """``[3, 3]``: the ``KHR_texture_transform`` ``transform`` as the extension defines it,
+    ``T(offset) @ R(rotation) @ S(scale)`` acting on ``(u, v, 1)`` in glTF's texture frame
+    (origin at the image's top left, v down), ``R = [[cos r, sin r], [-sin r, cos r]]``."""
+    (ox, oy), (sx, sy), r = transform.get("offset", [0, 0]), transform.get("scale", [1, 1]), transform.get("rotation", 0)
+    c, s = np.cos(r), np.sin(r)
+    return (np.array([[1, 0, ox], [0, 1, oy], [0, 0, 1]], dtype=np.float64)
+            @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]]) @ np.diag([sx, sy, 1.0]))
+
+
+def _transforms(doc: dict) -> dict[int, dict]:
+    """``{material index: its base colour texture's KHR_texture_transform}`` where it moves."""
+    found = {}
+    for i, material in enumerate(doc.get("materials", [])):
+        for _, info in _base_textures(material):
+            transform = info.get("extensions", {}).get("KHR_texture_transform")
+            if isinstance(transform, dict) and _moves(transform):
+                found[i] = transform
+    return found
+
+
+def _named_once(doc: dict, i: int) -> bool:
+    """Whether material ``i`` has a name no other material of ``doc`` has."""
+    names = [m.get("name") for m in doc.get("materials", [])]
+    return isinstance(names[i], str) and names[i] != "" and names.count(names[i]) == 1
+
+
+def apply_texture_transforms(scene, doc: dict) -> None:
+    """Move the texture coordinates of each geometry of ``scene`` (loaded by trimesh from glTF
+    ``doc``) whose material is one with a ``KHR_texture_transform`` (module doc), found by its
+    name. trimesh keeps ``uv`` with v up (``1 - v`` of glTF's), so the transform is applied in
+    glTF's frame between two flips."""
+    by_name = {doc["materials"][i]["name"]: transform_matrix(t) for i, t in _transforms(doc).items()
+               if _named_once(doc, i) and t.get("texCoord", 0) == 0}
+    for geometry in scene.geometry.values():
+        visual = getattr(geometry, "visual", None)
+        name = getattr(getattr(visual, "material", None), "name", None)
+        if getattr(visual, "kind", None) != "texture" or visual.uv is None or name not in by_name:
+            continue
+        u, v = np.asarray(visual.uv, dtype=np.float64).T
+        moved = by_name[name] @ np.stack([u, 1.0 - v, np.ones_like(u)])
+        visual.uv = np.stack([moved[0], 1.0 - moved[1]], axis=1)
+
+
+def _base_textures(material: dict) -> list[tuple[str, dict]]:
+    """``[(name, textureInfo)]`` of the base colour textures of glTF ``material``."""
+    found = []
+    if isinstance(info := material.get("pbrMetallicRoughness", {}).get("baseColorTexture"), dict):
+        found.append(("base colour texture", info))
+    gloss = material.get("extensions", {}).get("KHR_materials_pbrSpecularGlossiness", {})
+    if isinstance(info := gloss.get("diffuseTexture"), dict):
+        found.append(("diffuse texture", info))
+    return found
+
+
+def feature_problems(doc: dict, drawn: set[int]) -> list[str]:
+    """What of glTF document ``doc`` the loader would ignore (module doc), one phrase each:
+    required extensions first, then the textures of the materials of the drawn meshes
+    ``drawn`` (mesh indices), each material once."""
+    problems = [f"it requires {name} ({UNDECODED[name]}), which the loader cannot decode"
+                for name in doc.get("extensionsRequired", []) if isinstance(name, str) and _undecoded(name)]
+    materials, seen = doc.get("materials", []), set()
+    for m in sorted(drawn):
+        for prim in doc["meshes"][m].get("primitives", []):
+            i = prim.get("material")
+            if not isinstance(i, int) or i in seen or not 0 <= i < len(materials):
+                continue
+            seen.add(i)
+            for name, info in _base_textures(materials[i]):
+                if info.get("texCoord", 0) != 0:
+                    problems.append(f"material {i}'s {name} reads TEXCOORD_{info['texCoord']}, but the loader maps "
+                                    "every texture with TEXCOORD_0")
+                transform = info.get("extensions", {}).get("KHR_texture_transform")
+                if isinstance(transform, dict) and transform.get("texCoord", 0) != 0:
+                    problems.append(f"material {i}'s {name} has a KHR_texture_transform to "
+                                    f"TEXCOORD_{transform['texCoord']}, but the loader maps every texture with TEXCOORD_0")
+                elif isinstance(transform, dict) and _moves(transform) and not _named_once(doc, i):
+                    problems.append(f"material {i}'s {name} has a KHR_texture_transform, which the loader does not "
+                                    "apply, and the material has no name of its own by which it could be applied after")
+    return problems
