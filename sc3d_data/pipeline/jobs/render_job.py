@@ -29,9 +29,6 @@ SAMPLE_MESHES = REPO_ROOT / "assets" / "sample_meshes"
 #: settings that do not change the output; they may differ between a run and its resume
 RUNTIME_ONLY = ("workers", "progress", "timeout_s", "retry_failed", "part", "executor", "address",
                 "retries", "gpus")
-#: largest framebuffer side the renderer asks for (GL_MAX_RENDERBUFFER_SIZE of Mesa and NVIDIA)
-MAX_ATLAS_SIDE = 16384
-MAX_VOXEL_RESOLUTION = 512
 
 
 @dataclass
@@ -77,53 +74,10 @@ class RenderConfig:
 
     def validate(self, n_workers: int = 1) -> None:
         """Raise ``ValueError`` naming the option when a value is out of what the renderer or
-        this machine's memory can do (so a typo fails at once, not as N worker failures)."""
-        import math
+        this machine's memory can do (``render_checks.check_render_config``)."""
+        from sc3d_data.pipeline.jobs.render_checks import check_render_config
 
-        if not self.elevations:  # `--elevations ''` or `,`: no view to render (and no atlas to size)
-            raise ValueError("--elevations: give at least one elevation")
-        views = self.num_views * len(self.elevations)
-        cols = math.ceil(math.sqrt(views))
-        side = self.image_size * max(cols, math.ceil(views / cols))
-        if side > MAX_ATLAS_SIDE:
-            most = MAX_ATLAS_SIDE // max(cols, math.ceil(views / cols))
-            raise ValueError(f"--image-size {self.image_size}: {views} views need a {side}x{side} framebuffer, "
-                             f"over the renderer's limit of {MAX_ATLAS_SIDE}; at most --image-size {most} "
-                             f"with {views} views")
-        if not 2 <= self.voxel_resolution <= MAX_VOXEL_RESOLUTION:
-            raise ValueError(f"--voxel-resolution {self.voxel_resolution}: must be 2 to {MAX_VOXEL_RESOLUTION}")
-        if not 0 < self.fov_deg < 180:
-            raise ValueError(f"--fov {self.fov_deg}: must be between 0 and 180 degrees")
-        if not 0 < self.distance < math.inf:
-            raise ValueError(f"--distance {self.distance}: must be a positive number")
-        from sc3d_data.geometry.camera import MIN_DISTANCE
-
-        if self.distance <= MIN_DISTANCE:
-            raise ValueError(f"--distance {self.distance}: must be more than {MIN_DISTANCE:.3f} (sqrt(3)/2, the "
-                             "farthest corner of the object's unit cube): a nearer camera can be inside the object")
-        if not all(math.isfinite(e) for e in self.elevations):
-            raise ValueError(f"--elevations {','.join(map(str, self.elevations))}: must be finite numbers")
-        from sc3d_data.formats.shapenet import check_axes
-
-        check_axes(self.up, self.front)
-        if not self.timeout_s > 0:
-            raise ValueError(f"--timeout {self.timeout_s}: must be > 0 seconds")
-        if self.objects_per_shard < 1 or self.max_faces < 1 or self.max_file_mib < 1:
-            raise ValueError("--objects-per-shard, --max-faces and --max-file-mib must be >= 1")
-        per_object = views * self.image_size ** 2 * (4 + (4 if self.depth else 0))
-        if self.voxelize:
-            per_object += self.voxel_resolution ** 3
-        # the main process holds up to 2 chunks + one object per worker (see render_dataset)
-        held = per_object * (2 * self.objects_per_shard + n_workers)
-        # each worker: one object's arrays + framebuffer + voxelizer work space (~16 B/voxel)
-        held += n_workers * (2 * per_object + (16 * self.voxel_resolution ** 3 if self.voxelize else 0))
-        import psutil
-
-        avail = psutil.virtual_memory().available
-        if held > avail:
-            raise ValueError(f"--image-size {self.image_size} / --voxel-resolution {self.voxel_resolution} / "
-                             f"--objects-per-shard {self.objects_per_shard} / --workers {n_workers}: "
-                             f"would need about {held / 2**30:.1f} GiB of memory, {avail / 2**30:.1f} GiB available")
+        check_render_config(self, n_workers)
 
     def view_settings(self) -> ViewSettings:
         return ViewSettings(num_views=self.num_views, elevations_deg=tuple(self.elevations),
