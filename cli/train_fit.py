@@ -15,14 +15,27 @@ from sc3d_train.settings.config import TINY_MODEL, ModelConfig, RunConfig
 TINY_NOTES = {k: f"[--tiny: {v}]" for k, v in TINY_MODEL.items()}
 
 
+class FolderPath(click.Path):
+    """A folder option that refuses an empty value: ``--out ''`` (an unset ``$RUN``) would
+    otherwise be the current folder."""
+
+    def __init__(self):
+        super().__init__(file_okay=False, path_type=Path)
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, str) and value.strip() == "":
+            self.fail("is empty: give a folder (an unset variable?)", param, ctx)
+        return super().convert(value, param, ctx)
+
+
 @click.command()
 @click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="A run's config.yaml: train that run again (options given here override it; "
               "--shards and --out default to its values).")
-@click.option("--shards", type=click.Path(file_okay=False, path_type=Path), default=None,
+@click.option("--shards", type=FolderPath(), default=None,
               help="Shard directory written by `sc3d-data render --voxelize` (optional with --resume; "
                    "there, a moved copy of the run's data).")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+@click.option("--out", type=FolderPath(), default=None,
               help="Run directory: config.yaml, checkpoints/, metrics.csv, tb/, curves.png.")
 @config_options(RunConfig)
 @click.option("--semi", is_flag=True, help="Semi-supervised: pre-train on the labelled subset, then "

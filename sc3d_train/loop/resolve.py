@@ -36,6 +36,7 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     plain.update(options)
     if plain.get("out") is None or plain.get("shards") is None:
         raise ValueError("a new run needs --shards and --out (or a --config file that names them)")
+    check_path_names(plain)
     out = Path(plain["out"])
     if plain.get("split") == "test":
         raise DataError("refusing to train on the test split: its evaluation would then measure "
@@ -60,6 +61,20 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
 
 #: what a run writes into its folder besides ``checkpoints/`` (a new run replaces them)
 RUN_FILES = ("config.yaml", "metrics.csv", "validation.csv", "curves.png", "labeled_objects.txt", "tb")
+
+
+def check_path_names(plain: dict) -> None:
+    """``ValueError`` when a new run's ``out`` is not valid UTF-8 (config.yaml and TensorBoard's
+    event files store it as text), before anything is written. (Empty folder options are refused
+    by the command line: ``cli/train_fit.FolderPath``.)"""
+    from sc3d_data.io.names import printable
+
+    try:
+        str(plain["out"]).encode("utf-8")
+    except UnicodeEncodeError as e:
+        raise ValueError(f"--out {printable(str(plain['out']))}: the name is not valid UTF-8 (byte "
+                         f"0x{ord(str(plain['out'])[e.start]) - 0xDC00:02x}), which config.yaml and TensorBoard "
+                         "store as text; choose another name") from e
 
 
 def check_no_foreign_files(out: Path) -> None:

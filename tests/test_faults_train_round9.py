@@ -1,0 +1,36 @@
+"""``sc3d-train``, round nine (an attack on the commands, 2026-11-27). O1: ``fit --out ''`` (an
+unset ``$RUN``) trained into the current folder: checkpoints/, config.yaml, metrics.csv, tb/ and
+curves.png among the user's files. O2: an ``--out`` whose name is not valid UTF-8 failed in
+TensorBoard's writer with a message naming no file ("'utf-8' codec can't encode character
+'\\udcff'") after config.yaml, metrics.csv, tb/ and the lock were made. Both are now refused
+before anything is written. Real shards, the real command."""
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from sc3d_cli.train import main as train_main
+from conftest import run_cli
+from tests.test_train import TINY
+
+FIT = ["--steps", 1, "--batch-size", 2, *TINY, "--val-every", 0, "--device", "cpu", "--no-progress"]
+
+
+@pytest.mark.parametrize("option", ["--out", "--shards"])
+def test_an_empty_folder_option_is_refused_and_nothing_is_written(sample_shards, tmp_path, monkeypatch, option):
+    monkeypatch.chdir(tmp_path)
+    paths = {"--shards": sample_shards, "--out": tmp_path / "run"}
+    paths[option] = "  " if option == "--shards" else ""
+    res = run_cli(train_main, ["fit", "--shards", paths["--shards"], "--out", paths["--out"], *FIT], expect_exit=2)
+    assert f"Error: Invalid value for '{option}': is empty: give a folder (an unset variable?)" in res.output
+    assert os.listdir(tmp_path) == []
+
+
+def test_an_out_name_that_is_not_utf8_is_refused_before_anything_is_written(sample_shards, tmp_path):
+    out = os.fsdecode(os.fsencode(str(tmp_path)) + b"/bad\xffout")  # the byte 0xff as Python holds it
+    res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", out, *FIT], expect_exit=1)
+    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    assert errors == [f"Error: --out {tmp_path}/bad\\xffout: the name is not valid UTF-8 (byte 0xff), which "
+                      "config.yaml and TensorBoard store as text; choose another name"], res.output
+    assert os.listdir(tmp_path) == []
