@@ -34,3 +34,29 @@ def test_an_out_name_that_is_not_utf8_is_refused_before_anything_is_written(samp
     assert errors == [f"Error: --out {tmp_path}/bad\\xffout: the name is not valid UTF-8 (byte 0xff), which "
                       "config.yaml and TensorBoard store as text; choose another name"], res.output
     assert os.listdir(tmp_path) == []
+
+
+def test_predict_never_replaces_a_file_that_is_not_its_own(trained_run, sample_shards, tmp_path):
+    """P1: an image named ``index.png`` predicted into a copy of a shard folder replaced its
+    ``index.json`` with the prediction's JSON (the dataset then failed to open). Now refused in one
+    line, the folder untouched; predicting the same image again into its own output folder still
+    replaces its own five files."""
+    import shutil
+
+    from conftest import REPO
+
+    shards = tmp_path / "shards"
+    shutil.copytree(sample_shards, shards)
+    image = tmp_path / "index.png"
+    shutil.copyfile(REPO / "assets" / "sample_images" / "chair.png", image)
+    before = (shards / "index.json").read_bytes()
+    res = run_cli(train_main, ["predict", "--checkpoint", trained_run, image, "--out", shards, "--device", "cpu"],
+                  expect_exit=1)
+    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    assert errors == [f"Error: --out {shards}: index.json exists and is not a file of an earlier prediction (no "
+                      "index.json of predict lists it), which this prediction would replace; choose another --out"]
+    assert (shards / "index.json").read_bytes() == before and not (shards / "index.npz").exists()
+    pred = tmp_path / "pred"
+    for _ in range(2):
+        run_cli(train_main, ["predict", "--checkpoint", trained_run, image, "--out", pred, "--device", "cpu"])
+    assert sorted(p.name for p in pred.iterdir()) == [f"index.{k}" for k in ("binvox", "json", "npz", "obj", "png")]

@@ -154,6 +154,7 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
     out = Path(out)
     outputs = output_files(images, out)
     check_inputs_kept(images, outputs, out)
+    check_outputs_replaceable(outputs, out)
     dev = resolve_device(device)
     model, cfg, _ = load_model(checkpoint, dev)
     require_finite_weights(checkpoint, model)
@@ -228,6 +229,32 @@ def check_inputs_kept(images: list[Path], outputs: list[dict], out: Path) -> Non
             if os.path.realpath(path) in inputs:
                 raise ImageError(f"--out {out}: its {path.name} (the prediction's .{kind}) would overwrite "
                                  f"the input image {inputs[os.path.realpath(path)]}; choose another --out")
+
+
+def check_outputs_replaceable(outputs: list[dict], out: Path) -> None:
+    """``ImageError`` naming ``--out`` and the file when a file of ``outputs`` (:func:`output_files`)
+    exists and is not of an earlier prediction: one that the prediction's ``NAME.json`` beside it
+    lists (an image named ``index.png`` into a shard folder would otherwise replace its
+    ``index.json``; ``curves.png`` into a run folder its curves). Predicting again into the same
+    folder replaces its own files."""
+    import os
+
+    for files in outputs:
+        existing = [p for p in files.values() if os.path.lexists(p)]
+        if not existing:
+            continue
+        listed = set()
+        try:
+            info = json.loads(Path(files["json"]).read_text())
+            if isinstance(info, dict) and "checkpoint" in info and isinstance(info.get("files"), dict):
+                listed = {Path(v).name for v in info["files"].values() if isinstance(v, str)}  # all in ``out``
+        except (OSError, ValueError):
+            pass
+        for path in existing:
+            if path.name not in listed:
+                raise ImageError(f"--out {out}: {path.name} exists and is not a file of an earlier prediction "
+                                 f"(no {Path(files['json']).name} of predict lists it), which this prediction would "
+                                 "replace; choose another --out")
 
 
 def _default_K(size: int) -> np.ndarray:
