@@ -60,3 +60,28 @@ def test_predict_never_replaces_a_file_that_is_not_its_own(trained_run, sample_s
     for _ in range(2):
         run_cli(train_main, ["predict", "--checkpoint", trained_run, image, "--out", pred, "--device", "cpu"])
     assert sorted(p.name for p in pred.iterdir()) == [f"index.{k}" for k in ("binvox", "json", "npz", "obj", "png")]
+
+
+def test_eval_never_replaces_another_evaluation_in_its_default_folder(trained_run, sample_shards, tmp_path):
+    """E1: ``eval --checkpoint RUN`` then ``eval --checkpoint RUN/checkpoints/step_000180.pt`` wrote
+    both into ``RUN/eval_test``; the evaluation of the final model was gone without a word. Now
+    the second is refused in one line naming both checkpoints; evaluating the same checkpoint
+    again replaces its own evaluation, and an explicit ``--out`` is free."""
+    import json
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(trained_run, run)
+    last, half = run / "checkpoints" / "last.pt", run / "checkpoints" / "step_000180.pt"
+    common = ["--shards", sample_shards, "--device", "cpu", "--examples", 0, "--pose", "head"]
+    for _ in range(2):
+        run_cli(train_main, ["eval", "--checkpoint", run, "--pick", "last", *common])
+    before = (run / "eval_test" / "metrics.json").read_text()
+    assert json.loads(before)["checkpoint"] == str(last)
+    res = run_cli(train_main, ["eval", "--checkpoint", half, *common], expect_exit=1)
+    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    assert errors == [f"Error: {run / 'eval_test'}: holds the evaluation of checkpoint {last}, which this one "
+                      f"(checkpoint {half}) would replace; give --out for this one (or remove that folder)"]
+    assert (run / "eval_test" / "metrics.json").read_text() == before
+    run_cli(train_main, ["eval", "--checkpoint", half, *common, "--out", tmp_path / "half"])
+    assert json.loads((tmp_path / "half" / "metrics.json").read_text())["step"] == 180

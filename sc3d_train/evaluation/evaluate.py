@@ -146,6 +146,10 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     checkpoint = run_checkpoint(checkpoint, pick)
     model, cfg, ckpt = load_model(checkpoint, dev)
     require_finite_weights(checkpoint, model)
+    if out is None:
+        out = default_output_dir(checkpoint, f"eval_{split}")
+        check_default_folder_free(out, checkpoint, shards, pose_from)
+    out = Path(out)
     dataset = ShardDataset(shards, split, subset="all", mask_size=cfg.model.mask_size,
                            require_voxels=True, image_size=cfg.model.image_size)
     if dataset.info["voxel_resolution"] != cfg.model.voxel_resolution:
@@ -160,7 +164,6 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
                                  loss_weights=cfg.loss_weights)
     require_finite_predictions(checkpoint, rows)
     summary = summarize(rows)
-    out = Path(out) if out is not None else default_output_dir(checkpoint, f"eval_{split}")
     out.mkdir(parents=True, exist_ok=True)
     result = {"checkpoint": str(checkpoint), "step": int(ckpt.get("step", -1)), "shards": str(shards),
               "split": split, "pose_from": pose_from, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
@@ -175,6 +178,31 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     result["table"] = format_table(summary)
     result["out"] = str(out)
     return result
+
+
+def check_default_folder_free(out: Path, checkpoint: Path, shards: Path, pose_from: str) -> None:
+    """``ValueError`` when the default output folder ``out`` (``RUN_DIR/eval_SPLIT``) holds the
+    evaluation of another checkpoint file, other shards or another ``--pose``, which this one would
+    replace without a word (``eval --checkpoint RUN`` then ``eval --checkpoint RUN/checkpoints/
+    step_000500.pt``). Evaluating the same checkpoint file again (after training went on) replaces
+    its own evaluation; an explicit ``--out`` is the user's choice and is not judged."""
+    try:
+        was = json.loads((Path(out) / "metrics.json").read_text())
+    except (OSError, ValueError):
+        return
+    if not isinstance(was, dict):
+        return
+    import os
+
+    now = {"checkpoint": os.path.realpath(checkpoint), "shards": os.path.realpath(shards), "pose_from": pose_from}
+    changed = [k for k, v in now.items()
+               if k in was and (os.path.realpath(str(was[k])) if k != "pose_from" else was[k]) != v]
+    if changed:
+        label = {"checkpoint": "checkpoint", "shards": "shards", "pose_from": "--pose"}
+        given = {"checkpoint": checkpoint, "shards": shards, "pose_from": pose_from}
+        raise ValueError(f"{out}: holds the evaluation of {', '.join(f'{label[k]} {was[k]}' for k in changed)}, which "
+                         f"this one ({', '.join(f'{label[k]} {given[k]}' for k in changed)}) would replace; give "
+                         "--out for this one (or remove that folder)")
 
 
 def require_finite_weights(checkpoint: Path, model: torch.nn.Module) -> None:
