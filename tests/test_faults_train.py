@@ -26,8 +26,16 @@ def one_line(output: str) -> str:
 
 
 # ----------------------------------------------------------------------------- F1
-@pytest.mark.parametrize("render_again, changed", [(["--seed", "1"], "the objects of split 'train'"),
-                                                   (["--background", "0,0,0"], "background [255, 255, 255] -> [0, 0, 0]")])
+VIEWS = "elevations [30.0]; up +Y; front auto; normalize fit; shading matte-flat-headlight-v1"  # render's defaults
+
+
+@pytest.mark.parametrize("render_again, changed", [
+    (["--seed", "1"], "the objects of split 'train'"),
+    (["--background", "0,0,0"], "background [255, 255, 255] -> [0, 0, 0]"),
+    # round nine: other elevations or axes change every image at the same size and camera
+    (["--elevations", "45"], f"view_setup {VIEWS!r} -> {VIEWS.replace('[30.0]', '[45.0]')!r}"),
+    (["--up", "+Z", "--front", "-Y"], f"view_setup {VIEWS!r} -> {VIEWS.replace('up +Y; front auto', 'up +Z; front -Y')!r}"),
+], ids=["seed", "background", "elevations", "axes"])
 def test_f1_resume_refuses_shards_rendered_again_with_other_objects_or_camera(sample_shards, tmp_path,
                                                                              render_again, changed):
     """A run's shards rendered again in place (another split seed: other training objects;

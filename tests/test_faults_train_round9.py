@@ -85,3 +85,25 @@ def test_eval_never_replaces_another_evaluation_in_its_default_folder(trained_ru
     assert (run / "eval_test" / "metrics.json").read_text() == before
     run_cli(train_main, ["eval", "--checkpoint", half, *common, "--out", tmp_path / "half"])
     assert json.loads((tmp_path / "half" / "metrics.json").read_text())["step"] == 180
+
+
+def test_eval_notes_shards_rendered_with_other_axes(trained_run, tmp_path):
+    """R1's eval side: shards of the same chairs rendered with other up and front axes were
+    evaluated without a note (``differs_from_training`` empty); now the note names both setups.
+    (``--resume`` on such shards is refused: ``test_faults_train.py::test_f1...[axes]``.)"""
+    import json
+    import shutil
+
+    from conftest import SAMPLE_MESHES
+    from sc3d_cli.data import main as data_main
+
+    meshes, shards = tmp_path / "meshes", tmp_path / "turned"
+    shutil.copytree(SAMPLE_MESHES / "chair", meshes / "chair")
+    run_cli(data_main, ["render", "--meshes", meshes, "--out", shards, "--voxelize", "--up", "+Z", "--front", "-Y",
+                        "--split", "random:0,0,1", "--no-progress", "--workers", 1])
+    res = run_cli(train_main, ["eval", "--checkpoint", trained_run, "--shards", shards, "--out", tmp_path / "e",
+                               "--device", "cpu", "--examples", 0, "--pose", "head"])
+    setup = "normalize fit; shading matte-flat-headlight-v1"
+    expected = f"views of up +Z; front -Y; {setup} (trained on up +Y; front auto; {setup})"
+    assert any(ln.startswith("note:") and expected in ln for ln in res.output.splitlines()), res.output
+    assert json.loads((tmp_path / "e" / "metrics.json").read_text())["differs_from_training"] == [expected]

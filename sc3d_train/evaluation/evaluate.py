@@ -239,11 +239,13 @@ def require_finite_predictions(checkpoint: Path, rows: list[dict]) -> None:
 def differences_from_training(cfg, info: dict) -> list[str]:
     """How the evaluated shards' images differ from those the checkpoint was trained on
     (``cfg``: its run config; ``info``: ``ShardDataset.info``), one phrase each; empty when
-    they are alike. Background, intrinsics and camera distance change what the network sees
+    they are alike. Background, intrinsics, camera distance and the view setup (axes,
+    normalisation, shading: ``loop.resolve.view_setup``) change what the network sees
     (elevations outside the pose grid are :func:`outside_pose_grid`). Not refused: evaluating across such a change (other renders, 3D-R2N2's imports) is a
     legitimate experiment, but its figures must say so (``eval`` prints a note, and
     ``metrics.json`` keeps the list under ``differs_from_training``)."""
     from sc3d_train.data.dataset import background_of
+    from sc3d_train.loop.resolve import view_setup, view_setup_but_elevations
 
     found = []
     background = background_of(info)
@@ -254,6 +256,10 @@ def differences_from_training(cfg, info: dict) -> list[str]:
         found.append(f"intrinsics K (focal length {fx:.1f} px, trained on {trained_fx:.1f} px)")
     if not math.isclose(info["distance"], cfg.camera_distance, rel_tol=1e-4):
         found.append(f"camera distance {info['distance']:g} (trained at {cfg.camera_distance:g})")
+    if cfg.view_setup is not None:  # elevations: outside_pose_grid
+        now, was = (view_setup_but_elevations(v) for v in (view_setup(info.get("settings", {})), cfg.view_setup))
+        if now != was:
+            found.append(f"views of {now} (trained on {was})")
     return found
 
 

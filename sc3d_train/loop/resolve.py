@@ -119,7 +119,26 @@ def shard_facts(shards: Path, split: str) -> dict:
     return {"model.image_size": info["image_size"], "model.voxel_resolution": info["voxel_resolution"],
             "image_size": info["image_size"], "num_views": info["num_views"], "background": background_of(info),
             "intrinsics": info["K"], "camera_distance": info["distance"],
-            "objects_sha256": objects_digest(refs, split)}
+            "objects_sha256": objects_digest(refs, split), "view_setup": view_setup(info["settings"])}
+
+
+#: render settings that change the images without changing their size, camera K or distance
+VIEW_SETUP_KEYS = ("elevations", "up", "front", "normalize")
+
+
+def view_setup(settings: dict) -> str:
+    """One line of the render settings (``index.json`` ``settings``) that shape what the views
+    show beyond their size and camera: elevations, up and front axes, normalisation, shading
+    (``None`` for a setting the shards do not record, as 3D-R2N2's imports)."""
+    shading = (settings.get("lighting") or {}).get("shading") if isinstance(settings.get("lighting"), dict) else None
+    return "; ".join([f"{k} {settings.get(k)}" for k in VIEW_SETUP_KEYS] + [f"shading {shading}"])
+
+
+def view_setup_but_elevations(setup: str) -> str:
+    """A :func:`view_setup` line without its elevations (the first part): what ``eval`` notes
+    as a difference from the training data, whose elevations get a note of their own where they
+    lie outside the pose grid."""
+    return setup.split("; ", 1)[-1]
 
 
 def objects_digest(refs, split: str) -> str:
@@ -136,13 +155,14 @@ def run_facts(cfg: RunConfig) -> dict:
     return {"model.image_size": cfg.model.image_size, "model.voxel_resolution": cfg.model.voxel_resolution,
             "image_size": cfg.image_size, "num_views": cfg.num_views, "background": cfg.background,
             "intrinsics": cfg.intrinsics, "camera_distance": cfg.camera_distance,
-            "objects_sha256": cfg.objects_sha256}
+            "objects_sha256": cfg.objects_sha256, "view_setup": cfg.view_setup}
 
 
 def check_same_shards(cfg: RunConfig, out: Path) -> None:
     """``CheckpointError`` when the shards of run ``cfg`` (folder ``out``) no longer hold the data
-    the run started on (re-rendered at another size, camera, background or with other training
-    objects): a resumed run would continue on other data. Facts a run of an earlier version did
+    the run started on (re-rendered at another size, camera, background, elevations, axes,
+    normalisation or shading, or with other training objects): a resumed run would continue on
+    other data. Facts a run of an earlier version did
     not record (``None``) are not compared."""
     from sc3d_train.loop.checkpoint import CheckpointError
 
