@@ -1,20 +1,19 @@
 """``sc3d-train claims``: option parsing only; the work is ``sc3d_train.evaluation.claims.run_all``."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 
+from sc3d_cli.folder_path import FolderPath
 from sc3d_cli.config_options import config_options
 from sc3d_train.settings.command_config import ClaimsConfig
 
 
 @click.command()
-@click.option("--train-shards", type=click.Path(file_okay=False, path_type=Path), required=True,
+@click.option("--train-shards", type=FolderPath(), required=True,
               help="Shards to train on (their 'train' split).")
-@click.option("--eval-shards", type=click.Path(file_okay=False, path_type=Path), required=True,
+@click.option("--eval-shards", type=FolderPath(), required=True,
               help="Shards to evaluate on (objects never trained on; may be the same folder).")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
+@click.option("--out", type=FolderPath(), required=True,
               help="Study folder: runs/NAME/seed-S (each run; its evaluation in eval/, with --pick last "
               "eval-last/), claims.md, claims.json, claims.png (--pick last: claims-last.*).")
 @click.option("--runs", default=None, help="Comma-separated subset of: sup-3tube, sup-1tube, "

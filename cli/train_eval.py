@@ -5,6 +5,7 @@ from pathlib import Path
 
 import click
 
+from sc3d_cli.folder_path import FolderPath
 from sc3d_cli.config_options import config_options
 from sc3d_train.settings.command_config import EvalConfig
 
@@ -13,8 +14,8 @@ from sc3d_train.settings.command_config import EvalConfig
 @click.option("--checkpoint", type=click.Path(path_type=Path), required=True,
               help="A run folder of `sc3d-train fit` (its --pick checkpoint) or a checkpoint file "
               "(e.g. RUN_DIR/checkpoints/last.pt).")
-@click.option("--shards", type=click.Path(file_okay=False, path_type=Path), required=True)
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+@click.option("--shards", type=FolderPath(), required=True)
+@click.option("--out", type=FolderPath(), default=None,
               help="Directory for metrics.json and predictions.png [RUN_DIR/eval_SPLIT beside the checkpoint].")
 @config_options(EvalConfig)
 @click.pass_context

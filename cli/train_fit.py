@@ -9,23 +9,11 @@ from pathlib import Path
 
 import click
 
+from sc3d_cli.folder_path import FolderPath
 from sc3d_cli.config_options import config_options, given_on_command_line
 from sc3d_train.settings.config import TINY_MODEL, ModelConfig, RunConfig
 
 TINY_NOTES = {k: f"[--tiny: {v}]" for k, v in TINY_MODEL.items()}
-
-
-class FolderPath(click.Path):
-    """A folder option that refuses an empty value: ``--out ''`` (an unset ``$RUN``) would
-    otherwise be the current folder."""
-
-    def __init__(self):
-        super().__init__(file_okay=False, path_type=Path)
-
-    def convert(self, value, param, ctx):
-        if isinstance(value, str) and value.strip() == "":
-            self.fail("is empty: give a folder (an unset variable?)", param, ctx)
-        return super().convert(value, param, ctx)
 
 
 @click.command()

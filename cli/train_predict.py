@@ -5,6 +5,7 @@ from pathlib import Path
 
 import click
 
+from sc3d_cli.folder_path import FolderPath
 from sc3d_cli.config_options import config_options
 from sc3d_train.settings.command_config import PredictConfig
 
@@ -14,7 +15,7 @@ from sc3d_train.settings.command_config import PredictConfig
               help="A run folder of `sc3d-train fit` (its --pick checkpoint) or a checkpoint file "
               "(e.g. RUN_DIR/checkpoints/last.pt).")
 @click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+@click.option("--out", type=FolderPath(), default=None,
               help="Output directory [RUN_DIR/predictions beside the checkpoint].")
 @config_options(PredictConfig)
 @click.pass_context

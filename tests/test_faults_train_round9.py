@@ -107,3 +107,17 @@ def test_eval_notes_shards_rendered_with_other_axes(trained_run, tmp_path):
     expected = f"views of up +Z; front -Y; {setup} (trained on up +Y; front auto; {setup})"
     assert any(ln.startswith("note:") and expected in ln for ln in res.output.splitlines()), res.output
     assert json.loads((tmp_path / "e" / "metrics.json").read_text())["differs_from_training"] == [expected]
+
+
+@pytest.mark.parametrize("command", ["eval", "predict", "claims"])
+def test_the_other_commands_refuse_an_empty_out_too(trained_run, sample_shards, tmp_path, monkeypatch, command):
+    """``eval --out ''`` and ``predict --out ''`` wrote into the current folder like ``fit``'s."""
+    from conftest import REPO
+
+    monkeypatch.chdir(tmp_path)
+    args = {"eval": ["eval", "--checkpoint", trained_run, "--shards", sample_shards],
+            "predict": ["predict", "--checkpoint", trained_run, REPO / "assets" / "sample_images" / "chair.png"],
+            "claims": ["claims", "--train-shards", sample_shards, "--eval-shards", sample_shards]}[command]
+    res = run_cli(train_main, [*args, "--out", "", "--device", "cpu"], expect_exit=2)
+    assert "Error: Invalid value for '--out': is empty: give a folder (an unset variable?)" in res.output
+    assert os.listdir(tmp_path) == []
