@@ -54,7 +54,8 @@ def transform_matrix(transform: dict) -> np.ndarray:
     """``[3, 3]``: the ``KHR_texture_transform`` ``transform`` as the extension defines it,
     ``T(offset) @ R(rotation) @ S(scale)`` acting on ``(u, v, 1)`` in glTF's texture frame
     (origin at the image's top left, v down), ``R = [[cos r, sin r], [-sin r, cos r]]``."""
-    (ox, oy), (sx, sy), r = transform.get("offset", [0, 0]), transform.get("scale", [1, 1]), transform.get("rotation", 0)
+    (ox, oy), (sx, sy) = transform.get("offset", [0, 0]), transform.get("scale", [1, 1])
+    r = transform.get("rotation", 0)
     c, s = np.cos(r), np.sin(r)
     return (np.array([[1, 0, ox], [0, 1, oy], [0, 0, 1]], dtype=np.float64)
             @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]]) @ np.diag([sx, sy, 1.0]))
@@ -125,7 +126,8 @@ def feature_problems(doc: dict, drawn: set[int]) -> list[str]:
                 transform = info.get("extensions", {}).get("KHR_texture_transform")
                 if isinstance(transform, dict) and transform.get("texCoord", 0) != 0:
                     problems.append(f"material {i}'s {name} has a KHR_texture_transform to "
-                                    f"TEXCOORD_{transform['texCoord']}, but the loader maps every texture with TEXCOORD_0")
+                                    f"TEXCOORD_{transform['texCoord']}, but the loader maps every texture with "
+                                    "TEXCOORD_0")
                 elif isinstance(transform, dict) and _moves(transform) and not _named_once(doc, i):
                     problems.append(f"material {i}'s {name} has a KHR_texture_transform, which the loader does not "
                                     "apply, and the material has no name of its own by which it could be applied after")

@@ -60,7 +60,8 @@ class ObjectRef:
 def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
     """All objects of a shard directory (reading only string fields) and facts about the data:
     ``{"image_size", "num_views", "voxel_resolution" (None without voxels or where the shards
-    disagree), "files_without_voxels", "voxel_resolutions" ({G: first shard file of G^3 grids}), "settings", "K" (3x3 list, pixels), "distance", "left_out",
+    disagree), "files_without_voxels", "voxel_resolutions" ({G: first shard file of G^3 grids}),
+    "settings", "K" (3x3 list, pixels), "distance", "left_out",
     "complete" (the index's: false while a render was cut short)}`` (camera of the
     first view of the first object: all views share intrinsics and distance, SPEC). Objects whose
     voxelization failed are left out (:func:`voxelize_failures`; ``left_out``: their
