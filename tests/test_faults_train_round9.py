@@ -121,3 +121,47 @@ def test_the_other_commands_refuse_an_empty_out_too(trained_run, sample_shards, 
     res = run_cli(train_main, [*args, "--out", "", "--device", "cpu"], expect_exit=2)
     assert "Error: Invalid value for '--out': is empty: give a folder (an unset variable?)" in res.output
     assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("damage", ["deleted", "cut short"])
+def test_resume_reads_a_lost_config_from_the_checkpoint_and_goes_on_exactly(sample_shards, tmp_path, damage):
+    """R8: with config.yaml deleted or cut short, ``--resume`` stopped ("nothing to resume (no
+    config.yaml)", or a YAML error that did not say the file was cut) although every checkpoint
+    holds the run's config. Now the config is read from the newest checkpoint and written back,
+    and the run goes on to the same weights as the uninterrupted run (a 4-step run taken back to
+    its step-2 checkpoint); a folder in config.yaml's place, and a run with no checkpoint, are
+    refused in one line."""
+    import shutil
+
+    import torch
+
+    from sc3d_train.loop.checkpoint import load_checkpoint
+
+    whole, run = tmp_path / "whole", tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--batch-size", 2, *TINY, "--val-every", 0, "--device",
+                         "cpu", "--checkpoint-every", 2, "--out", whole, "--steps", 4])
+    shutil.copytree(whole, run)
+    (run / "checkpoints" / "step_000004.pt").unlink()
+    shutil.copyfile(run / "checkpoints" / "step_000002.pt", run / "checkpoints" / "last.pt")  # as it was at step 2
+    config = run / "config.yaml"
+    text = config.read_text()
+    config.unlink()
+    if damage == "cut short":
+        config.write_text(text[:len(text) // 2])
+    res = run_cli(train_main, ["fit", "--out", run, "--resume", "--steps", 4, "--device", "cpu", "--no-progress"])
+    assert (f"note: {config} {'is missing' if damage == 'deleted' else 'does not load ('}" in res.output
+            and f"the run's config is read from {run / 'checkpoints' / 'last.pt'} and written back" in res.output), \
+        res.output
+    a, b = (load_checkpoint(r / "checkpoints" / "last.pt")["model"] for r in (whole, run))
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    # the resumed run's config.yaml loads again, and is the original but for `out` (this copy's folder)
+    assert config.read_text() == text.replace(str(whole), str(run))
+
+    config.unlink()
+    config.mkdir()
+    res = run_cli(train_main, ["fit", "--out", run, "--resume", "--steps", 6, "--no-progress"], expect_exit=1)
+    assert f"Error: {config}: is not a file; move it away, and --resume reads the run's config" in res.output
+    config.rmdir()
+    shutil.rmtree(run / "checkpoints")
+    res = run_cli(train_main, ["fit", "--out", run, "--resume", "--steps", 6, "--no-progress"], expect_exit=1)
+    assert f"Error: {run}: nothing to resume (no config.yaml and no checkpoint)" in res.output

@@ -184,10 +184,7 @@ def _resumed(options: dict, model_options: dict, tiny: bool = False) -> RunConfi
     from sc3d_train.loop.checkpoint import CheckpointError
 
     out = Path(options["out"])
-    saved_path = RunConfig.path_in(out)
-    if not saved_path.is_file():
-        raise CheckpointError(f"{out}: nothing to resume (no {saved_path.name})")
-    cfg = RunConfig.load(saved_path)
+    cfg = saved_config(out)
     changed = []
     for k, v in sorted(options.items()):
         current = getattr(cfg, k)
@@ -210,6 +207,38 @@ def _resumed(options: dict, model_options: dict, tiny: bool = False) -> RunConfi
         raise CheckpointError(f"{cfg.shards}: the shard folder of run {out} does not exist; if it moved, resume "
                               "with --shards NEW_FOLDER (held to the data the run started on)")
     check_same_shards(cfg, out)
+    return cfg
+
+
+def saved_config(out: Path) -> RunConfig:
+    """The config of run ``out`` for ``--resume``: its ``config.yaml``, or, where that file is
+    missing or does not load (deleted, cut short) and the run has a checkpoint, the config the
+    newest checkpoint holds (the one ``config.yaml`` must equal anyway: ``--resume`` refuses a
+    difference), written back as ``config.yaml`` on rank 0 with one ``note:`` line.
+    ``CheckpointError`` when there is neither, or a folder stands where ``config.yaml`` goes."""
+    import os
+
+    from sc3d_train.loop.checkpoint import CheckpointError, checkpoint_config, checkpoint_dir, resume_checkpoint
+
+    saved_path = RunConfig.path_in(out)
+    problem = "is missing"
+    if saved_path.exists() and not saved_path.is_file():  # fit writes config.yaml there: it must go first
+        raise CheckpointError(f"{saved_path}: is not a file; move it away, and --resume reads the run's config "
+                              "from its checkpoints")
+    if saved_path.is_file():
+        try:
+            return RunConfig.load(saved_path)
+        except ValueError as e:
+            if not any(checkpoint_dir(out).glob("*.pt")):
+                raise
+            problem = f"does not load ({e})"
+    if not any(checkpoint_dir(out).glob("*.pt")):
+        raise CheckpointError(f"{out}: nothing to resume (no {saved_path.name} and no checkpoint)")
+    ckpt_file, ckpt = resume_checkpoint(out)
+    cfg = checkpoint_config(ckpt_file, ckpt)
+    if os.environ.get("RANK", "0") == "0":  # one writer under torchrun
+        cfg.save(saved_path)
+        print(f"note: {saved_path} {problem}; the run's config is read from {ckpt_file} and written back")
     return cfg
 
 
