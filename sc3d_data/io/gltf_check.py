@@ -32,7 +32,7 @@ from pathlib import Path
 from sc3d_data.io.gltf_accessors import layout_problems
 from sc3d_data.io.gltf_features import feature_problems
 
-__all__ = ["GLTF_SUFFIXES", "SKIPPED_SURFACE_MODES", "gltf_refusal", "read_gltf"]
+__all__ = ["GLTF_SUFFIXES", "SKIPPED_SURFACE_MODES", "gltf_refusal", "judge_gltf", "read_gltf"]
 
 GLTF_SUFFIXES = (".gltf", ".glb")
 #: primitive modes that draw a surface but which the loader skips: ``{mode: name}``
@@ -110,21 +110,29 @@ def gltf_refusal(path: Path, shown: int = 3) -> str | None:
     object, a GLB without its header), has a data layout the loader cannot read, or draws
     geometry the loader would not read as written (module doc), or None. Other files, and
     documents malformed otherwise, pass (the loader reports those)."""
+    return judge_gltf(path, shown)[1]
+
+
+def judge_gltf(path: Path, shown: int = 3) -> tuple[dict | None, str | None]:
+    """``(document, refusal)`` of ``path``: its JSON document (None for another format, or a
+    file that could not be read as one) and :func:`gltf_refusal`'s line, so that the loader
+    reads the document once for the refusal and for what it applies after loading."""
     path = Path(path)
     if path.suffix.lower() not in GLTF_SUFFIXES:
-        return None
+        return None, None
     try:
         doc = read_gltf(path)[0]
     except json.JSONDecodeError as e:
-        return f"{path}: not a glTF document: invalid JSON ({e.msg} at line {e.lineno} column {e.colno}); not read"
+        return None, f"{path}: not a glTF document: invalid JSON ({e.msg} at line {e.lineno} column {e.colno}); not read"
     except UnicodeDecodeError:
-        return f"{path}: not a glTF document: its JSON is not UTF-8 text; not read"
+        return None, f"{path}: not a glTF document: its JSON is not UTF-8 text; not read"
     except ValueError as e:  # read_gltf: a GLB without its header and JSON chunk (names the file)
-        return f"{e}; not read"
+        return None, f"{e}; not read"
     except (OSError, struct.error, RecursionError):
-        return None  # the loader reports it
+        return None, None  # the loader reports it
     if not isinstance(doc, dict):
-        return f"{path}: not a glTF document: its JSON is {type(doc).__name__} {json.dumps(doc)[:20]}, not an object; not read"
+        return None, (f"{path}: not a glTF document: its JSON is {type(doc).__name__} {json.dumps(doc)[:20]}, "
+                      "not an object; not read")
     problems = []  # each judge alone: what one cannot follow (a node that is no object) hides nothing of the other
     for judge, args in ((layout_problems, (path, doc)), (gltf_problems, (doc,)),
                         (lambda d: feature_problems(d, _drawn_meshes(d)), (doc,))):
@@ -134,6 +142,6 @@ def gltf_refusal(path: Path, shown: int = 3) -> str | None:
                 struct.error):
             pass  # a malformed document: the loader reports it
     if not problems:
-        return None
+        return doc, None
     more = f"; and {len(problems) - shown} more like these" if len(problems) > shown else ""
-    return f"{path}: {'; '.join(problems[:shown])}{more}; not read"
+    return doc, f"{path}: {'; '.join(problems[:shown])}{more}; not read"

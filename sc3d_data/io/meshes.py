@@ -213,7 +213,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     ``bad_texture="fallback"``, missing ``.mtl`` files, material files outside the folder
     ``root``, never read: refused when ``outside_textures="refuse"``). Raises ``MeshError`` on
     bad input (see module doc)."""
-    from sc3d_data.io.gltf_check import GLTF_SUFFIXES, gltf_refusal, read_gltf
+    from sc3d_data.io.gltf_check import judge_gltf
     from sc3d_data.io.gltf_features import apply_texture_transforms
     from sc3d_data.io.materials import loader_misses, make_resolver, material_report
 
@@ -223,7 +223,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     if outside_textures not in OUTSIDE_TEXTURES:
         raise ValueError(f"outside_textures must be one of {OUTSIDE_TEXTURES}, not {outside_textures!r}")
     check_mesh_file(path, max_file_bytes)
-    if (refusal := gltf_refusal(path)) is not None:  # glTF/GLB only: not a glTF document, or unread geometry
+    gltf_doc, refusal = judge_gltf(path)  # glTF/GLB only: not a glTF document, or unread geometry
+    if refusal is not None:
         raise MeshError(refusal)
     try:
         report = material_report(path, root, outside_textures)
@@ -241,8 +242,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
         raise MeshError(f"{path}: {'; '.join(missed)} (use --bad-texture fallback to render with material colours)")
     if path.suffix.lower() == ".ply":
         match_ply_face_colors(scene, path)
-    elif path.suffix.lower() in GLTF_SUFFIXES:
-        apply_texture_transforms(scene, read_gltf(path)[0])
+    elif gltf_doc is not None:
+        apply_texture_transforms(scene, gltf_doc)
     vertices, faces = scene_triangles(scene, str(path))
     validate_triangles(vertices, faces, str(path), max_faces)
     warnings = ([f"{path}: {p}; rendered with material colours" for p in report.problems + missed]
