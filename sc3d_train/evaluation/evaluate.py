@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -192,8 +193,6 @@ def check_default_folder_free(out: Path, checkpoint: Path, shards: Path, pose_fr
         return
     if not isinstance(was, dict):
         return
-    import os
-
     now = {"checkpoint": os.path.realpath(checkpoint), "shards": os.path.realpath(shards), "pose_from": pose_from}
     changed = [k for k, v in now.items()
                if k in was and (os.path.realpath(str(was[k])) if k != "pose_from" else was[k]) != v]

@@ -66,7 +66,7 @@ RUN_FILES = ("config.yaml", "metrics.csv", "validation.csv", "curves.png", "labe
 def check_path_names(plain: dict) -> None:
     """``ValueError`` when a new run's ``out`` is not valid UTF-8 (config.yaml and TensorBoard's
     event files store it as text), before anything is written. (Empty folder options are refused
-    by the command line: ``cli/train_fit.FolderPath``.)"""
+    by the command line: ``cli/folder_path.FolderPath``.)"""
     from sc3d_data.io.names import printable
 
     try:
@@ -130,7 +130,8 @@ def view_setup(settings: dict) -> str:
     """One line of the render settings (``index.json`` ``settings``) that shape what the views
     show beyond their size and camera: elevations, up and front axes, normalisation, shading
     (``None`` for a setting the shards do not record, as 3D-R2N2's imports)."""
-    shading = (settings.get("lighting") or {}).get("shading") if isinstance(settings.get("lighting"), dict) else None
+    lighting = settings.get("lighting")
+    shading = lighting.get("shading") if isinstance(lighting, dict) else None
     return "; ".join([f"{k} {settings.get(k)}" for k in VIEW_SETUP_KEYS] + [f"shading {shading}"])
 
 
