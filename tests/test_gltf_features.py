@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import struct
 from pathlib import Path
 
 import pytest
@@ -17,9 +16,9 @@ import pytest
 from sc3d_cli.data import main as data_main
 from conftest import objects_by_id, run_cli
 from test_faults import FAST, index_of
-from test_gltf_primitives import _cube, _write_glb, _write_gltf
+from test_gltf_accessors import CUBE, _edit_gltf
+from test_gltf_primitives import _write_glb, _write_glb_document
 
-CUBE = [(*_cube(), 4)]
 NO_DRACOPY = importlib.util.find_spec("DracoPy") is None
 
 
@@ -36,9 +35,7 @@ def _refusal(tmp_path: Path, edit) -> str | None:
     from sc3d_data.io.gltf_check import gltf_refusal
 
     path = tmp_path / "cube.gltf"
-    doc = _write_gltf(path, CUBE)
-    edit(doc)
-    path.write_text(json.dumps(doc))
+    _edit_gltf(path, edit)
     return gltf_refusal(path)
 
 
@@ -88,10 +85,7 @@ def test_a_draco_glb_fails_in_one_line_naming_the_extension_and_a_good_cube_rend
            "accessors": [{"componentType": 5126, "count": 8, "type": "VEC3", "min": [-.5] * 3, "max": [.5] * 3},
                          {"componentType": 5125, "count": 36, "type": "SCALAR"}],
            "bufferViews": [{"buffer": 0, "byteLength": 64}], "buffers": [{"byteLength": 64}]}
-    text = json.dumps(doc).encode()
-    text += b" " * (-len(text) % 4)
-    body = struct.pack("<I4s", len(text), b"JSON") + text + struct.pack("<I4s", 64, b"BIN\0") + bytes(64)
-    (folder / "draco.glb").write_bytes(struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body)
+    _write_glb_document(folder / "draco.glb", doc, bytes(64))
     out = tmp_path / "out"
     result = run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
     (failure,) = index_of(out)["failures"]

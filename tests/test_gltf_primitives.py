@@ -92,11 +92,17 @@ def _write_glb(path: Path, parts, sparse_corner=None) -> dict:
     """``path`` (.glb: JSON chunk, then the buffer as the BIN chunk); returns its JSON document."""
     doc, buf = _gltf_doc(parts, sparse_corner)
     doc["buffers"] = [{"byteLength": len(buf)}]
+    _write_glb_document(path, doc, buf)
+    return doc
+
+
+def _write_glb_document(path: Path, doc: dict, buf: bytes) -> None:
+    """``path`` as a GLB container (glTF 2.0 binary): header, JSON chunk ``doc`` padded with
+    spaces to 4 bytes, then ``buf`` as the BIN chunk."""
     text = json.dumps(doc).encode()
     text += b" " * (-len(text) % 4)
     body = struct.pack("<I4s", len(text), b"JSON") + text + struct.pack("<I4s", len(buf), b"BIN\0") + buf
     path.write_bytes(struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body)
-    return doc
 
 
 def _fan_message(path: Path, doc: dict) -> str:
