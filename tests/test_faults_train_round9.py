@@ -1,17 +1,24 @@
 """``sc3d-train``, round nine (an attack on the commands, 2026-11-27). O1: ``fit --out ''`` (an
-unset ``$RUN``) trained into the current folder: checkpoints/, config.yaml, metrics.csv, tb/ and
-curves.png among the user's files. O2: an ``--out`` whose name is not valid UTF-8 failed in
-TensorBoard's writer with a message naming no file ("'utf-8' codec can't encode character
-'\\udcff'") after config.yaml, metrics.csv, tb/ and the lock were made. Both are now refused
-before anything is written. Real shards, the real command."""
+unset ``$RUN``) trained into the current folder, and ``eval``, ``predict`` and ``claims`` wrote
+there too. O2: an ``--out`` whose name is not valid UTF-8 failed in TensorBoard's writer naming no
+file, after config.yaml, metrics.csv, tb/ and the lock were made. P1: ``predict`` replaced any
+file of ``--out`` with a matching name (a shard folder's ``index.json``). E1: ``eval``'s default
+folder took the evaluation of another checkpoint over the one it held. R1: ``eval`` said nothing
+of shards rendered with other axes. R8: ``--resume`` stopped when config.yaml was deleted or cut
+short, although every checkpoint holds the config. Real shards, real trainings, the real commands."""
 from __future__ import annotations
 
+import json
 import os
+import shutil
 
 import pytest
+import torch
 
+from sc3d_cli.data import main as data_main
 from sc3d_cli.train import main as train_main
-from conftest import run_cli
+from conftest import REPO, SAMPLE_MESHES, run_cli
+from sc3d_train.loop.checkpoint import load_checkpoint
 from tests.test_train import TINY
 
 FIT = ["--steps", 1, "--batch-size", 2, *TINY, "--val-every", 0, "--device", "cpu", "--no-progress"]
@@ -41,10 +48,6 @@ def test_predict_never_replaces_a_file_that_is_not_its_own(trained_run, sample_s
     ``index.json`` with the prediction's JSON (the dataset then failed to open). Now refused in one
     line, the folder untouched; predicting the same image again into its own output folder still
     replaces its own five files."""
-    import shutil
-
-    from conftest import REPO
-
     shards = tmp_path / "shards"
     shutil.copytree(sample_shards, shards)
     image = tmp_path / "index.png"
@@ -67,9 +70,6 @@ def test_eval_never_replaces_another_evaluation_in_its_default_folder(trained_ru
     both into ``RUN/eval_test``; the evaluation of the final model was gone without a word. Now
     the second is refused in one line naming both checkpoints; evaluating the same checkpoint
     again replaces its own evaluation, and an explicit ``--out`` is free."""
-    import json
-    import shutil
-
     run = tmp_path / "run"
     shutil.copytree(trained_run, run)
     last, half = run / "checkpoints" / "last.pt", run / "checkpoints" / "step_000180.pt"
@@ -91,12 +91,6 @@ def test_eval_notes_shards_rendered_with_other_axes(trained_run, tmp_path):
     """R1's eval side: shards of the same chairs rendered with other up and front axes were
     evaluated without a note (``differs_from_training`` empty); now the note names both setups.
     (``--resume`` on such shards is refused: ``test_faults_train.py::test_f1...[axes]``.)"""
-    import json
-    import shutil
-
-    from conftest import SAMPLE_MESHES
-    from sc3d_cli.data import main as data_main
-
     meshes, shards = tmp_path / "meshes", tmp_path / "turned"
     shutil.copytree(SAMPLE_MESHES / "chair", meshes / "chair")
     run_cli(data_main, ["render", "--meshes", meshes, "--out", shards, "--voxelize", "--up", "+Z", "--front", "-Y",
@@ -111,9 +105,8 @@ def test_eval_notes_shards_rendered_with_other_axes(trained_run, tmp_path):
 
 @pytest.mark.parametrize("command", ["eval", "predict", "claims"])
 def test_the_other_commands_refuse_an_empty_out_too(trained_run, sample_shards, tmp_path, monkeypatch, command):
-    """``eval --out ''`` and ``predict --out ''`` wrote into the current folder like ``fit``'s."""
-    from conftest import REPO
-
+    """``eval --out ''`` and ``predict --out ''`` wrote into the current folder like ``fit``'s, and
+    ``claims --out ''`` started its study there."""
     monkeypatch.chdir(tmp_path)
     args = {"eval": ["eval", "--checkpoint", trained_run, "--shards", sample_shards],
             "predict": ["predict", "--checkpoint", trained_run, REPO / "assets" / "sample_images" / "chair.png"],
@@ -131,12 +124,6 @@ def test_resume_reads_a_lost_config_from_the_checkpoint_and_goes_on_exactly(samp
     and the run goes on to the same weights as the uninterrupted run (a 4-step run taken back to
     its step-2 checkpoint); a folder in config.yaml's place, and a run with no checkpoint, are
     refused in one line."""
-    import shutil
-
-    import torch
-
-    from sc3d_train.loop.checkpoint import load_checkpoint
-
     whole, run = tmp_path / "whole", tmp_path / "run"
     run_cli(train_main, ["fit", "--shards", sample_shards, "--batch-size", 2, *TINY, "--val-every", 0, "--device",
                          "cpu", "--checkpoint-every", 2, "--out", whole, "--steps", 4])
