@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from sc3d_cli.scale_options import executor_options, part_from_slurm_note, part_option, run_scaled, timeout_option
+from sc3d_cli.scale_options import axis_value, executor_options, part_from_slurm_note, part_option, run_scaled, timeout_option
 from sc3d_data.formats.r2n2 import R2N2_FRONT, VOXEL_FRAMES
 from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
 
@@ -27,7 +27,7 @@ from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
               help="Where the binvox grid lies in the OBJ frame. cube: the cube scale*[-0.5,0.5]^3 centred "
                    "at the origin (ShapeNetVox32, written with binvox -cb); header: translate + "
                    "scale*[0,1]^3 as the header says (binvox without -cb); unit: [-0.5,0.5]^3.")
-@click.option("--front", default=R2N2_FRONT, show_default=True,
+@click.option("--front", default=R2N2_FRONT, show_default=True, callback=axis_value,
               help="OBJ axis the objects' front faces (ShapeNetCore v1: +X); turned to sc3d's +Z.")
 @click.option("--objects-per-shard", default=256, show_default=True, type=click.IntRange(1))
 @click.option("--overwrite", is_flag=True, help="Delete shards already in --out instead of resuming.")

@@ -9,7 +9,7 @@ import click
 
 from sc3d_data.geometry.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS
 from sc3d_data.io.meshes import DEFAULT_MAX_FACES, DEFAULT_MAX_FILE_BYTES
-from sc3d_cli.scale_options import executor_options, part_from_slurm_note, part_option, run_render
+from sc3d_cli.scale_options import axis_value, executor_options, part_from_slurm_note, part_option, run_render
 from sc3d_data.pipeline.jobs.render_job import SAMPLE_MESHES, RenderConfig
 from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
 
@@ -49,8 +49,8 @@ def _rgb(text: str) -> tuple[int, int, int]:
 @click.option("--background", default="255,255,255", show_default=True, help="Background colour R,G,B.")
 @click.option("--depth/--no-depth", default=False, show_default=True, help="Also store depth maps.")
 @click.option("--normalize", type=click.Choice(["fit", "diagonal"]), default="fit", show_default=True)
-@click.option("--up", default="+Y", show_default=True, help="Source axis that is up (e.g. +Z, with --front -Y).")
-@click.option("--front", default="auto", show_default=True,
+@click.option("--up", default="+Y", show_default=True, callback=axis_value, help="Source axis that is up (e.g. +Z, with --front -Y).")
+@click.option("--front", default="auto", show_default=True, callback=axis_value,
               help="Source axis the object's front faces (e.g. -X); turned to +Z. auto: +X for ShapeNetCore "
                    "v1 model.obj, -Z for v2 model_normalized.obj, +Z for other meshes.")
 @click.option("--backend", type=click.Choice(["auto", "egl", "osmesa"]), default="auto", show_default=True)
@@ -95,7 +95,7 @@ def render(elevations, background, part, slurm, **options):
 
     for note in s["notes"]:
         click.echo(f"warning: {printable(note)}", err=True)
-    retried = f", retried {s['retried']}" if s["retried"] else ""
+    retried = (f", retried {s['retried']}" if s["retried"] else "") + (f", added {s['added']}" if s.get("added") else "")
     where = f"part {s['part']}, " if s.get("part", "0/1") != "0/1" else ""
     warned = f", {s['warned']} with warnings" if s.get("warned") else ""
     click.echo(f"{where}done {s['done']}, resumed {s['resumed']}{retried}, skipped {s['skipped']}, failed {s['failed']}"

@@ -6,7 +6,7 @@ import sys
 
 import click
 
-from sc3d_cli.scale_options import executor_options, part_from_slurm_note, part_option, run_scaled, timeout_option
+from sc3d_cli.scale_options import axis_value, executor_options, part_from_slurm_note, part_option, run_scaled, timeout_option
 
 
 @click.command("voxelize")
@@ -18,8 +18,8 @@ from sc3d_cli.scale_options import executor_options, part_from_slurm_note, part_
               help="Voxels per side over [-0.5, 0.5]^3 (32, 64, 128 ...).")
 @click.option("--normalize", type=click.Choice(["fit", "diagonal"]), default="fit", show_default=True,
               help="--meshes only: normalisation into the grid cube (as `render`).")
-@click.option("--up", default="+Y", show_default=True, help="--meshes only: source up axis.")
-@click.option("--front", default="auto", show_default=True,
+@click.option("--up", default="+Y", show_default=True, callback=axis_value, help="--meshes only: source up axis.")
+@click.option("--front", default="auto", show_default=True, callback=axis_value,
               help="--meshes only: source front axis (auto: as `render`, ShapeNetCore v1 +X, v2 -Z, else +Z).")
 @click.option("--workers", default=1, show_default=True, type=click.IntRange(0),
               help="Processes, 0 = number of CPU cores (--meshes --executor ray: CPU slots, 0 = the cluster's).")

@@ -1,5 +1,6 @@
 """Options shared by the commands that scale out (``render``, ``voxelize``, ``import-r2n2``):
-``--part I/N`` and the executor choice (``--executor local|ray|slurm`` and its settings)."""
+``--part I/N``, the executor choice (``--executor local|ray|slurm`` and its settings) and the
+spelling of the ``--up`` / ``--front`` axes."""
 from __future__ import annotations
 
 import click
@@ -11,9 +12,20 @@ def _part(ctx, param, value) -> Part:
     try:
         if value is not None:
             return parse_part(value)
-        return part_from_env() or Part(0, 1)
     except ValueError as e:
         raise click.BadParameter(str(e)) from None
+    try:
+        return part_from_env() or Part(0, 1)
+    except ValueError as e:  # the job array's, not an option the user gave
+        raise click.UsageError(str(e)) from None
+
+
+def axis_value(ctx, param, value):
+    """``--up`` / ``--front`` as ``AXES`` spells them (``+z`` -> ``+Z``), so that a dataset records
+    one spelling per axis; ``auto`` and anything invalid unchanged (checked with the run)."""
+    from sc3d_data.geometry.normalize import axis_name
+
+    return axis_name(value)
 
 
 def part_option(f):

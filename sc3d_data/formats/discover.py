@@ -7,7 +7,8 @@ Layouts recognised (``root`` is what the user passes to ``--meshes``):
   (``SYNSET`` is an 8-digit synset id; these two rules apply wherever the synset folder sits:
   ``root`` may be the ShapeNetCore folder, one synset folder, or a folder above them.)
   Inside a ShapeNet model folder only that mesh is used (textures, ``.mtl``, ``.json``,
-  ``.binvox`` are not meshes). A model folder without it is reported as a problem.
+  ``.binvox`` are not meshes; any other mesh file in it is reported as skipped). A model
+  folder without it is reported as a problem.
 * ``CATEGORY/NAME.ext`` (any of ``MESH_EXTENSIONS``): category = the folder's name, mapped to
   its synset id when it is a known name (``airplane`` -> ``02691156``), model id = ``NAME``.
 * Deeper folders ``CATEGORY/A/B/NAME.ext``: category = the top-level folder under ``root``,
@@ -162,12 +163,15 @@ def discover_meshes(root, categories=None, category_override=None
         folders = _walk(root, problems)
         shapenet_models: dict[Path, Path | None] = {}   # model folder -> its mesh (None: none yet)
         model_ids: dict[Path, tuple[str, str]] = {}     # model folder -> (synset, model id)
+        model_files: dict[Path, list[Path]] = {}        # model folder -> every mesh file inside it
         for folder, files in folders:
             model = _shapenet_model_dir(folder, root)
             if model is not None:
                 model_dir = model[0]
                 model_ids[model_dir] = model[1:]
                 shapenet_models.setdefault(model_dir, None)
+                model_files.setdefault(model_dir, []).extend(
+                    folder / f for f in files if Path(f).suffix.lower() in MESH_EXTENSIONS)
                 v1 = model_dir / SHAPENET_V1_MESH[0]
                 v2 = model_dir.joinpath(*SHAPENET_V2_MESH)
                 if folder == model_dir and SHAPENET_V1_MESH[0] in files:
@@ -198,6 +202,10 @@ def discover_meshes(root, categories=None, category_override=None
                                                     "(neither model.obj nor models/model_normalized.obj)"))
             elif mesh is not None:
                 found.append(MeshEntry(mesh, model_id, synset))
+            if wanted_synsets is None or synset in wanted_synsets:
+                problems += [_problem(f, f"in ShapeNet model folder {model_dir.name} but not its mesh (only "
+                                         f"{mesh.relative_to(model_dir) if mesh else 'model.obj'} is read)", skipped=True)
+                             for f in sorted(model_files[model_dir]) if f != mesh]
 
     if category_override:
         cat = resolve_category(str(category_override))

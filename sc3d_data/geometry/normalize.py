@@ -32,6 +32,17 @@ def axis_vector(axis: str) -> np.ndarray:
     return v
 
 
+def axis_name(axis: str) -> str:
+    """An axis as ``AXES`` spells it (``"z"``, ``"+z"`` -> ``"+Z"``); anything that is not an
+    axis (``"auto"``) unchanged."""
+    try:
+        v = axis_vector(axis)
+    except (ValueError, AttributeError):
+        return axis
+    i = int(np.flatnonzero(v)[0])
+    return ("+" if v[i] > 0 else "-") + "XYZ"[i]
+
+
 def canonical_rotation(up: str = "+Y", front: str = "+Z") -> np.ndarray:
     """Rotation [3,3] taking the source ``up`` axis to +Y and the source ``front`` axis to +Z."""
     u, f = axis_vector(up), axis_vector(front)

@@ -170,9 +170,8 @@ def near_score(mask: np.ndarray, projected: np.ndarray, footprint: float) -> flo
 
     if not projected.any():
         return 1.0
-    if not mask.any():
-        return 0.0
-    far = projected & (distance_transform_edt(~mask) > footprint + 1.0)
+    # an empty mask (a flat object seen edge-on) leaves every projected pixel far from it
+    far = projected & (distance_transform_edt(~mask) > footprint + 1.0) if mask.any() else projected
     k = int(np.ceil(footprint)) + 1
     k += 1 - k % 2
     wide = binary_opening(far, structure=np.ones((k, k), bool))

@@ -21,8 +21,21 @@ def _said_once(source: str, reason: str) -> str:
     return reason if reason.startswith(f"{source}:") else f"{source}: {reason}"
 
 
+def voxels_line(index: dict) -> str:
+    """What voxel grids the shards of ``index`` hold: those of ``sc3d-data voxelize SHARDS`` (its
+    ``voxels`` record, which the render settings do not show), else the render's or import's."""
+    record, settings = index.get("voxels"), index.get("settings", {})
+    if record:
+        return (f"{record.get('resolution')}^3, added by `sc3d-data voxelize` ({record.get('failed', 0)} failed; "
+                "they replace the voxel settings of the run below)")
+    if settings.get("voxelize") or settings.get("source") == "3D-R2N2":
+        return f"{settings.get('voxel_resolution')}^3, made by the run (settings below)"
+    return "none (add them with `sc3d-data voxelize SHARD_DIR`)"
+
+
 def index_report(shard_dir: Path, max_failures: int = 50) -> str:
-    """Counts per category and split (with the part of a ``--part I/N`` run), settings, shards, clipped views, failures with reasons,
+    """Counts per category and split (with the part of a ``--part I/N`` run), the voxels the shards
+    hold (:func:`voxels_line`), settings, shards, clipped views, failures with reasons,
     skipped files and warnings, as plain text; names from disk in ``io.names.printable`` form
     (no control characters or undecodable bytes reach the terminal)."""
     index = load_index(shard_dir)
@@ -43,6 +56,7 @@ def index_report(shard_dir: Path, max_failures: int = 50) -> str:
     lines.append(f"  {'all':<24}" + "".join(f"{counts['by_split'][s]:>8}" for s in splits) + f"{counts.get('total', 0):>8}")
     clipped = index.get("clipped", {})
     lines.append(f"\nclipped views (mask touches the border): {clipped.get('views', 0)} in {clipped.get('objects', 0)} objects")
+    lines.append(f"\nvoxels: {voxels_line(index)}")
     lines.append("\nsettings:")
     for k, v in index.get("settings", {}).items():
         lines.append(f"  {k}: {printable(v)}")

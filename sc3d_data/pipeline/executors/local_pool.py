@@ -16,8 +16,8 @@ the main process sends tasks down a pipe, keeping the next one queued behind the
 (``QUEUED``), and gets the result of ``job.run`` back (``job.Job``, e.g.
 ``jobs.render_job.RENDER``). Per-object time limit (``config.timeout_s``, counted from when the
 worker starts the object): a worker that takes longer (a loader that hangs, a huge mesh) is
-killed and replaced and the object is recorded as a failure; a worker that crashes is handled the same way (the next run retries it,
-``retry_failed``); the task queued behind it goes to another worker. With ``config.gpus``,
+killed and replaced and the object is recorded as a failure, as is one that crashes (the next run
+retries it, ``retry_failed``); the task queued behind it goes to another worker. With ``config.gpus``,
 worker slot ``i`` renders on EGL device ``gpus[i % len(gpus)]`` (``devices.py``).
 
 Implements ``sc3d_data.pipeline.executors.executor.Executor`` (as ``ray_executor.RayExecutor`` does).
@@ -26,10 +26,12 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import signal
 import time
 from multiprocessing.connection import wait
 
 from sc3d_data.pipeline.executors.devices import worker_environ
+from sc3d_data.pipeline.executors.forkserver_start import ensure_server
 from sc3d_data.pipeline.executors.job import THREAD_ENV, Job
 from sc3d_data.pipeline.run.plan import Task
 from sc3d_data.io.shards import write_shard
@@ -69,6 +71,7 @@ def worker_context(gl_backend: str | None):
 def _worker_main(conn, job: Job, config, backend: str, environ: dict | None = None) -> None:
     """Worker process: take the main process's ``environ`` (the forkserver's dates from its own
     start), ``job.start`` (one renderer), then (task -> result) until ``None``."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # the server ignores it: ensure_server
     if environ is not None:
         import sys
 
@@ -141,6 +144,7 @@ class WorkerPool:
         for k, v in THREAD_ENV.items():
             os.environ.setdefault(k, v)
         self.ctx = worker_context(backend if job.gl else None)
+        ensure_server(self.ctx)
         self.config, self.backend, self.job = config, backend, job
         self.workers = [_Worker(self.ctx, job, config, backend, slot) for slot in range(n)]
         self.start_failures: list[str] = []  # why the workers left out did not start (``run``)
@@ -266,10 +270,7 @@ def start_server_early(config, job: Job) -> None:
     then run while the caller plans the run, instead of after. A no-op where workers are
     spawned, or when the server already runs."""
     first = job.backends(getattr(config, "backend", "auto"))[0] if job.gl else None
-    if worker_context(first).get_start_method() == "forkserver":
-        from multiprocessing import forkserver
-
-        forkserver.ensure_running()
+    ensure_server(worker_context(first))
 
 
 def start_pool(n: int, config, job: Job) -> WorkerPool:

@@ -36,13 +36,17 @@ from sc3d_data.pipeline.executors.executor import start_executor
 from sc3d_data.pipeline.executors.slurm_executor import SlurmOptions, run_array, summed_parts
 from sc3d_data.pipeline.jobs.render_job import RENDER, RenderConfig
 from sc3d_data.pipeline.jobs.shard_output import NewShards, ShardIndex, locked_output
+from sc3d_data.pipeline.run.resume_voxels import voxels_as_recorded
 
 
 def render_dataset(config: RenderConfig, executor=None) -> dict:
     """Render ``config.meshes`` into shards under ``config.out`` (see module doc).
 
     Returns the summary ``{"done", "skipped", "failed", "warned" (objects of the index with
-    warnings: a fallback texture, a missing .mtl...), "resumed", "retried", "repaired", "seconds", "views", "views_per_s", "out", "notes"}``; ``index.json`` holds the details.
+    warnings: a fallback texture, a missing .mtl...), "resumed", "retried" (recorded failures
+    rendered again), "added" (objects of kept chunks the index did not list: new meshes),
+    "repaired", "seconds", "views", "views_per_s", "out", "notes"}``; ``index.json`` holds the
+    details.
     Raises ``ValueError`` (bad option or folder), ``LockError`` (another writer),
     ``ShardError`` / ``OSError`` (a shard or the index cannot be written: disk full...) with
     one-line messages naming the option or file.
@@ -73,6 +77,7 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
                        skipped=plan.skipped)
     run = NewShards.resume(index, plan.tasks, config.objects_per_shard, defaults, config.retry_failed,
                            count_attempts=True)
+    config = voxels_as_recorded(config, index.extra.get("voxels"))
     n_workers = max(1, min(config.workers or os.cpu_count() or 1, max(1, len(run.todo))))
     if executor is not None and executor.config.settings(None) != settings:
         raise ValueError("the executor given was started with other render settings than this run")
@@ -89,7 +94,8 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
     seconds = time.monotonic() - t0
     views = run.done * len(config.elevations) * config.num_views
     return {"done": run.done, "resumed": run.resumed, "skipped": len(plan.skipped),
-            "failed": len(index.failures) + len(index.problems), "retried": len(run.retry),
+            "failed": len(index.failures) + len(index.problems), "retried": len(run.retry - run.unlisted),
+            "added": len(run.unlisted),
             "warned": len({w.get("source") for w in index.warnings}),
             "repaired": len(run.repaired), "notes": run.repaired + run.notes,
             "seconds": seconds, "views": views, "views_per_s": views / seconds if seconds > 0 else 0.0,
@@ -110,8 +116,8 @@ def render_on_slurm(config: RenderConfig, options: SlurmOptions) -> dict:
     t0 = time.monotonic()
     configs, summaries = run_array(render_part, config, options)
     merged = merge_parts(Path(config.out), [c.out for c in configs])
-    out = summed_parts(summaries, ("done", "resumed", "skipped", "failed", "warned", "retried", "repaired",
-                                              "views"), t0, config)
+    out = summed_parts(summaries, ("done", "resumed", "skipped", "failed", "warned", "retried", "added",
+                                   "repaired", "views"), t0, config)
     out.update(notes=[n for s in summaries for n in s["notes"]],
                views_per_s=out["views"] / out["seconds"] if out["seconds"] > 0 else 0.0,
                backend=",".join(sorted({str(s["backend"]) for s in summaries})),

@@ -51,7 +51,8 @@ from sc3d_data.io.shards import (SHARD_PATTERN, ShardError, add_shard_to_index, 
 from sc3d_data.io.shards import write_index as write_index_file
 from sc3d_data.pipeline.executors.executor import Executor, finished_chunks
 from sc3d_data.pipeline.run.resume import (check_resume, empty_state, plan_change_text, plan_changes, remaining,
-                                           resume_state, voxels_after_rewrite)
+                                           resume_state)
+from sc3d_data.pipeline.run.resume_voxels import voxels_after_rewrite
 
 #: an index listing more objects than this is written lazily (module doc)
 LAZY_OBJECTS = 10_000
@@ -186,7 +187,8 @@ class NewShards:
     pos_of: dict = field(default_factory=dict)  # (category, model_id) -> plan position of tasks
     done: int = 0
     new_failures: list[dict] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)  # lines for the user (``resume.voxels_after_rewrite``)
+    notes: list[str] = field(default_factory=list)  # lines for the user (``resume_voxels.voxels_after_rewrite``)
+    unlisted: set = field(default_factory=set)  # of ``retry``: kept chunks' objects the index did not list
 
     @classmethod
     def resume(cls, index: ShardIndex, tasks: list, chunk_size: int, defaults: dict | None = None,
@@ -212,6 +214,7 @@ class NewShards:
         run = cls(index, tasks, K, todo, resumed, state["retry"], state["broken"],
                   state["attempts"] if count_attempts else None, (old or {}).get("settings", {}),
                   {s["file"] for s in (old or {}).get("shards", [])}, pos_of)
+        run.unlisted = state["unlisted"]
         run.check_unlisted()
         return run
 

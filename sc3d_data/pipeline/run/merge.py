@@ -22,7 +22,9 @@ not rewritten: each object's arrays, cameras and attributes are the bytes the pa
 which are those of a run over the whole collection (``tests/test_scale.py``).
 
 Resumable: a shard already in ``OUT`` with the right size and SHA-256 is kept; the index is
-written last, so an interrupted merge is finished by running it again.
+written last, so an interrupted merge is finished by running it again. A merge run again after
+``sc3d-data voxelize OUT`` keeps the voxelized dataset when ``OUT`` still holds the same merge,
+and is refused when the parts changed since (``--overwrite`` merges afresh, without the voxels).
 """
 from __future__ import annotations
 
@@ -158,6 +160,32 @@ def _place(src: Path, dst: Path, copy: bool) -> str:
     return how
 
 
+def _voxelized_since(out: Path, old: dict, parts: list[dict], objects: list[dict], t0: float) -> MergeSummary:
+    """A merge run again into ``out`` after ``sc3d-data voxelize out`` gave its shards voxels
+    (its index's ``voxels`` record is not the parts'): the parts' shards would replace them.
+    When ``out`` still holds this merge (the same parts, plan and objects, every shard intact
+    as its index lists it) nothing is written and the voxelized dataset is kept; otherwise
+    ``MergeError``: merging again needs ``--overwrite`` (and then ``voxelize`` again)."""
+    from sc3d_data.io.shard_reader import verify_shard
+
+    same_merge = (old["merged"].get("plan_sha256") == parts[0]["part"]["plan_sha256"]
+                  and sorted(map(os.path.realpath, old["merged"].get("parts", [])))
+                  == sorted(os.path.realpath(p["_dir"]) for p in parts))
+
+    def rows(entries):
+        return {(o["category"], o["model_id"], o["shard"], o.get("row")) for o in entries}
+
+    shards = old.get("shards", [])
+    intact = all(verify_shard(out, s) is None for s in shards)
+    if same_merge and intact and rows(old.get("objects", [])) == rows(objects):
+        return MergeSummary(parts=len(parts), shards=len(shards), objects=len(objects),
+                            failed=len(old.get("failures", [])), linked=0, copied=0, kept=len(shards),
+                            seconds=time.monotonic() - t0, out=str(out))
+    raise MergeError(f"{out}: its shards were given voxels by `sc3d-data voxelize` after the merge, and the "
+                     "parts differ from what was merged; merging again would replace them: use another OUT, "
+                     "or --overwrite (then run `sc3d-data voxelize` on it again)")
+
+
 def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite: bool = False) -> MergeSummary:
     """Merge ``part_dirs`` into ``out`` (module doc)."""
     from sc3d_data.io.outlock import exclusive_lock
@@ -191,6 +219,8 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
             warnings += index.get("warnings", [])
         kept = [dst.is_file() and dst.stat().st_size == entry["bytes"] and file_sha256(dst) == entry["sha256"]
                 for _, dst, entry in places]
+        if old.get("merged") and old.get("voxels") != parts[0].get("voxels") and not overwrite:
+            return _voxelized_since(out, old, parts, objects, t0)
         if not overwrite:  # a shard-named file no merge wrote is someone's: refused before any write
             for (_, dst, _), same in zip(places, kept):
                 if not same and dst.name not in listed:

@@ -62,16 +62,24 @@ def parse_part(text: str) -> Part:
 
 
 def part_from_env(env: Mapping[str, str] = os.environ) -> Part | None:
-    """The part of a SLURM array task (``SLURM_ARRAY_TASK_ID``, ``_MIN``, ``_COUNT``), or None
-    outside a job array."""
+    """The part of a SLURM array task, or None outside a job array: task ``SLURM_ARRAY_TASK_ID``
+    of the evenly spaced ids ``_MIN``, ``_MIN + _STEP``, ... ``_MAX`` (``--array=MIN-MAX[:STEP]``)
+    is part ``(ID - MIN) / STEP`` of ``_COUNT``. ``ValueError`` (naming the array, not
+    ``--part``) for an array that is not such a range, e.g. ``--array=1,5,7``."""
     if "SLURM_ARRAY_TASK_ID" not in env or "SLURM_ARRAY_TASK_COUNT" not in env:
         return None
     try:
         task, count = int(env["SLURM_ARRAY_TASK_ID"]), int(env["SLURM_ARRAY_TASK_COUNT"])
-        first = int(env.get("SLURM_ARRAY_TASK_MIN", 0))
+        first, step = int(env.get("SLURM_ARRAY_TASK_MIN", 0)), int(env.get("SLURM_ARRAY_TASK_STEP") or 1)
+        last = int(env.get("SLURM_ARRAY_TASK_MAX", first + (count - 1) * step))
     except ValueError:
-        raise ValueError("SLURM_ARRAY_TASK_ID / SLURM_ARRAY_TASK_COUNT are not integers; give --part I/N") from None
-    return Part(task - first, count)
+        raise ValueError("the SLURM_ARRAY_TASK_* variables are not integers; give --part I/N") from None
+    if (count < 1 or step < 1 or last != first + (count - 1) * step or (task - first) % step
+            or not first <= task <= last):
+        raise ValueError(f"SLURM array task {task} of {count} (ids {first} to {last}, step {step}): the part can "
+                         "only be taken from an evenly spaced array (--array=MIN-MAX or MIN-MAX:STEP); give "
+                         "--part I/N")
+    return Part((task - first) // step, count)
 
 
 def part_of(category: str, model_id: str, count: int) -> int:

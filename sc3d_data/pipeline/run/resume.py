@@ -7,13 +7,14 @@ size and SHA-256 in the index: a truncated or corrupted shard is rendered again)
 ``retry_failed``, renders the recorded failures of complete chunks again and rewrites their
 shard in plan order. A kept chunk holding a mesh that changed since it was rendered (its
 ``source_file`` fingerprint, :func:`changed_sources`) is rendered again. Stale ``*.tmp`` files
-are deleted. A rerun whose split rule puts a kept
+are deleted (sc3d's own names only: :data:`OWN_TMP`). A rerun whose split rule puts a kept
 object in another split than its shard holds (an edited ``--split-file``, or ``--split r2n2``
 over a folder that gained meshes) is refused before any work (:func:`check_kept_splits`): the
 index would describe splits the shards do not hold.
 """
 from __future__ import annotations
 
+import re
 from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Iterator
@@ -21,11 +22,22 @@ from typing import Iterator
 from sc3d_data.pipeline.run.plan import Task
 
 
+#: the temporary files that sc3d's writers make in a dataset folder (``io.shards``: a shard's or
+#: the index's name + ``.tmp``, or + ``.PID.tmp`` when several processes may write it); any
+#: other ``*.tmp`` in the folder is someone else's and is left alone
+OWN_TMP = re.compile(r"^(?:[A-Za-z0-9][A-Za-z0-9_.-]*\.h5|index\.json)(?:\.[0-9]+)?\.tmp$")
+
+
+#: settings that name an axis (``--up``, ``--front``), any spelling that ``axis_vector`` reads
+AXIS_SETTINGS = ("up", "front")
+
+
 def clean_tmp(out: Path) -> None:
-    """Delete the temporary files (``*.tmp``) a killed run left in ``out``."""
+    """Delete the temporary files (:data:`OWN_TMP`) a killed run left in ``out``."""
     for p in out.glob("*.tmp"):
-        with suppress(OSError):
-            p.unlink()
+        if OWN_TMP.match(p.name) and not p.is_dir():
+            with suppress(OSError):
+                p.unlink()
 
 
 @contextmanager
@@ -95,11 +107,18 @@ def check_out(out: Path) -> None:
 def settings_differ(old: dict, new: dict, defaults: dict | None = None) -> list[str]:
     """Settings that differ between an existing index and this run, or between two parts
     (keys an older index lacks count as their value in ``defaults``; the GL backend is not
-    compared: EGL and OSMesa give the same images)."""
+    compared: EGL and OSMesa give the same images; axes compare by meaning: ``+z`` is ``+Z``)."""
+    from sc3d_data.geometry.normalize import axis_name
+
     defaults = defaults or {}
+
+    def value(settings, k):
+        v = settings.get(k, defaults.get(k))
+        return axis_name(v) if k in AXIS_SETTINGS and isinstance(v, str) else v
+
     skip = ("backend", "requested_backend")
     keys = (set(old) | set(new)) - set(skip)
-    return sorted(k for k in keys if old.get(k, defaults.get(k)) != new.get(k, defaults.get(k)))
+    return sorted(k for k in keys if value(old, k) != value(new, k))
 
 
 def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[Task]) -> dict:
@@ -135,9 +154,10 @@ def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[T
                 attempts[t.pos] = int(f.get("attempts", 1))
         failures = [f for f in failures if f.get("pos") not in retry]
         warnings = [w for w in warnings if w.get("source") not in {tasks[p].path for p in retry}]
-    retry |= unlisted_positions(tasks, K, done_chunks, objects + failures)
+    unlisted = unlisted_positions(tasks, K, done_chunks, objects + failures) - retry
     return {"done_chunks": done_chunks, "shards": shards, "objects": objects, "failures": failures,
-            "warnings": warnings, "retry": retry, "attempts": attempts, "broken": broken,
+            "warnings": warnings, "retry": retry | unlisted, "unlisted": unlisted, "attempts": attempts,
+            "broken": broken,
             "empty_chunks": [c for c in old.get("empty_chunks", []) if c in done_chunks],
             "extra": {k: old[k] for k in ("voxels",) if k in old}}  # the record of `voxelize SHARDS`
 
@@ -185,7 +205,9 @@ def check_kept_splits(out: Path, objects: list[dict], tasks: list[Task]) -> None
 def unlisted_positions(tasks: list[Task], K: int, done_chunks: set, listed: list[dict]) -> set[int]:
     """Plan positions of kept chunks whose object the kept entries (``listed``: objects and
     failures) do not name: a run stopped while retrying a failure has already dropped its
-    record, so keeping the chunk as done would lose the object silently. They are done again."""
+    record, so keeping the chunk as done would lose the object silently; and meshes added to the
+    collection that fall in a kept chunk. They are done again (``render`` counts them as added,
+    not as retried failures)."""
     names = {(e.get("category"), e.get("model_id")) for e in listed}
     return {t.pos for t in tasks if t.pos // K in done_chunks and (t.category, t.model_id) not in names}
 
@@ -193,7 +215,7 @@ def unlisted_positions(tasks: list[Task], K: int, done_chunks: set, listed: list
 def empty_state() -> dict:
     """The resume state of a fresh run (nothing kept)."""
     return {"done_chunks": set(), "shards": [], "objects": [], "failures": [], "warnings": [],
-            "retry": set(), "attempts": {}, "broken": [], "empty_chunks": [], "extra": {}}
+            "retry": set(), "unlisted": set(), "attempts": {}, "broken": [], "empty_chunks": [], "extra": {}}
 
 
 def remaining(tasks: list[Task], state: dict, K: int) -> tuple[list[Task], int]:
@@ -222,42 +244,6 @@ def check_resume(out: Path, old: dict, settings: dict, defaults: dict, part: dic
     if (old_part.get("index"), old_part.get("count")) != (part["index"], part["count"]):
         raise ValueError(f"{out}: holds part {old_part.get('index')}/{old_part.get('count')}, this run is part "
                          f"{part['index']}/{part['count']}; give each part its own --out")
-
-
-def uniform_arrays(records: list) -> list[str]:
-    """Leave out of every record of ``records`` the arrays that not all of them have with one
-    shape (a shard holds each array for all its objects); returns their names, sorted."""
-    shapes: dict[str, set] = {}
-    for r in records:
-        for k, a in r.arrays.items():
-            shapes.setdefault(k, set()).add(tuple(a.shape))
-    dropped = sorted(k for k, v in shapes.items() if len(v) > 1 or any(k not in r.arrays for r in records))
-    for r in records:
-        for k in dropped:
-            r.arrays.pop(k, None)
-    return dropped
-
-
-def voxels_after_rewrite(index, name: str, records: list, notes: list[str]) -> list[dict]:
-    """Before shard ``name`` of ``index`` (a ``jobs.shard_output.ShardIndex``) is written with
-    ``records``: arrays that not every record has alike (a kept shard rewritten with retried
-    objects: the ``voxels`` that ``voxelize SHARDS`` added to the kept objects, which a render
-    without them cannot give the new ones) are left out of all. When the shard then lacks the
-    voxels that the index's ``voxels`` record (of ``voxelize SHARDS``) promises, the record is
-    removed and a line for the user added to ``notes``. Returns the index's failures, with the
-    shard's ``voxelize`` failures following their object's new row, or gone with the voxels."""
-    dropped = uniform_arrays(records)
-    promised = index.extra.get("voxels", {}).get("resolution")
-    shapes = {tuple(r.arrays["voxels"].shape) if "voxels" in r.arrays else None for r in records}
-    if promised is not None and records and shapes != {(promised,) * 3}:
-        index.extra.pop("voxels")
-        notes.append(f"{index.out / name}: written without the voxels that `sc3d-data voxelize` had given its "
-                     f"objects; run `sc3d-data voxelize {index.out}` again")
-    row = {(r.category, r.model_id): i for i, r in enumerate(records)}
-    return [f if f.get("stage") != "voxelize" or f.get("shard") != name
-            else dict(f, row=row.get((f.get("category"), f.get("model_id")), f.get("row")))
-            for f in index.failures
-            if not ("voxels" in dropped and f.get("stage") == "voxelize" and f.get("shard") == name)]
 
 
 def plan_changes(old: dict, tasks: list[Task], K: int) -> tuple[list[str], list[str]]:
