@@ -39,7 +39,7 @@ def tiny_run(sample_shards, tmp_path_factory):
     (["--steps", "4", "--log-every", "0"], "log_every (--log-every) must be >= 1, got 0"),
     (["--steps", "4", "--checkpoint-every", "0"], "checkpoint_every (--checkpoint-every) must be >= 1, got 0"),
     (["--steps", "4", "--workers", "-1"], "workers (--workers) must be >= 0, got -1"),
-    (["--steps", "4", "--val-every", "-5"], "val_every must be >= 0"),
+    (["--steps", "4", "--val-every", "-5"], "val_every (--val-every) must be >= 0, got -5"),
 ])
 def test_t1_resume_checks_the_options_it_may_change_like_a_new_run(tiny_run, tmp_path, option, message):
     """``fit --resume`` set the options it may change (``--steps``, ``--log-every``,

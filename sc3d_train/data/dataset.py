@@ -158,14 +158,16 @@ def choose_labeled(refs: list[ObjectRef], fraction: float, seed: int) -> set[str
 
 
 def background_of(info: dict) -> list[int]:
-    """The dataset's background colour (RGB 0..255) from the shard settings (white default)."""
+    """The dataset's background colour (RGB 0..255) from the shard settings (white default).
+    sc3d-data records integers 0..255 (``--background 1,1,1`` is nearly black); only a colour
+    written as fractions (floats, none above 1) is scaled by 255."""
     bg = info.get("settings", {}).get("background", [255, 255, 255])
     if isinstance(bg, (int, float)):
         bg = [bg] * 3
-    bg = [float(c) for c in bg][:3]
-    if max(bg) <= 1.0:  # stored as floats in [0, 1]
+    bg = list(bg)[:3]
+    if any(isinstance(c, float) for c in bg) and max(bg) <= 1.0:  # stored as fractions in [0, 1]
         bg = [c * 255.0 for c in bg]
-    return [int(round(c)) for c in bg]
+    return [int(round(float(c))) for c in bg]
 
 
 # ----------------------------------------------------------------------------- dataset

@@ -188,7 +188,7 @@ def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path
     t0 = time.perf_counter()
     resume = (run_dir / "checkpoints" / "last.pt").is_file()
     echo(f"{name} seed {seed}: {cfg.mode}, {cfg.steps} steps of {cfg.batch_size}" + (" (resuming)" if resume else ""))
-    fit(cfg, resume=resume)
+    fit(cfg, resume=resume, resume_hint="run the same claims command again to resume")
     drop_intermediate_checkpoints(run_dir, cfg.steps)
     res = evaluate(run_checkpoint(run_dir, pick), eval_shards, eval_split, eval_folder(run_dir, pick), device)
     seconds = time.perf_counter() - t0

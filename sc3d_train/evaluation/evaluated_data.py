@@ -69,10 +69,17 @@ def split_of(refs: list | None, split: str) -> set | None:
 
 def training_objects_among(cfg, objects, run_refs: list | None) -> int | None:
     """How many of ``objects`` (``ObjectRef``s being evaluated) are objects the run of ``cfg``
-    trained on, by category and model id (its ``split`` among ``run_refs``, :func:`run_objects`);
+    trained on, by category and model id (its ``split`` among ``run_refs``, :func:`run_objects`;
+    of a ``labeled-only`` run only its labelled subset, the one fit drew: it reads no other);
     None when that cannot be told. ``eval --split train`` is a legitimate check of the training
     fit, but its figures are not of held-out objects, and ``eval`` says so."""
+    from sc3d_train.data.dataset import choose_labeled
+
     trained = split_of(run_refs, cfg.split)
+    if trained is not None and cfg.mode == "labeled-only" and cfg.labeled_fraction < 1:
+        in_split = [r for r in run_refs if r.split == cfg.split]
+        keys = choose_labeled(in_split, cfg.labeled_fraction, cfg.seed)
+        trained = {(r.category, r.model_id) for r in in_split if f"{r.shard}:{r.row}" in keys}
     return None if trained is None else sum(1 for r in objects if (r.category, r.model_id) in trained)
 
 

@@ -139,6 +139,7 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
     its JSON file). ``pose_from``: ``"search"`` (the default of every entry point,
     :data:`~sc3d_train.settings.command_config.DEFAULT_POSE_SOURCE`) or ``"head"``, as in ``eval``."""
     from sc3d_data.io.binvox import write_binvox
+    from sc3d_data.io.shards import write_json_atomic
     from sc3d_data.io.names import printable
     from sc3d_train.evaluation.evaluate import require_finite_weights, voxel_silhouette
     from sc3d_train.loop.checkpoint import CheckpointError
@@ -172,16 +173,18 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
     results = []
     for path, arr, files, (probs, mask, az, el) in zip(images, arrays, outputs, predictions):
         voxels = probs >= threshold
+        info = {"image": str(path), "checkpoint": str(checkpoint), "azimuth_deg": az, "elevation_deg": el, "pose_from": pose_from,
+                "camera_distance": cfg.camera_distance, "threshold": threshold,
+                "occupied_voxels": int(voxels.sum()), "files": {k: str(v) for k, v in files.items()}}
+        # the listing first (whole or not at all): a run stopped before the image's other files
+        # are written leaves them listed, so running it again may replace them
+        write_json_atomic(files["json"], info)
         write_binvox(files["binvox"], voxels)
         np.savez_compressed(files["npz"], probabilities=probs.astype(np.float32), voxels=voxels,
                             mask=mask.astype(np.float32), azimuth=az, elevation=el, threshold=threshold)
         write_obj(files["obj"], *voxel_mesh(probs, threshold))
         sil = voxel_silhouette(voxels, az, el, cfg.camera_distance, K, size)
         plot_prediction(files["png"], arr, mask, sil, az, el)
-        info = {"image": str(path), "checkpoint": str(checkpoint), "azimuth_deg": az, "elevation_deg": el, "pose_from": pose_from,
-                "camera_distance": cfg.camera_distance, "threshold": threshold,
-                "occupied_voxels": int(voxels.sum()), "files": {k: str(v) for k, v in files.items()}}
-        files["json"].write_text(json.dumps(info, indent=1))
         results.append(info)
     return results
 

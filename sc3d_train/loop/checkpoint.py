@@ -68,12 +68,13 @@ def last_path(run_dir: Path) -> Path:
     return checkpoint_dir(run_dir) / "last.pt"
 
 
-def saved_last(run_dir: Path) -> str:
-    """``last.pt`` of the run as a string when it exists (written atomically, after the loss was
-    checked: a good checkpoint, also when an interrupt came before the loop noted it), else
-    ``"none"``."""
-    path = last_path(run_dir)
-    return str(path) if path.is_file() else "none"
+def interrupted_line(run_dir: Path, resume_hint: str) -> str:
+    """What ``fit`` prints on Ctrl-C: the run's ``last.pt`` (written atomically after the loss was
+    checked: a good checkpoint, also when the interrupt came before the loop noted it) and
+    ``resume_hint`` (how the caller's command resumes), or that there is nothing to resume."""
+    if not last_path(run_dir).is_file():
+        return "interrupted before the first checkpoint: nothing to resume (start the run again)"
+    return f"interrupted; last good checkpoint: {last_path(run_dir)} ({resume_hint})"
 
 
 def best_path(run_dir: Path) -> Path:

@@ -36,6 +36,9 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     plain.update(options)
     if plain.get("out") is None or plain.get("shards") is None:
         raise ValueError("a new run needs --shards and --out (or a --config file that names them)")
+    for key in ("shards", "decoded_cache"):  # a --config file's relative path: from the current folder, as
+        if plain.get(key):                    # the option's, and recorded absolute (resume from anywhere)
+            plain[key] = str(Path(plain[key]).resolve())
     check_path_names(plain)
     out = Path(plain["out"])
     if plain.get("split") == "test":

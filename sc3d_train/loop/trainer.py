@@ -46,7 +46,7 @@ import torch
 
 from sc3d_train.loop.checkpoint import (CheckpointError, build_model, checkpoint_config, last_path,
                                         resume_checkpoint, rng_state, save_checkpoint, set_rng_state,
-                                        saved_last, state_dict_mismatch)
+                                        interrupted_line, state_dict_mismatch)
 from sc3d_train.settings.config import CONFIG_NAME, RunConfig
 from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.data.device_prefetch import DevicePrefetcher
@@ -54,7 +54,7 @@ from sc3d_train.loop.loss_window import LossWindow
 from sc3d_train.loop.memory_check import check_cpu_batch_fits
 from sc3d_train.loop.metrics_log import DataWaitClock, GpuUtilisation, MetricsLog, in_loop_rate
 from sc3d_train.loop.phase_step import augment_step, training_batch
-from sc3d_train.loop.runtime import (DistInfo, all_gather, all_mean, all_min, channels_last_on, resolve_amp,
+from sc3d_train.loop.runtime import (DistInfo, all_gather, all_mean, channels_last_on, resolve_amp,
                                      check_same_weights, resolve_device, seed_everything, setup_distributed)
 from sc3d_train.loop.schedule import batch_split, data_position, lr_at, mixed_batch, phase_at, step_samples
 from sc3d_train.loop.streams import labeled_dataset, phase_loaders, run_datasets, write_labeled_objects
@@ -217,8 +217,8 @@ def mean_scalars(t: Training, losses: dict) -> dict:
     return dict(zip(scalars, all_mean(torch.stack(list(scalars.values())), t.dist).tolist()))
 
 
-def fit(cfg: RunConfig, resume: bool = False) -> dict:
-    """Train according to ``cfg`` (see module doc). Returns a summary dict: ``step``, ``last_losses``,
+def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --resume") -> dict:
+    """Train according to ``cfg`` (see module doc); ``resume_hint``: printed on Ctrl-C. Returns a summary dict: ``step``, ``last_losses``,
     ``samples_per_s`` (:func:`in_loop_rate`), ``device`` (e.g. ``cuda:0``), ``checkpoint`` (last.pt), ``best``.
 
     Raises :class:`TrainingDiverged` on a non-finite loss, ``DataError`` / ``CheckpointError``
@@ -290,7 +290,7 @@ def fit(cfg: RunConfig, resume: bool = False) -> dict:
                 last_good = str(path) if path else last_good
     except KeyboardInterrupt:
         if t.dist.is_main:
-            print(f"\ninterrupted; last good checkpoint: {saved_last(t.run_dir)} (resume with --resume)")
+            print("\n" + interrupted_line(t.run_dir, resume_hint))
         raise
     finally:
         if progress is not None:

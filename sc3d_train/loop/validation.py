@@ -39,7 +39,9 @@ state is restored after each validation, so the trajectory does not depend on ``
 (:func:`in_last_phase`): a pretraining checkpoint has seen no unlabelled image, and keeping one
 would report a labelled-only network under the semi run's name. This happened: in the 3-seed
 claims study (docs/training.md) one semi seed's ``best.pt`` was step 100 of 350 pretraining steps,
-its airplane median rotation error 60 degrees against 15 at its last step.
+its airplane median rotation error 60 degrees against 15 at its last step. The same holds on
+``--resume``: a ``best.pt`` of a phase that the resumed run's ``--steps`` made no longer its last
+(a semi run trained only to the end of its pretraining, then extended) is removed.
 
 **Too few validation objects.** With fewer than ``val_min_objects`` (5) objects in the split the
 figures are still computed and logged (``best`` stays 0), but no ``best.pt`` is kept: ``eval`` and
@@ -104,12 +106,14 @@ def validation_dataset(cfg: RunConfig) -> ShardDataset | None:
         raise
 
 
-def resumed_best(run_dir: Path, start_step: int) -> dict | None:
-    """The validation record of ``run_dir``'s ``best.pt`` to beat when resuming at ``start_step``
-    (module doc); a ``best.pt`` of a later step, from steps the resume trains again, is removed
-    and None returned."""
+def resumed_best(run_dir: Path, start_step: int, cfg: RunConfig) -> dict | None:
+    """The validation record of ``run_dir``'s ``best.pt`` to beat when resuming run ``cfg`` at
+    ``start_step`` (module doc); a ``best.pt`` of a later step, from steps the resume trains
+    again, or of a phase that is no longer the run's last (a ``semi`` run pretrained alone, then
+    extended with ``--resume --steps``: its ``best.pt`` came from the labelled pretraining) is
+    removed and None returned."""
     best = load_checkpoint(best_path(run_dir)).get("validation")
-    if best is not None and int(best.get("step", 0)) > start_step:
+    if best is not None and (int(best.get("step", 0)) > start_step or not in_last_phase(cfg, int(best.get("step", 0)))):
         best_path(run_dir).unlink()
         return None
     return best
@@ -137,7 +141,7 @@ class Validator:
         #: whether this split is large enough to pick best.pt (module doc: too few objects)
         self.selects = dataset.num_objects >= cfg.val_min_objects
         if start_step > 0 and best_path(self.run_dir).is_file():
-            self.best = resumed_best(self.run_dir, start_step)
+            self.best = resumed_best(self.run_dir, start_step, cfg)
 
     @classmethod
     def for_run(cls, cfg: RunConfig, device: torch.device, start_step: int, is_main: bool,
@@ -146,7 +150,7 @@ class Validator:
         shards have no ``val_split`` objects (said once through ``say``). On resume, a ``best.pt`` of
         steps trained again is removed here (:func:`resumed_best`), with validation off too."""
         if is_main and start_step > 0 and best_path(Path(cfg.out)).is_file():
-            resumed_best(Path(cfg.out), start_step)
+            resumed_best(Path(cfg.out), start_step, cfg)
         if not is_main or not cfg.val_every:
             return None
         dataset = validation_dataset(cfg)

@@ -278,11 +278,10 @@ class RunConfig(_Plain):
         if self.val_every and self.val_split in (self.split, "test"):
             raise ValueError(f"val split {self.val_split!r} must hold objects never trained on and not "
                              f"the test objects (training split {self.split!r}; --val-every 0 turns validation off)")
-        if self.val_every < 0 or self.val_views < 1 or self.val_min_objects < 1:
-            raise ValueError("val_every must be >= 0, val_views and val_min_objects >= 1")
-        for name in ("log_every", "checkpoint_every"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} (--{name.replace('_', '-')}) must be >= 1, got {getattr(self, name)}")
+        for name, least in (("val_every", 0), ("val_views", 1), ("val_min_objects", 1), ("log_every", 1),
+                            ("checkpoint_every", 1)):
+            if getattr(self, name) < least:
+                raise ValueError(f"{name} (--{name.replace('_', '-')}) must be >= {least}, got {getattr(self, name)}")
         if self.workers is not None and self.workers < 0:
             raise ValueError(f"workers (--workers) must be >= 0, got {self.workers}")
         if not 0 <= self.seed < 2 ** 63:
