@@ -181,6 +181,18 @@ def assert_same_raster(images_a, masks_a, images_b, masks_b, what: str = "") -> 
     assert worst <= 1, f"{what}: a colour channel differs by {worst} (> 1) away from the mask edges"
 
 
+def error_lines(output: str) -> list[str]:
+    """The lines of a command's output that report its errors (``Error: ...``)."""
+    return [ln for ln in output.splitlines() if ln.startswith("Error:")]
+
+
+def one_error(output: str) -> str:
+    """The one error line of ``output``; fails when there are others or a traceback."""
+    errors = error_lines(output)
+    assert len(errors) == 1 and "Traceback" not in output, output
+    return errors[0]
+
+
 def run_cli(group, args: list[str], expect_exit: int | None = 0):
     """Invoke a click group in-process; fail with the command's output when the exit code differs."""
     result = CliRunner().invoke(group, [str(a) for a in args], catch_exceptions=False)

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from sc3d_cli.data import main as data_main
-from conftest import REPO, SAMPLE_MESHES, run_cli
+from conftest import REPO, SAMPLE_MESHES, run_cli, error_lines
 
 FAST = ["--views", "4", "--no-progress", "--workers", "1"]
 CUBE_V = [[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)]
@@ -268,7 +268,7 @@ def test_d8_render_on_a_full_disk_fails_in_one_line_and_resumes(tmp_path):
     first = out.split("rc=")[0]
     assert "rc=1\n" in out and "No space left on device" in first, out
     assert "Traceback" not in out and "Segmentation" not in out
-    assert len([ln for ln in first.splitlines() if ln.startswith("Error:")]) == 1
+    assert len(error_lines(first)) == 1
     assert "tmp_left=0" in out and "rc2=0" in out and "verify=0" in out, out
     second = out.split("tmp_left=0")[1]
     assert "resumed 0" not in second and "failed 0" in second  # shards written before the disk filled are kept

@@ -21,7 +21,7 @@ import trimesh
 from click.testing import CliRunner
 
 from sc3d_cli.data import main as data_main
-from conftest import SAMPLE_MESHES, run_cli
+from conftest import SAMPLE_MESHES, run_cli, error_lines
 from test_faults import FAST, index_of
 
 
@@ -68,7 +68,7 @@ def test_merge_run_again_after_voxelize_keeps_the_voxels(tmp_path):
 
     copies = [shutil.copytree(p, tmp_path / f"q{i}") for i, p in enumerate(parts)]
     res = run_cli(data_main, ["merge", merged, *copies], expect_exit=1)
-    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    errors = error_lines(res.output)
     assert len(errors) == 1 and "given voxels by `sc3d-data voxelize` after the merge" in errors[0], res.output
     assert _dataset_bytes(merged) == voxelized
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from sc3d_cli.data import main as data_main
-from conftest import SAMPLE_MESHES, run_cli
+from conftest import SAMPLE_MESHES, run_cli, one_error
 from test_faults import FAST, _in_tmpfs, index_of
 
 CLI = f"{sys.executable} -c 'import sc3d_cli.data as d; d.main()'"
@@ -31,12 +31,6 @@ def parts(tmp_path_factory) -> list[Path]:
     return dirs
 
 
-def _one_error(output: str) -> str:
-    errors = [ln for ln in output.splitlines() if ln.startswith("Error:")]
-    assert len(errors) == 1 and "Traceback" not in output, output
-    return errors[0]
-
-
 def test_merge_refuses_a_file_of_the_users_named_like_a_shard(parts, tmp_path):
     """`render` refuses an unlisted shard-named file that is no shard of its settings; merge
     replaced it silently. It now refuses the same way (nothing written), and --overwrite replaces it."""
@@ -44,7 +38,7 @@ def test_merge_refuses_a_file_of_the_users_named_like_a_shard(parts, tmp_path):
     out.mkdir()
     (out / "shard-00000.h5").write_text("precious\n")
     res = run_cli(data_main, ["merge", out, *parts], expect_exit=1)
-    line = _one_error(res.output)
+    line = one_error(res.output)
     assert f"{out / 'shard-00000.h5'}: named like a shard this merge writes" in line and "--overwrite" in line
     assert (out / "shard-00000.h5").read_text() == "precious\n"
     assert not (out / "index.json").exists() and not (out / "shard-00001.h5").exists()
@@ -63,7 +57,7 @@ def test_merge_copy_on_a_full_disk_names_the_destination_and_leaves_no_tmp(parts
         {CLI} merge --copy $T/m {parts[0]} {parts[1]}; echo "rc=$?"
         echo "tmp_left=$(ls $T/m | grep -c '\\.tmp$')"
         """), size="1m")
-    line = _one_error(r.stdout)
+    line = one_error(r.stdout)
     assert "rc=1\n" in r.stdout and "No space left on device" in line, r.stdout
     assert "/m/shard-0000" in line and str(parts[0]) not in line and str(parts[1]) not in line, line
     assert "tmp_left=0" in r.stdout, r.stdout
@@ -131,7 +125,7 @@ def test_voxelize_on_a_full_disk_fails_in_one_line_and_keeps_the_shard(tmp_path)
         rm $T/filler
         {CLI} info --verify $T/ds > /dev/null; echo "verify=$?"
         """), size="4m")
-    line = _one_error(r.stdout)
+    line = one_error(r.stdout)
     assert "Segmentation" not in r.stdout and "Exception ignored" not in r.stdout, r.stdout
     assert line.endswith("/ds/shard-00000.h5: cannot rewrite shard (No space left on device)"), r.stdout
     assert "rc=1\n" in r.stdout and "tmp_left=0" in r.stdout and "same" in r.stdout, r.stdout
@@ -148,7 +142,7 @@ def test_render_on_a_full_disk_says_no_space_in_one_line(tmp_path):
         {CLI} render --meshes {SAMPLE_MESHES} --out $T/out --workers 2 --no-progress; echo "rc=$?"
         echo "tmp_left=$(ls $T/out | grep -c '\\.tmp$')"
         """), size="2m")
-    line = _one_error(r.stdout)
+    line = one_error(r.stdout)
     assert line.endswith("/out/shard-00000.h5: cannot write shard (No space left on device)"), r.stdout
     assert "rc=1\n" in r.stdout and "tmp_left=0" in r.stdout and "errno =" not in r.stdout, r.stdout
 
@@ -165,7 +159,7 @@ def test_voxelize_refuses_an_r2n2_import_in_one_line(tmp_path):
     before = {p.name: p.read_bytes() for p in out.glob("*.h5")}
     for extra in ([], ["--resolution", "64"], ["--overwrite"]):
         res = run_cli(data_main, ["voxelize", out, "--no-progress", *extra], expect_exit=1)
-        line = _one_error(res.output)
+        line = one_error(res.output)
         assert f"{out}: imported from 3D-R2N2" in line and "32^3 voxels" in line and "None" not in line, line
     assert {p.name: p.read_bytes() for p in out.glob("*.h5")} == before
 

@@ -12,14 +12,8 @@ import h5py
 import pytest
 
 from sc3d_cli.data import main as data_main
-from conftest import SAMPLE_MESHES, run_cli
+from conftest import SAMPLE_MESHES, run_cli, one_error
 from test_faults import FAST, index_of
-
-
-def _one_error(output: str) -> str:
-    errors = [ln for ln in output.splitlines() if ln.startswith("Error:")]
-    assert len(errors) == 1 and "Traceback" not in output, output
-    return errors[0]
 
 
 def flip_bytes_in_a_chunk(shard: Path, dataset: str = "images") -> None:
@@ -52,7 +46,7 @@ def test_voxelize_refuses_a_damaged_shard_instead_of_recording_the_damage_as_goo
     before = {p.name: p.read_bytes() for p in [*shards, out / "index.json"]}
     res = run_cli(data_main, ["voxelize", out, "--no-progress", *(["--overwrite"] if overwrite else [])],
                   expect_exit=1)
-    line = _one_error(res.output)
+    line = one_error(res.output)
     assert f"{damaged}: SHA-256 differs from the index" in line and "no shard was changed" in line
     assert {p.name: p.read_bytes() for p in [*shards, out / "index.json"]} == before
     res = run_cli(data_main, ["info", out, "--verify"], expect_exit=1)
@@ -74,17 +68,17 @@ def test_voxelize_meshes_takes_the_folders_write_lock_and_parts_share_it(tmp_pat
     out.mkdir()
     run = ["voxelize", "--meshes", meshes, "--out", out, "--no-progress", "--workers", "1"]
     with exclusive_lock(out, "sc3d-data voxelize --meshes"):  # a whole run at work
-        line = _one_error(run_cli(data_main, run, expect_exit=1).output)
+        line = one_error(run_cli(data_main, run, expect_exit=1).output)
         assert f"{out}: another process (PID {os.getpid()}: sc3d-data voxelize --meshes)" in line
-        line = _one_error(run_cli(data_main, [*run, "--part", "1/2"], expect_exit=1).output)
+        line = one_error(run_cli(data_main, [*run, "--part", "1/2"], expect_exit=1).output)
         assert "is writing to this folder" in line
     assert not list(out.rglob("*.binvox"))
     with folder_locks(out, Part(0, 2)):  # part 0 of 2 at work: part 1 runs, part 0 and a whole run do not
         run_cli(data_main, [*run, "--part", "1/2"])
         done = sorted(out.rglob("*.binvox"))
         assert 0 < len(done) < 4
-        _one_error(run_cli(data_main, [*run, "--part", "0/2"], expect_exit=1).output)
-        _one_error(run_cli(data_main, run, expect_exit=1).output)
+        one_error(run_cli(data_main, [*run, "--part", "0/2"], expect_exit=1).output)
+        one_error(run_cli(data_main, run, expect_exit=1).output)
     run_cli(data_main, run)  # alone: the whole folder
     assert len(sorted(out.rglob("*.binvox"))) == 4
 
@@ -103,9 +97,9 @@ def test_reports_never_write_through_a_hard_link_to_the_dataset(tmp_path):
     os.link(shard, tmp_path / "sheet.png")
     before = {p: p.read_bytes() for p in (index, shard)}
     res = run_cli(data_main, ["check", out, "--json", tmp_path / "report.json", "--no-progress"], expect_exit=1)
-    assert "the same file as the dataset's index.json" in _one_error(res.output) and "hard link" in res.output
+    assert "the same file as the dataset's index.json" in one_error(res.output) and "hard link" in res.output
     res = run_cli(data_main, ["preview", out, "--out", tmp_path / "sheet.png"], expect_exit=1)
-    assert "the same file as the dataset's shard-00000.h5" in _one_error(res.output)
+    assert "the same file as the dataset's shard-00000.h5" in one_error(res.output)
     assert {p: p.read_bytes() for p in before} == before
     run_cli(data_main, ["check", out, "--json", tmp_path / "check.json", "--no-progress"])
 
@@ -143,7 +137,7 @@ def test_a_render_whose_every_mesh_failed_says_why_the_first_did(tmp_path):
     meshes.mkdir(parents=True)
     (meshes / "list.gltf").write_text("[]")
     res = run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", tmp_path / "out", *FAST], expect_exit=1)
-    line = _one_error(res.output)
+    line = one_error(res.output)
     assert line.startswith("Error: no object was rendered: all 1 failed (first: ")
     assert f"{meshes / 'list.gltf'}: not a glTF document" in line
 

@@ -13,7 +13,7 @@ from PIL import Image
 
 from sc3d_cli.data import main as data_main
 from sc3d_cli.train import main as train_main
-from conftest import SAMPLE_MESHES, run_cli
+from conftest import SAMPLE_MESHES, run_cli, error_lines
 
 TINY = ["--tiny", "--base-channels", "4", "--batch-size", "4", "--no-progress", "--val-every", "0"]
 
@@ -215,7 +215,7 @@ def test_f8_a_failed_first_checkpoint_says_to_start_again_not_to_resume(sample_s
     (run / "checkpoints").write_text("not a folder")
     args = ["fit", "--shards", sample_shards, "--out", run, "--steps", 2, *TINY]
     res = run_cli(train_main, args, expect_exit=1)
-    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]  # after the run's start line
+    errors = error_lines(res.output)  # after the run's start line
     assert len(errors) == 1 and res.output.rstrip().endswith(errors[0]), res.output
     line = errors[0]
     assert f"{run / 'checkpoints' / 'step_000002.pt'}: cannot write checkpoint" in line

@@ -7,6 +7,7 @@ import json
 import shutil
 
 import pytest
+from conftest import error_lines
 
 
 # ----------------------------------------------------------------------------- T1
@@ -133,7 +134,7 @@ def test_t3_resume_with_another_number_of_ranks_says_so(sample_shards, tmp_path)
     before = files()
     res = run_cli(train_main, ["fit", "--out", run, "--resume", "--steps", 4, "--device", "cpu", "--no-progress"],
                   expect_exit=1)
-    line = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    line = error_lines(res.output)
     assert len(line) == 1 and res.output.rstrip().endswith(line[0]), res.output
     assert f"{run / 'checkpoints' / 'last.pt'}: saved with 2 ranks, now 1; resume with 2" in line[0]
     assert files() == before

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from sc3d_cli.train import main as train_main
-from conftest import run_cli
+from conftest import run_cli, error_lines
 from tests.test_train import TINY, read_csv
 
 
@@ -51,7 +51,7 @@ def test_t1_a_cpu_batch_that_cannot_fit_is_refused_in_one_line(sample_shards, tm
     out = tmp_path / "run"
     res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", out, "--steps", 2, "--batch-size",
                                10**7, *TINY, "--device", "cpu"], expect_exit=1)
-    lines = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    lines = error_lines(res.output)
     assert len(lines) == 1, res.output
     m = re.fullmatch(r"Error: --batch-size 10000000 needs about ([\d.]+) GiB of memory a step on the CPU "
                      r"\(([\d.]+) MiB a sample, measured\), more than the [\d.]+ GiB a step may take \(80% of the "
@@ -140,7 +140,7 @@ def test_t3_claims_refuses_evaluation_data_it_cannot_use_before_training(sample_
         out = tmp_path / f"claims-{split}"
         res = run_cli(train_main, ["claims", "--train-shards", sample_shards, "--eval-shards", eval_shards,
                                    "--out", out, "--device", "cpu", "--eval-split", split], expect_exit=1)
-        errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+        errors = error_lines(res.output)
         assert len(errors) == 1 and expected in errors[0], res.output
         assert "steps of" not in res.output and not out.exists()
 
@@ -158,7 +158,7 @@ def test_t4_resume_from_weights_only_is_one_line(sample_shards, tmp_path):
     for p in ckpts.glob("step_*.pt"):
         p.unlink()
     res = run_cli(train_main, ["fit", "--out", out, "--resume", "--steps", 3, "--no-progress"], expect_exit=1)
-    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    errors = error_lines(res.output)
     assert len(errors) == 1 and f"{ckpts / 'last.pt'}: holds no optimizer, rng, data_position" in errors[0], res.output
     assert "Traceback" not in res.output
 

@@ -13,7 +13,7 @@ import pytest
 
 from sc3d_cli.data import main as data_main
 from sc3d_cli.train import main as train_main
-from conftest import SAMPLE_MESHES, run_cli
+from conftest import SAMPLE_MESHES, run_cli, error_lines
 from tests.test_train import TINY
 
 
@@ -142,7 +142,7 @@ def test_e4_pick_with_a_checkpoint_file_is_refused_and_a_checkpoints_folder_is_i
 
     best, folder = val_run / "checkpoints" / "best.pt", val_run / "checkpoints"
     output, metrics = _eval(best, sample_shards, "test", tmp_path / "refused", "--pick", "last", expect_exit=1)
-    errors = [ln for ln in output.splitlines() if ln.startswith("Error:")]
+    errors = error_lines(output)
     assert errors == [f"Error: --pick last: {best} is a checkpoint file, and --pick chooses a checkpoint of a run "
                       f"folder; give the run folder (--checkpoint {val_run} --pick last) or leave --pick out"], output
     assert metrics is None
@@ -154,7 +154,7 @@ def test_e4_pick_with_a_checkpoint_file_is_refused_and_a_checkpoints_folder_is_i
     Image.new("RGB", (64, 64), (255, 255, 255)).save(image)
     res = run_cli(train_main, ["predict", "--checkpoint", best, "--pick", "best", image, "--out", tmp_path / "p1",
                                "--device", "cpu"], expect_exit=1)
-    assert [ln for ln in res.output.splitlines() if ln.startswith("Error:")][0].startswith(
+    assert error_lines(res.output)[0].startswith(
         f"Error: --pick best: {best} is a checkpoint file"), res.output
     run_cli(train_main, ["predict", "--checkpoint", folder, image, "--out", tmp_path / "p2", "--device", "cpu",
                          "--pose", "head"])
@@ -171,13 +171,13 @@ def test_e5_a_huge_batch_size_is_refused_in_one_line_naming_the_option(sample_sh
     expected = (f"Error: batch_size (--batch-size) must be at most 16777216 (2^24 images of 64x64 RGB are 200 GB "
                 f"even as bytes), got {huge}")
     output, metrics = _eval(val_run, sample_shards, "test", tmp_path / "huge", "--batch-size", huge, expect_exit=1)
-    assert [ln for ln in output.splitlines() if ln.startswith("Error:")] == [expected], output
+    assert error_lines(output) == [expected], output
     assert "Traceback" not in output and metrics is None and not (tmp_path / "huge").exists()
     _, metrics = _eval(val_run, sample_shards, "test", tmp_path / "max", "--batch-size", 2 ** 24)
     assert metrics["overall"]["images"] == 24 * metrics["overall"]["objects"]
     res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", tmp_path / "run", "--steps", 2,
                                "--batch-size", huge, *TINY, "--device", "cpu"], expect_exit=1)
-    assert [ln for ln in res.output.splitlines() if ln.startswith("Error:")] == [expected], res.output
+    assert error_lines(res.output) == [expected], res.output
     assert not (tmp_path / "run" / "checkpoints").exists()
 
 

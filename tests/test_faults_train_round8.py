@@ -14,14 +14,10 @@ import torch
 
 from sc3d_cli.data import main as data_main
 from sc3d_cli.train import main as train_main
-from conftest import REPO, SAMPLE_MESHES, run_cli
+from conftest import REPO, SAMPLE_MESHES, run_cli, error_lines
 from tests.test_train import TINY
 
 CHAIR = REPO / "assets" / "sample_images" / "chair.png"
-
-
-def _errors(output: str) -> list[str]:
-    return [ln for ln in output.splitlines() if ln.startswith("Error:")]
 
 
 def _render(out, *extra):
@@ -99,7 +95,7 @@ def test_c1_claims_command_prints_one_error_line_and_trains_nothing(sample_shard
     out = tmp_path / "claims"
     res = run_cli(train_main, ["claims", "--train-shards", sample_shards, "--eval-shards", shards_32px, "--out", out,
                                "--runs", "sup-3tube", "--device", "cpu"], expect_exit=1)
-    errors = _errors(res.output)
+    errors = error_lines(res.output)
     assert len(errors) == 1, res.output
     assert f"{shards_32px}: images are 32x32 but the runs train on 64x64" in errors[0], res.output
     assert str(sample_shards) in errors[0] and "Traceback" not in res.output, res.output
@@ -137,7 +133,7 @@ def test_p1_predict_refuses_nan_weights_in_one_line_and_writes_nothing(tiny_run,
     nan = _altered(tiny_run, tmp_path / "nan.pt", float("nan"))
     out = tmp_path / "pred"
     res = run_cli(train_main, ["predict", "--checkpoint", nan, CHAIR, "--out", out, "--device", "cpu"], expect_exit=1)
-    errors = _errors(res.output)
+    errors = error_lines(res.output)
     assert len(errors) == 1 and f"{nan}: its weights are not finite" in errors[0], res.output
     assert "Traceback" not in res.output and not out.exists(), res.output
 
@@ -149,7 +145,7 @@ def test_p1_eval_refuses_nan_weights_in_one_line(tiny_run, sample_shards, tmp_pa
     out = tmp_path / "eval"
     res = run_cli(train_main, ["eval", "--checkpoint", nan, "--shards", sample_shards, "--split", "test",
                                "--out", out, "--device", "cpu", "--examples", 0], expect_exit=1)
-    errors = _errors(res.output)
+    errors = error_lines(res.output)
     assert len(errors) == 1 and f"{nan}: its weights are not finite" in errors[0], res.output
     assert not (out / "metrics.json").exists()
 
@@ -162,7 +158,7 @@ def test_p1_predict_refuses_a_prediction_that_is_not_finite_before_writing(tiny_
     out = tmp_path / "pred"
     res = run_cli(train_main, ["predict", "--checkpoint", huge, CHAIR, CHAIR, "--out", out, "--device", "cpu"],
                   expect_exit=1)
-    errors = _errors(res.output)
+    errors = error_lines(res.output)
     assert len(errors) == 1 and f"{huge}: its prediction for {CHAIR} is not finite" in errors[0], res.output
     assert "Traceback" not in res.output and not out.exists(), res.output
 
@@ -175,7 +171,7 @@ def test_p1_eval_refuses_predictions_that_are_not_finite_and_writes_nothing(tiny
     out = tmp_path / "eval"
     res = run_cli(train_main, ["eval", "--checkpoint", huge, "--shards", sample_shards, "--split", "test",
                                "--out", out, "--device", "cpu", "--examples", 0], expect_exit=1)
-    errors = _errors(res.output)
+    errors = error_lines(res.output)
     assert len(errors) == 1 and f"{huge}: its predictions are not finite" in errors[0], res.output
     # the test split of the sample shards is one object (24 views), and every view has white pixels
     assert "for 24 of 24 images (first: " in errors[0], errors[0]
@@ -228,6 +224,6 @@ def test_a_checkpoint_whose_config_has_ragged_intrinsics_is_named_in_one_line(ti
     torch.save(ckpt, bad)
     res = run_cli(train_main, ["predict", "--checkpoint", bad, CHAIR, "--out", tmp_path / "pred", "--device", "cpu"],
                   expect_exit=1)
-    errors = _errors(res.output)
+    errors = error_lines(res.output)
     assert len(errors) == 1 and f"{bad}: its config is not one this version reads" in errors[0], res.output
     assert "intrinsics must be a 3x3 list of finite numbers" in errors[0]

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import shutil
 
-from conftest import run_cli
+from conftest import run_cli, error_lines
 
 QUICK = ["--tiny", "--steps", "2", "--batch-size", "2", "--val-every", "0", "--no-progress"]
 
@@ -24,7 +24,7 @@ def test_a_new_run_never_overwrites_files_that_are_not_of_a_run(sample_shards, t
     for name, text in files.items():
         (mine / name).write_text(text)
     res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", mine, *QUICK], expect_exit=1)
-    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    errors = error_lines(res.output)
     assert errors == [f"Error: {mine}: holds config.yaml, metrics.csv, curves.png, not from an sc3d-train run, "
                       "which a new run would overwrite; choose another --out (or move them)"], res.output
     assert {name: (mine / name).read_text() for name in files} == files

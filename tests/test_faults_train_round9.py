@@ -17,7 +17,7 @@ import torch
 
 from sc3d_cli.data import main as data_main
 from sc3d_cli.train import main as train_main
-from conftest import REPO, SAMPLE_MESHES, run_cli
+from conftest import REPO, SAMPLE_MESHES, run_cli, error_lines
 from sc3d_train.loop.checkpoint import load_checkpoint
 from tests.test_train import TINY
 
@@ -37,7 +37,7 @@ def test_an_empty_folder_option_is_refused_and_nothing_is_written(sample_shards,
 def test_an_out_name_that_is_not_utf8_is_refused_before_anything_is_written(sample_shards, tmp_path):
     out = os.fsdecode(os.fsencode(str(tmp_path)) + b"/bad\xffout")  # the byte 0xff as Python holds it
     res = run_cli(train_main, ["fit", "--shards", sample_shards, "--out", out, *FIT], expect_exit=1)
-    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    errors = error_lines(res.output)
     assert errors == [f"Error: --out {tmp_path}/bad\\xffout: the name is not valid UTF-8 (byte 0xff), which "
                       "config.yaml and TensorBoard store as text; choose another name"], res.output
     assert os.listdir(tmp_path) == []
@@ -55,7 +55,7 @@ def test_predict_never_replaces_a_file_that_is_not_its_own(trained_run, sample_s
     before = (shards / "index.json").read_bytes()
     res = run_cli(train_main, ["predict", "--checkpoint", trained_run, image, "--out", shards, "--device", "cpu"],
                   expect_exit=1)
-    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    errors = error_lines(res.output)
     assert errors == [f"Error: --out {shards}: index.json exists and is not a file of an earlier prediction (no "
                       "index.json of predict lists it), which this prediction would replace; choose another --out"]
     assert (shards / "index.json").read_bytes() == before and not (shards / "index.npz").exists()
@@ -79,7 +79,7 @@ def test_eval_never_replaces_another_evaluation_in_its_default_folder(trained_ru
     before = (run / "eval_test" / "metrics.json").read_text()
     assert json.loads(before)["checkpoint"] == str(last)
     res = run_cli(train_main, ["eval", "--checkpoint", half, *common], expect_exit=1)
-    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    errors = error_lines(res.output)
     assert errors == [f"Error: {run / 'eval_test'}: holds the evaluation of checkpoint {last}, which this one "
                       f"(checkpoint {half}) would replace; give --out for this one (or remove that folder)"]
     assert (run / "eval_test" / "metrics.json").read_text() == before

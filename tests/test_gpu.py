@@ -22,6 +22,7 @@ import torch
 from sc3d_cli.train import main as train_main
 from tests.conftest import SAMPLE_MESHES, assert_same_raster, require_backend, run_cli
 from tests.test_train import TINY, interrupt_at, read_csv
+from conftest import error_lines
 
 pytestmark = [pytest.mark.gpu,
               pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA: torch sees no CUDA device")]
@@ -74,7 +75,7 @@ def test_a_cuda_batch_that_does_not_fit_is_one_line(sample_shards, tmp_path):
     finally:
         torch.cuda.set_per_process_memory_fraction(1.0)
         torch.cuda.empty_cache()
-    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    errors = error_lines(res.output)
     assert len(errors) == 1 and errors[0].startswith("Error: out of GPU memory while training ("), res.output
     assert errors[0].endswith("use a smaller one"), errors[0]
     assert "Traceback" not in res.output

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from sc3d_train.data.batch_transfer import PackedBatch, RingBatch, SharedRing, pack, unpack
+from conftest import error_lines
 
 
 def test_pack_round_trip_is_exact_and_packs_only_binary_arrays():
@@ -439,6 +440,6 @@ def test_a_dev_shm_too_small_for_the_workers_is_one_line(sample_shards, tmp_path
     res = subprocess.run(["unshare", "-m", "sh", "-c", f"mount -t tmpfs -o size=8m tmpfs /dev/shm && {fit}"],
                          capture_output=True, text=True)
     assert res.returncode == 1, res.stdout + res.stderr
-    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("Error:")]
+    errors = error_lines(res.stderr)
     assert len(errors) == 1 and "could not map" in errors[0] and "shared memory" in errors[0], res.stderr
     assert "--shm-size" in errors[0] and "Traceback" not in res.stderr

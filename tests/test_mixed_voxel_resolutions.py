@@ -13,7 +13,7 @@ import pytest
 
 from sc3d_cli.data import main as data_main
 from sc3d_cli.train import main as train_main
-from conftest import SAMPLE_MESHES, run_cli
+from conftest import SAMPLE_MESHES, run_cli, error_lines
 from tests.test_check import record_in_index
 from tests.test_train import TINY
 
@@ -45,7 +45,7 @@ def test_fit_names_both_voxel_resolutions_in_one_line(mixed_shards, tmp_path):
     out = tmp_path / "run"
     res = run_cli(train_main, ["fit", "--shards", mixed_shards, "--out", out, "--steps", 1, "--batch-size", 2, *TINY,
                                "--val-every", 0, "--device", "cpu", "--split", "train", "--no-progress"], expect_exit=1)
-    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    errors = error_lines(res.output)
     assert errors == [f"Error: {_expected(mixed_shards)}"], res.output
     assert "no voxels" not in res.output and "Traceback" not in res.output
     assert not (out / "checkpoints").exists()

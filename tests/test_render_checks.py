@@ -8,7 +8,7 @@ from __future__ import annotations
 import pytest
 
 from sc3d_cli.data import main as data_main
-from conftest import SAMPLE_MESHES, run_cli
+from conftest import SAMPLE_MESHES, run_cli, error_lines
 
 
 @pytest.mark.parametrize("options, line", [
@@ -28,7 +28,7 @@ def test_options_that_cannot_render_are_refused_before_any_work(tmp_path, option
     out = tmp_path / "out"
     res = run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES / "car", "--out", out, "--workers", 1,
                               "--no-progress", *options], expect_exit=1)
-    errors = [ln for ln in res.output.splitlines() if ln.startswith("Error:")]
+    errors = error_lines(res.output)
     assert len(errors) == 1 and errors[0].startswith(line), res.output
     assert not (out / "index.json").exists()
 
