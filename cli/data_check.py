@@ -21,7 +21,7 @@ import click
 @click.option("--min-iou", default=0.0, show_default=True, type=click.FloatRange(0, 1),
               help="Also exit 1 when any object's mean IoU is below this (0: IoU is only reported; "
                    "thin objects score low IoU at 32^3 even when correct).")
-@click.option("--worst", default=10, show_default=True, type=click.IntRange(1), help="Worst objects listed.")
+@click.option("--worst", default=10, show_default=True, type=click.IntRange(1), help="Worst objects listed (the picture draws the first 8 of them).")
 @click.option("--png", type=click.Path(dir_okay=False),
               help="Picture of the worst views (image | mask | voxels | diff); default SHARDS/check_worst.png "
                    "(not written there when the dataset is read-only: a warning, not an error).")

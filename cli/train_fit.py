@@ -11,7 +11,7 @@ import click
 
 from sc3d_cli.folder_path import FolderPath
 from sc3d_cli.config_options import config_options, given_on_command_line
-from sc3d_train.settings.config import TINY_MODEL, ModelConfig, RunConfig
+from sc3d_train.settings.config import RESUMABLE_FIELDS, TINY_MODEL, ModelConfig, RunConfig
 
 TINY_NOTES = {k: f"[--tiny: {v}]" for k, v in TINY_MODEL.items()}
 
@@ -34,14 +34,15 @@ TINY_NOTES = {k: f"[--tiny: {v}]" for k, v in TINY_MODEL.items()}
 @click.option("--tiny", is_flag=True, help="The tiny network preset for CPU demos and tests "
               f"({', '.join(f'{k} {v}' for k, v in TINY_MODEL.items())}).")
 @click.option("--resume", is_flag=True, help="Continue RUN_DIR from checkpoints/last.pt exactly; only "
-              "--steps/--checkpoint-every/--log-every/--workers/--device/--no-progress and --shards (the same data, "
-              "moved) may change.")
+              + ", ".join("--" + k.replace("_", "-") for k in RESUMABLE_FIELDS)
+              + " may change (--shards: the same data, moved).")
 @click.pass_context
 def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_settings):
     """Train the self-consistency model on the shards' training split."""
     from sc3d_train.loop.checkpoint import CheckpointError
     from sc3d_train.data.dataset import DataError
     from sc3d_train.loop.resolve import check_mode_options, given_paths, pose_grid_warning, resolve_config
+    from sc3d_train.loop.runtime import check_device_name
     from sc3d_train.loop.trainer import TrainingDiverged, fit as run_fit
 
     if semi and labeled_only:
@@ -79,6 +80,7 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
         with lock:
             cfg = resolve_config(options, model_options, resume, config_file)
             check_mode_options(cfg, options)
+            check_device_name(cfg.device)  # before the run's first line
             if main_rank and (warning := pose_grid_warning(cfg)):
                 click.echo(f"warning: {warning}", err=True)
             if main_rank:

@@ -21,7 +21,7 @@ import trimesh
 from click.testing import CliRunner
 
 from sc3d_cli.data import main as data_main
-from conftest import SAMPLE_MESHES, run_cli, error_lines
+from conftest import SAMPLE_MESHES, one_error, run_cli, error_lines
 from test_faults import FAST, index_of
 
 
@@ -289,3 +289,35 @@ def test_settings_differ_reads_axes_of_older_indexes_by_meaning():
     assert settings_differ({"up": "+z", "front": "auto"}, {"up": "+Z", "front": "auto"}) == []
     assert settings_differ({"up": "+x"}, {"up": "+Z"}) == ["up"]
     assert json.loads(json.dumps({"up": "+Z"}))["up"] == "+Z"
+
+
+def test_a_refused_overwrite_deletes_nothing(tmp_path):
+    """``render --overwrite`` deleted the dataset in ``--out`` as soon as it held the lock, then
+    refused an empty ``--meshes`` or a foreign shard-named file: the old dataset was gone and no
+    new one written. Now the old outputs go only when the run starts, after its checks; an
+    overwrite that runs still replaces them (a shard the old index listed and the new run does
+    not write is deleted)."""
+    meshes = _two_chairs(tmp_path)
+    out = tmp_path / "out"
+
+    def render(per_shard: str, *extra, expect_exit=0):
+        return run_cli(data_main, ["render", "--meshes", meshes, "--out", out, "--objects-per-shard", per_shard,
+                                   *extra, *FAST], expect_exit=expect_exit)
+
+    render("2")
+    before = _dataset_bytes(out)
+    assert sorted(before) == ["index.json", "shard-00000.h5"]
+    (tmp_path / "empty").mkdir()
+    res = run_cli(data_main, ["render", "--meshes", tmp_path / "empty", "--out", out, "--overwrite", *FAST],
+                  expect_exit=1)
+    assert "no mesh files found" in one_error(res.output) and _dataset_bytes(out) == before
+    (out / "shard-00001.h5").write_text("someone's")
+    res = render("1", "--overwrite", expect_exit=1)
+    assert "shard-00001.h5: named like a shard" in one_error(res.output)
+    assert {k: v for k, v in _dataset_bytes(out).items() if k != "shard-00001.h5"} == before
+    (out / "shard-00001.h5").unlink()
+    render("1", "--overwrite")
+    assert sorted(_dataset_bytes(out)) == ["index.json", "shard-00000.h5", "shard-00001.h5"]
+    render("2", "--overwrite")  # shard-00001.h5, listed by the old index, is not written again: deleted
+    assert sorted(_dataset_bytes(out)) == ["index.json", "shard-00000.h5"]
+    assert index_of(out)["settings"]["objects_per_shard"] == 2

@@ -137,3 +137,25 @@ def test_each_validation_option_is_named_in_its_error(sample_shards, tmp_path, o
                                f"--{option}", value, *SHORT], expect_exit=1)
     key = option.replace("-", "_")
     assert f"Error: {key} (--{option}) must be >= {least}, got {value}" in res.output, res.output
+
+
+def test_the_resume_options_are_listed_where_users_read_them():
+    """``--resume`` accepts ``--val-every`` (and more) that ``fit --help``, config.md and
+    training.md left out; each now names every setting a resume may change
+    (``RESUMABLE_FIELDS``, the list the code enforces)."""
+    from click.testing import CliRunner
+
+    from sc3d_train.settings.config import RESUMABLE_FIELDS
+
+    docs = Path(__file__).parents[1] / "docs"
+    config_md = " ".join((docs / "config.md").read_text().split())
+    training_md = " ".join((docs / "training.md").read_text().split())
+    help_text = " ".join(CliRunner().invoke(train_main, ["fit", "--help"]).output.split())
+    config_list = config_md[config_md.index("`--resume` continues a run"):][:400]
+    training_list = training_md[training_md.index("`--resume` may change only"):][:400]
+    resume_help = help_text[help_text.index("--resume Continue"):][:500]
+    for field in RESUMABLE_FIELDS:
+        option = "--" + field.replace("_", "-")
+        assert f"`{field}`" in config_list, field
+        assert f"`{option}`" in training_list, option
+        assert option in resume_help, option

@@ -73,22 +73,27 @@ def auto_device() -> str:
     return pick or ("cuda" if has_cuda else "cpu")
 
 
+def check_device_name(name: str) -> None:
+    """``ValueError`` naming ``--device`` when ``name`` is none of auto, cpu, cuda, cuda:N, or asks
+    for CUDA where torch sees none (no side effect: callable before a run says it starts)."""
+    if not re.fullmatch(r"auto|cpu|cuda(:\d+)?", name):
+        raise ValueError(f"--device {name!r}: not a device; use {DEVICE_HELP}")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError(f"--device {name}: CUDA is not available here (torch sees no GPU); use --device cpu or auto")
+
+
 def resolve_device(name: str, dist: DistInfo | None = None) -> torch.device:
     """The device of ``--device name`` (``fit``, ``eval``, ``predict``, ``claims``): ``auto`` is CUDA
     (this rank's local GPU) when available, else CPU (:func:`auto_device`). ``ValueError`` naming the option when
     ``name`` is none of auto, cpu, cuda, cuda:N or asks for a GPU this machine lacks."""
     dist = dist or DistInfo()
-    if not re.fullmatch(r"auto|cpu|cuda(:\d+)?", name):
-        raise ValueError(f"--device {name!r}: not a device; use {DEVICE_HELP}")
+    check_device_name(name)
     if name == "auto":
         name = auto_device()
     if name == "cuda":
         name = f"cuda:{dist.local_rank}"
     device = torch.device(name)
-    if device.type == "cuda":
-        if not torch.cuda.is_available():
-            raise ValueError(f"--device {name}: CUDA is not available here (torch sees no GPU); "
-                             f"use --device cpu or auto")
+    if device.type == "cuda":  # available: check_device_name
         count = torch.cuda.device_count()
         if device.index is not None and device.index >= count:
             raise ValueError(

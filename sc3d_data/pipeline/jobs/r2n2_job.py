@@ -146,7 +146,7 @@ def import_r2n2(config: ImportConfig, progress: Callable[[int], None] | None = N
     the folder or file (another ``--part`` or other settings in ``out``, missing input, ...)."""
     from sc3d_data.pipeline.jobs.shard_output import locked_output
 
-    with locked_output(Path(config.out), "sc3d-data import-r2n2", config.overwrite) as out:
+    with locked_output(Path(config.out), "sc3d-data import-r2n2") as out:
         return _import_locked(config, out, progress)
 
 
@@ -160,7 +160,7 @@ def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
     tasks, split_desc, part, problems, skipped = plan_models(config)
     index = ShardIndex(out, config.settings(), split_desc, extra={"part": part},
                        problems=[dict(p, category="", model_id="") for p in problems], skipped=skipped)
-    run = NewShards.resume(index, tasks, max(1, int(config.objects_per_shard)))
+    run = NewShards.resume(index, tasks, max(1, int(config.objects_per_shard)), overwrite=config.overwrite)
     pool, n_workers = None, 1
     try:
         if run.todo:

@@ -60,7 +60,7 @@ def render_dataset(config: RenderConfig, executor=None) -> dict:
         from sc3d_data.pipeline.executors.local_pool import start_server_early
 
         start_server_early(config, RENDER)
-    with locked_output(Path(config.out), "sc3d-data render", config.overwrite) as out:
+    with locked_output(Path(config.out), "sc3d-data render") as out:
         return _render_locked(config, out, executor)
 
 
@@ -76,7 +76,7 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
     index = ShardIndex(out, settings, plan.split_desc, extra={"part": plan.part}, problems=plan.problems,
                        skipped=plan.skipped)
     run = NewShards.resume(index, plan.tasks, config.objects_per_shard, defaults, config.retry_failed,
-                           count_attempts=True)
+                           count_attempts=True, overwrite=config.overwrite)
     config = voxels_as_recorded(config, index.extra.get("voxels"))
     n_workers = max(1, min(config.workers or os.cpu_count() or 1, max(1, len(run.todo))))
     if executor is not None and executor.config.settings(None) != settings:

@@ -4,8 +4,9 @@
 A job that writes shards hands its per-object results over in plan order and gets:
 
 - :func:`locked_output`: the folder's write lock (``sc3d_data.io.outlock``) for the whole
-  run, so a second writer is refused with one line; ``--overwrite``'s removal of the files
-  the old index lists (``resume.remove_listed_outputs``); no stale ``*.tmp`` before or after.
+  run, so a second writer is refused with one line; no stale ``*.tmp`` before or after.
+  ``--overwrite`` removes the files the old index lists (``resume.remove_listed_outputs``)
+  when the run starts, after every check (``NewShards``).
 - :class:`ShardIndex`: the index of the run as it stands (``io.shards.write_index``'s fields)
   and its atomic writes.
 - :func:`write_chunks`: the chunk loop. The executor's results come grouped by chunk, in
@@ -51,7 +52,7 @@ from sc3d_data.io.shards import (SHARD_PATTERN, ShardError, add_shard_to_index, 
 from sc3d_data.io.shards import write_index as write_index_file
 from sc3d_data.pipeline.executors.executor import Executor, finished_chunks
 from sc3d_data.pipeline.run.resume import (check_resume, empty_state, plan_change_text, plan_changes, remaining,
-                                           resume_state)
+                                           listed_shard_names, remove_listed_outputs, resume_state)
 from sc3d_data.pipeline.run.resume_voxels import voxels_after_rewrite
 
 #: an index listing more objects than this is written lazily (module doc)
@@ -64,20 +65,19 @@ _INDEX_KEYS = ("schema_version", "sc3d_version", "complete", "settings", "split"
 
 
 @contextmanager
-def locked_output(out: Path, command: str, overwrite: bool = False, create: bool = True) -> Iterator[Path]:
+def locked_output(out: Path, command: str, create: bool = True) -> Iterator[Path]:
     """Hold ``out``'s write lock for the ``with`` block (``LockError`` naming the folder and the
     PID that holds it); ``create``: make the folder first (``ValueError`` when ``out`` is a file
-    or cannot be made); ``overwrite``: delete what its index lists first. Stale ``*.tmp``
-    files of a killed run are deleted at the start and whatever this run leaves at the end."""
+    or cannot be made). Stale ``*.tmp`` files of a killed run are deleted at the start and
+    whatever this run leaves at the end. (``--overwrite`` deletes the old outputs only when the
+    run starts, after every check: ``NewShards.resume``.)"""
     from sc3d_data.io.outlock import exclusive_lock
-    from sc3d_data.pipeline.run.resume import check_out, remove_listed_outputs, tmp_cleaned
+    from sc3d_data.pipeline.run.resume import check_out, tmp_cleaned
 
     out = Path(out)
     if create:
         check_out(out)
     with exclusive_lock(out, command):
-        if overwrite:
-            remove_listed_outputs(out)
         with tmp_cleaned(out):
             yield out
 
@@ -189,20 +189,25 @@ class NewShards:
     new_failures: list[dict] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)  # lines for the user (``resume_voxels.voxels_after_rewrite``)
     unlisted: set = field(default_factory=set)  # of ``retry``: kept chunks' objects the index did not list
+    replace_old: bool = False  # --overwrite: the old outputs are deleted when ``run`` starts
 
     @classmethod
     def resume(cls, index: ShardIndex, tasks: list, chunk_size: int, defaults: dict | None = None,
-               retry_failed: bool = False, count_attempts: bool = False) -> "NewShards":
+               retry_failed: bool = False, count_attempts: bool = False, overwrite: bool = False) -> "NewShards":
         """The run over ``tasks`` in chunks of ``chunk_size`` that ``index.out`` lets this run
-        make: fresh, or what its index keeps (module doc). ``defaults``: the values of settings
-        an older index lacks; ``count_attempts``: failures record their ``attempts``. Raises
-        ``ValueError`` (other settings or ``--part``, another plan, a foreign shard-named file)."""
+        make: fresh (``overwrite``: its old outputs deleted when :meth:`run` starts, so a refused
+        run deletes nothing), or what its index keeps (module doc). ``defaults``: the values of
+        settings an older index lacks; ``count_attempts``: failures record their ``attempts``.
+        ``ValueError``: other settings or ``--part``, another plan, a foreign shard-named file."""
         out, K = index.out, chunk_size
-        old, state = None, empty_state()
-        if index_path(out).is_file():
+        old, state, listed = None, empty_state(), set()
+        if index_path(out).is_file() and overwrite:
+            listed = listed_shard_names(out)
+        elif index_path(out).is_file():
             old = load_index(out)
             check_resume(out, old, index.settings, defaults or {}, index.extra["part"])
             state = resume_state(out, old, retry_failed, K, tasks)
+            listed = {s["file"] for s in old.get("shards", [])}
         pos_of = {(t.category, t.model_id): t.pos for t in tasks}
         if any(pos_of.get((o["category"], o["model_id"]), -K) // K != o["chunk"] for o in state["objects"]):
             raise ValueError(plan_change_text(out, *plan_changes(old, tasks, K)))
@@ -212,9 +217,9 @@ class NewShards:
         index.extra.update(state["extra"])
         todo, resumed = remaining(tasks, state, K)
         run = cls(index, tasks, K, todo, resumed, state["retry"], state["broken"],
-                  state["attempts"] if count_attempts else None, (old or {}).get("settings", {}),
-                  {s["file"] for s in (old or {}).get("shards", [])}, pos_of)
+                  state["attempts"] if count_attempts else None, (old or {}).get("settings", {}), listed, pos_of)
         run.unlisted = state["unlisted"]
+        run.replace_old = overwrite and index_path(out).is_file()
         run.check_unlisted()
         return run
 
@@ -233,6 +238,9 @@ class NewShards:
             bar: str | None = None) -> None:
         """Do ``todo`` on ``pool`` (``write_chunks``); ``progress(1)`` per object, or with
         ``bar`` (its description) a progress bar on stderr."""
+        if self.replace_old:  # --overwrite: every check has passed
+            remove_listed_outputs(self.index.out)
+            self.replace_old = False
         self.index.complete = not self.todo
         shown = None
         if bar and progress is None and self.todo:

@@ -73,6 +73,16 @@ def check_unlisted_shard(path: Path, settings: dict, index_file: Path, what: str
                          f"was not made with this run's settings; {hint}")
 
 
+def listed_shard_names(out: Path) -> set[str]:
+    """The shard file names that ``out``'s index lists (none when it cannot be read)."""
+    from sc3d_data.io.shards import ShardError, load_index
+
+    try:
+        return {e["file"] for e in load_index(out).get("shards", []) if isinstance(e, dict) and "file" in e}
+    except ShardError:
+        return set()
+
+
 def remove_listed_outputs(out: Path) -> None:
     """``--overwrite``: delete the shards that ``out``'s index lists, then the index. A file the
     index does not list (a shard-like name the run did not write) is left alone, and so is a
