@@ -25,9 +25,12 @@ def info(shard_dir: Path, max_failures: int, verify: bool):
         raise click.ClickException(printable(e, keep_newlines=True))
     from sc3d_data.io.shards import load_index
 
-    n = len(load_index(shard_dir).get("shards", []))
+    index = load_index(shard_dir)
+    n = len(index.get("shards", []))
     if broken:
-        click.echo(f"\nBROKEN shards: {len(broken)} of {n} (rerun the render command to re-render them)")
+        made_by = ("merge command (same parts)" if "merged" in index
+                   else "import-r2n2 command" if index.get("settings", {}).get("source") == "3D-R2N2" else "render command")
+        click.echo(f"\nBROKEN shards: {len(broken)} of {n} (rerun the {made_by} to make them again)")
         for line in broken:
             click.echo(f"  {line}")
         raise SystemExit(1)

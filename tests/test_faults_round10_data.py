@@ -23,6 +23,8 @@ from click.testing import CliRunner
 from sc3d_cli.data import main as data_main
 from conftest import SAMPLE_MESHES, one_error, run_cli, error_lines
 from test_faults import FAST, index_of
+from test_faults_round8_data import flip_bytes_in_a_chunk
+from test_import_r2n2 import fake_r2n2  # noqa: F401 - the fixture (fake 3D-R2N2 folders)
 
 
 def _voxel_shapes(out: Path) -> list[tuple | None]:
@@ -321,3 +323,88 @@ def test_a_refused_overwrite_deletes_nothing(tmp_path):
     render("2", "--overwrite")  # shard-00001.h5, listed by the old index, is not written again: deleted
     assert sorted(_dataset_bytes(out)) == ["index.json", "shard-00000.h5"]
     assert index_of(out)["settings"]["objects_per_shard"] == 2
+
+
+@pytest.mark.parametrize("damage", ["not square", "named twice"])
+def test_import_r2n2_refuses_a_stretched_or_repeated_view(fake_r2n2, tmp_path, damage):
+    """A rendering PNG of another aspect (137x90) was stretched to a square under a camera made
+    for a square image, and a ``renderings.txt`` naming one PNG twice gave two views one picture
+    under two cameras; both were imported without a word (``check`` passed one of them). Now the
+    model is left out with its reason, as for any other bad view."""
+    from PIL import Image
+
+    renderings, voxels, _ = fake_r2n2
+    copy = shutil.copytree(renderings, tmp_path / "ShapeNetRendering")
+    rendering = sorted(copy.glob("*/*/rendering"))[0]
+    if damage == "not square":
+        with Image.open(rendering / "03.png") as im:
+            im.crop((0, 0, im.width, 90)).save(rendering / "03.png")
+        reason = "03.png: image is 137x90, not square"
+    else:
+        names = (rendering / "renderings.txt").read_text().splitlines()
+        (rendering / "renderings.txt").write_text("\n".join([names[0], names[0], *names[2:]]) + "\n")
+        reason = f"line 2: {names[0]!r} is named again (line 1)"
+    out = tmp_path / "out"
+    res = run_cli(data_main, ["import-r2n2", "--renderings", copy, "--voxels", voxels, "--out", out, "--no-progress"])
+    assert "imported 2 of 3 models" in res.output, res.output
+    failures = index_of(out)["failures"]
+    assert len(failures) == 1 and reason in failures[0]["reason"], failures
+    assert failures[0]["model_id"] == rendering.parent.name
+
+
+def test_preview_reads_only_the_objects_it_draws(tmp_path):
+    """``preview --objects 1`` read the images, masks and voxels of every object of the dataset
+    before picking one (0.44 MB an object: gigabytes for ShapeNet). Now it picks from the index:
+    shards of objects it does not draw are not read, so damage there does not even stop it."""
+    meshes = _two_chairs(tmp_path)
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", meshes, "--out", out, "--objects-per-shard", "1", "--voxelize", *FAST])
+    flip_bytes_in_a_chunk(out / "shard-00001.h5")  # the second chair's images: a read fails its checksum
+    res = run_cli(data_main, ["preview", out, "--objects", "1", "--out", tmp_path / "one.png"])
+    assert (tmp_path / "one.png").is_file(), res.output
+    res = run_cli(data_main, ["preview", out, "--objects", "2", "--out", tmp_path / "two.png"], expect_exit=1)
+    assert "shard-00001.h5: row 0 cannot be read" in one_error(res.output)
+
+
+def test_ray_with_gpus_on_a_cluster_without_gpus_is_refused_not_left_waiting(tmp_path):
+    """``render --executor ray --gpus 0`` on a cluster without GPUs asked Ray for GPU shares
+    that could never be granted and waited for ever, printing nothing."""
+    pytest.importorskip("ray")
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU: Ray would grant the shares")
+    res = subprocess.run([sys.executable, "-c", "from sc3d_cli.data import main; main()", "render", "--meshes",
+                          str(SAMPLE_MESHES / "table"), "--out", str(tmp_path / "out"), "--executor", "ray",
+                          "--gpus", "0", "--workers", "1", "--no-progress"],
+                         capture_output=True, text=True, timeout=180)
+    assert res.returncode == 1, res.stdout + res.stderr
+    assert "--gpus 0: the Ray cluster has no GPU" in error_lines(res.stdout + res.stderr)[0]
+
+
+def test_import_r2n2_skips_hidden_folders(fake_r2n2, tmp_path):
+    """A hidden folder in a synset folder (``.ipynb_checkpoints``) was counted as a failed model
+    with an empty category and id; ``render`` skips hidden folders, and so does the import now."""
+    renderings, voxels, _ = fake_r2n2
+    copy = shutil.copytree(renderings, tmp_path / "ShapeNetRendering")
+    synset = sorted(p for p in copy.iterdir() if p.is_dir())[0]
+    (synset / ".ipynb_checkpoints").mkdir()
+    out = tmp_path / "out"
+    res = run_cli(data_main, ["import-r2n2", "--renderings", copy, "--voxels", voxels, "--out", out, "--no-progress"])
+    assert "imported 3 of 3 models" in res.output and index_of(out)["failures"] == [], res.output
+
+
+def test_info_says_which_command_makes_a_broken_shard_again(tmp_path):
+    """``info --verify`` told the user of a merged dataset to "rerun the render command", which a
+    merged folder refuses; it names the command that made the dataset."""
+    meshes = _two_chairs(tmp_path)
+    parts = [tmp_path / f"p{i}" for i in range(2)]
+    for i, part in enumerate(parts):
+        run_cli(data_main, ["render", "--meshes", meshes, "--out", part, "--part", f"{i}/2", *FAST])
+    merged = tmp_path / "merged"
+    run_cli(data_main, ["merge", merged, *parts, "--copy"])
+    flip_bytes_in_a_chunk(next(merged.glob("shard-*.h5")))
+    res = run_cli(data_main, ["info", merged, "--verify"], expect_exit=1)
+    assert "(rerun the merge command (same parts) to make them again)" in res.output, res.output
+    run_cli(data_main, ["merge", merged, *parts, "--copy"])
+    run_cli(data_main, ["info", merged, "--verify"])

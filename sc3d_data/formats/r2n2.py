@@ -118,16 +118,22 @@ def read_rendering_list(rendering_dir: Path, num_views: int = R2N2_NUM_VIEWS) ->
     """PNG names of the views in order: ``renderings.txt`` when present, else ``00.png``...
     A line that is not a plain file name (a path: ``/abs.png``, ``../x.png``, ``a/b.png``) is
     refused with ``ValueError`` naming the file and line, so the list cannot make the import
-    read an image from outside the model's ``rendering/`` folder."""
+    read an image from outside the model's ``rendering/`` folder; so is a name listed twice (two
+    views would hold one picture under two cameras)."""
     lst = Path(rendering_dir) / "renderings.txt"
     if lst.is_file():
         lines = [(k, ln.strip()) for k, ln in enumerate(lst.read_text(errors="replace").splitlines(), 1)]
         names = [name for _, name in lines if name]
         if len(names) != num_views:
             raise ValueError(f"{lst}: {len(names)} names, expected {num_views}")
+        seen: dict[str, int] = {}
         for k, name in lines:
             if name and (Path(name).name != name or name == ".."):
                 raise ValueError(f"{lst}: line {k}: {name!r} is a path, not a file name in {rendering_dir}; refused")
+            if name in seen:  # two views cannot show one picture from two cameras
+                raise ValueError(f"{lst}: line {k}: {name!r} is named again (line {seen[name]}); each view needs its own image")
+            if name:
+                seen[name] = k
         return names
     return [f"{i:02d}.png" for i in range(num_views)]
 
@@ -229,12 +235,16 @@ def load_rendering(path: Path, image_size: int, background=(255, 255, 255)
 
     Premultiplied colour and alpha are area-averaged (box filter), the mask is
     ``alpha >= 0.5`` and the colour is composited over ``background``. A PNG without an alpha
-    channel raises ``ValueError`` (no mask can be made)."""
+    channel raises ``ValueError`` (no mask can be made), and so does one that is not square (the
+    cameras are those of a square image)."""
     from PIL import Image
 
     with Image.open(path) as im:
         if "A" not in im.getbands() and not (im.mode == "P" and "transparency" in im.info):
             raise ValueError(f"{path}: image has no alpha channel ({im.mode}); cannot make a mask")
+        if im.width != im.height:  # the cameras (K) are those of a square image: a stretch would move the object
+            raise ValueError(f"{path}: image is {im.width}x{im.height}, not square (3D-R2N2's renderings are "
+                             "137x137); its camera would not match it")
         rgba = np.asarray(im.convert("RGBA"), dtype=np.float32) / 255.0
     alpha = rgba[..., 3]
     premult = rgba[..., :3] * alpha[..., None]
@@ -265,7 +275,8 @@ def find_r2n2_models(renderings: Path, voxels: Path, categories=None
                      ) -> tuple[list[R2N2Model], list[dict]]:
     """Model folders of ``ShapeNetRendering/SYNSET/MODEL_ID`` (sorted by synset, model id),
     paired with ``ShapeNetVox32/SYNSET/MODEL_ID/model.binvox``. Problems: folders without
-    ``rendering/``, models without a binvox file, voxel models without renderings."""
+    ``rendering/``, models without a binvox file, voxel models without renderings. Hidden folders
+    (``.ipynb_checkpoints``, name starting with ``.``) are skipped, as ``render`` skips them."""
     renderings, voxels = Path(renderings), Path(voxels)
     for p, what in ((renderings, "--renderings"), (voxels, "--voxels")):
         if not p.is_dir():
@@ -281,7 +292,7 @@ def find_r2n2_models(renderings: Path, voxels: Path, categories=None
         if wanted is not None and syn not in wanted:
             continue
         seen = set()
-        for mdir in sorted(d for d in (renderings / syn).iterdir() if d.is_dir()):
+        for mdir in sorted(d for d in (renderings / syn).iterdir() if d.is_dir() and not d.name.startswith(".")):
             seen.add(mdir.name)
             rdir = mdir / "rendering"
             bv = voxels / syn / mdir.name / "model.binvox"
@@ -294,7 +305,8 @@ def find_r2n2_models(renderings: Path, voxels: Path, categories=None
             models.append(R2N2Model(syn, mdir.name, rdir, bv))
         vdir = voxels / syn
         if vdir.is_dir():
-            for mdir in sorted(d for d in vdir.iterdir() if d.is_dir() and d.name not in seen):
+            for mdir in sorted(d for d in vdir.iterdir()
+                               if d.is_dir() and d.name not in seen and not d.name.startswith(".")):
                 problems.append({"source": str(mdir), "reason": "voxel model without renderings; skipped"})
     if wanted is not None:
         for c in sorted(wanted - set(synsets)):

@@ -100,6 +100,13 @@ class ShardReader:
         except (OSError, KeyError, RuntimeError) as e:
             raise ShardError(f"{path}: cannot be read ({io_reason(e)}); see `sc3d-data info --verify`") from e
 
+    def holds(self, path: Path, name: str) -> bool:
+        """Whether shard file ``path`` has the array ``name`` (e.g. ``voxels``)."""
+        try:
+            return name in self._handle(Path(path))
+        except (OSError, RuntimeError) as e:
+            raise ShardError(f"{path}: cannot be read ({io_reason(e)}); see `sc3d-data info --verify`") from e
+
     def read(self, path: Path, row: int, fields: tuple[str, ...]) -> dict[str, np.ndarray]:
         """Arrays ``fields`` of object ``row`` of shard file ``path`` (one of ``self.files``),
         without the object axis: every view of the object. ``ShardError`` naming the file when a

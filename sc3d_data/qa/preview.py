@@ -18,21 +18,34 @@ import numpy as np
 
 from sc3d_data.formats.shapenet import category_name
 from sc3d_data.io.names import printable
-from sc3d_data.io.shard_reader import iter_objects
 
 LABEL_WIDTH = 150
 
 
 def pick_objects(shard_dir: Path, max_objects: int) -> list[dict]:
-    """Up to ``max_objects`` objects, round-robin over categories (plan order within each)."""
+    """Up to ``max_objects`` objects, round-robin over categories (index order within each), as
+    dicts of their strings, ``shard``, ``row`` and arrays (images, masks, K, R, t; voxels where the
+    shards hold them). The choice is made from ``index.json``: only the picked objects are read
+    (a contact sheet of a ShapeNet-sized dataset costs the memory of its rows, not the dataset's)."""
+    from sc3d_data.io.shard_reader import ShardReader
+    from sc3d_data.io.shards import shard_path
+
     by_cat = defaultdict(list)
-    for o in iter_objects(shard_dir, fields=("images", "masks", "voxels", "K", "R", "t")):
-        by_cat[o["category"]].append(o)
-    picked, k = [], 0
-    while len(picked) < max_objects and any(k < len(v) for v in by_cat.values()):
-        picked.extend(v[k] for v in by_cat.values() if k < len(v))
-        k += 1
-    return picked[:max_objects]
+    with ShardReader(shard_dir) as reader:
+        for entry in reader.index.get("objects", []):
+            if len(by_cat[entry["category"]]) < max_objects:
+                by_cat[entry["category"]].append(entry)
+        picked, k = [], 0
+        while len(picked) < max_objects and any(k < len(v) for v in by_cat.values()):
+            picked.extend(v[k] for v in by_cat.values() if k < len(v))
+            k += 1
+        objects = []
+        for entry in picked[:max_objects]:
+            path = shard_path(Path(shard_dir), entry["shard"])
+            fields = ("images", "masks", "K", "R", "t") + (("voxels",) if reader.holds(path, "voxels") else ())
+            objects.append({**{k: entry.get(k, "") for k in ("category", "model_id", "split")},
+                            "shard": path.name, "row": int(entry["row"]), **reader.read(path, int(entry["row"]), fields)})
+    return objects
 
 
 def _silhouettes(o: dict, S: int, sel, notes: list[str] | None) -> np.ndarray:

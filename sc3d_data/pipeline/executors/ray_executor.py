@@ -187,6 +187,11 @@ class RayExecutor:
                 owns = True
         slots = int(config.workers or ray.cluster_resources().get("CPU", n_workers))
         slots = max(1, slots)
+        if _gpu_share(job, config, slots) and not ray.cluster_resources().get("GPU"):
+            if owns:  # its tasks could never be scheduled: the run would wait for ever
+                ray.shutdown()
+            raise RuntimeError(f"--gpus {','.join(map(str, config.gpus))}: the Ray cluster has no GPU "
+                               "(ray.cluster_resources() lists none); run without --gpus, or on GPU nodes")
         probe = ray.remote(_probe_backend).options(num_cpus=1, num_gpus=_gpu_share(job, config, slots),
                                                    max_retries=0)
         try:
