@@ -408,3 +408,39 @@ def test_info_says_which_command_makes_a_broken_shard_again(tmp_path):
     assert "(rerun the merge command (same parts) to make them again)" in res.output, res.output
     run_cli(data_main, ["merge", merged, *parts, "--copy"])
     run_cli(data_main, ["info", merged, "--verify"])
+
+
+def test_voxelize_meshes_redoes_a_binvox_cut_short(tmp_path):
+    """A rerun of ``voxelize --meshes`` kept a ``.binvox`` cut to 100 bytes (its header intact)
+    as "already there"; ``read_binvox`` then failed on it. A file whose voxels do not decode to
+    the whole grid is done again."""
+    from sc3d_data.io.binvox import read_binvox
+
+    out = tmp_path / "vox"
+    args = ["voxelize", "--meshes", SAMPLE_MESHES / "table", "--out", out, "--no-progress"]
+    run_cli(data_main, args)
+    target = next(out.rglob("*.binvox"))
+    whole = target.read_bytes()
+    target.write_bytes(whole[:100])
+    with pytest.raises(ValueError):
+        read_binvox(target)
+    res = run_cli(data_main, args)
+    assert "wrote 1 .binvox files" in res.output, res.output
+    assert target.read_bytes() == whole
+
+
+def test_import_r2n2_rerun_imports_a_model_whose_files_came_back(fake_r2n2, tmp_path):
+    """A model that failed for a missing PNG (an incomplete extraction) stayed out on the rerun
+    after the file was restored, and ``info`` still said the file was missing. The rerun tries the
+    failures again, as ``render`` does."""
+    renderings, voxels, _ = fake_r2n2
+    copy = shutil.copytree(renderings, tmp_path / "ShapeNetRendering")
+    png = sorted(copy.glob("*/*/rendering/05.png"))[0]
+    png.rename(tmp_path / "05.png")
+    out = tmp_path / "out"
+    args = ["import-r2n2", "--renderings", copy, "--voxels", voxels, "--out", out, "--no-progress"]
+    assert "imported 2 of 3 models" in run_cli(data_main, args).output
+    (tmp_path / "05.png").rename(png)
+    res = run_cli(data_main, args)
+    assert "imported 1 of 3 models" in res.output and index_of(out)["failures"] == [], res.output
+    assert len(index_of(out)["objects"]) == 3

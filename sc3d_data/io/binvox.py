@@ -142,6 +142,18 @@ def binvox_resolution(path: str | Path) -> int | None:
         return None
 
 
+def binvox_intact(path: str | Path, resolution: int) -> bool:
+    """Whether ``path`` is a whole ``.binvox`` file of a ``resolution``^3 grid: its header says so
+    and its run-length data decodes to exactly that many voxels (a file cut short by a copy or a
+    full disk keeps its header)."""
+    if binvox_resolution(path) != resolution:
+        return False
+    try:
+        return read_binvox(path).voxels.shape == (resolution,) * 3
+    except (OSError, ValueError, IndexError):
+        return False
+
+
 def read_binvox(path: str | Path) -> Binvox:
     """Read a binvox file; voxels come back in sc3d order ``[x, y, z]`` (module doc)."""
     path = Path(path)

@@ -14,8 +14,9 @@ with the reason and the others are imported.
 Resume: the index is rewritten atomically after every shard (lazily past 10,000 objects; the chunk loop and index writer
 ``render`` uses: ``shard_output.py``). A rerun with the same settings and ``--part`` keeps the
 chunks whose shard is intact (size and SHA-256 as in the index: ``resume.resume_state``) and
-imports the rest, so a crash or Ctrl-C loses no finished shard; other settings are refused
-(``--overwrite`` starts afresh).
+imports the rest, so a crash or Ctrl-C loses no finished shard; the models that failed are tried
+again, as ``render`` retries its failures (a PNG restored after an incomplete extraction is then
+imported, not reported missing again); other settings are refused (``--overwrite`` starts afresh).
 """
 from __future__ import annotations
 
@@ -160,7 +161,8 @@ def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
     tasks, split_desc, part, problems, skipped = plan_models(config)
     index = ShardIndex(out, config.settings(), split_desc, extra={"part": part},
                        problems=[dict(p, category="", model_id="") for p in problems], skipped=skipped)
-    run = NewShards.resume(index, tasks, max(1, int(config.objects_per_shard)), overwrite=config.overwrite)
+    run = NewShards.resume(index, tasks, max(1, int(config.objects_per_shard)), retry_failed=True,
+                           overwrite=config.overwrite)
     pool, n_workers = None, 1
     try:
         if run.todo:

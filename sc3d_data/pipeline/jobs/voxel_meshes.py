@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sc3d_data.io.binvox import binvox_resolution
+from sc3d_data.io.binvox import binvox_intact
 from sc3d_data.io.shards import write_json_atomic
 from sc3d_data.pipeline.executors.job import ExecOptions, Job
 from sc3d_data.pipeline.executors.slurm_executor import SlurmOptions, run_array, summed_parts
@@ -149,9 +149,9 @@ def _voxelize_entries(config: VoxelMeshesConfig, out: Path, part: Part, entries:
         entries = [e for e in entries if part_of(e.category, e.model_id, part.count) == part.index]
         problems = problems if part.index == 0 else []
     todo = []
-    for e in entries:  # a file of another resolution (or unreadable) is done again
+    for e in entries:  # a file of another resolution, cut short or unreadable is done again
         target = binvox_target(config, str(e.path))
-        if not config.overwrite and target.is_file() and binvox_resolution(target) == config.resolution:
+        if not config.overwrite and target.is_file() and binvox_intact(target, config.resolution):
             summary.shards_skipped += 1
         else:
             todo.append(Task(len(todo), str(e.path), e.category, e.model_id, ""))
