@@ -68,6 +68,14 @@ def test_merge_run_again_after_voxelize_keeps_the_voxels(tmp_path):
     assert _dataset_bytes(merged) == voxelized
     assert index_of(merged)["voxels"]["resolution"] == 32
 
+    index = json.loads((merged / "index.json").read_text())  # a merge of an earlier version: no record of
+    del index["merged"]["sources_sha256"]                      # which part shards it took
+    (merged / "index.json").write_text(json.dumps(index))
+    voxelized = _dataset_bytes(merged)
+    res = run_cli(data_main, ["merge", merged, *parts], expect_exit=1)
+    assert "given voxels by `sc3d-data voxelize` after the merge" in one_error(res.output)
+    assert _dataset_bytes(merged) == voxelized
+
     copies = [shutil.copytree(p, tmp_path / f"q{i}") for i, p in enumerate(parts)]
     res = run_cli(data_main, ["merge", merged, *copies], expect_exit=1)
     errors = error_lines(res.output)

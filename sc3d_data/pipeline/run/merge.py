@@ -160,15 +160,18 @@ def _place(src: Path, dst: Path, copy: bool) -> str:
     return how
 
 
-def _voxelized_since(out: Path, old: dict, parts: list[dict], objects: list[dict], t0: float) -> MergeSummary:
+def _voxelized_since(out: Path, old: dict, parts: list[dict], objects: list[dict], sources: list[str],
+                     t0: float) -> MergeSummary:
     """A merge run again into ``out`` after ``sc3d-data voxelize out`` gave its shards voxels
     (its index's ``voxels`` record is not the parts'): the parts' shards would replace them.
-    When ``out`` still holds this merge (the same parts, plan and objects, every shard intact
-    as its index lists it) nothing is written and the voxelized dataset is kept; otherwise
+    When ``out`` still holds this merge (the same parts, plan and objects, the parts' shards the
+    ones merged: ``sources``, their SHA-256 as the merge recorded them; every shard of ``out``
+    intact as its index lists it) nothing is written and the voxelized dataset is kept; otherwise
     ``MergeError``: merging again needs ``--overwrite`` (and then ``voxelize`` again)."""
     from sc3d_data.io.shard_reader import verify_shard
 
     same_merge = (old["merged"].get("plan_sha256") == parts[0]["part"]["plan_sha256"]
+                  and old["merged"].get("sources_sha256") == sources
                   and sorted(map(os.path.realpath, old["merged"].get("parts", [])))
                   == sorted(os.path.realpath(p["_dir"]) for p in parts))
 
@@ -220,7 +223,7 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
         kept = [dst.is_file() and dst.stat().st_size == entry["bytes"] and file_sha256(dst) == entry["sha256"]
                 for _, dst, entry in places]
         if old.get("merged") and old.get("voxels") != parts[0].get("voxels") and not overwrite:
-            return _voxelized_since(out, old, parts, objects, t0)
+            return _voxelized_since(out, old, parts, objects, [e["sha256"] for _, _, e in places], t0)
         if not overwrite:  # a shard-named file no merge wrote is someone's: refused before any write
             for (_, dst, _), same in zip(places, kept):
                 if not same and dst.name not in listed:
@@ -234,6 +237,7 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
         extra = {"merged": {"parts": [p["_dir"] for p in parts], "count": first["part"]["count"],
                             "rule": first["part"]["rule"], "plan_sha256": first["part"]["plan_sha256"],
                             "planned_total": first["part"]["planned_total"],
+                            "sources_sha256": [e["sha256"] for _, _, e in places],
                             "backends": sorted({str(p["settings"].get("backend")) for p in parts})}}
         if "voxels" in first:
             extra["voxels"] = first["voxels"]
