@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-from conftest import SAMPLE_MESHES, assert_same_dataset, run_cli
+from conftest import SAMPLE_MESHES, assert_same_dataset, run_cli, error_lines
 from sc3d_cli.data import main
 from sc3d_data.pipeline.executors.devices import DEVICE_ENV, device_of_slot, parse_gpus, worker_environ
 
@@ -60,3 +60,5 @@ def test_each_worker_draws_on_its_slots_device(sample_shards, tmp_path):
     res = run_cli(main, ["render", "--meshes", SAMPLE_MESHES / "chair", "--out", tmp_path / "auto7", "--workers",
                          "1", "--gpus", "7", "--views", "4", "--no-progress"], expect_exit=1)
     assert "EGL device 7 does not exist" in res.output and "osmesa:" not in res.output
+    # one line (round ten): it came wrapped twice, with the packages to install given twice
+    assert error_lines(res.output) == [res.output.strip()] and "install" not in res.output, res.output

@@ -23,6 +23,11 @@ class BackendError(RuntimeError):
     """No usable headless OpenGL backend."""
 
 
+class DeviceError(RuntimeError):
+    """An EGL device index (``--gpus``, ``EGL_DEVICE_ID``) that this machine does not have: no
+    package to install and no other backend to try, the message alone says what to change."""
+
+
 def install_hint() -> str:
     return ("install the system packages, e.g. on Debian/Ubuntu: "
             f"`sudo apt-get install {DEBIAN_PACKAGES['egl']}` (EGL, preferred) or "

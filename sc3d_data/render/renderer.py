@@ -276,7 +276,9 @@ class MeshRenderer:
             index = int(os.environ.get("EGL_DEVICE_ID", "0"))  # a worker's --gpus device (executors/devices.py)
             devices = egl.query_devices() if index else []
             if index and index >= len(devices):
-                raise RuntimeError(f"EGL device {index} does not exist: this machine has {len(devices)} "
+                from sc3d_data.render.gl_backend import DeviceError
+
+                raise DeviceError(f"EGL device {index} does not exist: this machine has {len(devices)} "
                                    f"(--gpus / EGL_DEVICE_ID take 0 to {max(len(devices) - 1, 0)})")
             platform = egl.EGLPlatform(width, height, device=egl.get_device_by_index(index))
         else:

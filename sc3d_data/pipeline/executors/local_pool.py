@@ -27,6 +27,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import signal
+import sys
 import time
 from multiprocessing.connection import wait
 
@@ -73,8 +74,6 @@ def _worker_main(conn, job: Job, config, backend: str, environ: dict | None = No
     start), ``job.start`` (one renderer), then (task -> result) until ``None``."""
     signal.signal(signal.SIGINT, signal.default_int_handler)  # the server ignores it: ensure_server
     if environ is not None:
-        import sys
-
         fixed = {k: os.environ[k] for k in ("PYOPENGL_PLATFORM",) if k in os.environ and "OpenGL" in sys.modules}
         os.environ.clear()
         os.environ.update(environ)
@@ -283,8 +282,7 @@ def start_pool(n: int, config, job: Job) -> WorkerPool:
     errors = []
     backends = job.backends(getattr(config, "backend", "auto"))
     if job.gl and getattr(config, "gpus", ()):
-        # --gpus names EGL devices: a device that fails is an error, not a silent fall back to
-        # OSMesa's CPU rasteriser
+        # --gpus names EGL devices: one that fails is an error, not a fall back to OSMesa's CPU
         backends = [b for b in backends if b == "egl"]
     for backend in backends:
         pool = WorkerPool(n, config, backend, job)
@@ -296,5 +294,7 @@ def start_pool(n: int, config, job: Job) -> WorkerPool:
             return pool
         if not job.gl:  # no GL to blame: the workers themselves could not start
             raise RuntimeError(f"{job.name} workers could not start: {err}")
+        if err.startswith("DeviceError: "):  # a --gpus device this machine lacks: that line alone
+            raise BackendError(err.removeprefix("DeviceError: "))
         errors.append(f"{backend}: {err}")
     raise BackendError("no headless OpenGL backend works:\n  " + "\n  ".join(errors) + "\n" + install_hint())

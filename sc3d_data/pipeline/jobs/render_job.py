@@ -185,7 +185,7 @@ def cached_renderer(config: RenderConfig, backend: str):
     """``(renderer, backend)`` of this process for ``config``'s view/render settings, made on
     first use and kept (one GL context per worker process). ``backend="auto"`` tries EGL, then
     OSMesa; ``BackendError`` naming the packages when none works."""
-    from sc3d_data.render.gl_backend import BackendError, install_hint
+    from sc3d_data.render.gl_backend import BackendError, DeviceError, install_hint
     from sc3d_data.render.renderer import MeshRenderer, RenderSettings
 
     key = (config.view_settings(), tuple(config.background), config.depth, backend)
@@ -197,6 +197,8 @@ def cached_renderer(config: RenderConfig, backend: str):
             try:
                 r = MeshRenderer(config.view_settings(), RenderSettings(background=tuple(config.background),
                                                                         depth=config.depth), name)
+            except DeviceError:  # a named device: no other backend to try, nothing to install
+                raise
             except Exception as e:  # noqa: BLE001 - next backend; all reasons are reported
                 errors.append(f"{name}: {type(e).__name__}: {e}")
                 continue
