@@ -55,11 +55,9 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
         raise click.UsageError("Missing option '--shards' (needed unless --resume or --config)")
     options = given_on_command_line(ctx, RunConfig)
     if shards is not None:
-        options["shards"] = str(shards.resolve())  # absolute: resume from anywhere
+        options["shards"] = str(shards)  # made absolute with the config's: resolve_config
     if out is not None:
         options["out"] = str(out)
-    if options.get("decoded_cache"):
-        options["decoded_cache"] = str(Path(options["decoded_cache"]).resolve())  # absolute, like --shards
     if semi or labeled_only:
         options["mode"] = "semi" if semi else "labeled-only"
     model_options = {**given_on_command_line(ctx, ModelConfig), "tiny": tiny}

@@ -20,27 +20,23 @@ NORMALIZE_MODES = ("fit", "diagonal")
 AXES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
 
 
-def axis_vector(axis: str) -> np.ndarray:
-    """``"+X"``, ``"-Y"``, ... (case-insensitive; a missing sign means +) -> unit vector [3]."""
-    a = axis.strip().upper()
+def axis_name(axis: str) -> str:
+    """An axis as ``AXES`` spells it (case-insensitive, a missing sign means +: ``"z"``, ``"+z"``
+    -> ``"+Z"``); anything that is not an axis (``"auto"``) unchanged."""
+    a = axis.strip().upper() if isinstance(axis, str) else ""
     if a and a[0] not in "+-":
         a = "+" + a
+    return a if a in AXES else axis
+
+
+def axis_vector(axis: str) -> np.ndarray:
+    """``"+X"``, ``"-Y"``, ... (spelt as :func:`axis_name` reads them) -> unit vector [3]."""
+    a = axis_name(axis)
     if a not in AXES:
         raise ValueError(f"axis must be one of {', '.join(AXES)}, not {axis!r}")
     v = np.zeros(3)
     v["XYZ".index(a[1])] = 1.0 if a[0] == "+" else -1.0
     return v
-
-
-def axis_name(axis: str) -> str:
-    """An axis as ``AXES`` spells it (``"z"``, ``"+z"`` -> ``"+Z"``); anything that is not an
-    axis (``"auto"``) unchanged."""
-    try:
-        v = axis_vector(axis)
-    except (ValueError, AttributeError):
-        return axis
-    i = int(np.flatnonzero(v)[0])
-    return ("+" if v[i] > 0 else "-") + "XYZ"[i]
 
 
 def canonical_rotation(up: str = "+Y", front: str = "+Z") -> np.ndarray:

@@ -145,9 +145,7 @@ def binvox_resolution(path: str | Path) -> int | None:
 def binvox_intact(path: str | Path, resolution: int) -> bool:
     """Whether ``path`` is a whole ``.binvox`` file of a ``resolution``^3 grid: its header says so
     and its run-length data decodes to exactly that many voxels (a file cut short by a copy or a
-    full disk keeps its header)."""
-    if binvox_resolution(path) != resolution:
-        return False
+    full disk keeps its header: ``read_binvox`` checks the run lengths against it)."""
     try:
         return read_binvox(path).voxels.shape == (resolution,) * 3
     except (OSError, ValueError, IndexError):

@@ -26,6 +26,7 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
 
     model_options = dict(model_options or {})
     tiny = model_options.pop("tiny", False)
+    options = absolute_paths(options)
     if resume:
         return _resumed(options, model_options, tiny)
     plain = {}
@@ -36,9 +37,7 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     plain.update(options)
     if plain.get("out") is None or plain.get("shards") is None:
         raise ValueError("a new run needs --shards and --out (or a --config file that names them)")
-    for key in ("shards", "decoded_cache"):  # a --config file's relative path: from the current folder, as
-        if plain.get(key):                    # the option's, and recorded absolute (resume from anywhere)
-            plain[key] = str(Path(plain[key]).resolve())
+    plain = absolute_paths(plain)  # a --config file's relative paths too
     check_path_names(plain)
     out = Path(plain["out"])
     if plain.get("split") == "test":
@@ -97,6 +96,13 @@ def check_no_foreign_files(out: Path) -> None:
         pass
     raise CheckpointError(f"{out}: holds {', '.join(present)}, not from an sc3d-train run, which a new run would "
                           "overwrite; choose another --out (or move them)")
+
+
+def absolute_paths(settings: dict) -> dict:
+    """``settings`` with ``shards`` and ``decoded_cache`` absolute, a relative one read from the
+    current folder (given as an option or in a ``--config`` file), so that the run's
+    ``config.yaml`` resumes from anywhere."""
+    return {**settings, **{k: str(Path(settings[k]).resolve()) for k in ("shards", "decoded_cache") if settings.get(k)}}
 
 
 def given_paths(options: dict) -> dict:

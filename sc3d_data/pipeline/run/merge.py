@@ -220,10 +220,10 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
             failures += _renamed_failures(index.get("failures", []), names)
             skipped += index.get("skipped", [])
             warnings += index.get("warnings", [])
-        kept = [dst.is_file() and dst.stat().st_size == entry["bytes"] and file_sha256(dst) == entry["sha256"]
-                for _, dst, entry in places]
         if old.get("merged") and old.get("voxels") != parts[0].get("voxels") and not overwrite:
             return _voxelized_since(out, old, parts, objects, [e["sha256"] for _, _, e in places], t0)
+        kept = [dst.is_file() and dst.stat().st_size == entry["bytes"] and file_sha256(dst) == entry["sha256"]
+                for _, dst, entry in places]
         if not overwrite:  # a shard-named file no merge wrote is someone's: refused before any write
             for (_, dst, _), same in zip(places, kept):
                 if not same and dst.name not in listed:

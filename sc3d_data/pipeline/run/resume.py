@@ -88,18 +88,14 @@ def remove_listed_outputs(out: Path) -> None:
     index does not list (a shard-like name the run did not write) is left alone, and so is a
     listed name that is not a plain file name of ``out`` or leads outside it. An unreadable
     index is deleted alone."""
-    from sc3d_data.io.shards import INDEX_NAME, ShardError, load_index, shard_path
+    from sc3d_data.io.shards import INDEX_NAME, ShardError, shard_path
 
     index_file = out / INDEX_NAME
     if not index_file.is_file():
         return
-    try:
-        entries = load_index(out).get("shards", [])
-    except ShardError:
-        entries = []
-    for entry in entries:
+    for name in listed_shard_names(out):
         try:
-            shard_path(out, entry["file"]).unlink(missing_ok=True)
+            shard_path(out, name).unlink(missing_ok=True)
         except ShardError:
             continue
     index_file.unlink()
