@@ -219,14 +219,50 @@ def sample_shards(tmp_path_factory) -> Path:
 TRAINED_RUN_STEPS = 360
 
 
-@pytest.fixture(scope="session")
-def trained_run(sample_shards, tmp_path_factory) -> Path:
-    """A short supervised run of a tiny model on the sample shards through `sc3d-train fit`
-    (run directory; checkpoints at half way and the end, every step logged)."""
-    from sc3d_cli.train import main
+def trained_run_args(shards: Path, out: Path) -> list[str]:
+    """`sc3d-train fit`'s arguments of the shared short run (see ``trained_run``)."""
+    return ["fit", "--shards", str(shards), "--out", str(out), "--steps", str(TRAINED_RUN_STEPS),
+            "--batch-size", "8", "--tiny", "--base-channels", "4", "--lr", "1e-3", "--lr-schedule", "constant",
+            "--log-every", "1", "--checkpoint-every", str(TRAINED_RUN_STEPS // 2), "--no-progress",
+            "--seed", str(train_seed())]
 
+
+@pytest.fixture(scope="session", autouse=True)
+def _trained_run_started(request, tmp_path_factory):
+    """Start ``trained_run``'s training in a child process as the session starts, when a selected
+    test needs it: the run (~1 min of one core; torch trains on one thread, ``OMP_NUM_THREADS=1``
+    above) then overlaps the tests before its first user instead of holding the suite up at that
+    test. Yields ``(process, run directory, log file)``, or None when no selected test needs it."""
+    if not any("trained_run" in getattr(item, "fixturenames", ()) for item in request.session.items):
+        yield None
+        return
+    import subprocess
+    import sys
+
+    shards = request.getfixturevalue("sample_shards")
     out = tmp_path_factory.mktemp("trained_run") / "run"
-    run_cli(main, ["fit", "--shards", sample_shards, "--out", out, "--steps", TRAINED_RUN_STEPS,
-                   "--batch-size", 8, "--tiny", "--base-channels", 4, "--lr", 1e-3, "--lr-schedule", "constant", "--log-every", 1,
-                   "--checkpoint-every", TRAINED_RUN_STEPS // 2, "--no-progress", "--seed", train_seed()])
+    log = out.parent / "fit.log"
+    with log.open("w") as f:  # the child keeps its own descriptor
+        proc = subprocess.Popen([sys.executable, "-c", "from sc3d_cli.train import main; main()",
+                                 *trained_run_args(shards, out)], stdout=f, stderr=subprocess.STDOUT)
+    yield proc, out, log
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait()
+
+
+@pytest.fixture(scope="session")
+def trained_run(_trained_run_started, sample_shards, tmp_path_factory) -> Path:
+    """A short supervised run of a tiny model on the sample shards through `sc3d-train fit`
+    (run directory; checkpoints at half way and the end, every step logged): the run started with
+    the session (``_trained_run_started``), or trained here when no test had asked for it then."""
+    if _trained_run_started is None:
+        from sc3d_cli.train import main
+
+        out = tmp_path_factory.mktemp("trained_run") / "run"
+        run_cli(main, trained_run_args(sample_shards, out))
+        return out
+    proc, out, log = _trained_run_started
+    if proc.wait() != 0:
+        raise AssertionError(f"the shared training run failed ({proc.returncode}):\n{log.read_text()[-4000:]}")
     return out

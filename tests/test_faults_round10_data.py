@@ -158,7 +158,7 @@ PROBE = '''
 import signal
 import time
 
-time.sleep(3)
+time.sleep(1.5)
 
 
 def run(config, backend, task):
@@ -176,7 +176,7 @@ local_pool.PRELOAD_EXTRA.append("probe")
 ctx = local_pool.worker_context(None)
 local_pool.start_server_early(None, Job("probe", probe.run))
 server = forkserver._forkserver._forkserver_pid
-time.sleep(1.0)  # the server is in its preload (probe sleeps 3 s)
+time.sleep(0.5)  # the server is in its preload (sc3d's modules, then the probe's 1.5 s)
 status = open(f"/proc/{server}/status").read()
 ignored = int([ln for ln in status.splitlines() if ln.startswith("SigIgn:")][0].split()[1], 16)
 print("server ignores SIGINT:", bool(ignored & (1 << (signal.SIGINT - 1))))
