@@ -219,6 +219,11 @@ def sample_shards(tmp_path_factory) -> Path:
 TRAINED_RUN_STEPS = 360
 
 
+def selected_tests_use(request, fixture: str) -> bool:
+    """Whether a test selected in this session asks for ``fixture``."""
+    return any(fixture in getattr(item, "fixturenames", ()) for item in request.session.items)
+
+
 def trained_run_args(shards: Path, out: Path) -> list[str]:
     """`sc3d-train fit`'s arguments of the shared short run (see ``trained_run``)."""
     return ["fit", "--shards", str(shards), "--out", str(out), "--steps", str(TRAINED_RUN_STEPS),
@@ -233,7 +238,7 @@ def _trained_run_started(request, tmp_path_factory):
     test needs it: the run (~1 min of one core; torch trains on one thread, ``OMP_NUM_THREADS=1``
     above) then overlaps the tests before its first user instead of holding the suite up at that
     test. Yields ``(process, run directory, log file)``, or None when no selected test needs it."""
-    if not any("trained_run" in getattr(item, "fixturenames", ()) for item in request.session.items):
+    if not selected_tests_use(request, "trained_run"):
         yield None
         return
     import subprocess
@@ -266,3 +271,30 @@ def trained_run(_trained_run_started, sample_shards, tmp_path_factory) -> Path:
     if proc.wait() != 0:
         raise AssertionError(f"the shared training run failed ({proc.returncode}):\n{log.read_text()[-4000:]}")
     return out
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _doc_runs_started(request, tmp_path_factory):
+    """The docs' doc-run pages (``doc_check.start_doc_runs``), started as the session starts when
+    a selected test waits for them, so that they overlap the tests before ``test_docs``."""
+    if not selected_tests_use(request, "doc_runs"):
+        yield None
+        return
+    from doc_check import start_doc_runs
+
+    runs = start_doc_runs(tmp_path_factory.mktemp("doc_run"))
+    yield runs
+    for proc, *_ in runs.values():
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.fixture(scope="session")
+def doc_runs(_doc_runs_started, tmp_path_factory) -> dict[str, tuple]:
+    """``{page: (process, folder, log file, script)}`` of the doc-run pages (``test_docs``)."""
+    if _doc_runs_started is not None:
+        return _doc_runs_started
+    from doc_check import start_doc_runs
+
+    return start_doc_runs(tmp_path_factory.mktemp("doc_run"))

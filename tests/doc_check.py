@@ -232,6 +232,46 @@ def repo_path_problems(text: str, where: str) -> list[str]:
 
 
 
+#: files each page's doc-run blocks must leave in their folder (what the text says they write)
+PROMISED = {
+    "README.md": ["shards/index.json", "shards/check_worst.png", "sheet.png",
+                  "vox/chair/silla_blanca_blendswap.binvox", "run/checkpoints/last.pt",
+                  "run/eval_test/metrics.json", "run/predictions/chair.obj"],
+    "docs/data.md": ["shards/index.json", "check.json", "sheet.png",
+                     "vox/airplane/c182_fgai.binvox"],
+    # step_000006.pt: `--steps 600 --resume` (shrunk to 6) continued the 3-step run
+    "docs/training.md": ["run/config.yaml", "run/checkpoints/step_000003.pt",
+                         "run/checkpoints/step_000006.pt", "run/metrics.csv",
+                         "run/eval_test/metrics.json", "run/eval_test/predictions.png",
+                         "run/predictions/chair.binvox", "run/predictions/chair.npz",
+                         "run/predictions/chair.obj", "run/predictions/chair.json",
+                         "run/predictions/chair.png", "run_semi/labeled_objects.txt"],
+}
+
+def start_doc_runs(root: Path) -> dict[str, tuple]:
+    """Start every ``PROMISED`` page's doc-run script at once, each in its own folder ``root/pageI``
+    (see the module docstring of ``test_docs``), so the pages share the machine's cores; returns
+    ``{page: (process, folder, log file, script)}``: the tests wait for their page."""
+    import os
+    import subprocess
+
+    cli_shims(root / "bin")
+    env = dict(os.environ, PATH=f"{root / 'bin'}{os.pathsep}{os.environ['PATH']}",
+               PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
+               OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    runs = {}
+    for i, page in enumerate(sorted(PROMISED)):
+        work = root / f"page{i}"
+        work.mkdir()
+        (work / "assets").symlink_to(REPO / "assets")
+        script = page_script(page)
+        with (root / f"page{i}.log").open("w") as log:  # the child keeps its own descriptor
+            proc = subprocess.Popen(["bash", "-c", script], cwd=work, env=env, stdout=log,
+                                    stderr=subprocess.STDOUT, text=True)
+        runs[page] = (proc, work, root / f"page{i}.log", script)
+    return runs
+
+
 def rewrite_for_run(text: str) -> str:
     """Shrink training lengths of a doc-run block (see the module docstring)."""
     text = re.sub(r"(--(?:steps|pretrain-steps|checkpoint-every)[ =])(\d+)",

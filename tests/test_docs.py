@@ -30,31 +30,15 @@ The convention (README.md, "Documentation", points here):
 """
 from __future__ import annotations
 
-import os
 import re
 import subprocess
 
 import pytest
 
-from doc_check import (PAGES, REPO, RUN_MARKER, all_blocks, check_text, cli_groups, cli_shims, commands,
-                       link_problems, page_script, prose, python_name_problems, repo_path_problems,
+from doc_check import (PAGES, PROMISED, REPO, RUN_MARKER, all_blocks, check_text, cli_groups, commands,
+                       link_problems, prose, python_name_problems, repo_path_problems,
                        rewrite_for_run, shell_blocks, slug)
 
-#: files each page's doc-run blocks must leave in their folder (what the text says they write)
-PROMISED = {
-    "README.md": ["shards/index.json", "shards/check_worst.png", "sheet.png",
-                  "vox/chair/silla_blanca_blendswap.binvox", "run/checkpoints/last.pt",
-                  "run/eval_test/metrics.json", "run/predictions/chair.obj"],
-    "docs/data.md": ["shards/index.json", "check.json", "sheet.png",
-                     "vox/airplane/c182_fgai.binvox"],
-    # step_000006.pt: `--steps 600 --resume` (shrunk to 6) continued the 3-step run
-    "docs/training.md": ["run/config.yaml", "run/checkpoints/step_000003.pt",
-                         "run/checkpoints/step_000006.pt", "run/metrics.csv",
-                         "run/eval_test/metrics.json", "run/eval_test/predictions.png",
-                         "run/predictions/chair.binvox", "run/predictions/chair.npz",
-                         "run/predictions/chair.obj", "run/predictions/chair.json",
-                         "run/predictions/chair.png", "run_semi/labeled_objects.txt"],
-}
 #: subcommands the doc-run blocks must exercise together
 MUST_RUN = {"render", "voxelize", "info", "check", "preview", "fit", "eval", "predict"}
 
@@ -139,31 +123,6 @@ def test_doc_run_blocks_cover_the_main_commands(groups):
                         ran.add(tokens[i + 1])
     assert MUST_RUN <= ran, MUST_RUN - ran
     assert set(PROMISED) <= {str(b.page.relative_to(REPO)) for b in all_blocks() if b.run}
-
-@pytest.fixture(scope="module")
-def doc_runs(tmp_path_factory):
-    """Start every page's doc-run script at once (each in its own folder, see the module
-    docstring), so the pages share the machine's cores; the tests wait for their page."""
-    root = tmp_path_factory.mktemp("doc_run")
-    cli_shims(root / "bin")
-    env = dict(os.environ, PATH=f"{root / 'bin'}{os.pathsep}{os.environ['PATH']}",
-               PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
-               OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
-    runs = {}
-    for i, page in enumerate(sorted(PROMISED)):
-        work = root / f"page{i}"
-        work.mkdir()
-        (work / "assets").symlink_to(REPO / "assets")
-        script = page_script(page)
-        with (root / f"page{i}.log").open("w") as log:  # the child keeps its own descriptor
-            proc = subprocess.Popen(["bash", "-c", script], cwd=work, env=env, stdout=log,
-                                    stderr=subprocess.STDOUT, text=True)
-        runs[page] = (proc, work, root / f"page{i}.log", script)
-    yield runs
-    for proc, *_ in runs.values():
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
 
 
 @pytest.mark.parametrize("page", sorted(PROMISED), ids=str)
