@@ -9,6 +9,16 @@ import click
 from sc3d_cli.scale_options import axis_value, executor_options, part_from_slurm_note, part_option, run_scaled, timeout_option
 
 
+#: options that only ``--meshes`` reads (shards carry their frame and are written in place)
+MESHES_ONLY = ("out", "normalize", "up", "front")
+
+
+def meshes_only_options_given(ctx: click.Context) -> list[str]:
+    """The ``--meshes``-only options given on the command line (not left at their defaults)."""
+    return [f"--{name}" for name in MESHES_ONLY
+            if ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT]
+
+
 @click.command("voxelize")
 @click.argument("shards", required=False, type=click.Path(exists=True, file_okay=False))
 @click.option("--meshes", type=click.Path(exists=True),
@@ -49,6 +59,9 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
                                    "shards are voxelized whole: run `voxelize SHARDS` in one task, or give --part 0/1")
         raise click.UsageError("--part is for --meshes; for shards, voxelize each part folder of a partitioned "
                                "render (or render with --voxelize), then merge")
+    if shards is not None and (given := meshes_only_options_given(click.get_current_context())):
+        raise click.UsageError(f"{', '.join(given)}: for --meshes only; shards are voxelized in the frame they "
+                               "were rendered in (each object's stored to_canonical), into their own files")
     if shards is not None and scale["executor"] != "local":
         raise click.UsageError("--executor is for --meshes; shards are voxelized by a local pool (--workers)")
     try:

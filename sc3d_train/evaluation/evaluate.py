@@ -77,6 +77,21 @@ def voxel_silhouette(voxels: np.ndarray, azimuth: float, elevation: float, dista
     return project_voxels(voxels, K, R, t, image_size)
 
 
+def example_label(example: dict) -> str:
+    """The object and view of an example of :func:`plot_examples`, whole, a line each: category,
+    model id, ``view N`` (a ShapeNet id is 32 characters; a cut one loses the view and can match
+    another object's)."""
+    return f"{example['category']}\n{example['model_id']}\nview {example['view']}"
+
+
+def example_figures(example: dict) -> str:
+    """What is written under an example's predicted voxels: its voxel IoU at the 0.5 threshold,
+    rotation error (deg) and predicted / true (azimuth, elevation) in degrees."""
+    return (f"IoU@0.5 {example['iou']:.2f} rot {example['rotation_error']:.0f}\n"
+            f"pred ({example['azimuth_pred']:.0f},{example['elevation_pred']:.0f}) true "
+            f"({example['azimuth_true']:.0f},{example['elevation_true']:.0f})")
+
+
 def plot_examples(examples: list[dict], path: Path, per_row: int = 2) -> None:
     """``per_row`` examples per figure row, each as 5 panels: input, true mask, predicted mask,
     true voxels at the true pose, predicted voxels (>= 0.5) at the predicted pose; each example
@@ -107,11 +122,8 @@ def plot_examples(examples: list[dict], path: Path, per_row: int = 2) -> None:
             ax.imshow(img, cmap=None if img.ndim == 3 else "gray", vmin=0, vmax=1)
             if r == 0:
                 ax.set_title(titles[c], fontsize=7)
-        axes[r, c0].set_ylabel(ex["title"][:26], fontsize=5)
-        axes[r, c0 + 4].set_xlabel(
-            f"IoU {ex['iou']:.2f} rot {ex['rotation_error']:.0f}\n"
-            f"pred ({ex['azimuth_pred']:.0f},{ex['elevation_pred']:.0f}) true ({ex['azimuth_true']:.0f},"
-            f"{ex['elevation_true']:.0f})", fontsize=5)
+        axes[r, c0].set_ylabel(example_label(ex), fontsize=5)
+        axes[r, c0 + 4].set_xlabel(example_figures(ex), fontsize=5)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)

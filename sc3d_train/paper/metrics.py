@@ -100,7 +100,7 @@ def predict_dataset(model, dataset, device, batch_size: int = 64,
                 chosen.append(model_id)
             if model_id in chosen and view in {v % dataset.num_views for v in keep_views}:
                 examples.append({
-                    "title": f"{batch['category'][i]}/{batch['model_id'][i]} view {view}",
+                    "category": category, "model_id": model_id, "view": int(view),
                     "image": batch["images"][i].permute(1, 2, 0).numpy(),
                     "mask_true": gt_mask[i].numpy() > 0.5, "mask_pred": mask_prob[i].numpy(),
                     "voxels_true": gt[i].numpy(), "voxels_pred": probs[i].numpy(),

@@ -35,9 +35,29 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sc3d_data.pipeline.run.resume import check_unlisted_shard, settings_differ
+from sc3d_data.pipeline.run.resume_voxels import held_voxel_resolution
 from sc3d_data.io.shards import (INDEX_NAME, SHARD_PATTERN, file_sha256, io_reason, load_index, shard_path,
                                  write_index)
 from sc3d_data.io.shard_reader import verify_shard
+
+
+#: render settings that say how the grids were made: parts are compared by the grids they hold
+#: instead (``render --voxelize`` and ``voxelize PART`` afterwards give the same grids)
+VOXEL_SETTINGS = ("voxelize", "voxel_resolution")
+
+
+def _grids(resolution: int | None) -> str:
+    return "no voxels" if resolution is None else f"{resolution}^3 voxels"
+
+
+def merged_voxels_record(parts: list[dict]) -> dict | None:
+    """The merge's ``voxels`` record: ``sc3d-data voxelize``'s of the parts that have one (their
+    grids are the same, ``check_parts``), with the failures of all of them; None when no part
+    was voxelized afterwards (the render's settings then say what the grids are)."""
+    records = [p["voxels"] for p in parts if p.get("voxels")]
+    if not records:
+        return None
+    return dict(records[0], failed=sum(r.get("failed", 0) for r in records))
 
 
 class MergeError(ValueError):
@@ -100,13 +120,16 @@ def check_parts(dirs: list[Path]) -> list[dict]:
     seen: dict[int, Path] = {}
     for d, index in zip(dirs, indexes):
         p = index["part"]
-        diff = settings_differ(first.get("settings", {}), index.get("settings", {}))
+        diff = [k for k in settings_differ(first.get("settings", {}), index.get("settings", {}))
+                if k not in VOXEL_SETTINGS]  # compared by the grids the shards hold, below
         if diff:
             raise MergeError(f"{d}: made with other settings than {d0} ({', '.join(diff)} differ); refused")
         if index.get("split") != first.get("split"):
             raise MergeError(f"{d}: split differs from {d0}; refused")
-        if index.get("voxels", {}).get("resolution") != first.get("voxels", {}).get("resolution"):
-            raise MergeError(f"{d}: voxelized at another resolution than {d0}; refused")
+        grids, grids0 = held_voxel_resolution(index), held_voxel_resolution(first)
+        if grids != grids0:
+            raise MergeError(f"{d}: {_grids(grids)}, {d0}: {_grids(grids0)}; refused: give every part the same "
+                             f"grids (`sc3d-data voxelize PART --resolution R`), then merge")
         if p["count"] != n or p.get("plan_sha256") != first["part"].get("plan_sha256"):
             raise MergeError(f"{d}: part {p['index']}/{p['count']} of another plan than {d0} "
                              f"(part {first['part']['index']}/{n}); refused")
@@ -220,7 +243,8 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
             failures += _renamed_failures(index.get("failures", []), names)
             skipped += index.get("skipped", [])
             warnings += index.get("warnings", [])
-        if old.get("merged") and old.get("voxels") != parts[0].get("voxels") and not overwrite:
+        voxels = merged_voxels_record(parts)
+        if old.get("merged") and old.get("voxels") != voxels and not overwrite:
             return _voxelized_since(out, old, parts, objects, [e["sha256"] for _, _, e in places], t0)
         kept = [dst.is_file() and dst.stat().st_size == entry["bytes"] and file_sha256(dst) == entry["sha256"]
                 for _, dst, entry in places]
@@ -239,8 +263,8 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
                             "planned_total": first["part"]["planned_total"],
                             "sources_sha256": [e["sha256"] for _, _, e in places],
                             "backends": sorted({str(p["settings"].get("backend")) for p in parts})}}
-        if "voxels" in first:
-            extra["voxels"] = first["voxels"]
+        if voxels is not None:
+            extra["voxels"] = voxels
         write_index(out, complete=True, settings=first["settings"], split=first.get("split", {}), shards=shards,
                     objects=objects, failures=failures, skipped=skipped, warnings=warnings, extra=extra)
     return MergeSummary(parts=len(parts), shards=len(shards), objects=len(objects),
