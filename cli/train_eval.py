@@ -21,6 +21,7 @@ from sc3d_train.settings.command_config import EvalConfig
 @click.pass_context
 def eval_cmd(ctx, checkpoint, shards, out, pose_from, device, split, pick, batch_size, examples):
     """Voxel IoU (0.4, 0.5), mask IoU and pose error per category on a split."""
+    from sc3d_data.io.outlock import LockError
     from sc3d_train.loop.checkpoint import CheckpointError, run_checkpoint
     from sc3d_train.data.dataset import DataError
     from sc3d_train.evaluation.evaluate import evaluate
@@ -29,7 +30,7 @@ def eval_cmd(ctx, checkpoint, shards, out, pose_from, device, split, pick, batch
     try:
         result = evaluate(run_checkpoint(checkpoint, pick, pick_given), shards, split, out, device, batch_size,
                           examples, pose_from, pick)
-    except (DataError, CheckpointError, ValueError, OSError) as e:
+    except (DataError, CheckpointError, ValueError, OSError, LockError) as e:  # LockError: another eval/predict writes to --out
         from sc3d_data.io.shards import one_line
 
         raise click.ClickException(one_line(e)) from e

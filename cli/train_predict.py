@@ -21,6 +21,7 @@ from sc3d_train.settings.command_config import PredictConfig
 @click.pass_context
 def predict(ctx, checkpoint, images, out, pose_from, device, threshold, pick):
     """Voxels (.binvox, .npz), mesh (.obj), pose (.json) and a picture (.png) per IMAGE."""
+    from sc3d_data.io.outlock import LockError
     from sc3d_train.loop.checkpoint import CheckpointError, run_checkpoint
     from sc3d_train.evaluation.predict import ImageError, predict as run_predict
 
@@ -32,7 +33,7 @@ def predict(ctx, checkpoint, images, out, pose_from, device, threshold, pick):
 
             out = default_output_dir(checkpoint, "predictions")
         results = run_predict(checkpoint, list(images), out, device, threshold, pose_from, pick)
-    except (ImageError, CheckpointError, ValueError, OSError) as e:
+    except (ImageError, CheckpointError, ValueError, OSError, LockError) as e:  # LockError: another eval/predict writes to --out
         from sc3d_data.io.shards import one_line
 
         raise click.ClickException(one_line(e)) from e

@@ -21,8 +21,10 @@ def one_line(output: str) -> str:
 
 
 def folder_bytes(folder):
-    """``{relative path: bytes}`` of every file under ``folder``."""
-    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+    """``{relative path: bytes}`` of every file under ``folder`` (not the lock file of a command
+    that wrote there: ``predict`` and ``eval`` lock their ``--out``)."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file() and p.name != ".sc3d.lock"}
 
 
 @pytest.fixture(scope="module")

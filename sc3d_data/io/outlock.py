@@ -8,6 +8,7 @@ kernel when the holder exits, also on SIGKILL, so a stale lock file never blocks
 """
 from __future__ import annotations
 
+import errno
 import fcntl
 import os
 from contextlib import contextmanager
@@ -36,6 +37,19 @@ class LockError(RuntimeError):
     """Another process is writing to the same folder."""
 
 
+def open_lock_file(path: Path) -> int:
+    """A read-write descriptor of lock file ``path``, created if missing, never through a
+    symbolic link (one planted there would have the holder's PID written over its target):
+    ``LockError`` naming it instead."""
+    try:
+        return os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            raise LockError(f"{path}: a symbolic link where sc3d keeps its lock file; sc3d does not write "
+                            "through it: remove it") from None
+        raise
+
+
 @contextmanager
 def exclusive_lock(folder: Path, command: str = "sc3d-data", create: bool = False, shared: bool = False,
                    name: str = LOCK_NAME) -> Iterator[Path]:
@@ -50,7 +64,7 @@ def exclusive_lock(folder: Path, command: str = "sc3d-data", create: bool = Fals
     if create:
         folder.mkdir(parents=True, exist_ok=True)
     path = folder / name
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    fd = open_lock_file(path)
     held = False
     try:
         try:

@@ -19,6 +19,7 @@ import h5py
 import numpy as np
 
 from sc3d_data.io.index_check import version_problem
+from sc3d_data.io.shard_layout import layout_problem
 from sc3d_data.io.shards import (OBJECT_ARRAYS, SCHEMA_VERSION, STRING_FIELDS, ObjectRecord, ShardError, file_sha256,
                                  io_reason, load_index, shard_files, shard_path)
 
@@ -210,6 +211,8 @@ class open_shard:
                              "see `sc3d-data info --verify`") from e
         problem = version_problem(self.file.attrs.get("schema_version"), "schema_version" in self.file.attrs,
                                   SCHEMA_VERSION)
+        if problem is None:
+            problem = layout_problem(self.file)
         if problem:
             self.file.close()
             raise ShardError(f"{self.path}: {problem}")
@@ -254,7 +257,11 @@ def verify_shard(shard_dir: Path, entry: dict, full: bool = True) -> str | None:
     if "sha256" in entry:
         if file_sha256(path) != entry["sha256"]:
             return f"{path}: SHA-256 differs from the index (corrupted or modified)"
-        return None
+        try:  # the file the index records, but of a layout sc3d reads?
+            with open_shard(path):
+                return None
+        except ShardError as e:
+            return str(e)
     try:
         with h5py.File(path, "r") as f:
             for name in f:

@@ -57,7 +57,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import h5py
 import numpy as np
@@ -210,6 +210,15 @@ def _unlink_quietly(path: Path) -> None:
         pass
 
 
+def create_new_file(path: Path) -> BinaryIO:
+    """``path`` open for binary writing as a new, empty file of its own: whatever had that name
+    (a temporary file left by a killed run, or a symbolic link planted there, through which
+    ``open(path, "wb")`` would write to a file elsewhere) is removed first, and the file is
+    created exclusively without following links."""
+    _unlink_quietly(path)
+    return os.fdopen(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644), "wb")
+
+
 def atomic_write_bytes(path: Path, data: bytes, shared: bool = False) -> None:
     """Write ``data`` to ``path`` via a temporary file + fsync + rename; on failure (disk
     full...) the temporary file is removed, ``path`` keeps its old content and ``OSError``
@@ -218,7 +227,7 @@ def atomic_write_bytes(path: Path, data: bytes, shared: bool = False) -> None:
     path = Path(path)
     tmp = path.with_name(path.name + (f".{os.getpid()}.tmp" if shared else ".tmp"))
     try:
-        with open(tmp, "wb") as f:
+        with create_new_file(tmp) as f:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())

@@ -44,6 +44,7 @@ import numpy as np
 from sc3d_data.io.shard_reader import ShardReader
 from sc3d_data.io.shards import ShardError, file_sha256, io_reason, load_index, shard_path
 from sc3d_data.io.names import printable
+from sc3d_data.io.outlock import open_lock_file
 from sc3d_train.data.batch_format import sc_masks_bool
 
 _KEY = re.compile(r"^[0-9a-f]{64}$")
@@ -53,7 +54,7 @@ MANIFEST = "manifest.json"
 @contextmanager
 def _locked(path: Path) -> Iterator[None]:
     """Hold an exclusive ``flock`` on ``path`` (created if needed), waiting for other holders."""
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    fd = open_lock_file(path)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
         yield

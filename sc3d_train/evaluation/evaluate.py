@@ -32,6 +32,7 @@ import numpy as np
 import torch
 
 from sc3d_data.formats.shapenet import category_label
+from sc3d_data.io.outlock import exclusive_lock
 from sc3d_data.io.shards import atomic_write_bytes
 from sc3d_train.loop.checkpoint import load_model, run_checkpoint
 from sc3d_train.settings.command_config import EvalConfig
@@ -163,34 +164,34 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
         out = default_output_dir(checkpoint, f"eval_{split}")
         check_default_folder_free(out, checkpoint, shards, pose_from)
     out = Path(out)
-    dataset = ShardDataset(shards, split, subset="all", mask_size=cfg.model.mask_size,
-                           require_voxels=True, image_size=cfg.model.image_size)
-    if dataset.info["voxel_resolution"] != cfg.model.voxel_resolution:
-        raise ValueError(f"{shards}: voxels are {dataset.info['voxel_resolution']}^3 but the checkpoint "
-                         f"predicts {cfg.model.voxel_resolution}^3")
-    differences = differences_from_training(cfg, dataset.info)
-    run_refs = run_objects(cfg, shards)  # the run's objects, scanned once for both questions
-    trained_on = training_objects_among(cfg, dataset.objects, run_refs)
-    selected_on = selection_objects_among(cfg, ckpt.get("validation"), dataset.objects, shards, run_refs)
-    data_sha256 = evaluated_data_digest(shards, split, dataset.objects)
-    rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
-                                 loss_weights=cfg.loss_weights)
-    require_finite_predictions(checkpoint, rows)
-    summary = summarize(rows)
-    out.mkdir(parents=True, exist_ok=True)
-    result = {"checkpoint": str(checkpoint), "step": int(ckpt.get("step", -1)), "shards": str(shards),
-              "split": split, "pose_from": pose_from, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
-              "differs_from_training": differences, "outside_pose_grid": outside_pose_grid(cfg, dataset.info),
-              "pose_grid_elevations": [cfg.model.elevation_min, cfg.model.elevation_max],
-              "trained_on": trained_on,
-              "selected_on_this_split": selected_on, "data_sha256": data_sha256,
-              "shards_complete": dataset.info["complete"], **summary}
-    (out / "metrics.json").unlink(missing_ok=True)  # written last: it marks a finished evaluation
-    plot_examples(kept, out / "predictions.png")
-    atomic_write_bytes(out / "metrics.json", json.dumps(_finite(result), indent=1).encode())
-    result["table"] = format_table(summary)
-    result["out"] = str(out)
-    return result
+    with exclusive_lock(out, "sc3d-train eval", create=True):  # one evaluation writes here at a time
+        dataset = ShardDataset(shards, split, subset="all", mask_size=cfg.model.mask_size,
+                               require_voxels=True, image_size=cfg.model.image_size)
+        if dataset.info["voxel_resolution"] != cfg.model.voxel_resolution:
+            raise ValueError(f"{shards}: voxels are {dataset.info['voxel_resolution']}^3 but the checkpoint "
+                             f"predicts {cfg.model.voxel_resolution}^3")
+        differences = differences_from_training(cfg, dataset.info)
+        run_refs = run_objects(cfg, shards)  # the run's objects, scanned once for both questions
+        trained_on = training_objects_among(cfg, dataset.objects, run_refs)
+        selected_on = selection_objects_among(cfg, ckpt.get("validation"), dataset.objects, shards, run_refs)
+        data_sha256 = evaluated_data_digest(shards, split, dataset.objects)
+        rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
+                                     loss_weights=cfg.loss_weights)
+        require_finite_predictions(checkpoint, rows)
+        summary = summarize(rows)
+        result = {"checkpoint": str(checkpoint), "step": int(ckpt.get("step", -1)), "shards": str(shards),
+                  "split": split, "pose_from": pose_from, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
+                  "differs_from_training": differences, "outside_pose_grid": outside_pose_grid(cfg, dataset.info),
+                  "pose_grid_elevations": [cfg.model.elevation_min, cfg.model.elevation_max],
+                  "trained_on": trained_on,
+                  "selected_on_this_split": selected_on, "data_sha256": data_sha256,
+                  "shards_complete": dataset.info["complete"], **summary}
+        (out / "metrics.json").unlink(missing_ok=True)  # written last: it marks a finished evaluation
+        plot_examples(kept, out / "predictions.png")
+        atomic_write_bytes(out / "metrics.json", json.dumps(_finite(result), indent=1).encode())
+        result["table"] = format_table(summary)
+        result["out"] = str(out)
+        return result
 
 
 def check_default_folder_free(out: Path, checkpoint: Path, shards: Path, pose_from: str) -> None:

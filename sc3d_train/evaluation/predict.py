@@ -24,6 +24,7 @@ an input is not (NaN, inf), is refused in one line before any output is written.
 """
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 
@@ -101,17 +102,23 @@ def voxel_mesh(probabilities: np.ndarray, threshold: float) -> tuple[np.ndarray,
 
 
 def write_obj(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
-    with open(path, "w") as f:
-        f.write("# sc3d-train predict: marching cubes of the predicted occupancy\n")
-        if len(faces) == 0:
-            f.write("# empty prediction: no voxel reached the threshold\n")
-        f.writelines(f"v {x:.5f} {y:.5f} {z:.5f}\n" for x, y, z in vertices)
-        f.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces)
+    """The mesh as a Wavefront OBJ (vertices in the canonical frame, faces 1-based), written whole
+    or not at all (``atomic_write_bytes``)."""
+    from sc3d_data.io.shards import atomic_write_bytes
+
+    lines = ["# sc3d-train predict: marching cubes of the predicted occupancy\n"]
+    if len(faces) == 0:
+        lines.append("# empty prediction: no voxel reached the threshold\n")
+    lines += [f"v {x:.5f} {y:.5f} {z:.5f}\n" for x, y, z in vertices]
+    lines += [f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces]
+    atomic_write_bytes(path, "".join(lines).encode())
 
 
 def plot_prediction(path: Path, image: np.ndarray, mask: np.ndarray, silhouette: np.ndarray,
                     azimuth: float, elevation: float) -> None:
     import matplotlib
+
+    from sc3d_data.io.shards import atomic_write_bytes
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -124,8 +131,10 @@ def plot_prediction(path: Path, image: np.ndarray, mask: np.ndarray, silhouette:
         ax.set_xticks([])
         ax.set_yticks([])
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    png = io.BytesIO()
+    fig.savefig(png, dpi=90, format="png")
     plt.close(fig)
+    atomic_write_bytes(path, png.getvalue())
 
 
 @torch.no_grad()
@@ -139,7 +148,8 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
     its JSON file). ``pose_from``: ``"search"`` (the default of every entry point,
     :data:`~sc3d_train.settings.command_config.DEFAULT_POSE_SOURCE`) or ``"head"``, as in ``eval``."""
     from sc3d_data.io.binvox import write_binvox
-    from sc3d_data.io.shards import write_json_atomic
+    from sc3d_data.io.outlock import exclusive_lock
+    from sc3d_data.io.shards import atomic_write_bytes, write_json_atomic
     from sc3d_data.io.names import printable
     from sc3d_train.evaluation.evaluate import require_finite_weights, voxel_silhouette
     from sc3d_train.loop.checkpoint import CheckpointError
@@ -153,40 +163,42 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
 
     checkpoint = run_checkpoint(checkpoint, pick)
     out = Path(out)
-    outputs = output_files(images, out)
-    check_inputs_kept(images, outputs, out)
-    check_outputs_replaceable(outputs, out)
-    dev = resolve_device(device)
-    model, cfg, _ = load_model(checkpoint, dev)
-    require_finite_weights(checkpoint, model)
-    size = cfg.model.image_size
-    arrays = [load_image(Path(p), size, cfg.background) for p in images]
-    K = np.asarray(cfg.intrinsics if cfg.intrinsics is not None else _default_K(size), dtype=np.float64)
-    # every prediction first, so that one that is not finite is refused before anything is written
-    predictions = [predict_one(model, cfg, arr, K, dev, pose_from) for arr in arrays]
-    for path, (probs, mask, az, el) in zip(images, predictions):
-        if not (np.isfinite(probs).all() and np.isfinite(mask).all() and np.isfinite([az, el]).all()):
-            raise CheckpointError(f"{checkpoint}: its prediction for {printable(path)} is not finite (NaN or inf "
-                                  "voxels, mask or pose) although its weights are: the network overflows on this "
-                                  "input; nothing written")
-    out.mkdir(parents=True, exist_ok=True)
-    results = []
-    for path, arr, files, (probs, mask, az, el) in zip(images, arrays, outputs, predictions):
-        voxels = probs >= threshold
-        info = {"image": str(path), "checkpoint": str(checkpoint), "azimuth_deg": az, "elevation_deg": el, "pose_from": pose_from,
-                "camera_distance": cfg.camera_distance, "threshold": threshold,
-                "occupied_voxels": int(voxels.sum()), "files": {k: str(v) for k, v in files.items()}}
-        # the listing first (whole or not at all): a run stopped before the image's other files
-        # are written leaves them listed, so running it again may replace them
-        write_json_atomic(files["json"], info)
-        write_binvox(files["binvox"], voxels)
-        np.savez_compressed(files["npz"], probabilities=probs.astype(np.float32), voxels=voxels,
-                            mask=mask.astype(np.float32), azimuth=az, elevation=el, threshold=threshold)
-        write_obj(files["obj"], *voxel_mesh(probs, threshold))
-        sil = voxel_silhouette(voxels, az, el, cfg.camera_distance, K, size)
-        plot_prediction(files["png"], arr, mask, sil, az, el)
-        results.append(info)
-    return results
+    with exclusive_lock(out, "sc3d-train predict", create=True):  # one predict writes here at a time
+        outputs = output_files(images, out)
+        check_inputs_kept(images, outputs, out)
+        check_outputs_replaceable(outputs, out)
+        dev = resolve_device(device)
+        model, cfg, _ = load_model(checkpoint, dev)
+        require_finite_weights(checkpoint, model)
+        size = cfg.model.image_size
+        arrays = [load_image(Path(p), size, cfg.background) for p in images]
+        K = np.asarray(cfg.intrinsics if cfg.intrinsics is not None else _default_K(size), dtype=np.float64)
+        # every prediction first, so that one that is not finite is refused before anything is written
+        predictions = [predict_one(model, cfg, arr, K, dev, pose_from) for arr in arrays]
+        for path, (probs, mask, az, el) in zip(images, predictions):
+            if not (np.isfinite(probs).all() and np.isfinite(mask).all() and np.isfinite([az, el]).all()):
+                raise CheckpointError(f"{checkpoint}: its prediction for {printable(path)} is not finite (NaN or inf "
+                                      "voxels, mask or pose) although its weights are: the network overflows on this "
+                                      "input; nothing written")
+        results = []
+        for path, arr, files, (probs, mask, az, el) in zip(images, arrays, outputs, predictions):
+            voxels = probs >= threshold
+            info = {"image": str(path), "checkpoint": str(checkpoint), "azimuth_deg": az, "elevation_deg": el, "pose_from": pose_from,
+                    "camera_distance": cfg.camera_distance, "threshold": threshold,
+                    "occupied_voxels": int(voxels.sum()), "files": {k: str(v) for k, v in files.items()}}
+            # the listing first (whole or not at all): a run stopped before the image's other files
+            # are written leaves them listed, so running it again may replace them
+            write_json_atomic(files["json"], info)
+            write_binvox(files["binvox"], voxels)
+            npz = io.BytesIO()
+            np.savez_compressed(npz, probabilities=probs.astype(np.float32), voxels=voxels,
+                                mask=mask.astype(np.float32), azimuth=az, elevation=el, threshold=threshold)
+            atomic_write_bytes(files["npz"], npz.getvalue())
+            write_obj(files["obj"], *voxel_mesh(probs, threshold))
+            sil = voxel_silhouette(voxels, az, el, cfg.camera_distance, K, size)
+            plot_prediction(files["png"], arr, mask, sil, az, el)
+            results.append(info)
+        return results
 
 
 @torch.no_grad()

@@ -7,13 +7,15 @@ from pathlib import Path
 
 import torch
 
+from sc3d_data.io.shards import create_new_file
+
 
 def save_atomically(payload: dict, tmp: Path, path: Path) -> None:
     """``torch.save(payload)`` to ``tmp``, then renamed to ``path``. Written through a file
     object whose writes are watched: ``torch.save`` reports a failed write (a full disk) only as
     "unexpected pos 704 vs 598", so the write's own ``OSError`` ("No space left on device") is
     raised instead."""
-    with open(tmp, "wb") as f:
+    with create_new_file(tmp) as f:  # never through a link planted at the temporary name
         out = _WatchedFile(f)
         try:
             torch.save(payload, out)

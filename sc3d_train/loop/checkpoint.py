@@ -250,8 +250,10 @@ def resume_checkpoint(run_dir: Path, say=None) -> tuple[Path, dict]:
     if last is not None:
         return last_path(run_dir), last
     early = not errors and not steps and (Path(run_dir) / "config.yaml").is_file()  # stopped before its first
+    if errors:  # every checkpoint there was refused: say why, not "not found"
+        raise CheckpointError(f"no checkpoint of {run_dir} can be resumed: {errors[0]}"
+                              + (f" (and {len(errors) - 1} more refused)" if len(errors) > 1 else ""))
     raise CheckpointError(f"{last_path(run_dir)}: checkpoint not found"
-                          + (f" (and no complete step_*.pt: {errors[0]})" if errors else "")
                           + ("; the run stopped before its first checkpoint: start it again without --resume"
                              if early else ""))
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sc3d_train.loop.run_folder import check_no_foreign_files, check_no_linked_files, check_path_names
 from sc3d_train.settings.config import RESUMABLE_FIELDS, TINY_MODEL, RunConfig
 from sc3d_train.settings.config_io import load_yaml
 
@@ -50,6 +51,7 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     if stale:  # a run without last.pt (deleted, or its write failed): eval/--resume would read these
         raise CheckpointError(f"{out}: already holds checkpoints of a run ({', '.join(stale)}) but no "
                               f"last.pt; use --resume to continue it, or choose another --out")
+    check_no_linked_files(out)
     check_no_foreign_files(out)
     facts = shard_facts(Path(plain["shards"]), plain.get("split", "train"))
     model = dict(plain.get("model", {}))
@@ -59,43 +61,6 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
                  voxel_resolution=facts.pop("model.voxel_resolution"))
     plain.update(model=model, **facts)
     return RunConfig.from_dict(plain)
-
-
-#: what a run writes into its folder besides ``checkpoints/`` (a new run replaces them)
-RUN_FILES = ("config.yaml", "metrics.csv", "validation.csv", "curves.png", "labeled_objects.txt", "tb")
-
-
-def check_path_names(plain: dict) -> None:
-    """``ValueError`` when a new run's ``out`` is not valid UTF-8 (config.yaml and TensorBoard's
-    event files store it as text), before anything is written. (Empty folder options are refused
-    by the command line: ``cli/folder_path.FolderPath``.)"""
-    from sc3d_data.io.names import printable
-
-    try:
-        str(plain["out"]).encode("utf-8")
-    except UnicodeEncodeError as e:
-        raise ValueError(f"--out {printable(str(plain['out']))}: the name is not valid UTF-8 (byte "
-                         f"0x{ord(str(plain['out'])[e.start]) - 0xDC00:02x}), which config.yaml and TensorBoard "
-                         "store as text; choose another name") from e
-
-
-def check_no_foreign_files(out: Path) -> None:
-    """``CheckpointError`` when the folder of a new run holds files named like the ones the run
-    writes (:data:`RUN_FILES`) that are not the leftovers of an sc3d run: a new run would replace
-    them. A ``config.yaml`` that loads as a run's config marks the leftovers of a run stopped
-    before its first checkpoint, which the new run may replace (as rerunning its command does)."""
-    from sc3d_train.loop.checkpoint import CheckpointError
-
-    present = [name for name in RUN_FILES if (out / name).exists()]
-    if not present:
-        return
-    try:
-        RunConfig.load(RunConfig.path_in(out))
-        return
-    except Exception:  # noqa: BLE001 - missing, unreadable or not a run's config: not ours to replace
-        pass
-    raise CheckpointError(f"{out}: holds {', '.join(present)}, not from an sc3d-train run, which a new run would "
-                          "overwrite; choose another --out (or move them)")
 
 
 def absolute_paths(settings: dict) -> dict:
@@ -194,6 +159,7 @@ def _resumed(options: dict, model_options: dict, tiny: bool = False) -> RunConfi
     from sc3d_train.loop.checkpoint import CheckpointError
 
     out = Path(options["out"])
+    check_no_linked_files(out)
     cfg = saved_config(out)
     changed = []
     for k, v in sorted(options.items()):
