@@ -242,3 +242,24 @@ def test_resume_from_a_crafted_checkpoint_says_it_was_refused_not_missing(traine
     assert f"no checkpoint of {run} can be resumed: {run / 'checkpoints' / 'last.pt'}" in line, line
     assert "not found" not in line
     assert not (tmp_path / "PWNED").exists()
+
+
+def test_a_shard_with_fewer_objects_than_its_index_lists_is_refused(sample_shards, tmp_path):
+    """A shard rewritten with its first 5 of 11 objects (every array cut alike, the index's
+    SHA-256 recorded anew): ``fit`` trained on the 5 without a word ("no 'val' objects" where
+    the index lists 2)."""
+    folder = tmp_path / "shards"
+    shutil.copytree(sample_shards, folder)
+    index = json.loads((folder / "index.json").read_text())
+    name = index["shards"][0]["file"]
+    listed = sum(1 for o in index["objects"] if o["shard"] == name)
+    with h5py.File(folder / name, "a") as f:
+        for key in list(f):
+            data = f[key][()][:5]
+            del f[key]
+            f.create_dataset(key, data=data, dtype=h5py.string_dtype("utf-8") if data.dtype.kind == "O" else None)
+    _rerecorded(folder)
+    res = run_cli(train_main, ["fit", "--shards", folder, "--out", tmp_path / "run", "--tiny", "--steps", "2",
+                               "--batch-size", "2", "--no-progress"], expect_exit=1)
+    line = one_error(res.output)
+    assert f"{folder / name}: holds 5 objects, {folder}/index.json lists {listed} in it" in line, line

@@ -62,6 +62,9 @@ class ShardReader:
     def summaries(self) -> list[ShardSummary]:
         """A ``ShardSummary`` per shard file in index order (reads strings and shapes only)."""
         out = []
+        listed: dict[str, int] = {}
+        for o in self.index.get("objects", []):
+            listed[o.get("shard")] = listed.get(o.get("shard"), 0) + 1
         for path in self.files:
             if not path.is_file():
                 raise ShardError(f"{path}: listed in {self.shard_dir}/index.json but missing")
@@ -69,6 +72,9 @@ class ShardReader:
                 try:
                     ids, cats, splits = (read_strings(f[k]) for k in ("model_id", "category", "split"))
                     n, v, s = f["images"].shape[:3]
+                    if path.name in listed and listed[path.name] != n:
+                        raise ShardError(f"{path}: holds {n} objects, {self.shard_dir}/index.json lists "
+                                         f"{listed[path.name]} in it; see `sc3d-data info --verify {self.shard_dir}`")
                     out.append(ShardSummary(path, ids, cats, splits, int(n), int(v), int(s),
                                             int(f["voxels"].shape[1]) if "voxels" in f else None,
                                             f["K"][0, 0], float(f["distance"][0, 0])))
