@@ -18,9 +18,9 @@ def preview(shard_dir: Path, out: Path, max_objects: int, views: int, scale: int
     not covered by voxels) of several views."""
     from PIL import Image
 
-    from sc3d_data.qa.preview import contact_sheet
-
+    from sc3d_data.io.pictures import write_image
     from sc3d_data.io.shards import one_line, refuse_dataset_file
+    from sc3d_data.qa.preview import contact_sheet
 
     try:
         refuse_dataset_file(shard_dir, out, "--out")
@@ -30,7 +30,7 @@ def preview(shard_dir: Path, out: Path, max_objects: int, views: int, scale: int
         raise click.ClickException(one_line(e))
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        Image.fromarray(sheet).save(out)
+        write_image(Image.fromarray(sheet), out)
     except OSError as e:  # a folder that cannot be made or written (the message names the file)
         raise click.ClickException(one_line(e))
     except ValueError as e:  # PIL: an extension it cannot write

@@ -263,3 +263,30 @@ def test_a_shard_with_fewer_objects_than_its_index_lists_is_refused(sample_shard
                                "--batch-size", "2", "--no-progress"], expect_exit=1)
     line = one_error(res.output)
     assert f"{folder / name}: holds 5 objects, {folder}/index.json lists {listed} in it" in line, line
+
+
+def test_pictures_replace_a_link_at_their_name_instead_of_writing_through_it(table_shards, tmp_path):
+    """``check``'s worst views, ``preview``'s sheet and ``fit``'s curves were saved in place: a
+    link standing at the name had the file it named overwritten with the picture."""
+    from PIL import Image
+
+    folder = tmp_path / "shards"
+    shutil.copytree(table_shards, folder)
+    pictures = {"check": folder / "check_worst.png", "preview": tmp_path / "sheet.png",
+                "fit": tmp_path / "run" / "curves.png"}
+    pictures["fit"].parent.mkdir()
+    victims = {}
+    for what, picture in pictures.items():
+        victims[what] = _victim(tmp_path, f"victim_{what}.txt")
+        picture.symlink_to(victims[what])
+    run_cli(data_main, ["check", folder, "--png", pictures["check"]])
+    run_cli(data_main, ["preview", folder, "--out", pictures["preview"]])
+    res = run_cli(train_main, ["fit", "--shards", folder, "--out", tmp_path / "run", "--tiny", "--steps", "2",
+                               "--batch-size", "2", "--val-every", "0", "--no-progress"], expect_exit=1)
+    assert "curves.png is a symbolic link" in one_error(res.output)  # a run's own file: refused (above)
+    pictures["fit"].unlink()
+    run_cli(train_main, ["fit", "--shards", folder, "--out", tmp_path / "run", "--tiny", "--steps", "2",
+                         "--batch-size", "2", "--val-every", "0", "--no-progress"])
+    for what, picture in pictures.items():
+        assert victims[what].read_text() == "the user's own file\n", what
+        assert not picture.is_symlink() and Image.open(picture).format == "PNG", what

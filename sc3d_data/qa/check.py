@@ -44,6 +44,7 @@ import numpy as np
 
 from sc3d_data.geometry.projection import project_voxels_views
 from sc3d_data.io.names import printable
+from sc3d_data.io.pictures import write_figure
 from sc3d_data.io.shard_reader import ShardReader, iter_objects, verify_shards
 from sc3d_data.io.shards import ShardError, shard_path
 from sc3d_data.formats.shapenet import category_label
@@ -262,6 +263,6 @@ def write_worst_png(shard_dir: Path, report: CheckReport, path: Path, n: int = 8
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
+    write_figure(fig, path, dpi=100)
     plt.close(fig)
     return path

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sc3d_data.io.pictures import write_figure
+
 RUNS = ("sup-3tube", "sup-1tube", "labeled-only", "semi", "ray", "ray-proj")
 #: reference rows that read no image (:mod:`sc3d_train.evaluation.shape_baselines`): no seeds, no pose
 REFERENCES = ("mean-shape", "nearest-shape")
@@ -179,7 +181,7 @@ def plot_report(results: dict, path: Path) -> None:
         ax.set_ylim(0, 1)
     axes[0].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    write_figure(fig, path, dpi=90)
     plt.close(fig)
 
 

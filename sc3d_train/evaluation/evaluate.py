@@ -33,6 +33,7 @@ import torch
 
 from sc3d_data.formats.shapenet import category_label
 from sc3d_data.io.outlock import exclusive_lock
+from sc3d_data.io.pictures import write_figure
 from sc3d_data.io.shards import atomic_write_bytes
 from sc3d_train.loop.checkpoint import load_model, run_checkpoint
 from sc3d_train.settings.command_config import EvalConfig
@@ -126,7 +127,7 @@ def plot_examples(examples: list[dict], path: Path, per_row: int = 2) -> None:
         axes[r, c0].set_ylabel(example_label(ex), fontsize=5)
         axes[r, c0 + 4].set_xlabel(example_figures(ex), fontsize=5)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    write_figure(fig, path, dpi=90)
     plt.close(fig)
 
 

@@ -118,7 +118,7 @@ def plot_prediction(path: Path, image: np.ndarray, mask: np.ndarray, silhouette:
                     azimuth: float, elevation: float) -> None:
     import matplotlib
 
-    from sc3d_data.io.shards import atomic_write_bytes
+    from sc3d_data.io.pictures import write_figure
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -131,10 +131,8 @@ def plot_prediction(path: Path, image: np.ndarray, mask: np.ndarray, silhouette:
         ax.set_xticks([])
         ax.set_yticks([])
     fig.tight_layout()
-    png = io.BytesIO()
-    fig.savefig(png, dpi=90, format="png")
+    write_figure(fig, path, dpi=90)
     plt.close(fig)
-    atomic_write_bytes(path, png.getvalue())
 
 
 @torch.no_grad()

@@ -10,6 +10,8 @@ import statistics
 import time
 from pathlib import Path
 
+from sc3d_data.io.pictures import write_figure
+
 CSV_NAME = "metrics.csv"
 #: seconds between two drawings of ``curves.png`` at checkpoints (:meth:`MetricsLog.draw_curves`):
 #: on an H100 a checkpoint comes every ~8 s and a drawing costs ~0.3-1 s of the loop's host time
@@ -197,5 +199,5 @@ def plot_curves(csv_path: Path, png_path: Path) -> None:
         ax3.set_title("validation (objects never trained on)")
         ax3.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(png_path, dpi=80)
+    write_figure(fig, png_path, dpi=80)
     plt.close(fig)

@@ -1,0 +1,31 @@
+"""Pictures (matplotlib figures, PIL images) written whole or not at all: encoded in memory, then
+``shards.atomic_write_bytes`` (a temporary file created anew, renamed over ``path``), so a reader
+never sees half a picture and a symbolic link standing at ``path`` is replaced, not written
+through. The format follows ``path``'s extension, as ``savefig`` and ``Image.save`` would choose it."""
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+from sc3d_data.io.shards import atomic_write_bytes
+
+
+def write_figure(fig, path: Path, dpi: int) -> None:
+    """Matplotlib figure ``fig`` to ``path`` at ``dpi`` (PNG unless the extension names another
+    format matplotlib writes: ``.pdf``, ``.svg``, ``.jpg`` ...)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=dpi, format=Path(path).suffix[1:].lower() or "png")
+    atomic_write_bytes(Path(path), buf.getvalue())
+
+
+def write_image(image, path: Path) -> None:
+    """PIL image ``image`` to ``path`` in the format of its extension (``ValueError`` from PIL for
+    an extension it cannot write, before anything is written)."""
+    from PIL import Image
+
+    fmt = Image.registered_extensions().get(Path(path).suffix.lower())
+    if fmt is None:
+        raise ValueError(f"unknown file extension: {Path(path).suffix!r}")
+    buf = io.BytesIO()
+    image.save(buf, format=fmt)
+    atomic_write_bytes(Path(path), buf.getvalue())
