@@ -224,6 +224,15 @@ def selected_tests_use(request, fixture: str) -> bool:
     return any(fixture in getattr(item, "fixturenames", ()) for item in request.session.items)
 
 
+def stop_children(procs) -> None:
+    """Kill the background processes of ``procs`` still running at the session's end (a failed or
+    interrupted session), and reap them."""
+    for proc in procs:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 def trained_run_args(shards: Path, out: Path) -> list[str]:
     """`sc3d-train fit`'s arguments of the shared short run (see ``trained_run``)."""
     return ["fit", "--shards", str(shards), "--out", str(out), "--steps", str(TRAINED_RUN_STEPS),
@@ -251,9 +260,7 @@ def _trained_run_started(request, tmp_path_factory):
         proc = subprocess.Popen([sys.executable, "-c", "from sc3d_cli.train import main; main()",
                                  *trained_run_args(shards, out)], stdout=f, stderr=subprocess.STDOUT)
     yield proc, out, log
-    if proc.poll() is None:
-        proc.kill()
-        proc.wait()
+    stop_children([proc])
 
 
 @pytest.fixture(scope="session")
@@ -284,10 +291,7 @@ def _doc_runs_started(request, tmp_path_factory):
 
     runs = start_doc_runs(tmp_path_factory.mktemp("doc_run"))
     yield runs
-    for proc, *_ in runs.values():
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    stop_children([proc for proc, *_ in runs.values()])
 
 
 @pytest.fixture(scope="session")

@@ -115,6 +115,17 @@ def test_predict_is_locked_and_replaces_its_files_without_following_links(traine
     assert np.load(out / "chair.npz")["voxels"].shape == (32, 32, 32)
 
 
+def _assert_refused_by_readers(folder: Path, shard: Path, reason: str, tmp_path: Path) -> None:
+    """``check``, ``preview`` and ``fit`` on ``folder`` each fail in one line naming ``shard`` (the
+    data commands) and ``reason``."""
+    for args in (["check", folder], ["preview", folder, "--out", tmp_path / "p.png"]):
+        line = one_error(run_cli(data_main, args, expect_exit=1).output)
+        assert str(shard) in line and reason in line, (args, line)
+    res = run_cli(train_main, ["fit", "--shards", folder, "--out", tmp_path / "run", "--tiny", "--steps", "2",
+                               "--batch-size", "2", "--no-progress"], expect_exit=1)
+    assert reason in one_error(res.output)
+
+
 def _external_images(shard: Path, outside: Path) -> None:
     with h5py.File(shard, "a") as f:
         shape = f["images"].shape
@@ -158,12 +169,7 @@ def test_shards_whose_data_lives_in_other_files_are_refused(table_shards, tmp_pa
     shard = folder / "shard-00000.h5"
     report = run_cli(data_main, ["info", folder, "--verify"], expect_exit=1).output
     assert "BROKEN shards: 1 of 1" in report and f"{shard}: {reason}" in report, report
-    for args in (["check", folder], ["preview", folder, "--out", tmp_path / "p.png"]):
-        line = one_error(run_cli(data_main, args, expect_exit=1).output)
-        assert str(shard) in line and reason in line, (args, line)
-    res = run_cli(train_main, ["fit", "--shards", folder, "--out", tmp_path / "run", "--tiny", "--steps", "2",
-                               "--batch-size", "2", "--no-progress"], expect_exit=1)
-    assert reason in one_error(res.output)
+    _assert_refused_by_readers(folder, shard, reason, tmp_path)
 
 
 def _replace(name, data=None, group=False):
@@ -197,12 +203,7 @@ def test_a_shard_of_another_layout_is_refused_in_one_line_naming_it(table_shards
     with h5py.File(shard, "a") as f:
         damage(f)
     _rerecorded(folder)
-    for args in (["check", folder], ["preview", folder, "--out", tmp_path / "p.png"]):
-        line = one_error(run_cli(data_main, args, expect_exit=1).output)
-        assert str(shard) in line and reason in line, (args, line)
-    res = run_cli(train_main, ["fit", "--shards", folder, "--out", tmp_path / "run", "--tiny", "--steps", "2",
-                               "--batch-size", "2", "--no-progress"], expect_exit=1)
-    assert reason in one_error(res.output)
+    _assert_refused_by_readers(folder, shard, reason, tmp_path)
 
 
 def test_the_layout_check_passes_every_shard_sc3d_writes(sample_shards):

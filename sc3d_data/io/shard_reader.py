@@ -11,6 +11,7 @@ is documented in ``sc3d_data.io.shards``.
 from __future__ import annotations
 
 import os
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -62,9 +63,7 @@ class ShardReader:
     def summaries(self) -> list[ShardSummary]:
         """A ``ShardSummary`` per shard file in index order (reads strings and shapes only)."""
         out = []
-        listed: dict[str, int] = {}
-        for o in self.index.get("objects", []):
-            listed[o.get("shard")] = listed.get(o.get("shard"), 0) + 1
+        listed = Counter(o.get("shard") for o in self.index.get("objects", []))  # objects per shard file
         for path in self.files:
             if not path.is_file():
                 raise ShardError(f"{path}: listed in {self.shard_dir}/index.json but missing")

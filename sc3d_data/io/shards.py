@@ -464,6 +464,18 @@ def refuse_dataset_file(shard_dir: Path, path: Path, option: str) -> None:
                              "hard link); refused (write the report elsewhere)")
 
 
+def held_voxel_resolution(index: dict) -> int | None:
+    """The side of the voxel grids that the shards of ``index`` (a parsed ``index.json``) hold: the
+    ``voxels`` record's (``sc3d-data voxelize SHARDS``), else the run's own (``render --voxelize``,
+    ``import-r2n2``), else None (no grids)."""
+    record, settings = index.get("voxels"), index.get("settings", {})
+    if record:
+        return record.get("resolution")
+    if settings.get("voxelize") or settings.get("source") == "3D-R2N2":
+        return settings.get("voxel_resolution")
+    return None
+
+
 def load_index(shard_dir: Path) -> dict:
     """Read ``index.json`` of a shard directory; a clear error if it is missing or broken, of a
     newer schema, or malformed where readers look (``sc3d_data.io.index_check``)."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from sc3d_data.io.names import printable
-from sc3d_data.io.shards import load_index
+from sc3d_data.io.shards import held_voxel_resolution, load_index
 from sc3d_data.io.shard_reader import verify_shards
 from sc3d_data.formats.shapenet import category_label
 
@@ -24,12 +24,12 @@ def _said_once(source: str, reason: str) -> str:
 def voxels_line(index: dict) -> str:
     """What voxel grids the shards of ``index`` hold: those of ``sc3d-data voxelize SHARDS`` (its
     ``voxels`` record, which the render settings do not show), else the render's or import's."""
-    record, settings = index.get("voxels"), index.get("settings", {})
+    record, resolution = index.get("voxels"), held_voxel_resolution(index)
     if record:
-        return (f"{record.get('resolution')}^3, added by `sc3d-data voxelize` ({record.get('failed', 0)} failed; "
+        return (f"{resolution}^3, added by `sc3d-data voxelize` ({record.get('failed', 0)} failed; "
                 "they replace the voxel settings of the run below)")
-    if settings.get("voxelize") or settings.get("source") == "3D-R2N2":
-        return f"{settings.get('voxel_resolution')}^3, made by the run (settings below)"
+    if resolution is not None:
+        return f"{resolution}^3, made by the run (settings below)"
     return "none (add them with `sc3d-data voxelize SHARD_DIR`)"
 
 

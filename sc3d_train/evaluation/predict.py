@@ -31,6 +31,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from sc3d_data.io.pictures import write_figure
+from sc3d_data.io.shards import atomic_write_bytes
 from sc3d_train.loop.checkpoint import load_model, run_checkpoint
 from sc3d_train.settings.command_config import PredictConfig, check_pose_source
 
@@ -104,8 +106,6 @@ def voxel_mesh(probabilities: np.ndarray, threshold: float) -> tuple[np.ndarray,
 def write_obj(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
     """The mesh as a Wavefront OBJ (vertices in the canonical frame, faces 1-based), written whole
     or not at all (``atomic_write_bytes``)."""
-    from sc3d_data.io.shards import atomic_write_bytes
-
     lines = ["# sc3d-train predict: marching cubes of the predicted occupancy\n"]
     if len(faces) == 0:
         lines.append("# empty prediction: no voxel reached the threshold\n")
@@ -117,8 +117,6 @@ def write_obj(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
 def plot_prediction(path: Path, image: np.ndarray, mask: np.ndarray, silhouette: np.ndarray,
                     azimuth: float, elevation: float) -> None:
     import matplotlib
-
-    from sc3d_data.io.pictures import write_figure
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -147,7 +145,7 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
     :data:`~sc3d_train.settings.command_config.DEFAULT_POSE_SOURCE`) or ``"head"``, as in ``eval``."""
     from sc3d_data.io.binvox import write_binvox
     from sc3d_data.io.outlock import exclusive_lock
-    from sc3d_data.io.shards import atomic_write_bytes, write_json_atomic
+    from sc3d_data.io.shards import write_json_atomic
     from sc3d_data.io.names import printable
     from sc3d_train.evaluation.evaluate import require_finite_weights, voxel_silhouette
     from sc3d_train.loop.checkpoint import CheckpointError

@@ -35,9 +35,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sc3d_data.pipeline.run.resume import check_unlisted_shard, settings_differ
-from sc3d_data.pipeline.run.resume_voxels import held_voxel_resolution
-from sc3d_data.io.shards import (INDEX_NAME, SHARD_PATTERN, file_sha256, io_reason, load_index, shard_path,
-                                 write_index)
+from sc3d_data.io.shards import (INDEX_NAME, SHARD_PATTERN, file_sha256, held_voxel_resolution, io_reason,
+                                 load_index, shard_path, write_index)
 from sc3d_data.io.shard_reader import verify_shard
 
 

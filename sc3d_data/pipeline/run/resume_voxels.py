@@ -6,18 +6,6 @@ the user told (:func:`voxels_after_rewrite`)."""
 from __future__ import annotations
 
 
-def held_voxel_resolution(index: dict) -> int | None:
-    """The side of the voxel grids that the shards of ``index`` (a parsed ``index.json``) hold: the
-    ``voxels`` record's (``sc3d-data voxelize SHARDS``), else the run's own (``render --voxelize``,
-    ``import-r2n2``), else None (no grids)."""
-    record, settings = index.get("voxels"), index.get("settings", {})
-    if record:
-        return record.get("resolution")
-    if settings.get("voxelize") or settings.get("source") == "3D-R2N2":
-        return settings.get("voxel_resolution")
-    return None
-
-
 def uniform_arrays(records: list) -> list[str]:
     """Leave out of every record of ``records`` the arrays that not all of them have with one
     shape (a shard holds each array for all its objects); returns their names, sorted."""
