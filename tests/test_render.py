@@ -268,18 +268,13 @@ def test_a_draw_not_read_is_dropped_by_the_next_and_read_needs_a_draw():
         r.close()
 
 
-def test_has_area_sums_every_chunk_until_one_has_area():
-    """``has_area``: a mesh whose only triangle with area lies in its last chunk has area (the
-    right triangle (0,0,0) (1,0,0) (0,1,0), area 1/2, after 2 x AREA_CHUNK triangles with three
-    equal corners); the same without it has none, as the total of its areas is 0; an empty face
-    list has none."""
-    from sc3d_data.io.meshes import AREA_CHUNK, has_area
-
+def test_validate_triangles_keeps_the_triangles_with_area():
+    """A mesh whose only triangle with area comes after 4,096 triangles with three equal corners
+    keeps that one triangle (the right triangle (0,0,0) (1,0,0) (0,1,0), area 1/2); the same
+    without it has no area and is refused."""
     v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
-    flat = np.zeros((2 * AREA_CHUNK, 3), dtype=np.int64)
-    assert has_area(v, np.concatenate([flat, [[0, 1, 2]]]))
-    assert not has_area(v, flat)
-    assert not has_area(v, np.zeros((0, 3), dtype=np.int64))
+    flat = np.zeros((4096, 3), dtype=np.int64)
+    assert validate_triangles(v, np.concatenate([flat, [[0, 1, 2]]])).tolist() == [[0, 1, 2]]
     with pytest.raises(MeshError, match="zero surface area"):
         validate_triangles(v, flat)
 

@@ -159,7 +159,7 @@ def discover_meshes(root, categories=None, category_override=None
         else:
             found.append(MeshEntry(root, root.stem, resolve_category(file.parent.name or "unknown")))
     else:
-        root_resolved = root.resolve()
+        root_name = Path(os.path.abspath(root)).name  # as given: a symlinked folder is named by its link
         folders = _walk(root, problems)
         shapenet_models: dict[Path, Path | None] = {}   # model folder -> its mesh (None: none yet)
         model_ids: dict[Path, tuple[str, str]] = {}     # model folder -> (synset, model id)
@@ -187,7 +187,7 @@ def discover_meshes(root, categories=None, category_override=None
             for name in meshes:
                 path = folder / name
                 if not rel:      # flat folder: category = the folder's own name
-                    category = root_resolved.name or "unknown"
+                    category = root_name or "unknown"
                     model_id = Path(name).stem
                 else:
                     category = rel[0]

@@ -96,14 +96,16 @@ AUTO_FRONT = "auto"
 
 def shapenet_version(path) -> int | None:
     """1 for ``SYNSET/MODEL_ID/model.obj``, 2 for ``SYNSET/MODEL_ID/models/model_normalized.obj``,
-    else ``None`` (by the path alone)."""
+    else ``None`` (by the path alone). A ``MODEL_ID`` of 8 digits is no model folder, as
+    ``discover`` reads it (a folder of plain meshes in a synset folder)."""
     import os
     from pathlib import Path
 
     p = Path(os.path.abspath(path))  # `--meshes .` inside a synset folder: the names above it count
-    if p.name == "model.obj" and is_synset_id(p.parent.parent.name):
+    if p.name == "model.obj" and is_synset_id(p.parent.parent.name) and not is_synset_id(p.parent.name):
         return 1
-    if p.name == "model_normalized.obj" and p.parent.name == "models" and is_synset_id(p.parents[2].name):
+    if (p.name == "model_normalized.obj" and p.parent.name == "models" and is_synset_id(p.parents[2].name)
+            and not is_synset_id(p.parents[1].name)):
         return 2
     return None
 

@@ -6,6 +6,11 @@ as "zero surface area", blaming the mesh), never decodes ``EXT_meshopt_compressi
 ``KHR_meshopt_compression``, always maps a base colour texture with ``TEXCOORD_0`` whatever its
 ``texCoord`` says, and ignores ``KHR_texture_transform`` (the offset, rotation and scale with
 which Blender tiles a fabric or gltfpack packs an atlas): the texture is drawn at the wrong place.
+It also reads every accessor's integers as they are stored, never applying ``normalized`` (an
+unsigned short 65535 means 1.0): texture coordinates stored as normalized integers (core glTF
+allows them; gltfpack and gltf-transform's quantize write them) come out thousands of times too
+large (then wrap, as the loader flips v in the integer type), and positions quantized by
+``KHR_mesh_quantization`` as normalized integers make their part 32767 times too large.
 
 :func:`feature_problems` names from the JSON alone what cannot be read as written, so that the
 file is refused in one line whatever ``--bad-texture`` says (the loader would draw a texture, at
@@ -13,7 +18,11 @@ the wrong place, and which of its parts to draw plain cannot be told from what i
 
 * an extension in ``extensionsRequired`` that the loader cannot decode (:data:`UNDECODED`; Draco
   only where ``DracoPy`` is missing): the file itself says it cannot be read without it;
-* a primitive of a drawn mesh (the meshes ``sc3d_data.io.gltf_check`` judges) whose material's
+* a primitive of a drawn mesh (the meshes ``sc3d_data.io.gltf_check`` judges) whose POSITION is
+  stored as normalized integers, or whose ``TEXCOORD_n`` is stored as integers (normalized or
+  not: the loader's flip of v wraps in an unsigned type); integer positions that are not
+  normalized (``KHR_mesh_quantization`` allows them too) are read right and pass;
+* a primitive of a drawn mesh whose material's
   base colour texture (``pbrMetallicRoughness.baseColorTexture``, or the ``diffuseTexture`` of
   ``KHR_materials_pbrSpecularGlossiness``: the textures the renderer draws) reads another
   ``texCoord`` than 0 (also through its transform), or is moved by a ``KHR_texture_transform``
@@ -106,12 +115,37 @@ def _base_textures(material: dict) -> list[tuple[str, dict]]:
     return found
 
 
+#: glTF's integer ``componentType`` values: ``{code: name}``
+INTEGER_TYPES = {5120: "byte", 5121: "unsigned byte", 5122: "short", 5123: "unsigned short", 5125: "unsigned int"}
+
+
+def integer_attribute_problems(doc: dict, drawn: set[int]) -> list[str]:
+    """The attributes of the primitives of the drawn meshes ``drawn`` that the loader reads as
+    other numbers than the file means (module doc), each accessor once: a POSITION stored as
+    normalized integers, a ``TEXCOORD_n`` stored as integers."""
+    accessors, problems, seen = doc.get("accessors", []), [], set()
+    for m in sorted(drawn):
+        for prim in doc["meshes"][m].get("primitives", []):
+            for role, a in prim.get("attributes", {}).items():
+                if not isinstance(a, int) or a in seen or not 0 <= a < len(accessors):
+                    continue
+                seen.add(a)
+                kind = INTEGER_TYPES.get(accessors[a].get("componentType"))
+                normalized = accessors[a].get("normalized") is True
+                if kind and (role.startswith("TEXCOORD_") or (role == "POSITION" and normalized)):
+                    problems.append(f"accessor {a} ({role} of mesh {m}) holds {'normalized ' * normalized}{kind} "
+                                    "integers (quantized glTF), which the loader reads unscaled")
+    return problems
+
+
 def feature_problems(doc: dict, drawn: set[int]) -> list[str]:
     """What of glTF document ``doc`` the loader would ignore (module doc), one phrase each:
-    required extensions first, then the textures of the materials of the drawn meshes
+    required extensions first, then the attributes stored as integers that it misreads
+    (:func:`integer_attribute_problems`), then the textures of the materials of the drawn meshes
     ``drawn`` (mesh indices), each material once."""
     problems = [f"it requires {name} ({UNDECODED[name]}), which the loader cannot decode"
                 for name in doc.get("extensionsRequired", []) if isinstance(name, str) and _undecoded(name)]
+    problems += integer_attribute_problems(doc, drawn)
     materials, seen = doc.get("materials", []), set()
     for m in sorted(drawn):
         for prim in doc["meshes"][m].get("primitives", []):

@@ -140,9 +140,10 @@ def gltf_uri_path(folder: Path, uri: str) -> Path:
     return literal if literal.exists() and not decoded.exists() else decoded
 
 
-def _gltf_refs(path: Path) -> tuple[list[tuple[str, Path]], list[tuple[str, bytes]]]:
-    """``(external images [(name, path)], embedded images [(name, bytes)])`` of a GLTF/GLB."""
-    doc, binary = read_gltf(path, binary=True)  # not a glTF document: ValueError, the loader reports it
+def _gltf_refs(path: Path, embedded_too: bool = True) -> tuple[list[tuple[str, Path]], list[tuple[str, bytes]]]:
+    """``(external images [(name, path)], embedded images [(name, bytes)])`` of a GLTF/GLB (the
+    embedded ones only when ``embedded_too``: a GLB's binary chunk is read for them)."""
+    doc, binary = read_gltf(path, binary=embedded_too)  # not a glTF document: ValueError, the loader reports it
     external, embedded = [], []
     for i, image in enumerate(doc.get("images", [])):
         if "uri" in image and not image["uri"].startswith("data:"):
@@ -152,6 +153,25 @@ def _gltf_refs(path: Path) -> tuple[list[tuple[str, Path]], list[tuple[str, byte
             start = view.get("byteOffset", 0)
             embedded.append((f"texture image {i}", binary[start:start + view["byteLength"]]))
     return external, embedded
+
+
+def named_files(path: Path, root: Path | None = None) -> list[Path]:
+    """The companion files of mesh ``path`` inside :func:`texture_root` that it names, there or
+    not: an OBJ's material files and the textures they name, a glTF's external images; sorted,
+    each once. What a rerun compares (``io.source_fingerprint.material_fingerprints``) to notice
+    a texture replaced, or a missing one put in place. Unparseable files name none."""
+    path = real_file(path)
+    top, suffix = texture_root(path, root), path.suffix.lower()
+    try:
+        if suffix == ".obj":
+            refs = _obj_refs(path, top, MaterialReport()) + [(lib, path.parent / lib) for lib in mtllib_names(path)]
+        elif suffix in (".glb", ".gltf"):
+            refs = _gltf_refs(path, embedded_too=False)[0]
+        else:
+            return []
+    except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):
+        return []
+    return sorted({Path(os.path.abspath(ref)) for _, ref in refs if _inside(ref, top)})
 
 
 def material_report(path: Path, root: Path | None = None, outside: str = "warn") -> MaterialReport:

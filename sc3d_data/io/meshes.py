@@ -121,11 +121,15 @@ def scene_triangles(scene, source: str = "mesh") -> tuple[np.ndarray, np.ndarray
 
 
 def validate_triangles(vertices: np.ndarray, faces: np.ndarray, source: str = "mesh",
-                       max_faces: int = DEFAULT_MAX_FACES) -> None:
-    """Raise ``MeshError`` naming ``source`` when the triangles cannot make an object:
+                       max_faces: int = DEFAULT_MAX_FACES) -> np.ndarray:
+    """The triangles of ``faces [m,3]`` that have area (``geometry.triangle_area``: a triangle of
+    none draws nothing, and its corners must not move the normalisation's bounding box nor leave
+    a voxel); raise ``MeshError`` naming ``source`` when the triangles cannot make an object:
     no triangles, more than ``max_faces``, a corner naming no vertex (an index below 0 or past
     the last vertex: a file's index data out of range, which trimesh keeps), non-finite
-    coordinates, or zero total area."""
+    coordinates, or no triangle with area."""
+    from sc3d_data.geometry.triangle_area import triangles_with_area
+
     if len(faces) == 0:
         raise MeshError(f"{source}: empty mesh (no triangles)")
     if max_faces and len(faces) > max_faces:
@@ -142,26 +146,11 @@ def validate_triangles(vertices: np.ndarray, faces: np.ndarray, source: str = "m
     if big.any():
         raise MeshError(f"{source}: {int(big.sum())} vertices with coordinates beyond +-{FLOAT32_SAFE:.0e} "
                         f"(largest {np.abs(used).max():.3g}); the renderer draws in float32")
-    if not has_area(vertices, faces):
+    keep = triangles_with_area(np.ascontiguousarray(vertices, dtype=np.float64),
+                               np.ascontiguousarray(faces, dtype=np.int64))
+    if not keep.any():
         raise MeshError(f"{source}: zero surface area (all {len(faces)} triangles degenerate)")
-
-
-#: triangles per chunk of :func:`has_area`
-AREA_CHUNK = 2048
-
-
-def has_area(vertices: np.ndarray, faces: np.ndarray) -> bool:
-    """Whether the triangles' total area is above 0 (``vertices [n,3]`` finite, as
-    :func:`validate_triangles` checks first; ``faces [m,3]``): the sum of their areas, a chunk of
-    ``AREA_CHUNK`` triangles at a time, stopping at the first chunk whose sum is above 0 (every
-    area is >= 0, so the total is above 0 exactly when some chunk's is); a real mesh is decided
-    by its first chunk, a degenerate one is summed whole."""
-    for lo in range(0, len(faces), AREA_CHUNK):
-        tri = vertices[faces[lo:lo + AREA_CHUNK]]
-        with np.errstate(over="ignore", invalid="ignore"):
-            if np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum() > 0:
-                return True
-    return False
+    return faces if keep.all() else faces[keep]
 
 
 # ----------------------------------------------------------------------------- the file itself
@@ -208,8 +197,9 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     """Load and validate one mesh file as a single object.
 
     Returns ``(scene, vertices, faces, warnings)``: the ``trimesh.Scene`` to render, its
-    triangles in the source frame (``vertices [n,3]`` float64, ``faces [m,3]`` int64, node
-    transforms baked in) and a list of warnings (textures replaced by material colours when
+    triangles with area in the source frame (``vertices [n,3]`` float64, ``faces [m,3]`` int64,
+    node transforms baked in; triangles of no area, which draw nothing, left out:
+    :func:`validate_triangles`) and a list of warnings (textures replaced by material colours when
     ``bad_texture="fallback"``, missing ``.mtl`` files, material files outside the folder
     ``root``, never read: refused when ``outside_textures="refuse"``). Raises ``MeshError`` on
     bad input (see module doc)."""
@@ -245,15 +235,15 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     elif gltf_doc is not None:
         apply_texture_transforms(scene, gltf_doc)
     vertices, faces = scene_triangles(scene, str(path))
-    validate_triangles(vertices, faces, str(path), max_faces)
+    faces = validate_triangles(vertices, faces, str(path), max_faces)
     warnings = ([f"{path}: {p}; rendered with material colours" for p in report.problems + missed]
                 + [f"{path}: {n}" for n in report.warnings + report.outside])
     return scene, vertices, faces, warnings
 
 
 def load_mesh_triangles(path: Path, max_faces: int = DEFAULT_MAX_FACES) -> tuple[np.ndarray, np.ndarray]:
-    """The exact geometry the renderer draws for ``path``: ``(vertices [n,3] float64,
-    faces [m,3] int64)`` in the SOURCE frame (all scene geometry, node transforms baked in).
+    """The exact geometry the renderer draws for ``path`` (its triangles with area): ``(vertices
+    [n,3] float64, faces [m,3] int64)`` in the SOURCE frame (all scene geometry, node transforms baked in).
     Apply the shard's ``to_canonical`` with ``sc3d_data.geometry.normalize.apply_transform`` to get
     canonical coordinates. Raises ``MeshError`` on bad input."""
     _, vertices, faces, _ = load_mesh(path, max_faces=max_faces, bad_texture="fallback")

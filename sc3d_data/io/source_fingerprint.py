@@ -6,6 +6,13 @@ listed. :func:`source_change` compares a file with one: the same size and modifi
 mean unchanged (no read); another size means changed; the same size with another time (a copy
 made without keeping times, a touched file) is settled by the SHA-256 of the content, so moving
 or copying a dataset does not count as a change.
+
+A mesh's companion files (an OBJ's material files and their textures, a glTF's external images:
+``io.materials.named_files``) are fingerprinted beside it (:func:`material_fingerprints`, kept
+in the mesh's fingerprint as ``"materials"``: ``{name relative to the mesh's folder:
+fingerprint, or None where the file was missing}``), so that a rerun renders again an object
+whose texture was replaced, or whose missing material file was put in place after it rendered
+with a warning (:func:`materials_change`).
 """
 from __future__ import annotations
 
@@ -15,7 +22,7 @@ from pathlib import Path
 
 from sc3d_data.io.hashing import file_sha256
 
-__all__ = ["fingerprint", "source_change"]
+__all__ = ["fingerprint", "material_fingerprints", "materials_change", "source_change"]
 
 
 def fingerprint(path: str | Path) -> dict | None:
@@ -45,4 +52,30 @@ def source_change(path: str | Path, recorded: dict) -> str | None:
     if file_sha256(Path(path)) != recorded.get("sha256"):
         return "same size, other content"
     recorded["mtime_ns"] = st.st_mtime_ns  # the same content: the next check needs no read
+    return None
+
+
+def material_fingerprints(path: str | Path, root: str | Path | None) -> dict[str, dict | None]:
+    """``{name: fingerprint or None}`` of the companion files mesh ``path`` names inside its
+    texture root (``root``: the dataset folder; ``io.materials``), names relative to the folder
+    of the real mesh file, as its materials name them."""
+    from sc3d_data.io.materials import named_files, real_file
+
+    folder = real_file(Path(path)).parent
+    return {os.path.relpath(f, folder): fingerprint(f) for f in named_files(Path(path), root)}
+
+
+def materials_change(path: str | Path, recorded: dict[str, dict | None]) -> str | None:
+    """How the companion files of mesh ``path`` differ from their ``recorded`` fingerprints
+    (:func:`material_fingerprints`), in a few words naming the first that differs, or None."""
+    from sc3d_data.io.materials import real_file
+
+    folder = real_file(Path(path)).parent
+    for name, was in recorded.items():
+        file = folder / name
+        if was is None:
+            if file.is_file():
+                return f"{name} was missing and is there now"
+        elif (why := source_change(file, was)) is not None:
+            return f"{name}: {why}"
     return None

@@ -109,11 +109,13 @@ def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord
     from sc3d_data.formats.shapenet import resolve_front
     from sc3d_data.geometry.normalize import to_canonical_transform
     from sc3d_data.io.meshes import MeshError, load_mesh
-    from sc3d_data.io.source_fingerprint import fingerprint
+    from sc3d_data.io.source_fingerprint import fingerprint, material_fingerprints
     from sc3d_data.pipeline.jobs.voxel_job import voxelize_canonical
 
     source_file = fingerprint(task.path)  # before reading: an edit during the render counts as a change
     root = Path(config.meshes)
+    if source_file is not None:  # its material files and textures too (a missing one: None)
+        source_file["materials"] = material_fingerprints(task.path, root if root.is_dir() else root.parent)
     scene, vertices, faces, warnings = load_mesh(Path(task.path), config.max_faces, config.bad_texture,
                                                  root=root if root.is_dir() else root.parent,
                                                  outside_textures=config.outside_textures,

@@ -169,18 +169,20 @@ def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[T
 
 
 def changed_sources(objects: list[dict], by_key: dict, chunks: set) -> dict[int, str]:
-    """``{chunk: reason}`` for the ``chunks`` holding an object (index entry) whose mesh file
-    differs from the fingerprint recorded when it was rendered (``source_file``;
+    """``{chunk: reason}`` for the ``chunks`` holding an object (index entry) whose mesh file,
+    or a companion file it names (a material file, a texture: ``"materials"``, present or
+    missing then), differs from the fingerprint recorded when it was rendered (``source_file``;
     ``io.source_fingerprint``): such a chunk is rendered again. ``by_key``: the plan's tasks by
     (category, model id); entries without a fingerprint (earlier versions) are not compared."""
-    from sc3d_data.io.source_fingerprint import source_change
+    from sc3d_data.io.source_fingerprint import materials_change, source_change
 
     out: dict[int, str] = {}
     for o in objects:
         task = by_key.get((o.get("category"), o.get("model_id")))
         if o.get("chunk") not in chunks or o["chunk"] in out or task is None or "source_file" not in o:
             continue
-        if (why := source_change(task.path, o["source_file"])) is not None:
+        if ((why := source_change(task.path, o["source_file"])) is not None
+                or (why := materials_change(task.path, o["source_file"].get("materials", {}))) is not None):
             out[o["chunk"]] = f"{task.path}: changed since it was rendered ({why}); rendering its chunk again"
     return out
 
