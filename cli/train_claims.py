@@ -31,7 +31,10 @@ def claims(train_shards, eval_shards, eval_split, out, preset, runs, device, wor
     from sc3d_train.evaluation.claims import PRESETS, RUNS, check_study_options, run_all
     from sc3d_train.data.dataset import DataError
 
-    names = [r.strip() for r in runs.split(",")] if runs else None
+    names = [r.strip() for r in runs.split(",")] if runs is not None else None
+    if names is not None and not all(names):
+        raise click.UsageError(f"--runs {runs!r} names no run (an empty name); choose from {', '.join(RUNS)}, "
+                               "or leave --runs out for all of them")
     unknown = sorted(set(names or []) - set(RUNS))
     if unknown:
         raise click.UsageError(f"unknown runs {unknown}; choose from {', '.join(RUNS)}")

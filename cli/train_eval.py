@@ -55,6 +55,7 @@ def eval_cmd(ctx, checkpoint, shards, out, pose_from, device, split, pick, batch
                    f"checkpoint was trained on: these figures are not of held-out objects")
     if result["selected_on_this_split"]:
         click.echo(f"note: {result['checkpoint']} was chosen (best of its validations) on these {split!r} objects, so "
-                   "these figures are optimistic; evaluate on --split test or with --pick last")
+                   "these figures are optimistic; evaluate " + ("on objects it was not chosen on, or " if split == "test"
+                                                               else "on --split test or ") + "with --pick last")
     out = Path(result["out"])
     click.echo(f"wrote {out / 'metrics.json'} and {out / 'predictions.png'}")

@@ -37,7 +37,7 @@ def test_a_nearly_black_background_is_not_read_as_white(tmp_path):
     run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES / "table", "--out", dark, "--background", "1,1,1",
                         "--views", "4", "--voxelize", "--no-progress", "--workers", "1"])
     split = json.loads((dark / "index.json").read_text())["objects"][0]["split"]
-    assert shard_facts(dark, split)["background"] == [1, 1, 1]
+    assert shard_facts(dark, split, "val")["background"] == [1, 1, 1]
 
 
 def test_relative_shards_in_a_config_file_are_recorded_absolute(sample_shards, tmp_path, monkeypatch):

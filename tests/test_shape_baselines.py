@@ -29,6 +29,9 @@ def test_mean_and_nearest_shape_on_a_hand_derived_case():
     assert r["nearest-shape"]["per_category"]["a"]["voxel_iou_0.4"] == pytest.approx(3 / 4)
     assert r["mean-shape"]["per_category"]["b"]["voxel_iou_0.4"] == pytest.approx(1 / 8)
     assert set(r["mean-shape"]["per_category"]) == {"a", "b"}
+    # no mean over a and b beside the runs' means over a, b and c: none, c named as left out
+    assert r["mean-shape"]["mean"]["voxel_iou_0.4"] is None and r["mean-shape"]["left_out"] == ["c"]
+    r = baselines_of(train, {k: held_out[k] for k in ("a", "b")})
     assert r["mean-shape"]["mean"]["voxel_iou_0.4"] == pytest.approx(7 / 24)
     assert r["nearest-shape"]["mean"]["voxel_iou_0.4"] == pytest.approx(7 / 16)
     # negative control: a prior thresholded with > instead of >= (cells at exactly 0.4 dropped)

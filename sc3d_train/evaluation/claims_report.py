@@ -102,6 +102,11 @@ def format_report(results: dict) -> str:
                    "(thresholded at 0.4), and for each held-out object the training object of its category "
                    "closest to its ground truth (a bound for any method that retrieves a training shape; it "
                    "reads the answer). A model near the first row has learnt its categories' average shape.\n")
+        left_out = next((results[n].get("left_out") for n in REFERENCES if results.get(n, {}).get("left_out")), None)
+        if left_out:
+            out.append(f"\nThe reference rows have no figure for {', '.join(category_label(c) for c in left_out)}: "
+                       "no training object of that category to take a shape from; and so no Mean, as the runs' "
+                       f"Mean is over all {len(cats)} categories.\n")
     out.append("\n### Pose (no pose labels in training): median rotation error (deg) / share within 30 deg"
                f"{over}\n\n")
     out.append(head)
@@ -190,7 +195,7 @@ def write_report(results: dict, out: Path, stem: str = "claims", **meta) -> str:
     ``seeds`` and ``per_seed`` blocks; ``claims``: :func:`check_claims`) and ``STEM.png``."""
     text = format_report(results)
     (Path(out) / f"{stem}.md").write_text(text)
-    keys = ("per_category", "mean", "overall", "std", "seeds", "per_seed")
+    keys = ("per_category", "mean", "overall", "std", "seeds", "per_seed", "left_out")
     slim = {k: {key: v[key] for key in keys if key in v} for k, v in results.items()}
     (Path(out) / f"{stem}.json").write_text(json.dumps({"meta": meta, "results": slim, "claims": check_claims(results)},
                                                        indent=1, default=str))

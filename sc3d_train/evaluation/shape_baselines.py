@@ -56,10 +56,13 @@ def iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.where(union > 0, inter / np.maximum(union, 1), 1.0)
 
 
-def _summary(per_category: dict[str, float], key: str) -> dict:
-    """The blocks of an evaluation (``per_category``, ``mean``) holding one figure ``key``."""
+def _summary(per_category: dict[str, float], key: str, left_out: list[str]) -> dict:
+    """The blocks of an evaluation (``per_category``, ``mean``) holding one figure ``key``; the
+    mean is None (no figure) where categories are ``left_out``: a mean over fewer categories
+    than the runs' would stand in the same column as theirs, not comparable."""
     return {"per_category": {c: {key: v} for c, v in per_category.items()},
-            "mean": {key: float(np.mean(list(per_category.values())))}}
+            "mean": {key: None if left_out else float(np.mean(list(per_category.values())))},
+            "left_out": left_out}
 
 
 def baselines_of(train: dict[str, np.ndarray], held_out: dict[str, np.ndarray],
@@ -67,7 +70,8 @@ def baselines_of(train: dict[str, np.ndarray], held_out: dict[str, np.ndarray],
     """``{"mean-shape": blocks, "nearest-shape": blocks}`` from ``{category: voxels [N,G,G,G]
     bool}`` of the training and held-out objects: each in the shape of an evaluation's
     ``per_category`` / ``mean`` blocks with ``voxel_iou_{threshold}``, over the held-out
-    categories that have training objects (a category without them has no prior: left out)."""
+    categories that have training objects (a category without them has no prior: left out, listed
+    in ``left_out``, and then the blocks have no mean)."""
     key = f"voxel_iou_{threshold}"
     mean_shape, nearest = {}, {}
     for c, targets in held_out.items():
@@ -78,7 +82,8 @@ def baselines_of(train: dict[str, np.ndarray], held_out: dict[str, np.ndarray],
         nearest[c] = float(iou_matrix(targets, train[c]).max(axis=1).mean())
     if not mean_shape:
         raise DataError("no held-out category has training objects")
-    return {"mean-shape": _summary(mean_shape, key), "nearest-shape": _summary(nearest, key)}
+    left_out = sorted(c for c in held_out if c not in mean_shape)
+    return {"mean-shape": _summary(mean_shape, key, left_out), "nearest-shape": _summary(nearest, key, left_out)}
 
 
 def shape_baselines(train_shards: Path, eval_shards: Path, eval_split: str = "test",

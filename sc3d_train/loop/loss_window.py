@@ -11,7 +11,9 @@ from sc3d_train.loop.runtime import DistInfo, all_min
 
 class LossWindow:
     """The total losses ``[size]`` (float32) of the steps since the last :meth:`check`, on
-    ``device``; ``size`` must be at least the number of steps between two checks."""
+    ``device``; ``size`` must be at least the number of steps between two checks (``fit``: the
+    least of ``log_every``, ``checkpoint_every`` and the steps left, so that a huge
+    ``--log-every`` allocates nothing more)."""
 
     def __init__(self, size: int, device: torch.device):
         self.totals = torch.zeros(size, dtype=torch.float32, device=device)

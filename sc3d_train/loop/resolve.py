@@ -33,8 +33,8 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     plain = {}
     if config_file is not None:
         plain = RunConfig.load(config_file, given_paths(options)).to_dict()
-        if load_yaml(config_file).get("pretrain_steps") is None:  # loading set it from the file's steps:
-            plain["pretrain_steps"] = None                          # [steps // 2] of this run's steps instead
+        if defaulted_pretraining(load_yaml(config_file).get("pretrain_steps"), plain, options):
+            plain["pretrain_steps"] = None  # loading set it from the file's steps: [steps // 2] of this run's instead
     plain.update(options)
     if plain.get("out") is None or plain.get("shards") is None:
         raise ValueError("a new run needs --shards and --out (or a --config file that names them)")
@@ -53,7 +53,7 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
                               f"last.pt; use --resume to continue it, or choose another --out")
     check_no_linked_files(out)
     check_no_foreign_files(out)
-    facts = shard_facts(Path(plain["shards"]), plain.get("split", "train"))
+    facts = shard_facts(Path(plain["shards"]), plain.get("split", "train"), plain.get("val_split", "val"))
     model = dict(plain.get("model", {}))
     if tiny:
         model.update(TINY_MODEL)
@@ -61,6 +61,17 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
                  voxel_resolution=facts.pop("model.voxel_resolution"))
     plain.update(model=model, **facts)
     return RunConfig.from_dict(plain)
+
+
+def defaulted_pretraining(in_file, loaded: dict, options: dict) -> bool:
+    """Whether a ``--config`` file's ``pretrain_steps`` (``in_file``; ``loaded``: the file's
+    settings as loaded) is the default's value that should follow this run's ``--steps``
+    (``options``): left out of the file, or, with another ``--steps`` given, half the file's
+    steps, which a run's own ``config.yaml`` records for a default (docs/config.md)."""
+    if in_file is None:
+        return True
+    new_steps = options.get("steps")
+    return new_steps is not None and new_steps != loaded["steps"] and in_file == loaded["steps"] // 2
 
 
 def absolute_paths(settings: dict) -> dict:
@@ -76,11 +87,12 @@ def given_paths(options: dict) -> dict:
     return {k: options[k] for k in ("shards", "out") if options.get(k) is not None}
 
 
-def shard_facts(shards: Path, split: str) -> dict:
+def shard_facts(shards: Path, split: str, val_split: str) -> dict:
     """What a run takes from its shards, keyed like :func:`run_facts`: the model's image size
-    and voxel resolution, the dataset facts (views, background, intrinsics, camera distance) and
+    and voxel resolution, the dataset facts (views, background, intrinsics, camera distance),
     ``objects_sha256``, the SHA-256 of the sorted ``category/model_id`` of the objects of
-    ``split`` (the objects the run trains on). ``DataError`` when the shards have no voxels, voxels of
+    ``split`` (the objects the run trains on), and ``val_objects_sha256``, that of ``val_split``
+    (the objects ``best.pt`` is chosen on). ``DataError`` when the shards have no voxels, voxels of
     two resolutions, or a render left them incomplete."""
     from sc3d_train.data.completeness import require_complete
     from sc3d_train.data.dataset import DataError, background_of, require_one_voxel_resolution, scan_objects
@@ -93,7 +105,8 @@ def shard_facts(shards: Path, split: str) -> dict:
     return {"model.image_size": info["image_size"], "model.voxel_resolution": info["voxel_resolution"],
             "image_size": info["image_size"], "num_views": info["num_views"], "background": background_of(info),
             "intrinsics": info["K"], "camera_distance": info["distance"],
-            "objects_sha256": objects_digest(refs, split), "view_setup": view_setup(info["settings"])}
+            "objects_sha256": objects_digest(refs, split), "val_objects_sha256": objects_digest(refs, val_split),
+            "view_setup": view_setup(info["settings"])}
 
 
 #: render settings that change the images without changing their size, camera K or distance
@@ -130,21 +143,26 @@ def run_facts(cfg: RunConfig) -> dict:
     return {"model.image_size": cfg.model.image_size, "model.voxel_resolution": cfg.model.voxel_resolution,
             "image_size": cfg.image_size, "num_views": cfg.num_views, "background": cfg.background,
             "intrinsics": cfg.intrinsics, "camera_distance": cfg.camera_distance,
-            "objects_sha256": cfg.objects_sha256, "view_setup": cfg.view_setup}
+            "objects_sha256": cfg.objects_sha256, "val_objects_sha256": cfg.val_objects_sha256,
+            "view_setup": cfg.view_setup}
 
 
 def check_same_shards(cfg: RunConfig, out: Path) -> None:
     """``CheckpointError`` when the shards of run ``cfg`` (folder ``out``) no longer hold the data
     the run started on (re-rendered at another size, camera, background, elevations, axes,
-    normalisation or shading, or with other training objects): a resumed run would continue on
-    other data. Facts a run of an earlier version did
-    not record (``None``) are not compared."""
+    normalisation or shading, or with other training objects, or, for a run that validates, other
+    validation objects: its best.pt would be chosen by scores on other objects): a resumed run
+    would continue on other data. Facts a run of an earlier version did not record (``None``)
+    are not compared."""
     from sc3d_train.loop.checkpoint import CheckpointError
 
-    was, now = run_facts(cfg), shard_facts(Path(cfg.shards), cfg.split)
+    was, now = run_facts(cfg), shard_facts(Path(cfg.shards), cfg.split, cfg.val_split)
+    if not cfg.val_every:
+        was["val_objects_sha256"] = None  # no validation from here: the split is not read
     changed = [k for k, v in was.items() if v is not None and v != now[k]]
+    digests = {"objects_sha256": cfg.split, "val_objects_sha256": cfg.val_split}
     if changed:
-        names = ", ".join(f"the objects of split {cfg.split!r}" if k == "objects_sha256" else f"{k} {was[k]!r} -> {now[k]!r}"
+        names = ", ".join(f"the objects of split {digests[k]!r}" if k in digests else f"{k} {was[k]!r} -> {now[k]!r}"
                           for k in changed)
         raise CheckpointError(f"{cfg.shards}: the shards changed since run {out} started ({names}); --resume "
                               f"continues only on the data the run started on: train a new run on them "
@@ -178,6 +196,10 @@ def _resumed(options: dict, model_options: dict, tiny: bool = False) -> RunConfi
             changed.append(f"--{k.replace('_', '-')} {v!r}{via} (run has {getattr(cfg.model, k)!r})")
     if changed:
         raise CheckpointError(f"{out}: cannot change on --resume: " + ", ".join(changed))
+    if cfg.mode == "semi" and cfg.steps < (cfg.pretrain_steps or 0):
+        raise CheckpointError(f"{out}: --steps {cfg.steps} ends inside this semi run's pretraining "
+                              f"({cfg.pretrain_steps} steps), which --resume cannot shorten; to train further give a "
+                              f"--steps above both {cfg.pretrain_steps} and the step its last checkpoint reached")
     cfg = RunConfig.from_dict(cfg.to_dict())  # the new values pass the checks a new run's do
     if not Path(cfg.shards).is_dir():
         raise CheckpointError(f"{cfg.shards}: the shard folder of run {out} does not exist; if it moved, resume "

@@ -236,7 +236,7 @@ def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --
     wrap_ddp(t)
     step_fn = TrainStep(t.model, t.train_model, t.optimizer, t.scaler, t.amp_dtype, cfg,
                         compile_plan(cfg, t.device, t.dist.world_size), say=print if t.dist.is_main else lambda _: None)
-    window = LossWindow(cfg.log_every, t.device)
+    window = LossWindow(max(1, min(cfg.log_every, cfg.checkpoint_every, cfg.steps - start_step)), t.device)
     if t.dist.is_main:
         t.run_dir.mkdir(parents=True, exist_ok=True)
         cfg.save(t.run_dir / CONFIG_NAME)

@@ -27,7 +27,8 @@ model selection on a validation split).
 Files in the run folder: ``validation.csv`` (one row per validation: ``step`` = steps done, the
 figures, ``seconds`` it took, ``best`` 1 where it became the best), TensorBoard scalars ``val/*``
 and ``checkpoints/best.pt`` (model, config, step and the validation record: what ``eval`` and
-``claims`` read by default). On ``--resume`` the rows after the resumed step are dropped and
+``claims`` read by default). On ``--resume`` the rows after the resumed step are dropped (with
+validation off too: :func:`resumed_rows`) and
 ``best.pt``'s record is the best to beat; a ``best.pt`` of a step after the resumed one (kept by
 the interrupted run from steps now trained again, on another schedule where ``--steps`` changed:
 weights of no step of the resumed run) is removed, and the best is chosen again from there
@@ -119,6 +120,18 @@ def resumed_best(run_dir: Path, start_step: int, cfg: RunConfig) -> dict | None:
     return best
 
 
+def resumed_rows(path: Path, start_step: int) -> list[dict]:
+    """The complete rows of ``validation.csv`` ``path`` of steps up to ``start_step`` (a run resumed
+    there; the rows after it are of steps it trains again), ``path`` rewritten to hold only them
+    (only the header for a new run, ``start_step`` 0)."""
+    rows = [r for r in complete_rows(path) if int(r["step"]) <= start_step] if start_step > 0 and path.is_file() else []
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=FIELDS)
+        w.writeheader()
+        w.writerows(rows)
+    return rows
+
+
 class Validator:
     """Validation of one run on rank 0 (module doc). ``due(done)`` says when, ``run`` does it."""
 
@@ -127,13 +140,7 @@ class Validator:
         self.indices = view_indices(dataset.num_objects, dataset.num_views, cfg.val_views)
         self.run_dir = Path(cfg.out)
         self.path = self.run_dir / VAL_CSV
-        rows = []
-        if start_step > 0 and self.path.is_file():
-            rows = [r for r in complete_rows(self.path) if int(r["step"]) <= start_step]
-        with open(self.path, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=FIELDS)
-            w.writeheader()
-            w.writerows(rows)
+        rows = resumed_rows(self.path, start_step)
         for r in rows:  # TensorBoard's resume purge (from start_step on) took the resumed step's own row
             if int(r["step"]) >= start_step > 0:
                 self._to_tb({k: float(r[k]) for k in FIELDS[1:5]}, int(r["step"]))
@@ -151,6 +158,8 @@ class Validator:
         steps trained again is removed here (:func:`resumed_best`), with validation off too."""
         if is_main and start_step > 0 and best_path(Path(cfg.out)).is_file():
             resumed_best(Path(cfg.out), start_step, cfg)
+        if is_main and start_step > 0 and (Path(cfg.out) / VAL_CSV).is_file():
+            resumed_rows(Path(cfg.out) / VAL_CSV, start_step)  # with validation off too: no row of a step trained again
         if not is_main or not cfg.val_every:
             return None
         dataset = validation_dataset(cfg)

@@ -257,6 +257,10 @@ class RunConfig(_Plain):
     camera_distance: float = setting(2.0, "Camera distance of the shards (world units).", cli=False)
     objects_sha256: str | None = setting(None, "SHA-256 of the sorted category/model_id of the training split's "
                                          "objects (--resume refuses shards whose objects changed).", cli=False)
+    val_objects_sha256: str | None = setting(None, "SHA-256 of the sorted category/model_id of the validation "
+                                             "split's objects (--resume of a run that validates refuses shards whose "
+                                             "validation objects changed: best.pt compares scores on them).",
+                                             cli=False)
     view_setup: str | None = setting(None, "How the shards' views were rendered: elevations, up and front axes, "
                                      "normalisation, shading (--resume refuses shards rendered otherwise).", cli=False)
 
