@@ -198,6 +198,6 @@ def plot_curves(csv_path: Path, png_path: Path) -> None:
         ax3.set_xlabel("step")
         ax3.set_title("validation (objects never trained on)")
         ax3.legend(fontsize=8)
-    fig.tight_layout()
+    fig.subplots_adjust(left=0.05, right=0.99, bottom=0.14, top=0.91, wspace=0.18)
     write_figure(fig, png_path, dpi=80)
     plt.close(fig)
