@@ -40,7 +40,7 @@ def run_once(seed: int, threads: int, tests: list[str], figures: Path) -> tuple[
     """One pytest process; returns (exit code, seconds)."""
     env = {**os.environ, "OMP_NUM_THREADS": str(threads), "SC3D_LEARNT_FIGURES": str(figures)}
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "0",
                            f"--train-seed={seed}", *tests], cwd=REPO, env=env,
                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     if proc.returncode not in (0, 1):

@@ -310,6 +310,7 @@ def test_e7_overwrite_deletes_only_the_files_its_index_lists(tmp_path):
     foreign = out / "shard-00007.h5"                     # named like a shard, not written by sc3d
     foreign.write_bytes(b"not written by sc3d")
     listed = (out / "shard-00000.h5").stat().st_ino
+    os.link(out / "shard-00000.h5", tmp_path / "old.h5")  # holds the old inode: a new file cannot reuse it
     run_cli(data_main, args + ["--overwrite"])
     assert foreign.read_bytes() == b"not written by sc3d"
     assert index_of(out)["counts"]["total"] == 1 and (out / "shard-00000.h5").stat().st_ino != listed
