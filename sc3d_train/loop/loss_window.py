@@ -37,7 +37,7 @@ class LossWindow:
             return None
         values = self.totals[:self.count]
         finite = all_min(torch.isfinite(values).float(), dist).cpu()
-        first, n = self.first_step, self.count
+        first = self.first_step
         self.first_step, self.count = None, 0
         bad = (finite < 1).nonzero()
         if not len(bad):
