@@ -7,6 +7,7 @@ material or texture file never rendered again once the file is there. Real files
 renderer and commands."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +33,7 @@ def _red_green_png() -> str:
     return "data:image/png;base64," + base64.b64encode(png.getvalue()).decode()
 
 
-def _quantized_cube(path: Path, positions: str = "float", uv: str | None = None) -> None:
+def _quantized_cube(path: Path, positions: str = "float", uv: str | None = None, edit=None) -> None:
     """The unit cube (corners at +-0.5) as GLB ``path``: POSITION as float32 (``"float"``),
     normalized shorts (``"normalized"``: +-16384 / 32767) or plain shorts (``"short"``: +-1, so
     the cube spans [-1, 1]); with ``uv`` a TEXCOORD_0 at (0.25, 0.5) for every corner, as float32
@@ -64,6 +65,8 @@ def _quantized_cube(path: Path, positions: str = "float", uv: str | None = None)
         doc.update(materials=[{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
                    textures=[{"source": 0}], images=[{"uri": _red_green_png()}])
     doc["buffers"] = [{"byteLength": len(buf)}]
+    if edit is not None:
+        edit(doc)
     _write_glb_document(path, doc, buf)
 
 
@@ -105,6 +108,25 @@ def test_quantized_positions_and_texture_coordinates_are_refused_in_one_line(tmp
     plain = objects[("box", "plain")]
     red, green = np.asarray(plain["images"])[np.asarray(plain["masks"]) > 0][:, :2].mean(0)
     assert red > 2 * green  # the float texture coordinates map the red half
+
+
+def test_integer_texture_coordinates_the_loader_does_not_use_pass(tmp_path):
+    """Normalized-short texture coordinates as TEXCOORD_1 (a lightmap set: the loader reads only
+    TEXCOORD_0), or as TEXCOORD_0 of a material without a texture (nothing is placed with them),
+    change nothing the loader draws: not refused. Before this rule was narrowed, both were."""
+    from sc3d_data.io.gltf_check import gltf_refusal
+
+    def second_set(doc):
+        attributes = doc["meshes"][0]["primitives"][0]["attributes"]
+        attributes["TEXCOORD_1"] = attributes.pop("TEXCOORD_0")
+
+    def untextured(doc):
+        doc["materials"] = [{"pbrMetallicRoughness": {"baseColorFactor": [0, 0, 1, 1]}}]
+        doc.pop("textures"), doc.pop("images")
+
+    for name, edit in (("second.glb", second_set), ("untextured.glb", untextured)):
+        _quantized_cube(tmp_path / name, uv="normalized", edit=edit)
+        assert gltf_refusal(tmp_path / name) is None, name
 
 
 # ----------------------------------------------------------------------------- triangles of no area
@@ -245,3 +267,75 @@ def test_a_rerun_renders_again_an_object_whose_material_file_appeared_or_texture
     assert green[1] > 100 > 30 > green[0]
     result = run_cli(data_main, render)
     assert "rendering its chunk again" not in result.output
+
+
+def test_statement_values_reads_the_obj_statements_a_line_regex_reads():
+    """``statement_values`` (found with str.find, then matched per line) against the multi-line
+    regex it replaced, by hand: CRLF endings, leading blanks, a comment, a keyword inside another
+    word or at the end of the text, a statement without a value, a name with spaces."""
+    import re
+
+    from sc3d_data.io.obj_statements import statement_values
+
+    text = ("# mtllib not.mtl\r\nmtllib a.mtl\r\n  mtllib  b c.mtl  \nusemtl mtllib\nxmtllib d.mtl\nmtllib\n"
+            "v 0 0 0\nmtllib e.mtl")
+    assert statement_values(text, "mtllib") == ["a.mtl", "b c.mtl", "e.mtl"]
+    assert re.findall(r"^[ \t]*mtllib[ \t]+(.+?)\s*$", text, flags=re.M) == ["a.mtl", "b c.mtl", "e.mtl"]
+
+
+def test_a_rerun_never_opens_a_companion_file_an_edited_index_names_outside_the_dataset(tmp_path):
+    """An index edited to record ``../../outside.txt`` (a file beside the dataset folder) as a
+    companion file of its object: the rerun neither reads it nor renders again when it changes.
+    Without the check, the rerun hashed a file outside --meshes and rendered the chunk again."""
+    from sc3d_data.io.source_fingerprint import fingerprint
+
+    meshes, out = tmp_path / "m", tmp_path / "out"
+    _textured_quad(meshes, (255, 0, 0))
+    (meshes / "t" / "a.mtl").write_text("newmtl m\nKd 1 1 1\nmap_Kd tex.png\n")
+    outside = tmp_path / "outside.txt"
+    outside.write_text("before")
+    render = ["render", "--meshes", meshes, "--out", out, *FAST]
+    run_cli(data_main, render)
+    index = index_of(out)
+    index["objects"][0]["source_file"]["materials"]["../../outside.txt"] = fingerprint(outside)
+    (out / "index.json").write_text(json.dumps(index))
+    outside.write_text("after, longer")
+    result = run_cli(data_main, render)
+    assert "rendering its chunk again" not in result.output and "resumed 1" in result.output
+
+
+def test_a_rerun_renders_again_a_gltf_whose_buffer_file_changed(tmp_path):
+    """A .gltf whose geometry lies in ``cube.bin`` beside it: the buffer rewritten (the cube
+    stretched 3 times along y) renders the chunk again. Before: only images were fingerprinted,
+    and the rerun kept the old views and voxels."""
+    from test_gltf_primitives import _gltf_doc
+
+    folder = tmp_path / "m" / "box"
+    folder.mkdir(parents=True)
+    v, idx = _cube()
+
+    doc, buf = _gltf_doc([(v, idx, 4)])
+    doc["buffers"] = [{"byteLength": len(buf), "uri": "cube.bin"}]
+    (folder / "cube.bin").write_bytes(buf)
+    (folder / "cube.gltf").write_text(json.dumps(doc))
+    render = ["render", "--meshes", tmp_path / "m", "--out", tmp_path / "out", *FAST]
+    run_cli(data_main, render)
+    assert list(index_of(tmp_path / "out")["objects"][0]["source_file"]["materials"]) == ["cube.bin"]
+    (folder / "cube.bin").write_bytes(_gltf_doc([(v * np.float32([1, 3, 1]), idx, 4)])[1])  # the .gltf unchanged
+    result = run_cli(data_main, render)
+    assert "cube.bin: same size, other content" in result.output and "rendering its chunk again" in result.output
+
+
+def test_a_companion_file_replaced_by_a_fifo_is_a_change_never_opened(tmp_path):
+    """``source_change`` of a FIFO where a file was recorded: a change, said without opening it
+    (hashing it would wait for a writer forever)."""
+    import os
+
+    from sc3d_data.io.source_fingerprint import fingerprint, source_change
+
+    file = tmp_path / "a.mtl"
+    file.write_text("")
+    recorded = fingerprint(file)
+    file.unlink()
+    os.mkfifo(file)
+    assert source_change(file, recorded) == "no longer a regular file"

@@ -19,9 +19,11 @@ the wrong place, and which of its parts to draw plain cannot be told from what i
 * an extension in ``extensionsRequired`` that the loader cannot decode (:data:`UNDECODED`; Draco
   only where ``DracoPy`` is missing): the file itself says it cannot be read without it;
 * a primitive of a drawn mesh (the meshes ``sc3d_data.io.gltf_check`` judges) whose POSITION is
-  stored as normalized integers, or whose ``TEXCOORD_n`` is stored as integers (normalized or
-  not: the loader's flip of v wraps in an unsigned type); integer positions that are not
-  normalized (``KHR_mesh_quantization`` allows them too) are read right and pass;
+  stored as normalized integers, or whose ``TEXCOORD_0`` is stored as integers (normalized or
+  not: the loader's flip of v wraps in an unsigned type) while its material has a base colour
+  texture; integer positions that are not normalized (``KHR_mesh_quantization`` allows them too)
+  are read right, and integer coordinates the loader does not use (``TEXCOORD_1``, an untextured
+  material's) change nothing: both pass;
 * a primitive of a drawn mesh whose material's
   base colour texture (``pbrMetallicRoughness.baseColorTexture``, or the ``diffuseTexture`` of
   ``KHR_materials_pbrSpecularGlossiness``: the textures the renderer draws) reads another
@@ -121,18 +123,22 @@ INTEGER_TYPES = {5120: "byte", 5121: "unsigned byte", 5122: "short", 5123: "unsi
 
 def integer_attribute_problems(doc: dict, drawn: set[int]) -> list[str]:
     """The attributes of the primitives of the drawn meshes ``drawn`` that the loader reads as
-    other numbers than the file means (module doc), each accessor once: a POSITION stored as
-    normalized integers, a ``TEXCOORD_n`` stored as integers."""
-    accessors, problems, seen = doc.get("accessors", []), [], set()
+    other numbers than the file means and uses (module doc), each accessor once: a POSITION
+    stored as normalized integers, a ``TEXCOORD_0`` stored as integers where the primitive's
+    material has a base colour texture (the loader reads no other set, and places nothing else
+    with it)."""
+    accessors, materials, problems, seen = doc.get("accessors", []), doc.get("materials", []), [], set()
     for m in sorted(drawn):
         for prim in doc["meshes"][m].get("primitives", []):
+            i = prim.get("material")
+            textured = isinstance(i, int) and 0 <= i < len(materials) and bool(_base_textures(materials[i]))
             for role, a in prim.get("attributes", {}).items():
                 if not isinstance(a, int) or a in seen or not 0 <= a < len(accessors):
                     continue
-                seen.add(a)
                 kind = INTEGER_TYPES.get(accessors[a].get("componentType"))
                 normalized = accessors[a].get("normalized") is True
-                if kind and (role.startswith("TEXCOORD_") or (role == "POSITION" and normalized)):
+                if kind and ((role == "TEXCOORD_0" and textured) or (role == "POSITION" and normalized)):
+                    seen.add(a)
                     problems.append(f"accessor {a} ({role} of mesh {m}) holds {'normalized ' * normalized}{kind} "
                                     "integers (quantized glTF), which the loader reads unscaled")
     return problems

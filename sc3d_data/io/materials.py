@@ -32,6 +32,7 @@ from pathlib import Path
 
 from sc3d_data.io.gltf_check import read_gltf
 from sc3d_data.io.names import printable
+from sc3d_data.io.obj_statements import statement_values
 
 __all__ = ["SHAPENET_V2_MESH", "MaterialReport", "loader_misses", "make_resolver", "material_report",
            "real_file", "texture_root"]
@@ -108,16 +109,18 @@ def mtllib_names(path: Path, text: str | None = None) -> list[str]:
     it); a statement whose whole text names an existing file is that one file (a name with spaces)."""
     names = []
     text = path.read_text(errors="replace") if text is None else text
-    for value in re.findall(r"^\s*mtllib\s+(.+?)\s*$", text, flags=re.M):
+    for value in statement_values(text, "mtllib"):  # io.obj_statements
         names += [value] if (path.parent / value).is_file() else value.split()
     return names
 
 
-def _obj_refs(path: Path, root: Path, report: MaterialReport) -> list[tuple[str, Path]]:
-    """``[(name as written, path)]`` of the textures an OBJ's material files name; material files
-    outside ``root`` are noted in ``report`` and not read, missing ones warned about."""
+def _obj_refs(path: Path, root: Path, report: MaterialReport, libs: list[str] | None = None
+              ) -> list[tuple[str, Path]]:
+    """``[(name as written, path)]`` of the textures an OBJ's material files (``libs``, else
+    :func:`mtllib_names`) name; material files outside ``root`` are noted in ``report`` and not
+    read, missing ones warned about."""
     refs = []
-    for lib in mtllib_names(path):
+    for lib in mtllib_names(path) if libs is None else libs:
         mtl = path.parent / lib
         if not _inside(mtl, root):
             refs.append((lib, mtl))
@@ -157,16 +160,21 @@ def _gltf_refs(path: Path, embedded_too: bool = True) -> tuple[list[tuple[str, P
 
 def named_files(path: Path, root: Path | None = None) -> list[Path]:
     """The companion files of mesh ``path`` inside :func:`texture_root` that it names, there or
-    not: an OBJ's material files and the textures they name, a glTF's external images; sorted,
+    not: an OBJ's material files and the textures they name, a glTF's external images and buffer
+    files; sorted,
     each once. What a rerun compares (``io.source_fingerprint.material_fingerprints``) to notice
     a texture replaced, or a missing one put in place. Unparseable files name none."""
     path = real_file(path)
     top, suffix = texture_root(path, root), path.suffix.lower()
     try:
         if suffix == ".obj":
-            refs = _obj_refs(path, top, MaterialReport()) + [(lib, path.parent / lib) for lib in mtllib_names(path)]
-        elif suffix in (".glb", ".gltf"):
-            refs = _gltf_refs(path, embedded_too=False)[0]
+            libs = mtllib_names(path)
+            refs = _obj_refs(path, top, MaterialReport(), libs) + [(lib, path.parent / lib) for lib in libs]
+        elif suffix in (".glb", ".gltf"):  # its images, and its buffers in files (the geometry)
+            doc = read_gltf(path)[0]
+            refs = _gltf_refs(path, embedded_too=False)[0] + [
+                (b["uri"], gltf_uri_path(path.parent, b["uri"])) for b in doc.get("buffers", [])
+                if isinstance(b.get("uri"), str) and not b["uri"].startswith("data:")]
         else:
             return []
     except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):

@@ -45,6 +45,8 @@ def source_change(path: str | Path, recorded: dict) -> str | None:
         st = os.stat(path)
     except OSError as e:
         return f"cannot be read ({e.strerror or e})"
+    if not stat.S_ISREG(st.st_mode):  # a FIFO or device in its place: never opened
+        return "no longer a regular file"
     if st.st_size != recorded.get("bytes"):
         return f"{recorded.get('bytes')} -> {st.st_size} bytes"
     if st.st_mtime_ns == recorded.get("mtime_ns"):
@@ -65,14 +67,19 @@ def material_fingerprints(path: str | Path, root: str | Path | None) -> dict[str
     return {os.path.relpath(f, folder): fingerprint(f) for f in named_files(Path(path), root)}
 
 
-def materials_change(path: str | Path, recorded: dict[str, dict | None]) -> str | None:
+def materials_change(path: str | Path, recorded: dict[str, dict | None], root: str | Path | None) -> str | None:
     """How the companion files of mesh ``path`` differ from their ``recorded`` fingerprints
-    (:func:`material_fingerprints`), in a few words naming the first that differs, or None."""
-    from sc3d_data.io.materials import real_file
+    (:func:`material_fingerprints`), in a few words naming the first that differs, or None. A
+    recorded name outside the mesh's texture root (``root``: this run's dataset folder; an edited
+    index) is never opened."""
+    from sc3d_data.io.materials import real_file, texture_root
 
     folder = real_file(Path(path)).parent
+    top = texture_root(Path(path), None if root is None else Path(root)).resolve()
     for name, was in recorded.items():
         file = folder / name
+        if not file.resolve().is_relative_to(top):
+            continue
         if was is None:
             if file.is_file():
                 return f"{name} was missing and is there now"

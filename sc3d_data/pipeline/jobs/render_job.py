@@ -114,7 +114,7 @@ def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord
 
     source_file = fingerprint(task.path)  # before reading: an edit during the render counts as a change
     root = Path(config.meshes)
-    if source_file is not None:  # its material files and textures too (a missing one: None)
+    if source_file is not None and source_file["bytes"] <= config.max_file_mib * 2**20:  # a larger one is refused unread
         source_file["materials"] = material_fingerprints(task.path, root if root.is_dir() else root.parent)
     scene, vertices, faces, warnings = load_mesh(Path(task.path), config.max_faces, config.bad_texture,
                                                  root=root if root.is_dir() else root.parent,

@@ -206,7 +206,7 @@ class NewShards:
         elif index_path(out).is_file():
             old = load_index(out)
             check_resume(out, old, index.settings, defaults or {}, index.extra["part"])
-            state = resume_state(out, old, retry_failed, K, tasks)
+            state = resume_state(out, old, retry_failed, K, tasks, index.settings.get("meshes"))
             listed = {s["file"] for s in old.get("shards", [])}
         pos_of = {(t.category, t.model_id): t.pos for t in tasks}
         if any(pos_of.get((o["category"], o["model_id"]), -K) // K != o["chunk"] for o in state["objects"]):

@@ -127,9 +127,11 @@ def settings_differ(old: dict, new: dict, defaults: dict | None = None) -> list[
     return sorted(k for k in keys if value(old, k) != value(new, k))
 
 
-def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[Task]) -> dict:
+def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[Task], meshes: str | None = None
+                 ) -> dict:
     """What an existing index lets this run keep: chunks whose shard is intact (or that were
     empty), their index entries, and the failures to render again (``retry_failed``).
+    ``meshes``: this run's ``--meshes`` (the folder companion files must lie in).
     ``ValueError`` when this run's split rule moves a kept object (:func:`check_kept_splits`)."""
     from sc3d_data.io.shard_reader import verify_shard
 
@@ -141,7 +143,7 @@ def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[T
             done_chunks.add(s["chunk"])
         else:
             broken.append(problem + "; rendering its objects again")
-    for chunk, problem in changed_sources(old.get("objects", []), by_key, done_chunks).items():
+    for chunk, problem in changed_sources(old.get("objects", []), by_key, done_chunks, meshes).items():
         done_chunks.discard(chunk)
         broken.append(problem)
     shards = [s for s in old.get("shards", []) if s["chunk"] in done_chunks]
@@ -168,13 +170,17 @@ def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[T
             "extra": {k: old[k] for k in ("voxels",) if k in old}}  # the record of `voxelize SHARDS`
 
 
-def changed_sources(objects: list[dict], by_key: dict, chunks: set) -> dict[int, str]:
+def changed_sources(objects: list[dict], by_key: dict, chunks: set, meshes: str | None = None) -> dict[int, str]:
     """``{chunk: reason}`` for the ``chunks`` holding an object (index entry) whose mesh file,
     or a companion file it names (a material file, a texture: ``"materials"``, present or
     missing then), differs from the fingerprint recorded when it was rendered (``source_file``;
     ``io.source_fingerprint``): such a chunk is rendered again. ``by_key``: the plan's tasks by
-    (category, model id); entries without a fingerprint (earlier versions) are not compared."""
+    (category, model id); entries without a fingerprint (earlier versions) are not compared;
+    ``meshes``: this run's ``--meshes``, the folder (a file's folder for a file) companion files
+    must lie in to be read."""
     from sc3d_data.io.source_fingerprint import materials_change, source_change
+
+    root = None if meshes is None else (Path(meshes) if Path(meshes).is_dir() else Path(meshes).parent)
 
     out: dict[int, str] = {}
     for o in objects:
@@ -182,7 +188,7 @@ def changed_sources(objects: list[dict], by_key: dict, chunks: set) -> dict[int,
         if o.get("chunk") not in chunks or o["chunk"] in out or task is None or "source_file" not in o:
             continue
         if ((why := source_change(task.path, o["source_file"])) is not None
-                or (why := materials_change(task.path, o["source_file"].get("materials", {}))) is not None):
+                or (why := materials_change(task.path, o["source_file"].get("materials", {}), root)) is not None):
             out[o["chunk"]] = f"{task.path}: changed since it was rendered ({why}); rendering its chunk again"
     return out
 
