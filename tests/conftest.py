@@ -10,6 +10,8 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
+from shared_runs import SharedRun, claim, finish, make_once, shared_root, start_shared
+
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE_MESHES = REPO / "assets" / "sample_meshes"
 
@@ -204,11 +206,14 @@ def run_cli(group, args: list[str], expect_exit: int | None = 0):
 @pytest.fixture(scope="session")
 def sample_shards(tmp_path_factory) -> Path:
     """Shards of the 11 bundled sample meshes: 24 views of 64x64, masks, cameras and 32^3 voxels,
-    default split (seeded 70/10/20 by object)."""
+    default split (seeded 70/10/20 by object); rendered once for the session's processes
+    (``shared_runs``)."""
     from sc3d_cli.data import main
 
-    out = tmp_path_factory.mktemp("sample_shards")
-    run_cli(main, ["render", "--meshes", SAMPLE_MESHES, "--out", out, "--voxelize", "--workers", "2"])
+    folder = shared_root(tmp_path_factory) / "sample_shards"
+    out = folder / "shards"
+    make_once(folder, lambda: run_cli(main, ["render", "--meshes", SAMPLE_MESHES, "--out", out, "--voxelize",
+                                             "--workers", "2"]), "the sample shards")
     return out
 
 
@@ -224,15 +229,6 @@ def selected_tests_use(request, fixture: str) -> bool:
     return any(fixture in getattr(item, "fixturenames", ()) for item in request.session.items)
 
 
-def stop_children(procs) -> None:
-    """Kill the background processes of ``procs`` still running at the session's end (a failed or
-    interrupted session), and reap them."""
-    for proc in procs:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-
-
 def trained_run_args(shards: Path, out: Path) -> list[str]:
     """`sc3d-train fit`'s arguments of the shared short run (see ``trained_run``)."""
     return ["fit", "--shards", str(shards), "--out", str(out), "--steps", str(TRAINED_RUN_STEPS),
@@ -246,21 +242,21 @@ def _trained_run_started(request, tmp_path_factory):
     """Start ``trained_run``'s training in a child process as the session starts, when a selected
     test needs it: the run (~1 min of one core; torch trains on one thread, ``OMP_NUM_THREADS=1``
     above) then overlaps the tests before its first user instead of holding the suite up at that
-    test. Yields ``(process, run directory, log file)``, or None when no selected test needs it."""
+    test; the session's first process starts it, the others use it (``shared_runs``). Yields
+    ``(SharedRun, run directory, log file)``, or None when no selected test needs it."""
     if not selected_tests_use(request, "trained_run"):
         yield None
         return
-    import subprocess
     import sys
 
     shards = request.getfixturevalue("sample_shards")
-    out = tmp_path_factory.mktemp("trained_run") / "run"
-    log = out.parent / "fit.log"
-    with log.open("w") as f:  # the child keeps its own descriptor
-        proc = subprocess.Popen([sys.executable, "-c", "from sc3d_cli.train import main; main()",
-                                 *trained_run_args(shards, out)], stdout=f, stderr=subprocess.STDOUT)
-    yield proc, out, log
-    stop_children([proc])
+    folder = shared_root(tmp_path_factory) / "trained_run"
+    out, log = folder / "run", folder / "fit.log"
+    run = (start_shared(folder / "rc", [sys.executable, "-c", "from sc3d_cli.train import main; main()",
+                                        *trained_run_args(shards, out)], log)
+           if claim(folder) else SharedRun(folder / "rc", None))
+    yield run, out, log
+    finish([run], request.session)
 
 
 @pytest.fixture(scope="session")
@@ -274,9 +270,9 @@ def trained_run(_trained_run_started, sample_shards, tmp_path_factory) -> Path:
         out = tmp_path_factory.mktemp("trained_run") / "run"
         run_cli(main, trained_run_args(sample_shards, out))
         return out
-    proc, out, log = _trained_run_started
-    if proc.wait() != 0:
-        raise AssertionError(f"the shared training run failed ({proc.returncode}):\n{log.read_text()[-4000:]}")
+    run, out, log = _trained_run_started
+    if (rc := run.wait()) != 0:
+        raise AssertionError(f"the shared training run failed ({rc}):\n{log.read_text()[-4000:]}")
     return out
 
 
@@ -289,16 +285,16 @@ def _doc_runs_started(request, tmp_path_factory):
         return
     from doc_check import start_doc_runs
 
-    runs = start_doc_runs(tmp_path_factory.mktemp("doc_run"))
+    runs = start_doc_runs(shared_root(tmp_path_factory) / "doc_run")
     yield runs
-    stop_children([proc for proc, *_ in runs.values()])
+    finish([run for run, *_ in runs.values()], request.session)
 
 
 @pytest.fixture(scope="session")
 def doc_runs(_doc_runs_started, tmp_path_factory) -> dict[str, tuple]:
-    """``{page: (process, folder, log file, script)}`` of the doc-run pages (``test_docs``)."""
+    """``{page: (SharedRun, folder, log file, script)}`` of the doc-run pages (``test_docs``)."""
     if _doc_runs_started is not None:
         return _doc_runs_started
     from doc_check import start_doc_runs
 
-    return start_doc_runs(tmp_path_factory.mktemp("doc_run"))
+    return start_doc_runs(tmp_path_factory.mktemp("doc_run") / "pages")

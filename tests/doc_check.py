@@ -250,25 +250,30 @@ PROMISED = {
 
 def start_doc_runs(root: Path) -> dict[str, tuple]:
     """Start every ``PROMISED`` page's doc-run script at once, each in its own folder ``root/pageI``
-    (see the module docstring of ``test_docs``), so the pages share the machine's cores; returns
-    ``{page: (process, folder, log file, script)}``: the tests wait for their page."""
+    (see the module docstring of ``test_docs``), so the pages share the machine's cores, when this
+    process creates ``root`` (another process of the session may have: then its runs are
+    these; ``shared_runs``); returns ``{page: (SharedRun, folder, log file, script)}``: the tests
+    wait for their page."""
     import os
-    import subprocess
 
-    cli_shims(root / "bin")
+    from shared_runs import SharedRun, claim, start_shared
+
+    starts = claim(root)
+    if starts:
+        cli_shims(root / "bin")
     env = dict(os.environ, PATH=f"{root / 'bin'}{os.pathsep}{os.environ['PATH']}",
                PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
                OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
     runs = {}
     for i, page in enumerate(sorted(PROMISED)):
-        work = root / f"page{i}"
-        work.mkdir()
-        (work / "assets").symlink_to(REPO / "assets")
-        script = page_script(page)
-        with (root / f"page{i}.log").open("w") as log:  # the child keeps its own descriptor
-            proc = subprocess.Popen(["bash", "-c", script], cwd=work, env=env, stdout=log,
-                                    stderr=subprocess.STDOUT, text=True)
-        runs[page] = (proc, work, root / f"page{i}.log", script)
+        work, log, rc, script = root / f"page{i}", root / f"page{i}.log", root / f"page{i}.rc", page_script(page)
+        if starts:
+            work.mkdir()
+            (work / "assets").symlink_to(REPO / "assets")
+            run = start_shared(rc, ["bash", "-c", script], log, cwd=work, env=env, text=True)
+        else:
+            run = SharedRun(rc, None)
+        runs[page] = (run, work, log, script)
     return runs
 
 
