@@ -2,7 +2,7 @@
 # What a GPU machine should show, in one command and in priority order: where fit's loop spends
 # its time and its in-loop speed (issue 21), the paper's width against the tiny network on held-out
 # objects (issue 24 item 2), what a checkpoint costs, the gpu tests, the suite
-# (across processes where pytest-xdist is installed), the --semi step, render scaling and the
+# (across 8 processes: pytest-xdist, in the kit), the --semi step, render scaling and the
 # ShapeNet-sized projection (issue 22), the render's start; then what was measured before
 # (loader workers, training step, fit eager and compiled, their curves) and every other script
 # in benchmarks/.
@@ -156,10 +156,10 @@ step heldout 360 bash -c "for run in 'tiny ${HELD[0]} ${HELD[1]} --tiny' 'paper 
 step checkpoint 120 "$PY" benchmarks/checkpoint.py "${WIDTH[@]}"
 # the gpu tests not yet seen to pass on a GPU first: the training step's (no host sync, graph replays), then
 # test_gpu.py in its order (eval and the EGL render before resume, which passed on 2026-11-27)
-step gpu_tests 400 "$PY" -m pytest -v -p no:cacheprovider -rs -m gpu --durations=0 tests/test_train_step.py tests/test_gpu.py
-# the whole suite but the gpu tests: across 8 processes of 2 threads where pytest-xdist is there
-# (652 tests in ~5 min with -n 2 on the 2-core CPU box), else in one process
-XDIST=(); "$PY" -c "import xdist" 2>/dev/null && XDIST=(-n 8)
+step gpu_tests 400 "$PY" -m pytest -v -p no:cacheprovider -n 0 -rs -m gpu --durations=0 tests/test_train_step.py tests/test_gpu.py
+# the whole suite but the gpu tests: across 8 processes of 2 threads (pytest-xdist, in the kit;
+# pyproject's default is 2 processes)
+XDIST=(-n 8)
 step suite 900 env OMP_NUM_THREADS=2 "$PY" -m pytest -q -p no:cacheprovider -rs -m "not gpu" "${XDIST[@]}"
 step train_step_semi 400 "$PY" benchmarks/train_step.py --shards "$WORK/shards" --batch-size "$BATCH" --skip-supervised \
   --profile "${WIDTH[@]}"

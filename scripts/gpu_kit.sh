@@ -31,7 +31,7 @@ rm -rf "$KIT"; mkdir -p "$KIT/whl" "$KIT/gl"
 
 PY=python3; [ -x .venv/bin/python ] && PY=.venv/bin/python
 pins=()
-for name in trimesh pyrender PyOpenGL pyglet freetype-py submitit; do
+for name in trimesh pyrender PyOpenGL pyglet freetype-py submitit pytest-xdist execnet; do  # xdist: pyproject runs pytest -n 2
   v=$("$PY" -c "import importlib.metadata as m; print(m.version('$name'))" 2>/dev/null || true)
   pins+=("$name${v:+==$v}")
 done
