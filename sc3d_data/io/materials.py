@@ -34,8 +34,8 @@ from sc3d_data.io.gltf_check import read_gltf
 from sc3d_data.io.names import printable
 from sc3d_data.io.obj_statements import statement_values
 
-__all__ = ["SHAPENET_V2_MESH", "MaterialReport", "loader_misses", "make_resolver", "material_report",
-           "real_file", "texture_root"]
+__all__ = ["SHAPENET_V2_MESH", "MaterialReport", "dataset_folder", "loader_misses", "make_resolver",
+           "material_report", "named_files", "real_file", "texture_root"]
 
 #: ShapeNetCore v2's mesh inside a model folder
 SHAPENET_V2_MESH = ("models", "model_normalized.obj")
@@ -51,6 +51,13 @@ def real_file(path: Path) -> Path:
     """The file mesh ``path`` is, symlinks resolved (module doc): its companion files are named
     relative to this file's folder."""
     return Path(os.path.realpath(path))
+
+
+def dataset_folder(meshes: str | Path) -> Path:
+    """The folder a run's ``--meshes`` makes the root of its meshes' companion files
+    (:func:`texture_root`): the folder itself, or a single mesh file's folder."""
+    meshes = Path(meshes)
+    return meshes if meshes.is_dir() else meshes.parent
 
 
 def texture_root(path: Path, root: Path | None) -> Path:
@@ -143,10 +150,9 @@ def gltf_uri_path(folder: Path, uri: str) -> Path:
     return literal if literal.exists() and not decoded.exists() else decoded
 
 
-def _gltf_refs(path: Path, embedded_too: bool = True) -> tuple[list[tuple[str, Path]], list[tuple[str, bytes]]]:
-    """``(external images [(name, path)], embedded images [(name, bytes)])`` of a GLTF/GLB (the
-    embedded ones only when ``embedded_too``: a GLB's binary chunk is read for them)."""
-    doc, binary = read_gltf(path, binary=embedded_too)  # not a glTF document: ValueError, the loader reports it
+def _gltf_refs(path: Path, doc: dict, binary: bytes | None) -> tuple[list[tuple[str, Path]], list[tuple[str, bytes]]]:
+    """``(external images [(name, path)], embedded images [(name, bytes)])`` of GLTF/GLB ``path``
+    (its JSON ``doc`` and binary chunk, ``read_gltf``; the embedded images only with ``binary``)."""
     external, embedded = [], []
     for i, image in enumerate(doc.get("images", [])):
         if "uri" in image and not image["uri"].startswith("data:"):
@@ -161,9 +167,8 @@ def _gltf_refs(path: Path, embedded_too: bool = True) -> tuple[list[tuple[str, P
 def named_files(path: Path, root: Path | None = None) -> list[Path]:
     """The companion files of mesh ``path`` inside :func:`texture_root` that it names, there or
     not: an OBJ's material files and the textures they name, a glTF's external images and buffer
-    files; sorted,
-    each once. What a rerun compares (``io.source_fingerprint.material_fingerprints``) to notice
-    a texture replaced, or a missing one put in place. Unparseable files name none."""
+    files; sorted, each once. What a rerun compares (``io.source_fingerprint.material_fingerprints``)
+    to notice a texture replaced, or a missing one put in place. Unparseable files name none."""
     path = real_file(path)
     top, suffix = texture_root(path, root), path.suffix.lower()
     try:
@@ -171,8 +176,8 @@ def named_files(path: Path, root: Path | None = None) -> list[Path]:
             libs = mtllib_names(path)
             refs = _obj_refs(path, top, MaterialReport(), libs) + [(lib, path.parent / lib) for lib in libs]
         elif suffix in (".glb", ".gltf"):  # its images, and its buffers in files (the geometry)
-            doc = read_gltf(path)[0]
-            refs = _gltf_refs(path, embedded_too=False)[0] + [
+            doc = read_gltf(path)[0]  # not a glTF document: ValueError, the loader reports it
+            refs = _gltf_refs(path, doc, None)[0] + [
                 (b["uri"], gltf_uri_path(path.parent, b["uri"])) for b in doc.get("buffers", [])
                 if isinstance(b.get("uri"), str) and not b["uri"].startswith("data:")]
         else:
@@ -197,7 +202,7 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn")
         if suffix == ".obj":
             refs, embedded = _obj_refs(path, top, report), []
         elif suffix in (".glb", ".gltf"):
-            refs, embedded = _gltf_refs(path)
+            refs, embedded = _gltf_refs(path, *read_gltf(path, binary=True))  # not glTF: ValueError, as above
         else:
             return report
     except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):

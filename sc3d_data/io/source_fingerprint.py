@@ -7,7 +7,8 @@ mean unchanged (no read); another size means changed; the same size with another
 made without keeping times, a touched file) is settled by the SHA-256 of the content, so moving
 or copying a dataset does not count as a change.
 
-A mesh's companion files (an OBJ's material files and their textures, a glTF's external images:
+A mesh's companion files (an OBJ's material files and their textures, a glTF's external images
+and buffer files:
 ``io.materials.named_files``) are fingerprinted beside it (:func:`material_fingerprints`, kept
 in the mesh's fingerprint as ``"materials"``: ``{name relative to the mesh's folder:
 fingerprint, or None where the file was missing}``), so that a rerun renders again an object

@@ -156,16 +156,18 @@ class Validator:
         """The run's validator on the main rank; None elsewhere, with validation off, or when the
         shards have no ``val_split`` objects (said once through ``say``). On resume, a ``best.pt`` of
         steps trained again is removed here (:func:`resumed_best`), with validation off too."""
-        if is_main and start_step > 0 and best_path(Path(cfg.out)).is_file():
-            resumed_best(Path(cfg.out), start_step, cfg)
-        if is_main and start_step > 0 and (Path(cfg.out) / VAL_CSV).is_file():
-            resumed_rows(Path(cfg.out) / VAL_CSV, start_step)  # with validation off too: no row of a step trained again
-        if not is_main or not cfg.val_every:
+        if not is_main:
             return None
-        dataset = validation_dataset(cfg)
-        if dataset is None:
-            say(f"no {cfg.val_split!r} objects in {cfg.shards}: no validation, no best.pt "
-                f"(eval reads last.pt)")
+        out = Path(cfg.out)
+        if start_step > 0 and best_path(out).is_file():
+            resumed_best(out, start_step, cfg)
+        dataset = validation_dataset(cfg) if cfg.val_every else None
+        if dataset is None:  # no validator, which would drop them: no row of a step trained again either
+            if start_step > 0 and (out / VAL_CSV).is_file():
+                resumed_rows(out / VAL_CSV, start_step)
+            if cfg.val_every:
+                say(f"no {cfg.val_split!r} objects in {cfg.shards}: no validation, no best.pt "
+                    f"(eval reads last.pt)")
             return None
         if dataset.num_objects < cfg.val_min_objects:
             say(f"only {dataset.num_objects} {cfg.val_split!r} object(s) in {cfg.shards} (< --val-min-objects "

@@ -29,8 +29,9 @@ from sc3d_data.voxel.voxelize import voxelize_triangles
 
 
 def warm_voxelizer() -> None:
-    """Run the area kernel of ``load_mesh`` and the voxelizer once on an open unit box (12 triangles minus one side: the six axis
-    rays disagree inside it, so the winding-number kernel runs too)."""
+    """Run the area kernel of ``load_mesh`` and the voxelizer once on an open unit box (12
+    triangles minus one side: the six axis rays disagree inside it, so the winding-number kernel
+    runs too)."""
     corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
     quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4)]  # no +z side
     faces = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=np.int64)

@@ -108,16 +108,16 @@ def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord
     bad input."""
     from sc3d_data.formats.shapenet import resolve_front
     from sc3d_data.geometry.normalize import to_canonical_transform
+    from sc3d_data.io.materials import dataset_folder
     from sc3d_data.io.meshes import MeshError, load_mesh
     from sc3d_data.io.source_fingerprint import fingerprint, material_fingerprints
     from sc3d_data.pipeline.jobs.voxel_job import voxelize_canonical
 
     source_file = fingerprint(task.path)  # before reading: an edit during the render counts as a change
-    root = Path(config.meshes)
+    root = dataset_folder(config.meshes)
     if source_file is not None and source_file["bytes"] <= config.max_file_mib * 2**20:  # a larger one is refused unread
-        source_file["materials"] = material_fingerprints(task.path, root if root.is_dir() else root.parent)
-    scene, vertices, faces, warnings = load_mesh(Path(task.path), config.max_faces, config.bad_texture,
-                                                 root=root if root.is_dir() else root.parent,
+        source_file["materials"] = material_fingerprints(task.path, root)
+    scene, vertices, faces, warnings = load_mesh(Path(task.path), config.max_faces, config.bad_texture, root=root,
                                                  outside_textures=config.outside_textures,
                                                  max_file_bytes=config.max_file_mib * 2**20)
     try:

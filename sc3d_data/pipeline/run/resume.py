@@ -178,9 +178,10 @@ def changed_sources(objects: list[dict], by_key: dict, chunks: set, meshes: str 
     (category, model id); entries without a fingerprint (earlier versions) are not compared;
     ``meshes``: this run's ``--meshes``, the folder (a file's folder for a file) companion files
     must lie in to be read."""
+    from sc3d_data.io.materials import dataset_folder
     from sc3d_data.io.source_fingerprint import materials_change, source_change
 
-    root = None if meshes is None else (Path(meshes) if Path(meshes).is_dir() else Path(meshes).parent)
+    root = None if meshes is None else dataset_folder(meshes)
 
     out: dict[int, str] = {}
     for o in objects:
