@@ -9,7 +9,7 @@
 #
 #   bash scripts/gpu_check.sh [--out gpu_check] [--meshes ../shared/meshes] [--kit .gpu]
 #                             [--budget SECONDS] [--only STEP,...] [--skip STEP,...] [--steps 2000]
-#                             [--baseline TAR]
+#                             [--baseline TAR] [--gpu-tests "PYTEST ARGS"]
 #
 # --kit DIR: install first from a folder made by `bash scripts/gpu_kit.sh` (GL loader debs,
 #   the wheels the machine lacks, the meshes; sc3d runs from this tree through PYTHONPATH): for a
@@ -18,6 +18,8 @@
 #   own cap or at the budget, whichever comes first (a step cut off says "timeout" in the
 #   summary). Without it, every step runs to its end.
 # --only / --skip: step names (the first column of the summary), e.g. to finish a cut-off run.
+# --gpu-tests ARGS: what step gpu_tests runs under `pytest -m gpu` (default: the files
+#   tests/test_train_step.py tests/test_gpu.py), e.g. one new test's file first when time is short.
 # --baseline TAR: an older source tree (`git archive REV -o TAR`): step fit_baseline trains with
 #   its sc3d_train, the same command as fit_compiled at half the steps, so that fit_loop compares
 #   the loop's speed on the same machine in the same run; step render_baseline runs
@@ -32,6 +34,7 @@
 set -uo pipefail
 cd "$(dirname "$0")/.."
 OUT=gpu_check; MESHES=../shared/meshes; KIT=""; BUDGET=0; ONLY=""; SKIP=""; STEPS=2000; BASELINE=
+GPU_TESTS="tests/test_train_step.py tests/test_gpu.py"
 while [ $# -gt 0 ]; do
   case "$1" in
     --out) OUT=$2; shift 2 ;;
@@ -42,6 +45,7 @@ while [ $# -gt 0 ]; do
     --skip) SKIP=",$2,"; shift 2 ;;
     --steps) STEPS=$2; shift 2 ;;
     --baseline) BASELINE=$(cd "$(dirname "$2")" && pwd)/$(basename "$2"); shift 2 ;;
+    --gpu-tests) GPU_TESTS=$2; shift 2 ;;
     *) echo "gpu_check: unknown option $1" >&2; exit 2 ;;
   esac
 done
@@ -156,7 +160,8 @@ step heldout 360 bash -c "for run in 'tiny ${HELD[0]} ${HELD[1]} --tiny' 'paper 
 step checkpoint 120 "$PY" benchmarks/checkpoint.py "${WIDTH[@]}"
 # the gpu tests not yet seen to pass on a GPU first: the training step's (no host sync, graph replays), then
 # test_gpu.py in its order (eval and the EGL render before resume, which passed on 2026-11-27)
-step gpu_tests 400 "$PY" -m pytest -v -p no:cacheprovider -n 0 -rs -m gpu --durations=0 tests/test_train_step.py tests/test_gpu.py
+# shellcheck disable=SC2086  # GPU_TESTS: pytest arguments, split on spaces
+step gpu_tests 400 "$PY" -m pytest -v -p no:cacheprovider -n 0 -rs -m gpu --durations=0 $GPU_TESTS
 # the whole suite but the gpu tests: across 8 processes of 2 threads (pytest-xdist, in the kit;
 # pyproject's default is 2 processes)
 XDIST=(-n 8)

@@ -70,7 +70,7 @@ def test_the_default_cache_holds_2_gib_of_decoded_objects(sample_shards):
     assert sum(a.nbytes for a in ds.object_arrays(0).values()) == by_hand
     assert ds.cache_objects == 2 * 2**30 // by_hand == 4440
     ds.compact_batch([5, 30, 77])
-    assert {0, 1, 3} <= set(ds._cache)
+    assert {0, 1, 3} <= set(ds._store())
     assert ShardDataset(sample_shards, "train", require_voxels=False).cache_objects == 2 * 2**30 // (by_hand - 32 ** 3)
 
 
@@ -85,10 +85,10 @@ def test_a_split_larger_than_the_cache_keeps_no_object(sample_shards):
     for i in range(small.num_objects):
         small.object_arrays(i)
     small.compact_batch([5, 30, 77])
-    assert small._cache == {}
+    assert len(small._store()) == 0
     whole = ShardDataset(sample_shards, "train", cache_objects=8)
     whole.object_arrays(2)
-    assert list(whole._cache) == [2]
+    assert list(whole._store()) == [2]
 
 
 def test_workers_send_every_batch_through_the_ring(sample_shards, monkeypatch):

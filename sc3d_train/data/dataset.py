@@ -32,6 +32,7 @@ from sc3d_data.io.shards import ShardError
 from sc3d_train.data.batch_format import compact_tensors, expand_batch, sc_masks_bool
 from sc3d_train.settings.config import MASK_SIZE
 from sc3d_train.data.decoded_cache import DecodedCache
+from sc3d_train.data.object_store import ObjectStore
 
 
 #: the per-view cameras and poses of a sample (small: read whole per shard for large splits)
@@ -240,7 +241,7 @@ class ShardDataset(Dataset):
         number = {shard: i for i, shard in enumerate(self._shards)}
         self._shard_index = np.array([number[r.shard] for r in self.objects], dtype=np.int64)
         self._rows = np.array([r.row for r in self.objects], dtype=np.int64)
-        self._cache: dict[int, dict] = {}
+        self._cache: ObjectStore | None = None  # made per process (_store)
         self._pid = None
         try:
             self._decoded = DecodedCache(Path(decoded_cache), Path(shard_dir), self._shards, mask_size,
@@ -258,7 +259,7 @@ class ShardDataset(Dataset):
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        state["_cache"], state["_pid"] = {}, None
+        state["_cache"], state["_pid"] = None, None
         return state
 
     def close(self) -> None:
@@ -270,29 +271,33 @@ class ShardDataset(Dataset):
         ``elevation``, ``voxels [G,G,G]`` (with ``require_voxels``)."""
         return self._object(obj_i)
 
+    def _store(self) -> ObjectStore:
+        """This process's :class:`ObjectStore` (a forked worker makes its own)."""
+        if self._pid != os.getpid():
+            self._cache, self._pid = ObjectStore(self.num_objects), os.getpid()
+        return self._cache
+
     def _object(self, obj_i: int) -> dict:
         """All arrays of object ``obj_i`` (every view, as stored), kept in this process's cache
-        when the whole split fits in ``cache_objects`` (each object is then decoded once; a
-        larger split's objects are read when asked for and not kept: one pass over them, as the
-        pose targets' search makes, would only fill memory)."""
-        if self._pid != os.getpid():  # new process (forked worker): its own cache
-            self._cache, self._pid = {}, os.getpid()
-        arrays = self._cache.get(obj_i)
-        if arrays is not None:
-            return arrays
-        ref = self.objects[obj_i]
-        names = IMAGE_FIELDS + (("voxels",) if self.require_voxels else ())
-        try:
-            arrays = self._reader.read(ref.shard, ref.row, names)
-        except ShardError as e:  # checksum / gzip error: the reader names the file and row
-            raise DataError(f"{e} (object {ref.model_id})") from e
-        arrays.update({k: a[obj_i] for k, a in self._cameras.items()})  # read once, at the start
-        m = self.mask_size
-        arrays["masks_sc"] = np.zeros((self.num_views, m, m), dtype=bool)  # filled per view
-        arrays["has_sc"] = np.zeros(self.num_views, dtype=bool)            # by _masks_sc
-        if self.cache_objects >= self.num_objects:
-            self._cache[obj_i] = arrays
-        return arrays
+        (:class:`ObjectStore`) when the whole split fits in ``cache_objects`` (each object is then
+        decoded once; a larger split's objects are read when asked for and not kept: one pass
+        over them, as the pose targets' search makes, would only fill memory)."""
+        store = self._store()
+        if obj_i in store:
+            arrays = store.get(obj_i)
+        else:
+            ref = self.objects[obj_i]
+            names = IMAGE_FIELDS + (("voxels",) if self.require_voxels else ())
+            try:
+                arrays = self._reader.read(ref.shard, ref.row, names)
+            except ShardError as e:  # checksum / gzip error: the reader names the file and row
+                raise DataError(f"{e} (object {ref.model_id})") from e
+            m = self.mask_size
+            arrays["masks_sc"] = np.zeros((self.num_views, m, m), dtype=bool)  # filled per view
+            arrays["has_sc"] = np.zeros(self.num_views, dtype=bool)            # by _masks_sc
+            if self.cache_objects >= self.num_objects:
+                arrays = store.put(obj_i, arrays)
+        return {**arrays, **{k: a[obj_i] for k, a in self._cameras.items()}}  # cameras: read once, at the start
 
     def __getitem__(self, index: int) -> dict:
         """One sample (the keys of the module docstring without the batch axis)."""
@@ -321,12 +326,14 @@ class ShardDataset(Dataset):
             got.update({k: a[objs, views] for k, a in self._cameras.items()})
             masks_sc = got["masks_sc"]
         elif self.cache_objects >= self.num_objects:
-            arrays = [self._object(int(o)) for o in objs]
-            got = {name: np.stack([a[name][v] for a, v in zip(arrays, views)]) for name in IMAGE_FIELDS}
+            store = self._store()
+            for o in np.unique(objs[~store.filled[objs]]).tolist():
+                self._object(o)
+            got = {name: store.arrays[name][objs, views] for name in IMAGE_FIELDS}
             got.update({k: a[objs, views] for k, a in self._cameras.items()})
             if self.require_voxels:
-                got["voxels"] = np.stack([a["voxels"] for a in arrays])
-            masks_sc = self._masks_sc(arrays, views, got["masks"])
+                got["voxels"] = store.arrays["voxels"][objs]
+            masks_sc = self._masks_sc(store, objs, views, got["masks"])
         else:
             got = self._read_views(objs, views)
             masks_sc = sc_masks_bool(got["masks"], self.mask_size)
@@ -381,12 +388,12 @@ class ShardDataset(Dataset):
                 out[k][sel] = a
         return out
 
-    def _masks_sc(self, arrays: list[dict], views: np.ndarray, masks: np.ndarray) -> np.ndarray:
-        """``masks_sc [B, M, M]`` bool of the B views (stored ``masks [B, S, S]``), computed with
-        :func:`sc_masks` for the views not yet in their object's cache entry, then cached."""
-        todo = [i for i, (a, v) in enumerate(zip(arrays, views)) if not a["has_sc"][v]]
-        if todo:
-            new = sc_masks_bool(masks[todo], self.mask_size)
-            for i, m in zip(todo, new):
-                arrays[i]["masks_sc"][views[i]], arrays[i]["has_sc"][views[i]] = m, True
-        return np.stack([a["masks_sc"][v] for a, v in zip(arrays, views)])
+    def _masks_sc(self, store: ObjectStore, objs: np.ndarray, views: np.ndarray, masks: np.ndarray) -> np.ndarray:
+        """``masks_sc [B, M, M]`` bool of the B (object, view) pairs (stored ``masks [B, S, S]``),
+        computed with :func:`sc_masks` for the views not yet in ``store``, then kept there."""
+        masks_sc, has_sc = store.arrays["masks_sc"], store.arrays["has_sc"]
+        todo = ~has_sc[objs, views]
+        if todo.any():
+            masks_sc[objs[todo], views[todo]] = sc_masks_bool(masks[todo], self.mask_size)
+            has_sc[objs[todo], views[todo]] = True
+        return masks_sc[objs, views]
