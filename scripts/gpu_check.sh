@@ -124,7 +124,7 @@ SWEEP=2; [ "$NPROC" -ge 8 ] && SWEEP="$SWEEP,$((NPROC / 2))"; [ "$NPROC" -gt 2 ]
 [ "$CUDA" = 1 ] && SIZES=84,1000,5000 || SIZES=20,60,120
 mkdir -p "$WORK/runs"
 step machine 60 bash -c "nvidia-smi -L 2>&1; nproc; free -g | head -2; $PY -c 'import torch; print(torch.__version__, torch.version.cuda, torch.cuda.is_available() and torch.cuda.get_device_name(0))'; \
-  for b in egl osmesa; do $PY -c \"from sc3d_data.render.probe import probe_backend; print('\$b', probe_backend('\$b'))\" 2>&1 | tail -1; done"
+  for b in egl osmesa; do $PY -c \"from sc3d_data.render.probe import probe_backend; print('\$b', probe_backend('\$b'))\" 2>&1 | grep -v '^install the system' | tail -3; done"
 step shards 240 "${DATA[@]}" render --meshes "$MESHES" --out "$WORK/shards" --voxelize --no-progress
 # where the loop's time goes, after compiling: the last 50 of a quarter of the steps profiled (the loop's
 # parts, host operations, waiting CUDA calls, GPU time a step)
