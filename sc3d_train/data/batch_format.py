@@ -15,7 +15,6 @@ import functools
 import numpy as np
 import torch
 
-from sc3d_train.data.batch_transfer import pack_for_device, tensor_views
 from sc3d_train.paper.self_consistency import area_downsample
 
 
@@ -64,9 +63,6 @@ def area_weights(size: int, mask_size: int) -> np.ndarray:
 
 #: arrays of a compact batch that are 0/1 and travel bit-packed between processes
 BINARY_KEYS = ("masks", "masks_sc", "voxels")
-#: key of a page-locked compact batch (:func:`compact_tensors` with ``pin``) that holds its
-#: buffer and layout (``batch_transfer.PackedBatch``); :func:`expand_batch` drops it
-PACKED_KEY = "_packed"
 
 
 def _to_float(v: torch.Tensor, scale: float | None = None) -> torch.Tensor:
@@ -85,19 +81,11 @@ def _to_float(v: torch.Tensor, scale: float | None = None) -> torch.Tensor:
     return out if scale is None else out.div_(torch.full((), scale, dtype=torch.float32, device=v.device))
 
 
-def compact_tensors(arrays: dict[str, np.ndarray], strings: dict, one_buffer: bool = False,
-                    pin: bool = False) -> dict:
+def compact_tensors(arrays: dict[str, np.ndarray], strings: dict) -> dict:
     """A compact batch (``ShardDataset.compact_batch``) as the loader yields it: the arrays as
-    tensors in their compact dtypes (no copy), the strings as lists. With ``one_buffer`` the
-    arrays are copied into one buffer (``batch_transfer.pack_for_device``; page-locked with
-    ``pin``, CUDA) whose views the tensors are, kept under :data:`PACKED_KEY`:
-    :func:`expand_batch` moves it to the device in one copy. :func:`expand_batch` makes the
-    training batch of it."""
-    if one_buffer:
-        packed = pack_for_device(arrays, pin=pin)
-        batch = {**tensor_views(packed.buffer, packed.layout), PACKED_KEY: packed}
-    else:
-        batch = {k: torch.from_numpy(np.ascontiguousarray(a)) for k, a in arrays.items()}
+    tensors in their compact dtypes (no copy), the strings as lists. :func:`expand_batch`
+    makes the training batch of it."""
+    batch = {k: torch.from_numpy(np.ascontiguousarray(a)) for k, a in arrays.items()}
     batch.update({k: list(v) for k, v in strings.items()})
     return batch
 
@@ -105,20 +93,13 @@ def compact_tensors(arrays: dict[str, np.ndarray], strings: dict, one_buffer: bo
 def expand_batch(batch: dict, device: torch.device | str | None = None,
                  non_blocking: bool = False) -> dict:
     """The training batch (module docstring) of a compact batch (:func:`compact_tensors`),
-    on ``device`` (default: where it is): tensors are moved first (a page-locked batch in one
-    copy of its buffer, its tensors views of that copy), then ``images`` uint8
+    on ``device`` (default: where it is): tensors are moved first, then ``images`` uint8
     [B,S,S,3] become float [B,3,S,S] (NCHW) / 255 and the 0/1 ``masks``, ``masks_sc``,
     ``voxels`` float, so the host sends 1 byte per value instead of 4 and the device does the
     conversion. Values are bit-identical on every device (:func:`_to_float`). Float tensors
     pass unchanged, so expanding twice is harmless."""
-    packed = batch.get(PACKED_KEY)
-    if packed is not None and device is not None:
-        moved = tensor_views(packed.buffer.to(device, non_blocking=non_blocking), packed.layout)
-        batch = {k: moved[k] if torch.is_tensor(v) and k in moved else v for k, v in batch.items()}
     out = {}
     for k, v in batch.items():
-        if k == PACKED_KEY:
-            continue
         if not torch.is_tensor(v):
             out[k] = v
             continue

@@ -1,4 +1,4 @@
-"""Moving loader batches between processes, and to the GPU, cheaply.
+"""Moving loader batches between processes cheaply.
 
 A batch travels in its compact dtypes (uint8 images, 0/1 masks and voxels bit-packed with
 ``numpy.packbits``: ~0.8 MB at batch 48 instead of ~10 MB of float32) and ONE buffer:
@@ -13,14 +13,9 @@ a socket handshake (connect, HMAC challenge, fd passing) with a thread of the wo
 the worker's GIL while it decodes the next batch; on a loaded 2-core machine that made 2 workers
 no faster than none. Through the ring only a :class:`RingBatch` (slot number, layout, strings:
 a few hundred bytes) is pickled.
-
-To a CUDA device a batch goes as one page-locked buffer too (:func:`pack_for_device`: nothing
-bit-packed, every array aligned), copied in one transfer, the device's arrays views of the copy
-(:func:`tensor_views`).
 """
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
@@ -29,9 +24,6 @@ import torch
 
 #: ``(name, dtype str, shape, offset, n_bytes, bits)``: where one array lies in a packed buffer
 Layout = list[tuple[str, str, tuple[int, ...], int, int, bool]]
-#: byte alignment of each array of a buffer a device reads in place (:func:`pack_for_device`):
-#: inductor's kernels assume 16-byte-aligned inputs; 64 leaves room
-DEVICE_ALIGN = 64
 
 
 @dataclass
@@ -59,16 +51,13 @@ def _is_binary(a: np.ndarray) -> bool:
     return a.dtype == np.bool_ or (a.dtype == np.uint8 and a.size > 0 and int(a.max()) <= 1)
 
 
-def _encode(arrays: dict[str, np.ndarray], bits: tuple[str, ...],
-            align: int = 1) -> tuple[list[np.ndarray], Layout]:
-    """The byte strings (uint8 [n]) of ``arrays`` and their layout (offsets from 0, each a
-    multiple of ``align`` bytes)."""
+def _encode(arrays: dict[str, np.ndarray], bits: tuple[str, ...]) -> tuple[list[np.ndarray], Layout]:
+    """The byte strings (uint8 [n]) of ``arrays`` and their layout (offsets from 0)."""
     parts, layout, offset = [], [], 0
     for name, a in arrays.items():
         a = np.ascontiguousarray(a)
         packed = name in bits and _is_binary(a)
         raw = np.packbits(a.reshape(-1).astype(bool)) if packed else a.reshape(-1).view(np.uint8)
-        offset = -(-offset // align) * align
         layout.append((name, a.dtype.str, a.shape, offset, raw.size, packed))
         parts.append(raw)
         offset += raw.size
@@ -92,41 +81,6 @@ def pack_into(arrays: dict[str, np.ndarray], out: np.ndarray, bits: tuple[str, .
     for p, (_, _, _, offset, n, _) in zip(parts, layout):
         out[offset:offset + n] = p
     return layout
-
-
-def pack_for_device(arrays: dict[str, np.ndarray], other: dict | None = None, pin: bool = True) -> PackedBatch:
-    """:func:`pack` for a device that reads the arrays in place: none bit-packed, each at an
-    offset that is a multiple of :data:`DEVICE_ALIGN` bytes, in page-locked host memory (``pin``,
-    CUDA's pinned memory from PyTorch's caching host allocator), so that one asynchronous
-    host-to-device copy moves the whole batch and the device's arrays are views of that copy
-    (:func:`tensor_views`). One pinned buffer filled by numpy instead of one pinned tensor per
-    array: a batch has 13 arrays, and each ``Tensor.pin_memory()`` is an allocation, a copy and
-    later its own host-to-device copy, each a dispatch on the host that the training loop waits
-    for."""
-    parts, layout = _encode(arrays, (), DEVICE_ALIGN)
-    size = layout[-1][3] + layout[-1][4] if layout else 0
-    buffer = torch.empty(size, dtype=torch.uint8, pin_memory=pin)
-    host = buffer.numpy()
-    for p, (_, _, _, offset, n, _) in zip(parts, layout):
-        host[offset:offset + n] = p
-    return PackedBatch(buffer, layout, dict(other or {}))
-
-
-def tensor_views(buffer: torch.Tensor, layout: Layout) -> dict[str, torch.Tensor]:
-    """The arrays of a buffer packed without bits (:func:`pack_for_device`) as tensor views of
-    ``buffer`` (uint8 [n], on the host or a device), in their dtypes and shapes; no copy."""
-    out = {}
-    for name, dtype, shape, offset, n, packed in layout:
-        if packed:
-            raise ValueError(f"{name}: a bit-packed array has no view (pack it with pack_for_device)")
-        out[name] = buffer[offset:offset + n].view(torch_dtype(dtype)).view(shape)
-    return out
-
-
-@functools.lru_cache(maxsize=None)
-def torch_dtype(dtype: str) -> torch.dtype:
-    """The torch dtype of a numpy dtype string (``'<f4'``: ``torch.float32``)."""
-    return torch.from_numpy(np.empty(0, dtype=np.dtype(dtype))).dtype
 
 
 def unpack_buffer(buf: np.ndarray, layout: Layout, copy: bool = False) -> dict[str, np.ndarray]:

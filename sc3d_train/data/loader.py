@@ -174,7 +174,10 @@ class BatchLoader(torch.utils.data.DataLoader):
                     item = ring.take(item), item.other
                 elif isinstance(item, PackedBatch):  # did not fit its slot: sent the usual way
                     item = unpack(item), item.other
-                yield compact_tensors(*item, one_buffer=self.pin, pin=self.pin)
+                batch = compact_tensors(*item)
+                if self.pin:
+                    batch = {k: v.pin_memory() if torch.is_tensor(v) else v for k, v in batch.items()}
+                yield batch
 
 
 def make_loader(dataset: ShardDataset, batch_size: int, seed: int, start: int = 0,
@@ -187,8 +190,7 @@ def make_loader(dataset: ShardDataset, batch_size: int, seed: int, start: int = 
     shared memory made once per iteration (:class:`BatchLoader`), and yielded compact (uint8 images, bool masks, uint8
     voxels: :func:`~sc3d_train.data.batch_format.compact_tensors`); ``sc3d_train.data.batch_format.expand_batch``
     (called by the training step, on its device) makes the float training batch. Workers run
-    one torch thread. ``pin_memory`` (CUDA) returns each batch's tensors as views of one page-locked
-    buffer, moved to the GPU in one copy (``compact_tensors``). A private generator
+    one torch thread. ``pin_memory`` (CUDA) returns page-locked tensors. A private generator
     keeps the global torch RNG untouched."""
     group = BATCHES_PER_TASK if workers else 1
     sampler = BatchSampler(ViewSampler(dataset.num_objects, dataset.num_views, seed, rank,
