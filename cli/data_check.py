@@ -35,6 +35,9 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
     every mask pixel and reach no further than one voxel from the mask)."""
     from sc3d_data.qa.check import check_shards, write_worst_png
 
+    if shards_opt and shards_arg and Path(shards_opt).resolve() != Path(shards_arg).resolve():
+        raise click.UsageError(f"two shard directories: {shards_arg} and --shards {shards_opt}; give one "
+                               "(check one dataset at a time)")
     shards = shards_opt or shards_arg
     if shards is None:
         raise click.UsageError("give the shard directory (SHARDS or --shards)")

@@ -59,7 +59,7 @@ def _rgb(text: str) -> tuple[int, int, int]:
 @click.option("--categories", default=None, help="Only these categories (names or synset ids, comma-separated).")
 @click.option("--category", default=None, help="Give every mesh this category instead of the folder's.")
 @click.option("--split", default="random:0.7,0.1,0.2", show_default=True, help=SPLIT_HELP)
-@click.option("--split-file", default=None, help=SPLIT_FILE_HELP)
+@click.option("--split-file", multiple=True, help=SPLIT_FILE_HELP + " Repeatable.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--objects-per-shard", type=click.IntRange(1), default=256, show_default=True)
 @click.option("--chunks", type=click.Choice(["view", "object"]), default="view", show_default=True,
@@ -89,7 +89,8 @@ def _rgb(text: str) -> tuple[int, int, int]:
 @executor_options
 def render(elevations, background, part, slurm, **options):
     """Render every mesh under --meshes into HDF5 shards under --out (resumable)."""
-    config = RenderConfig(elevations=_floats(elevations), background=_rgb(background), part=part, **options)
+    config = RenderConfig(elevations=_floats(elevations), background=_rgb(background), part=part,
+                          split_file=_split_files(options.pop("split_file")), **options)
     s = run_render(config, slurm)
     from sc3d_data.io.names import printable
 
@@ -108,15 +109,26 @@ def render(elevations, background, part, slurm, **options):
         click.echo(note)
     if s["failed"] and not s["done"] and not s["resumed"]:
         raise click.ClickException(f"no object was rendered: all {s['failed']} failed{_first_reason(s['out'])}")
+    if s["skipped"] and not (s["done"] or s["resumed"] or s["failed"]) and s.get("part", "0/1") == "0/1":
+        raise click.ClickException(f"no object was rendered: all {s['skipped']} were skipped"
+                                   f"{_first_reason(s['out'], 'skipped')}; `sc3d-data info {s['out']}` lists them")
 
 
-def _first_reason(out) -> str:
-    """``" (first: REASON)"`` of the first failure the index of ``out`` lists, or ``""``."""
+def _split_files(values) -> str | list[str] | None:
+    """``--split-file``'s values as ``RenderConfig.split_file``: None, the one file, or the list
+    (every file's ids count, as ``import-r2n2`` takes them)."""
+    files = list(values or ())
+    return files[0] if len(files) == 1 else files or None
+
+
+def _first_reason(out, listed: str = "failures") -> str:
+    """``" (first: REASON)"`` of the first entry of the index of ``out``'s list ``listed``
+    (``failures`` or ``skipped``), or ``""``."""
     from sc3d_data.io.names import printable
     from sc3d_data.io.shards import load_index
 
     try:
-        reason = load_index(Path(out))["failures"][0]["reason"]
+        reason = load_index(Path(out))[listed][0]["reason"]
     except (OSError, ValueError, LookupError, TypeError):
         return ""
     return f" (first: {printable(str(reason))})"

@@ -33,7 +33,8 @@ def part_option(f):
     return click.option("--part", callback=_part, default=None, metavar="I/N",
                         help="Only part I of N (0 <= I < N) of the objects, chosen by a hash of the object id; "
                              "default: SLURM_ARRAY_TASK_ID/SLURM_ARRAY_TASK_COUNT inside a job array, else all. "
-                             "Combine part folders with `sc3d-data merge`.")(f)
+                             "render, import-r2n2: combine the part folders with `sc3d-data merge`; voxelize "
+                             "--meshes: the parts share one --out.")(f)
 
 
 def part_from_slurm_note(part: Part) -> str | None:

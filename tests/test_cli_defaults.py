@@ -53,10 +53,11 @@ def test_checker_catches_a_drifted_default():
 
 
 def render_case(tmp):
-    from sc3d_cli.data_render import _floats, _rgb, render
+    from sc3d_cli.data_render import _floats, _rgb, _split_files, render
     from sc3d_data.pipeline.jobs.render_job import RenderConfig
 
-    return render, RenderConfig, {"elevations": _floats, "background": _rgb}, ["--out", tmp / "out"]
+    return render, RenderConfig, {"elevations": _floats, "background": _rgb, "split_file": _split_files}, \
+        ["--out", tmp / "out"]
 
 
 def import_case(tmp):

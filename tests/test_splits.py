@@ -96,7 +96,7 @@ def test_a_byte_order_mark_is_not_part_of_the_first_id_or_split(tmp_path):
     went to a split called '\\ufefftrain' (two-field files). Expected values: the ids written."""
     from sc3d_data.formats.splits import read_split_lines
 
-    named = tmp_path / "chair_test.txt"
+    named = tmp_path / "chair_testids.txt"
     named.write_bytes("\ufeffabc\ndef\n".encode("utf-8"))
     assert read_split_lines(named) == [(1, "test", "abc"), (2, "test", "def")]
     pairs = tmp_path / "splits.txt"

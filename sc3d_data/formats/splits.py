@@ -12,7 +12,7 @@ Three ways (``spec`` / ``split_file`` of :func:`assign_splits`):
     test (``n`` = the number of objects of that category that were found).
 split files (``split_file``: one file, several files, or a directory)
     * PTN style ``SYNSET_trainids.txt`` / ``_valids.txt`` / ``_testids.txt`` (also ``train.txt``
-      ``val.txt`` ``test.txt``): the split comes from the file name; one id per line (the whole
+      ``val.txt`` ``test.txt``, exactly; ``holdout_test.txt`` is a plain list): the split comes from the file name; one id per line (the whole
       line, its ends stripped: an id may hold spaces).
     * any other file is a plain list: each line ``SPLIT ID`` (SPLIT is train, val or test in any
       case, anything else is refused naming the line; then a tab or spaces, and the rest of the
@@ -48,7 +48,9 @@ SPLIT_FILE_HELP = ("PTN SYNSET_{train,val,test}ids.txt files, a directory of the
 R2N2_TRAIN_FRACTION = 0.8
 #: the splits a split file may name (any case); ``sc3d-train`` reads train, val and test
 SPLIT_NAMES = ("train", "val", "test")
-_NAMED_FILE = re.compile(r"(?:^|_)(train|val|test)(?:ids)?\.txt$", re.IGNORECASE)
+#: a file whose name gives its split: PTN's ``SYNSET_trainids.txt`` (any prefix ending in ``_``, or
+#: none), or exactly ``train.txt`` / ``val.txt`` / ``test.txt``; ``holdout_test.txt`` is a plain list
+_NAMED_FILE = re.compile(r"(?:(?:^|_)(train|val|test)ids|^(train|val|test))\.txt$", re.IGNORECASE)
 
 
 def _problem(source, reason: str) -> dict:
@@ -125,7 +127,7 @@ def split_files_of(split_file) -> list[Path]:
 def read_split_lines(path: Path) -> list[tuple[int, str, str]]:
     """``[(line number, split, id)]`` of one split file (format in the module docstring)."""
     m = _NAMED_FILE.search(path.name)
-    named = m.group(1).lower() if m else None
+    named = (m.group(1) or m.group(2)).lower() if m else None
     out = []
     # utf-8-sig: a byte-order mark (Notepad writes one) is not part of the first id or split name
     for lineno, line in enumerate(path.read_text(encoding="utf-8-sig", errors="replace").splitlines(), 1):

@@ -53,7 +53,7 @@ class RenderConfig:
     categories: str | None = None
     category: str | None = None
     split: str = "random:0.7,0.1,0.2"
-    split_file: str | None = None
+    split_file: str | list[str] | None = None  # a file, a directory of them, or several (splits.split_files_of)
     seed: int = 0
     objects_per_shard: int = 256
     chunks: str = "view"  # HDF5 chunk layout of the images (sc3d_data.io.shards.CHUNK_LAYOUTS)
