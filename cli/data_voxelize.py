@@ -80,7 +80,8 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
                                        front=front, workers=workers, overwrite=overwrite, progress=progress,
                                        part=part, **scale)
             s = run_scaled(config, slurm, lambda c: voxelize_meshes(c).as_dict(), voxelize_on_slurm)
-            click.echo(f"wrote {s['done']} .binvox files to {out} ({s['resumed']} already there), "
+            stale = f", {s['stale']} of them again: their mesh is newer" if s.get("stale") else ""
+            click.echo(f"wrote {s['done']} .binvox files to {out}{stale} ({s['resumed']} already there), "
                        f"{s['failed']} failed, {s['seconds']:.1f} s")
             if (note := part_from_slurm_note(part)) is not None:
                 click.echo(note)

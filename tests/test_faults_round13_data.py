@@ -5,6 +5,7 @@ render that selected no object exited 0 with an empty dataset; ``check SHARDS --
 checked OTHER alone. Real meshes, the real commands."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from sc3d_cli.data import main as data_main
@@ -71,3 +72,35 @@ def test_check_refuses_two_different_shard_folders(tmp_path):
                                              "(check one dataset at a time)", res.output
     same = run_cli(data_main, ["check", a, "--shards", str(a) + "/", "--no-progress"], expect_exit=None)
     assert "two shard directories" not in same.output
+
+
+def test_voxelize_meshes_does_again_a_mesh_edited_since_its_binvox(tmp_path):
+    """``voxelize --meshes``: a rerun after the mesh was replaced (a box, then a sphere) kept the
+    box's grid; now a mesh newer than its ``.binvox`` is done again, counted in the summary, and
+    its grid equals a fresh run's; an untouched rerun still skips it. Expected grid: the fresh
+    run's (an independent run of the same command on the sphere)."""
+    import os
+
+    import trimesh
+
+    from sc3d_data.io.binvox import read_binvox
+
+    (tmp_path / "m" / "x").mkdir(parents=True)
+    mesh = tmp_path / "m" / "x" / "a.obj"
+    trimesh.creation.box([1, 0.2, 0.2]).export(mesh)
+    args = ["voxelize", "--meshes", tmp_path / "m", "--no-progress", "--workers", "1"]
+    run_cli(data_main, [*args, "--out", tmp_path / "vo"])
+    binvox = tmp_path / "vo" / "x" / "a.binvox"
+    box = read_binvox(binvox).voxels.copy()
+    trimesh.creation.icosphere().export(mesh)
+    now = binvox.stat().st_mtime_ns  # the grid as written 10 s ago, the edit 5 s ago (clear of any
+    os.utime(binvox, ns=(now - 10 * 10**9,) * 2)  # file system's time resolution)
+    os.utime(mesh, ns=(now - 5 * 10**9,) * 2)
+    res = run_cli(data_main, [*args, "--out", tmp_path / "vo"])
+    assert "wrote 1 .binvox files" in res.output and "1 of them again: their mesh is newer" in res.output, res.output
+    run_cli(data_main, [*args, "--out", tmp_path / "fresh"])
+    redone = read_binvox(binvox).voxels
+    assert np.array_equal(redone, read_binvox(tmp_path / "fresh" / "x" / "a.binvox").voxels)
+    assert not np.array_equal(redone, box)
+    again = run_cli(data_main, [*args, "--out", tmp_path / "vo"])
+    assert "wrote 0 .binvox files" in again.output and "(1 already there)" in again.output, again.output

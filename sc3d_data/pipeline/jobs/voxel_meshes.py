@@ -6,7 +6,8 @@ Every mesh under ``meshes`` (``sc3d_data.formats.discover`` layouts) is normalis
 that voxelized it (job ``VOXELIZE_MESH`` on the local pool or Ray, ``executor.py``, with
 the per-mesh time limit ``--timeout``; ``--executor slurm``: ``slurm_executor``). Existing
 ``.binvox`` files are complete (written atomically) and skipped on a rerun when their header has
-the run's resolution (another is done again), so a crash or
+the run's resolution (another is done again) and their mesh file is not newer than they are (an
+edited mesh is done again: :func:`mesh_is_newer`), so a crash or
 Ctrl-C loses no finished file; failures (with the reason: error, time limit, worker
 killed) go to ``out/failures.json``, sorted by source. The settings that decide a grid
 (resolution, normalisation, axes) are recorded in ``out/voxelize.json``; a rerun with others is
@@ -152,9 +153,11 @@ def _voxelize_entries(config: VoxelMeshesConfig, out: Path, part: Part, entries:
     for e in entries:  # a file of another resolution, cut short or unreadable is done again
         target = binvox_target(config, str(e.path))
         if not config.overwrite and target.is_file() and binvox_intact(target, config.resolution):
-            summary.shards_skipped += 1
-        else:
-            todo.append(Task(len(todo), str(e.path), e.category, e.model_id, ""))
+            if not mesh_is_newer(e.path, target):
+                summary.shards_skipped += 1
+                continue
+            summary.stale += 1
+        todo.append(Task(len(todo), str(e.path), e.category, e.model_id, ""))
     failures = [dict(p) for p in problems]
     summary.failed = sum(1 for p in problems if not p.get("skipped"))  # counted as render counts them
     if todo:
@@ -183,6 +186,15 @@ def _voxelize_entries(config: VoxelMeshesConfig, out: Path, part: Part, entries:
     write_json_atomic(out / failures_name(part), failures)
     summary.seconds = time.monotonic() - t0
     return summary
+
+
+def mesh_is_newer(mesh: Path, binvox: Path) -> bool:
+    """Whether ``mesh`` was modified after ``binvox`` was written (``make``'s rule: an edited or
+    re-exported mesh is voxelized again; a file whose times cannot be read counts as newer)."""
+    try:
+        return Path(mesh).stat().st_mtime_ns > binvox.stat().st_mtime_ns
+    except OSError:
+        return True
 
 
 #: the file under ``--out`` recording the settings that decide every grid in the folder
