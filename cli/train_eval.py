@@ -53,6 +53,12 @@ def eval_cmd(ctx, checkpoint, shards, out, pose_from, device, split, pick, batch
     elif result["trained_on"]:
         click.echo(f"note: {result['trained_on']} of the {result['overall']['objects']} evaluated objects are objects the "
                    f"checkpoint was trained on: these figures are not of held-out objects")
+    if result["categories_not_trained_on"]:
+        from sc3d_data.formats.shapenet import category_label
+
+        unseen = ", ".join(category_label(c) for c in result["categories_not_trained_on"])
+        click.echo(f"note: the checkpoint's run had no training object of {unseen}: their figures, and the mean over "
+                   "categories, measure the model on categories it never saw")
     if result["selected_on_this_split"]:
         click.echo(f"note: {result['checkpoint']} was chosen (best of its validations) on these {split!r} objects, so "
                    "these figures are optimistic; evaluate " + ("on objects it was not chosen on, or " if split == "test"

@@ -77,7 +77,7 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
         lock = exclusive_lock(run_dir, "sc3d-train fit", create=True) if main_rank and run_dir else nullcontext()
         with lock:
             cfg = resolve_config(options, model_options, resume, config_file)
-            check_mode_options(cfg, options)
+            check_mode_options(cfg, options, config_file)
             check_device_name(cfg.device)  # before the run's first line
             if main_rank and (warning := pose_grid_warning(cfg)):
                 click.echo(f"warning: {warning}", err=True)

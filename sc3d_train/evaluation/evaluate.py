@@ -40,7 +40,7 @@ from sc3d_train.settings.command_config import EvalConfig
 from sc3d_train.settings.config import MAX_BATCH_SIZE, batch_size_too_large
 from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.evaluation.evaluated_data import (evaluated_data_digest, run_objects, selection_objects_among,
-                                                  training_objects_among)
+                                                  training_objects_among, untrained_categories)
 from sc3d_train.paper.metrics import MASK_THRESHOLD, VOXEL_THRESHOLDS, predict_dataset, summarize
 
 TABLE_COLUMNS = (("images", "n", "{:d}"), ("voxel_iou_0.4", "IoU@.4", "{:.3f}"),
@@ -174,6 +174,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
         differences = differences_from_training(cfg, dataset.info)
         run_refs = run_objects(cfg, shards)  # the run's objects, scanned once for both questions
         trained_on = training_objects_among(cfg, dataset.objects, run_refs)
+        unseen = untrained_categories(cfg, dataset.objects, run_refs)
         selected_on = selection_objects_among(cfg, ckpt.get("validation"), dataset.objects, shards, run_refs)
         data_sha256 = evaluated_data_digest(shards, split, dataset.objects)
         rows, kept = predict_dataset(model, dataset, dev, batch_size, keep=examples, pose_from=pose_from,
@@ -184,7 +185,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
                   "split": split, "pose_from": pose_from, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
                   "differs_from_training": differences, "outside_pose_grid": outside_pose_grid(cfg, dataset.info),
                   "pose_grid_elevations": [cfg.model.elevation_min, cfg.model.elevation_max],
-                  "trained_on": trained_on,
+                  "trained_on": trained_on, "categories_not_trained_on": unseen,
                   "selected_on_this_split": selected_on, "data_sha256": data_sha256,
                   "shards_complete": dataset.info["complete"], **summary}
         (out / "metrics.json").unlink(missing_ok=True)  # written last: it marks a finished evaluation

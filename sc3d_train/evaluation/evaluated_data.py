@@ -83,6 +83,15 @@ def training_objects_among(cfg, objects, run_refs: list | None) -> int | None:
     return None if trained is None else sum(1 for r in objects if (r.category, r.model_id) in trained)
 
 
+def untrained_categories(cfg, objects, run_refs: list | None) -> list[str] | None:
+    """The categories of ``objects`` (``ObjectRef``s being evaluated) of which the run of ``cfg``
+    had no training object (its ``split`` among ``run_refs``, :func:`run_objects`), sorted; None
+    when that cannot be told. Evaluating on unseen categories is a legitimate experiment, but
+    their figures, and a mean over categories that holds them, are not of the trained task."""
+    trained = split_of(run_refs, cfg.split)
+    return None if trained is None else sorted({r.category for r in objects} - {c for c, _ in trained})
+
+
 def selection_objects_among(cfg, validation: dict | None, objects, shards: Path, run_refs: list | None) -> bool:
     """Whether ``objects`` (``ObjectRef``s of ``shards`` being evaluated) include objects of the
     validation split that chose the checkpoint (``validation``: its record, ``best.pt``'s

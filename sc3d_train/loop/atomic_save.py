@@ -14,20 +14,25 @@ def save_atomically(payload: dict, tmp: Path, path: Path) -> None:
     """``torch.save(payload)`` to ``tmp``, then renamed to ``path``. Written through a file
     object whose writes are watched: ``torch.save`` reports a failed write (a full disk) only as
     "unexpected pos 704 vs 598", so the write's own ``OSError`` ("No space left on device") is
-    raised instead."""
+    raised instead; a Ctrl-C that lands in a write (``KeyboardInterrupt``, which ``torch.save``
+    turns into the same ``RuntimeError``) is raised as itself, ``tmp`` removed, so the run says it
+    was interrupted, not that the disk is full."""
     with create_new_file(tmp) as f:  # never through a link planted at the temporary name
         out = _WatchedFile(f)
         try:
             torch.save(payload, out)
         except RuntimeError as e:
             if out.error is not None:
+                if isinstance(out.error, KeyboardInterrupt):
+                    tmp.unlink(missing_ok=True)
                 raise out.error from e
             raise
     os.replace(tmp, path)
 
 
 class _WatchedFile:
-    """A binary file for ``torch.save`` that keeps the ``OSError`` of a failed write."""
+    """A binary file for ``torch.save`` that keeps what made a write fail (an ``OSError``, or a
+    ``KeyboardInterrupt`` raised during it)."""
 
     def __init__(self, f):
         self.f, self.error = f, None
@@ -35,7 +40,7 @@ class _WatchedFile:
     def write(self, data) -> int:
         try:
             return self.f.write(data)
-        except OSError as e:
+        except (OSError, KeyboardInterrupt) as e:
             self.error = e
             raise
 

@@ -10,8 +10,8 @@ dataclasses, so checkpoints of earlier versions, which stored the same dict, sti
 (phase, phase start and samples consumed by each rank in that phase) and ``format_version``.
 Files are written under a temporary name and renamed, so ``step_XXXXXX.pt`` and ``last.pt``
 are always complete; a write that fails (disk full) removes its temporary file and raises
-``CheckpointError`` naming the file, and ``resume_checkpoint`` picks the newest complete
-checkpoint (``last.pt`` or a newer ``step_XXXXXX.pt``).
+``CheckpointError`` naming the file (a Ctrl-C during it: the ``KeyboardInterrupt``), and
+``resume_checkpoint`` picks the newest complete checkpoint (``last.pt`` or a newer ``step_XXXXXX.pt``).
 
 Loading never runs code from the file: ``torch.load(weights_only=True)`` with an allow-list of
 exactly the non-tensor types a checkpoint holds (``CHECKPOINT_GLOBALS``: the numpy array and
@@ -25,6 +25,7 @@ import pickle
 import random
 import re
 import shutil
+from contextlib import suppress
 from pathlib import Path
 
 import numpy as np
@@ -152,12 +153,12 @@ def save_checkpoint(run_dir: Path, payload: dict) -> Path:
         target = last
         shutil.copyfile(path, tmp_last)
         os.replace(tmp_last, last)
-    except (OSError, RuntimeError) as e:
+    except (OSError, RuntimeError, KeyboardInterrupt) as e:
         for t in (tmp, tmp_last):
-            try:
+            with suppress(OSError):
                 t.unlink()
-            except OSError:
-                pass
+        if isinstance(e, KeyboardInterrupt):  # Ctrl-C: the run says it was interrupted (trainer)
+            raise
         reason = e.strerror if isinstance(e, OSError) and e.strerror else " ".join(str(e).split())
         kept = f"; {path} is complete" if target == last else ""
         then = ("rerun with --resume" if target == last or last.is_file() else

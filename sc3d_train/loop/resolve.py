@@ -2,6 +2,7 @@
 a config file, the tiny preset, the options given, and the facts of the shards."""
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from sc3d_train.loop.run_folder import check_no_foreign_files, check_no_linked_files, check_path_names
@@ -246,10 +247,12 @@ MODE_ONLY_OPTIONS = {"labeled_fraction": ("semi", "labeled-only"), "pretrain_ste
                      "semi_batch_size": ("semi",)}
 
 
-def check_mode_options(cfg: RunConfig, given: dict) -> None:
-    """``ValueError`` when an option given on the command line (``given``) is one that the run's
-    mode does not read (``--labeled-fraction`` without ``--semi`` or ``--labeled-only``, say):
-    it would be recorded in ``config.yaml`` and silently ignored."""
+def check_mode_options(cfg: RunConfig, given: dict, config_file: Path | None = None) -> None:
+    """``ValueError`` when an option given on the command line (``given``), or a setting of a new
+    run's ``config_file`` that differs from its default, is one that the run's mode does not read
+    (``--labeled-fraction`` without ``--semi`` or ``--labeled-only``; ``pretrain_steps: 2`` in a
+    file without ``mode: semi``): it would be recorded in ``config.yaml`` and silently ignored.
+    (A run's own ``config.yaml`` records these settings at their defaults outside their modes.)"""
     ignored = [k for k, modes in MODE_ONLY_OPTIONS.items() if k in given and cfg.mode not in modes]
     if ignored:
         names = ", ".join(f"--{k.replace('_', '-')} (read by {' and '.join(MODE_ONLY_OPTIONS[k])} runs)"
@@ -257,6 +260,15 @@ def check_mode_options(cfg: RunConfig, given: dict) -> None:
         modes = sorted({m for k in ignored for m in MODE_ONLY_OPTIONS[k]})
         raise ValueError(f"{names}: not read by a {cfg.mode} run (config.yaml would record it, training ignore it); "
                          f"train in a mode that reads it ({', '.join('--' + m for m in modes)}) or leave it out")
+    in_file = load_yaml(config_file) if config_file is not None else {}
+    defaults = {f.name: f.default for f in dataclasses.fields(RunConfig)}
+    set_there = [k for k, modes in MODE_ONLY_OPTIONS.items()
+                 if k in in_file and cfg.mode not in modes and in_file[k] != defaults[k]]
+    if set_there:
+        names = ", ".join(f"{k}: {in_file[k]!r} (read by {' and '.join(MODE_ONLY_OPTIONS[k])} runs)" for k in set_there)
+        raise ValueError(f"{config_file}: {names}: not read by a {cfg.mode} run (config.yaml would record it, training "
+                         "ignore it); set the mode that reads it (mode: in the file, or --semi / --labeled-only) or "
+                         "leave it out")
 
 
 def pose_grid_warning(cfg: RunConfig) -> str | None:

@@ -56,7 +56,8 @@ from sc3d_train.loop.metrics_log import DataWaitClock, GpuUtilisation, MetricsLo
 from sc3d_train.loop.phase_step import augment_step, training_batch
 from sc3d_train.loop.runtime import (DistInfo, all_gather, all_mean, channels_last_on, resolve_amp,
                                      check_same_weights, resolve_device, seed_everything, setup_distributed)
-from sc3d_train.loop.schedule import batch_split, data_position, lr_at, mixed_batch, phase_at, step_samples
+from sc3d_train.loop.batch_floor import check_batch_parts
+from sc3d_train.loop.schedule import data_position, lr_at, phase_at, step_samples
 from sc3d_train.loop.streams import labeled_dataset, phase_loaders, run_datasets, write_labeled_objects
 from sc3d_train.loop.train_step import TrainStep, compile_plan
 from sc3d_train.loop.validation import Validator
@@ -105,8 +106,7 @@ def prepare(cfg: RunConfig) -> Training:
     local_batch = cfg.batch_size // dist_info.world_size
     weights, grid = cfg.loss_weights, PoseGrid.of(cfg.model)
     mixed = cfg.mode == "semi" and cfg.semi_labeled_share > 0
-    if mixed and min(batch_split(cfg, mixed_batch(cfg, local_batch))) < 1:
-        raise ValueError(f"batch {local_batch} per rank is too small to mix labelled and unlabelled images")
+    check_batch_parts(cfg, local_batch)  # BatchNorm: 2 values per channel or more (batch_floor)
 
     datasets = run_datasets(cfg)
     pose_targets = None
