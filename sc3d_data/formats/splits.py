@@ -12,8 +12,9 @@ Three ways (``spec`` / ``split_file`` of :func:`assign_splits`):
     test (``n`` = the number of objects of that category that were found).
 split files (``split_file``: one file, several files, or a directory)
     * PTN style ``SYNSET_trainids.txt`` / ``_valids.txt`` / ``_testids.txt`` (also ``train.txt``
-      ``val.txt`` ``test.txt``, exactly; ``holdout_test.txt`` is a plain list): the split comes from the file name; one id per line (the whole
-      line, its ends stripped: an id may hold spaces).
+      ``val.txt`` ``test.txt``, exactly; ``holdout_test.txt`` is a plain list): the split comes
+      from the file name; one id per line (the whole line, its ends stripped: an id may hold
+      spaces).
     * any other file is a plain list: each line ``SPLIT ID`` (SPLIT is train, val or test in any
       case, anything else is refused naming the line; then a tab or spaces, and the rest of the
       line, ends stripped, is the id, spaces and all), or just ``ID`` meaning train (one word: an

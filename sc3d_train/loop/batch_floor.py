@@ -36,30 +36,21 @@ def smallest_norm_plane(cfg: RunConfig) -> int:
     return min(planes, default=2**31)
 
 
-def pass_sizes(cfg: RunConfig, local_batch: int) -> dict[str, int]:
-    """Images per rank of each forward pass a step of the run makes: ``{"batch": ...}`` and, for a
-    ``semi`` run with a second phase, its ``labelled`` and ``unlabelled`` parts."""
-    sizes = {"batch": local_batch}
+def check_batch_parts(cfg: RunConfig, local_batch: int) -> None:
+    """``ValueError`` naming the options when a forward pass of a step would give a BatchNorm layer
+    one value per channel: one image per rank (the batch; in a ``semi`` run's second phase, its
+    labelled or unlabelled part) where :func:`smallest_norm_plane` (measured only then) is 1."""
+    mixed = labelled = unlabelled = 0
     if cfg.mode == "semi" and cfg.pretrain_steps < cfg.steps:
         mixed = mixed_batch(cfg, local_batch)
-        labelled, unlabelled = batch_split(cfg, mixed) if cfg.semi_labeled_share > 0 else (None, mixed)
-        sizes.update({"mixed": mixed, "unlabelled": unlabelled, **({"labelled": labelled} if labelled else {})})
-    return sizes
-
-
-def check_batch_parts(cfg: RunConfig, local_batch: int, plane=smallest_norm_plane) -> None:
-    """``ValueError`` naming the options when a forward pass of a step (:func:`pass_sizes`) would
-    give a BatchNorm layer one value per channel: one image per rank where ``plane(cfg)``
-    (:func:`smallest_norm_plane`, measured only then) is 1."""
-    sizes = pass_sizes(cfg, local_batch)
-    if min(n for k, n in sizes.items() if k != "mixed") >= 2 or (values := plane(cfg)) >= 2:
+        labelled, unlabelled = batch_split(cfg, mixed)  # (0, mixed) at --semi-labeled-share 0
+    if min(n for n in (local_batch, labelled, unlabelled) if n) >= 2 or (values := smallest_norm_plane(cfg)) >= 2:
         return
     where = f"at {cfg.model.image_size} px the network's deepest BatchNorm sees {values} value per channel and image"
     if local_batch < 2:
         raise ValueError(f"batch size {cfg.batch_size} gives {local_batch} image per rank; {where}, so a training "
                          "step needs at least 2 (BatchNorm normalises over the batch): raise --batch-size")
-    split = (f"{sizes['labelled']} labelled and {sizes['unlabelled']} unlabelled" if "labelled" in sizes
-             else f"{sizes['unlabelled']} unlabelled")
-    raise ValueError(f"the second phase's batch of {sizes['mixed']} images per rank splits into {split} images; {where}, "
+    split = f"{labelled} labelled and {unlabelled} unlabelled" if labelled else f"{unlabelled} unlabelled"
+    raise ValueError(f"the second phase's batch of {mixed} images per rank splits into {split} images; {where}, "
                      "so each pass of a step needs at least 2 (BatchNorm normalises over the batch): raise "
                      "--semi-batch-size (or --batch-size), or move --semi-labeled-share")

@@ -255,8 +255,7 @@ def check_mode_options(cfg: RunConfig, given: dict, config_file: Path | None = N
     (A run's own ``config.yaml`` records these settings at their defaults outside their modes.)"""
     ignored = [k for k, modes in MODE_ONLY_OPTIONS.items() if k in given and cfg.mode not in modes]
     if ignored:
-        names = ", ".join(f"--{k.replace('_', '-')} (read by {' and '.join(MODE_ONLY_OPTIONS[k])} runs)"
-                          for k in ignored)
+        names = ", ".join(f"--{k.replace('_', '-')} {_read_by(k)}" for k in ignored)
         modes = sorted({m for k in ignored for m in MODE_ONLY_OPTIONS[k]})
         raise ValueError(f"{names}: not read by a {cfg.mode} run (config.yaml would record it, training ignore it); "
                          f"train in a mode that reads it ({', '.join('--' + m for m in modes)}) or leave it out")
@@ -265,10 +264,15 @@ def check_mode_options(cfg: RunConfig, given: dict, config_file: Path | None = N
     set_there = [k for k, modes in MODE_ONLY_OPTIONS.items()
                  if k in in_file and cfg.mode not in modes and in_file[k] != defaults[k]]
     if set_there:
-        names = ", ".join(f"{k}: {in_file[k]!r} (read by {' and '.join(MODE_ONLY_OPTIONS[k])} runs)" for k in set_there)
+        names = ", ".join(f"{k}: {in_file[k]!r} {_read_by(k)}" for k in set_there)
         raise ValueError(f"{config_file}: {names}: not read by a {cfg.mode} run (config.yaml would record it, training "
                          "ignore it); set the mode that reads it (mode: in the file, or --semi / --labeled-only) or "
                          "leave it out")
+
+
+def _read_by(setting: str) -> str:
+    """``(read by semi and labeled-only runs)``: the modes of a :data:`MODE_ONLY_OPTIONS` setting."""
+    return f"(read by {' and '.join(MODE_ONLY_OPTIONS[setting])} runs)"
 
 
 def pose_grid_warning(cfg: RunConfig) -> str | None:

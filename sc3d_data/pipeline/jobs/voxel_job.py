@@ -8,23 +8,26 @@ Shards (``voxelize_shards``)
     ``sc3d_data.voxel.voxelize.voxelize_triangles``. The ``voxels`` dataset ``[N, G, G, G]`` is added
     to each shard atomically (``shards.replace_dataset_atomically``), one shard at a time.
     Resume: a shard that already holds ``voxels`` at the requested resolution is skipped
-    unless objects of it failed (their ``voxelize`` failures): those objects are voxelized
-    again and the shard rewritten with the other objects' grids kept (as ``render`` retries
-    its failures); ``overwrite=True`` redoes every shard. The objects run on the local pool
-    (``executor.py``: ``workers`` processes; a worker that dies or passes the per-object time limit
-    ``--timeout`` costs its object, retried by the next run) and the shards are the chunks of the loop ``render`` and ``import-r2n2`` write with
-    (``shard_output.py``): the index's ``bytes``/``sha256`` of a shard are written right after
-    it is rewritten, and the run holds the folder's write lock. An object that fails (mesh
-    missing or unreadable) gets an all-empty grid so the shard stays rectangular, and is recorded in the index under
-    ``failures`` with ``"stage": "voxelize"``, its shard, row and reason. The index also gets
-    ``"voxels": {"resolution": G, "occupancy": ...}``. When none of the source meshes exists
-    (shards moved without their meshes) nothing is changed: one line names the folder, and no
-    shard's grids are replaced by empty ones. A dataset of ``import-r2n2`` (R2N2's own voxels, no meshes) is refused in one line.
+    unless objects of it failed (their ``voxelize`` failures): those objects are voxelized again
+    and the shard rewritten with the other objects' grids kept (as ``render`` retries its
+    failures); ``overwrite=True`` redoes every shard. The objects run on the local pool
+    (``executor.py``: ``workers`` processes; a worker that dies or passes the per-object time
+    limit ``--timeout`` costs its object, retried by the next run) and the shards are the chunks
+    of the loop ``render`` and ``import-r2n2`` write with (``shard_output.py``): the index's
+    ``bytes``/``sha256`` of a shard are written right after it is rewritten, and the run holds
+    the folder's write lock. An object that fails (mesh missing or unreadable) gets an all-empty
+    grid so the shard stays rectangular, and is recorded in the index under ``failures`` with
+    ``"stage": "voxelize"``, its shard, row and reason. The index also gets ``"voxels":
+    {"resolution": G, "occupancy": ...}``. When none of the source meshes exists (shards moved
+    without their meshes) nothing is changed: one line names the folder, and no shard's grids
+    are replaced by empty ones. A dataset of ``import-r2n2`` (R2N2's own voxels, no meshes) is
+    refused in one line.
 
 Meshes (``voxelize --meshes``): ``voxel_meshes.py``.
 """
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,8 +47,6 @@ OCCUPANCY_RULE = ("surface-touching voxels + spanned voxel centres with |winding
 
 
 def limit_threads() -> None:
-    import os
-
     for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(k, "1")
 
@@ -131,8 +132,7 @@ def resolve_source(source: str, meshes_root: str | None) -> str:
 @dataclass
 class VoxelizeSummary:
     """Counts of a voxelize run (``objects`` voxelized by this run, ``failed`` of them; ``--meshes``:
-    ``objects`` files written, ``stale`` of them because their mesh was newer, ``shards_skipped`` files
-    already there)."""
+    ``objects`` files written, ``stale`` of them for a newer mesh, ``shards_skipped`` files already there)."""
 
     shards_done: int = 0
     shards_skipped: int = 0
