@@ -11,6 +11,8 @@ from __future__ import annotations
 import os
 import time
 
+import pytest
+
 from sc3d_data.pipeline.executors.job import ExecOptions, Job
 from sc3d_data.pipeline.executors.local_pool import start_pool
 from sc3d_data.pipeline.run.plan import Task
@@ -83,3 +85,41 @@ def test_workers_that_cannot_start_after_the_first_are_left_out_with_their_reaso
     assert sorted(pos for pos, _, _ in results) == list(range(60))  # 1.8 s of work
     assert len({pid for _, _, pid in results}) == 1
     assert pool.start_failures == ["RuntimeError: no GL context for this worker"] * 2
+
+
+def first_starts_late(config, backend: str) -> str:
+    """The first worker to claim the flag file starts after 3 s; every other one fails at once,
+    so their failures reach the pool before any worker is up."""
+    try:
+        os.close(os.open(os.environ[FLAG_ENV], os.O_CREAT | os.O_EXCL))
+    except FileExistsError:
+        raise RuntimeError("no GL context for this worker") from None
+    time.sleep(3.0)
+    return backend
+
+
+def never_starts(config, backend: str) -> str:
+    raise RuntimeError("no GL context for this worker")
+
+
+def test_workers_failing_before_the_first_is_up_are_left_out(tmp_path, monkeypatch):
+    """The race CI met (stop 44): the failing workers report before the one that starts is up.
+    Before, the first failure closed the pool ("workers could not start") although a worker
+    was still coming up."""
+    monkeypatch.setenv(FLAG_ENV, str(tmp_path / "late"))
+    tasks = [Task(pos=i, path=f"object{i}", category="c", model_id=str(i), split="train") for i in range(5)]
+    pool = start_pool(3, ExecOptions(workers=3, timeout_s=120.0), Job("late-start test", which_worker,
+                                                                      setup=first_starts_late))
+    try:
+        results = list(pool.run(tasks))
+    finally:
+        pool.close()
+    assert sorted(pos for pos, _, _ in results) == list(range(5))
+    assert len({pid for _, _, pid in results}) == 1
+    assert pool.start_failures == ["RuntimeError: no GL context for this worker"] * 2
+
+
+def test_a_pool_none_of_whose_workers_start_fails_with_the_reason():
+    with pytest.raises(RuntimeError, match="never-starts test workers could not start: RuntimeError: no GL context"):
+        start_pool(3, ExecOptions(workers=3, timeout_s=120.0), Job("never-starts test", which_worker,
+                                                                   setup=never_starts))

@@ -9,8 +9,8 @@ worker gets the main process's environment as it is when the worker starts (``_w
 as a spawned one would. Each makes its per-worker state once (``Job.start``: for rendering ONE
 ``MeshRenderer``) and handles one object at a time; ``start_pool`` returns when the first worker
 is up (all of them with ``--gpus``, so that a failing device is named before any work) and the
-others take tasks as they come up; one that then fails to start is left out, its reason in
-``start_failures`` (``render`` warns of them). ``render_dataset`` starts the server
+others take tasks as they come up; one that fails to start while another is up or starting is
+left out, its reason in ``start_failures`` (``render`` warns of them). ``render_dataset`` starts the server
 (``start_server_early``) before it plans, so its imports overlap the planning. To each worker
 the main process sends tasks down a pipe, keeping the next one queued behind the current
 (``QUEUED``), and gets the result of ``job.run`` back (``job.Job``, e.g.
@@ -32,6 +32,7 @@ import time
 from multiprocessing.connection import wait
 
 from sc3d_data.pipeline.executors.devices import worker_environ
+from sc3d_data.render.gl_backend import BackendError, install_hint
 from sc3d_data.pipeline.executors.forkserver_start import ensure_server
 from sc3d_data.pipeline.executors.job import THREAD_ENV, Job
 from sc3d_data.pipeline.run.plan import Task
@@ -151,31 +152,32 @@ class WorkerPool:
     def wait_ready(self, every: bool = True) -> str | None:
         """Block until every worker is set up (has a renderer), or with ``every=False`` until the
         first one is (the backend works; ``run`` hands tasks to the others as they come up);
-        return None, or the first start-up error (the pool is then closed)."""
+        return None, or the first start-up error once none can come up (the pool is then closed;
+        with ``every=False`` one that fails while others may still start is left out)."""
         while not (all if every else any)(w.ready for w in self.workers):
             ready = wait([w.conn for w in self.workers if not w.ready], timeout=120)
             if not ready:
                 self.close()
                 return f"{self.job.name} workers did not start within 120 s"
-            for w in self.workers:
-                if w.conn in ready:
-                    status, _, payload = w.receive()
-                    if status == "crash":
-                        w.proc.join(5)
-                        status, payload = "dead", f"worker exited with code {w.proc.exitcode}"
-                    if status == "dead":
-                        self.close()
-                        return payload
+            for w in [w for w in self.workers if w.conn in ready]:
+                status, _, payload = w.receive()  # "ready", "dead" (its reason) or "crash"
+                if status == "ready":
                     w.ready = True
+                elif every or len(self.workers) == 1:  # no other worker left to come up
+                    w.proc.join(5)
+                    self.close()
+                    return (self.start_failures or [payload or f"worker exited with code {w.proc.exitcode}"])[0]
+                else:
+                    self._drop_unstarted(w, payload if status == "dead" else None)
         return None
 
     def _drop_unstarted(self, w: _Worker, reason: str | None) -> None:
-        """``w`` could not start (``reason``; None: it crashed). With another worker up the run
-        goes on without it and ``start_failures`` says why; else the pool is closed and the
-        error raised (``BackendError`` with a reason, ``RuntimeError`` for a crash)."""
+        """``w`` could not start (``reason``; None: it crashed). With another worker up or still
+        starting the run goes on without it and ``start_failures`` says why; else the pool is
+        closed and the error raised (``BackendError`` with a reason, ``RuntimeError`` for a crash)."""
         w.proc.join(5)
         why = reason or f"exited with code {w.proc.exitcode} while starting"
-        if any(o.ready for o in self.workers if o is not w):
+        if len(self.workers) > 1:
             w.kill()
             self.workers.remove(w)
             self.start_failures.append(why)
@@ -183,8 +185,6 @@ class WorkerPool:
         self.close()
         if reason is None:
             raise RuntimeError(f"a {self.job.name} worker died while starting (exit code {w.proc.exitcode})")
-        from sc3d_data.render.gl_backend import BackendError
-
         raise BackendError(f"{self.job.name} worker could not start: {reason}")
 
     def _replace(self, w: _Worker) -> list[Task]:
@@ -277,8 +277,6 @@ def start_pool(n: int, config, job: Job) -> WorkerPool:
     (the workers themselves are the probe: the main process never creates a GL context), EGL
     alone when ``config.gpus`` names devices. Raises ``BackendError`` naming the Debian packages
     when no backend works."""
-    from sc3d_data.render.gl_backend import BackendError, install_hint
-
     errors = []
     backends = job.backends(getattr(config, "backend", "auto"))
     if job.gl and getattr(config, "gpus", ()):
