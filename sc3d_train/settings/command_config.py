@@ -73,5 +73,5 @@ class ClaimsConfig:
     device: str = setting("auto", DEVICE_HELP)
     workers: int | None = setting(None, "DataLoader workers per run and stream [auto, as fit's --workers].")
     pick: str = setting("best", PICK_HELP, choices=CHECKPOINT_PICKS)
-    seeds: int = setting(1, "Seeds per run (seed, seed + 1, ...; 1 to 100): each cell of claims.md becomes "
-                         "mean +- standard deviation over them.")
+    seeds: int = setting(1, "Seeds per run (the preset's seed 0, then 1, 2, ...; 1 to 100): each cell of "
+                         "claims.md becomes mean +- standard deviation over them.")
