@@ -176,6 +176,7 @@ def _resumed(options: dict, model_options: dict, tiny: bool = False) -> RunConfi
     listing any other option that differs from the run's (``tiny``: the tiny preset asked for, an
     error unless the run's model already is it)."""
     from sc3d_train.loop.checkpoint import CheckpointError
+    from sc3d_train.loop.runtime import same_in_effect
 
     out = Path(options["out"])
     check_no_linked_files(out)
@@ -188,7 +189,7 @@ def _resumed(options: dict, model_options: dict, tiny: bool = False) -> RunConfi
             changed.append(f"--shards {v!r} (run has {current!r}, and records no digest of its objects to compare)")
         elif k in RESUMABLE_FIELDS:
             setattr(cfg, k, v)
-        elif not same:
+        elif not same and not same_in_effect(cfg, k, v, options.get("device", cfg.device)):
             changed.append(f"--{k.replace('_', '-')} {v!r} (run has {current!r})")
     asked = {**(TINY_MODEL if tiny else {}), **model_options}  # the tiny preset, then explicit options
     for k, v in sorted(asked.items()):

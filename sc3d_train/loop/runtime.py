@@ -4,6 +4,7 @@ holds the same weights (:func:`check_same_weights`)."""
 from __future__ import annotations
 
 import atexit
+import dataclasses
 import os
 import random
 import re
@@ -124,6 +125,20 @@ def seed_everything(seed: int) -> None:
 def channels_last_on(cfg: RunConfig, device: torch.device) -> bool:
     """``channels_last``: ``on``, or ``auto`` on CUDA."""
     return cfg.channels_last == "on" or (cfg.channels_last == "auto" and device.type == "cuda")
+
+
+def same_in_effect(cfg: RunConfig, key: str, value: str, device_name: str) -> bool:
+    """Whether ``--amp`` or ``--channels-last`` ``value`` does on device ``device_name`` what run
+    ``cfg``'s own setting does (``auto`` is off on the CPU: ``--resume --amp off`` asks there for
+    the run's own precision); False for any other option."""
+    if key not in ("amp", "channels_last"):
+        return False
+    try:
+        device = torch.device(auto_device() if device_name == "auto" else device_name)
+    except (ValueError, RuntimeError):
+        return False  # the device is refused later, with its own message
+    effect = resolve_amp if key == "amp" else channels_last_on
+    return effect(cfg, device) == effect(dataclasses.replace(cfg, **{key: value}), device)
 
 
 def all_min(t: torch.Tensor, info: DistInfo) -> torch.Tensor:
