@@ -3,12 +3,19 @@
 sample meshes."""
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
+import time
+
 import yaml
 
 from sc3d_cli.train import main
+from sc3d_train.loop.checkpoint import load_checkpoint
 from tests.conftest import run_cli
 from tests.test_train import TINY
-from conftest import error_lines
+from conftest import REPO, error_lines
 
 
 # ----------------------------------------------------------------------------- --resume --amp off
@@ -26,3 +33,65 @@ def test_resume_accepts_precision_settings_that_are_the_runs_own_on_this_device(
     res = run_cli(main, ["fit", "--out", out, "--resume", "--steps", 4, "--amp", "bf16", "--device", "cpu",
                          "--no-progress"], expect_exit=1)
     assert error_lines(res.output) == [f"Error: {out}: cannot change on --resume: --amp 'bf16' (run has 'auto')"]
+
+
+# ----------------------------------------------------------------------------- D1: best.pt before the first checkpoint
+def test_a_run_stopped_by_ctrl_c_before_its_first_checkpoint_can_be_started_again(sample_shards, tmp_path):
+    """Validation every 2 steps, checkpoints every 1000: Ctrl-C once ``best.pt`` exists left a
+    run that said 'nothing to resume (start the run again)', whose ``--resume`` said 'start it
+    again without --resume' and whose start again was refused ('holds checkpoints ... (best.pt)
+    but no last.pt; use --resume'). Now the same command starts it again and drops that
+    ``best.pt`` (its weights are of the run being replaced)."""
+    out = tmp_path / "run"
+    args = ["fit", "--shards", sample_shards, "--out", out, "--batch-size", 2, *TINY, "--checkpoint-every", 1000,
+            "--val-every", 2, "--val-min-objects", 1]
+    first = subprocess.Popen([sys.executable, "-c", "import sc3d_cli.train as t; t.main()", *map(str, args),
+                              "--steps", "1000"], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                             text=True, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    try:
+        deadline = time.monotonic() + 240
+        while not (out / "checkpoints" / "best.pt").is_file():
+            assert first.poll() is None and time.monotonic() < deadline, first.stdout.read() if first.poll() else "timeout"
+            time.sleep(0.1)
+        first.send_signal(signal.SIGINT)
+        printed = first.communicate(timeout=120)[0]
+    finally:
+        first.kill()
+    assert "interrupted before the first checkpoint: nothing to resume (start the run again)" in printed, printed
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["best.pt"]
+    res = run_cli(main, [*args, "--steps", 3, "--seed", 5])  # started again, with another seed
+    assert "removed best.pt of step" in res.output and "stopped before its first checkpoint" in res.output
+    assert load_checkpoint(out / "checkpoints" / "last.pt")["config"]["seed"] == 5
+    assert load_checkpoint(out / "checkpoints" / "best.pt")["config"]["seed"] == 5
+
+
+def test_a_best_pt_kept_from_a_finished_run_still_refuses_a_new_run(sample_shards, tmp_path):
+    """The control: a finished 4-step run (its end is its checkpoint, at step 4 < 1000) whose
+    ``last.pt`` and step files were deleted keeps its ``best.pt``: a new run there is refused."""
+    out = tmp_path / "run"
+    args = ["fit", "--shards", sample_shards, "--out", out, "--batch-size", 2, *TINY, "--checkpoint-every", 1000,
+            "--val-every", 2, "--val-min-objects", 1, "--steps", 4]
+    run_cli(main, args)
+    for p in (out / "checkpoints").glob("*.pt"):
+        if p.name != "best.pt":
+            p.unlink()
+    res = run_cli(main, args, expect_exit=1)
+    assert "already holds checkpoints of a run (best.pt) but no last.pt" in res.output
+    assert (out / "checkpoints" / "best.pt").is_file()
+
+
+# ----------------------------------------------------------------------------- D2: resumed with validation off
+def test_a_run_resumed_with_validation_off_keeps_no_best_pt_of_its_validated_steps(sample_shards, tmp_path):
+    """``--resume --steps 8 --val-every 0`` of a 4-step run validated every 2 steps kept
+    ``best.pt`` of step 2 or 4, and ``eval RUN`` read it as the 8-step run's without a word.
+    Now the resume removes it (one line) and eval reads ``last.pt`` of step 8."""
+    out = tmp_path / "run"
+    run_cli(main, ["fit", "--shards", sample_shards, "--out", out, "--batch-size", 2, *TINY, "--steps", 4,
+                   "--val-every", 2, "--val-min-objects", 1])
+    assert (out / "checkpoints" / "best.pt").is_file()
+    res = run_cli(main, ["fit", "--out", out, "--resume", "--steps", 8, "--val-every", 0, "--no-progress"])
+    assert "removed best.pt of step" in res.output and "validation is off from here" in res.output
+    assert not (out / "checkpoints" / "best.pt").exists()
+    res = run_cli(main, ["eval", "--checkpoint", out, "--shards", sample_shards, "--split", "test", "--out",
+                         tmp_path / "ev", "--device", "cpu"])
+    assert "last.pt" in res.output and "step 8" in res.output, res.output

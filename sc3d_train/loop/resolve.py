@@ -48,7 +48,9 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     if (out / "checkpoints" / "last.pt").is_file():
         raise CheckpointError(f"{out}: already holds a run (checkpoints/last.pt); use --resume "
                               f"to continue it or choose another --out")
-    stale = sorted(f.name for f in (out / "checkpoints").glob("*.pt"))
+    from sc3d_train.loop.validation import best_of_an_early_stop
+
+    stale = [] if best_of_an_early_stop(out) else sorted(f.name for f in (out / "checkpoints").glob("*.pt"))
     if stale:  # a run without last.pt (deleted, or its write failed): eval/--resume would read these
         raise CheckpointError(f"{out}: already holds checkpoints of a run ({', '.join(stale)}) but no "
                               f"last.pt; use --resume to continue it, or choose another --out")

@@ -42,7 +42,10 @@ would report a labelled-only network under the semi run's name. This happened: i
 claims study (docs/training.md) one semi seed's ``best.pt`` was step 100 of 350 pretraining steps,
 its airplane median rotation error 60 degrees against 15 at its last step. The same holds on
 ``--resume``: a ``best.pt`` of a phase that the resumed run's ``--steps`` made no longer its last
-(a semi run trained only to the end of its pretraining, then extended) is removed.
+(a semi run trained only to the end of its pretraining, then extended) is removed, and so is
+the ``best.pt`` of a run resumed with validation off (its later steps are not validated: eval
+reads ``last.pt``) and one a new run finds of a run that stopped before its first checkpoint
+(:func:`best_of_an_early_stop`: that run is started again, not resumed).
 
 **Too few validation objects.** With fewer than ``val_min_objects`` (5) objects in the split the
 figures are still computed and logged (``best`` stays 0), but no ``best.pt`` is kept: ``eval`` and
@@ -120,6 +123,23 @@ def resumed_best(run_dir: Path, start_step: int, cfg: RunConfig) -> dict | None:
     return best
 
 
+def best_of_an_early_stop(run_dir: Path) -> bool:
+    """Whether ``run_dir``'s checkpoints are a ``best.pt`` alone of a step before its run's first
+    checkpoint, whose ``metrics.csv`` logged no step from there on (a run stopped, e.g. by Ctrl-C,
+    before it: nothing to resume, so ``fit`` starts it again and drops that ``best.pt``; one kept
+    from a finished run whose other checkpoints were deleted stays refused)."""
+    if sorted(p.name for p in (run_dir / "checkpoints").glob("*.pt")) != ["best.pt"]:
+        return False
+    try:
+        best = load_checkpoint(best_path(run_dir))
+        first = min(int(best["config"]["checkpoint_every"]), int(best["config"]["steps"]))  # or its end
+        log = run_dir / "metrics.csv"
+        logged = [int(r["step"]) + 1 for r in complete_rows(log)] if log.is_file() else []  # 0-based
+        return int(best["step"]) < first and max(logged, default=0) < first
+    except Exception:  # unreadable or not fit's: refused as before
+        return False
+
+
 def resumed_rows(path: Path, start_step: int) -> list[dict]:
     """The complete rows of ``validation.csv`` ``path`` of steps up to ``start_step`` (a run resumed
     there; the rows after it are of steps it trains again), ``path`` rewritten to hold only them
@@ -159,7 +179,12 @@ class Validator:
         if not is_main:
             return None
         out = Path(cfg.out)
-        if start_step > 0 and best_path(out).is_file():
+        if best_path(out).is_file() and (start_step == 0 or not cfg.val_every):
+            step = load_checkpoint(best_path(out)).get("step")
+            best_path(out).unlink()
+            say(f"removed best.pt of step {step}: " + ("validation is off from here (eval reads last.pt)" if start_step
+                else "its run stopped before its first checkpoint, and this run starts it again"))
+        elif start_step > 0 and best_path(out).is_file():
             resumed_best(out, start_step, cfg)
         dataset = validation_dataset(cfg) if cfg.val_every else None
         if dataset is None:  # no validator, which would drop them: no row of a step trained again either
