@@ -4,6 +4,7 @@ sample meshes."""
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -95,3 +96,23 @@ def test_a_run_resumed_with_validation_off_keeps_no_best_pt_of_its_validated_ste
     res = run_cli(main, ["eval", "--checkpoint", out, "--shards", sample_shards, "--split", "test", "--out",
                          tmp_path / "ev", "--device", "cpu"])
     assert "last.pt" in res.output and "step 8" in res.output, res.output
+
+
+# ----------------------------------------------------------------------------- D3: --compile-backend
+def test_every_option_the_resume_help_names_is_an_option_of_fit(sample_shards, tmp_path):
+    """``--resume``'s help said ``--compile-backend`` may change, and fit had no such option
+    ('No such option'); it is now one (a compiled run that misbehaves is resumed with
+    ``--compile-backend aot_eager``, as config.md advises)."""
+    from click.testing import CliRunner
+
+    help_text = CliRunner().invoke(main, ["fit", "--help"]).output
+    resume_help = " ".join(help_text[re.search(r"^\s+--resume ", help_text, re.MULTILINE).start():].split())
+    named = re.findall(r"--[a-z-]+", resume_help.split("may change")[0])
+    options = {o for line in help_text.splitlines() if line.lstrip().startswith("--")
+               for o in re.findall(r"--[a-z-]+", line.split("  ")[1] if line.startswith("  ") else line)}
+    assert "--compile-backend" in named and set(named) <= options, set(named) - options
+    out = tmp_path / "run"
+    run_cli(main, ["fit", "--shards", sample_shards, "--out", out, "--batch-size", 2, *TINY, "--steps", 1,
+                   "--val-every", 0, "--device", "cpu"])
+    run_cli(main, ["fit", "--out", out, "--resume", "--steps", 2, "--compile-backend", "aot_eager", "--no-progress"])
+    assert yaml.safe_load((out / "config.yaml").read_text())["compile_backend"] == "aot_eager"

@@ -228,8 +228,7 @@ class RunConfig(_Plain):
                            "with CUDA graphs; off on the CPU and under torchrun).", choices=("auto", "on", "off"))
     compile_backend: str = setting("inductor", "torch.compile backend: inductor (generates kernels); "
                                    "aot_eager traces and differentiates the step the same way but runs "
-                                   "it with eager kernels (tests, debugging).", cli=False,
-                                   choices=("inductor", "aot_eager"))
+                                   "it with eager kernels (tests, debugging).", choices=("inductor", "aot_eager"))
     checkpoint_every: int = setting(500, "Write a checkpoint every N steps (and at the end).")
     # validation and the choice of checkpoints/best.pt (sc3d_train.loop.validation)
     val_every: int = setting(100, "Evaluate on the --val-split objects every N steps and at the end, and "
