@@ -116,3 +116,20 @@ def test_every_option_the_resume_help_names_is_an_option_of_fit(sample_shards, t
                    "--val-every", 0, "--device", "cpu"])
     run_cli(main, ["fit", "--out", out, "--resume", "--steps", 2, "--compile-backend", "aot_eager", "--no-progress"])
     assert yaml.safe_load((out / "config.yaml").read_text())["compile_backend"] == "aot_eager"
+
+
+# ----------------------------------------------------------------------------- D4: a semi run's config, labelled-only
+def test_a_semi_runs_own_config_trains_the_labelled_only_comparison(sample_shards, tmp_path):
+    """The paper's comparison from one config: a semi run's ``config.yaml`` (its
+    ``pretrain_steps`` recorded as half its steps, ``semi_batch_size`` and ``semi_lr`` given)
+    with ``--labeled-only`` was refused ('pretrain_steps: 2 (read by semi runs): not read by a
+    labeled-only run'). The switch is the user's: the file's semi-only settings go back to their
+    defaults (config.yaml records none of them), its shared ``labeled_fraction`` stays."""
+    semi, labelled = tmp_path / "semi", tmp_path / "labelled"
+    run_cli(main, ["fit", "--shards", sample_shards, "--out", semi, "--batch-size", 4, *TINY, "--steps", 4,
+                   "--val-every", 0, "--semi", "--labeled-fraction", 0.5, "--semi-batch-size", 4,
+                   "--semi-lr", 5e-4])
+    run_cli(main, ["fit", "--config", semi / "config.yaml", "--labeled-only", "--out", labelled])
+    saved = yaml.safe_load((labelled / "config.yaml").read_text())
+    assert saved["mode"] == "labeled-only" and saved["labeled_fraction"] == 0.5
+    assert (saved["pretrain_steps"], saved["semi_batch_size"], saved["semi_lr"]) == (None, None, None)

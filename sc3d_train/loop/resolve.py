@@ -36,6 +36,9 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
         plain = RunConfig.load(config_file, given_paths(options)).to_dict()
         if defaulted_pretraining(load_yaml(config_file).get("pretrain_steps"), plain, options):
             plain["pretrain_steps"] = None  # loading set it from the file's steps: [steps // 2] of this run's instead
+        if options.get("mode", plain["mode"]) != plain["mode"]:  # --semi / --labeled-only switch the file's mode:
+            plain.update({k: getattr(RunConfig, k) for k, modes in MODE_ONLY_OPTIONS.items()  # its mode's own
+                          if plain["mode"] in modes and options["mode"] not in modes})  # settings go back to defaults
     plain.update(options)
     if plain.get("out") is None or plain.get("shards") is None:
         raise ValueError("a new run needs --shards and --out (or a --config file that names them)")
@@ -255,7 +258,8 @@ def check_mode_options(cfg: RunConfig, given: dict, config_file: Path | None = N
     run's ``config_file`` that differs from its default, is one that the run's mode does not read
     (``--labeled-fraction`` without ``--semi`` or ``--labeled-only``; ``pretrain_steps: 2`` in a
     file without ``mode: semi``): it would be recorded in ``config.yaml`` and silently ignored.
-    (A run's own ``config.yaml`` records these settings at their defaults outside their modes.)"""
+    (A run's own ``config.yaml`` records these settings at their defaults outside their modes; a
+    file's settings of its own ``mode:``, switched by ``--semi``/``--labeled-only``, were reset.)"""
     ignored = [k for k, modes in MODE_ONLY_OPTIONS.items() if k in given and cfg.mode not in modes]
     if ignored:
         names = ", ".join(f"--{k.replace('_', '-')} {_read_by(k)}" for k in ignored)
@@ -264,8 +268,8 @@ def check_mode_options(cfg: RunConfig, given: dict, config_file: Path | None = N
                          f"train in a mode that reads it ({', '.join('--' + m for m in modes)}) or leave it out")
     in_file = load_yaml(config_file) if config_file is not None else {}
     defaults = {f.name: f.default for f in dataclasses.fields(RunConfig)}
-    set_there = [k for k, modes in MODE_ONLY_OPTIONS.items()
-                 if k in in_file and cfg.mode not in modes and in_file[k] != defaults[k]]
+    set_there = [k for k, modes in MODE_ONLY_OPTIONS.items() if k in in_file and in_file[k] != defaults[k]
+                 and cfg.mode not in modes and in_file.get("mode", defaults["mode"]) not in modes]
     if set_there:
         names = ", ".join(f"{k}: {in_file[k]!r} {_read_by(k)}" for k in set_there)
         raise ValueError(f"{config_file}: {names}: not read by a {cfg.mode} run (config.yaml would record it, training "
