@@ -133,3 +133,13 @@ def test_a_semi_runs_own_config_trains_the_labelled_only_comparison(sample_shard
     saved = yaml.safe_load((labelled / "config.yaml").read_text())
     assert saved["mode"] == "labeled-only" and saved["labeled_fraction"] == 0.5
     assert (saved["pretrain_steps"], saved["semi_batch_size"], saved["semi_lr"]) == (None, None, None)
+
+
+def test_the_semi_shares_out_of_range_name_their_option(sample_shards, tmp_path):
+    """'labeled fraction must be in (0, 1]' named neither the option nor the config key."""
+    for option, message in (("--labeled-fraction", "labeled_fraction (--labeled-fraction) must be in (0, 1], got 1.5"),
+                            ("--semi-labeled-share", "semi_labeled_share (--semi-labeled-share) must be in [0, 1), "
+                                                     "got 1.5")):
+        res = run_cli(main, ["fit", "--shards", sample_shards, "--out", tmp_path / "run", *TINY, "--steps", 2,
+                             "--semi", option, 1.5], expect_exit=None)
+        assert res.exit_code != 0 and error_lines(res.output) == [f"Error: {message}"], res.output

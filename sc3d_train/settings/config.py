@@ -275,9 +275,9 @@ class RunConfig(_Plain):
             raise ValueError("semi_batch_size (--semi-batch-size) must be at least 2 (a labelled and an unlabelled "
                              f"image), got {self.semi_batch_size}")
         if not 0.0 < self.labeled_fraction <= 1.0:
-            raise ValueError(f"labeled fraction must be in (0, 1], got {self.labeled_fraction}")
+            raise ValueError(f"labeled_fraction (--labeled-fraction) must be in (0, 1], got {self.labeled_fraction}")
         if not 0.0 <= self.semi_labeled_share < 1.0:
-            raise ValueError(f"semi labelled share must be in [0, 1), got {self.semi_labeled_share}")
+            raise ValueError(f"semi_labeled_share (--semi-labeled-share) must be in [0, 1), got {self.semi_labeled_share}")
         if self.val_every and self.val_split in (self.split, "test"):
             raise ValueError(f"val split {self.val_split!r} must hold objects never trained on and not "
                              f"the test objects (training split {self.split!r}; --val-every 0 turns validation off)")
