@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import click
 
+from sc3d_cli.folder_path import FolderPath
 from sc3d_cli.scale_options import axis_value, executor_options, part_from_slurm_note, part_option, run_scaled, timeout_option
 from sc3d_data.formats.r2n2 import R2N2_FRONT, VOXEL_FRAMES
 from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
@@ -13,7 +14,7 @@ from sc3d_data.formats.splits import SPLIT_FILE_HELP, SPLIT_HELP
               help="ShapeNetRendering/ (SYNSET/MODEL_ID/rendering/{00..23}.png + rendering_metadata.txt).")
 @click.option("--voxels", required=True, type=click.Path(exists=True, file_okay=False),
               help="ShapeNetVox32/ (SYNSET/MODEL_ID/model.binvox).")
-@click.option("--out", required=True, type=click.Path(file_okay=False), help="Output shard directory.")
+@click.option("--out", required=True, type=FolderPath(), help="Output shard directory.")
 @click.option("--image-size", default=64, show_default=True, type=click.IntRange(8, 1024),
               help="Images and masks are area-resized from 137x137 to this size.")
 @click.option("--background", default="255,255,255", show_default=True,

@@ -5,9 +5,11 @@ from pathlib import Path
 
 import click
 
+from sc3d_cli.folder_path import FolderPath
+
 
 @click.command("merge")
-@click.argument("out", type=click.Path(file_okay=False, path_type=Path))
+@click.argument("out", type=FolderPath())
 @click.argument("parts", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--copy", is_flag=True, help="Copy the shard files instead of hard-linking them.")
 @click.option("--overwrite", is_flag=True, help="Replace a dataset in OUT that is not a merge, and files named like "

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from sc3d_cli.folder_path import FolderPath
 from sc3d_data.geometry.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS
 from sc3d_data.io.meshes import DEFAULT_MAX_FACES, DEFAULT_MAX_FILE_BYTES
 from sc3d_cli.scale_options import axis_value, executor_options, part_from_slurm_note, part_option, run_render
@@ -21,6 +22,12 @@ def _gpus(text: str | None) -> tuple[int, ...]:
         return parse_gpus(text)
     except ValueError as e:
         raise click.BadParameter(str(e)) from None
+
+
+def _not_blank(text: str | None, param) -> str | None:
+    if text is not None and not text.strip():
+        raise click.BadParameter("is empty: give a category name (an unset variable?)", param=param)
+    return text
 
 
 def _floats(text: str) -> tuple[float, ...]:
@@ -40,7 +47,7 @@ def _rgb(text: str) -> tuple[int, int, int]:
 @click.command()
 @click.option("--meshes", type=click.Path(exists=True, path_type=Path), default=SAMPLE_MESHES,
               show_default="bundled assets/sample_meshes", help="Folder of meshes (ShapeNetCore layout, CATEGORY/NAME.ext, ...) or one mesh file.")
-@click.option("--out", type=click.Path(path_type=Path), required=True, help="Output folder for shards and index.json.")
+@click.option("--out", type=FolderPath(file_okay=True), required=True, help="Output folder for shards and index.json.")
 @click.option("--views", "num_views", type=click.IntRange(1), default=DEFAULT_NUM_VIEWS, show_default=True, help="Azimuths per elevation (evenly spaced from 0).")
 @click.option("--elevations", default="30", show_default=True, help="Comma-separated elevations in degrees.")
 @click.option("--image-size", type=click.IntRange(8), default=DEFAULT_IMAGE_SIZE, show_default=True)
@@ -57,7 +64,8 @@ def _rgb(text: str) -> tuple[int, int, int]:
 @click.option("--voxelize/--no-voxelize", default=False, show_default=True, help="Also store solid voxel grids.")
 @click.option("--voxel-resolution", type=click.IntRange(2, 512), default=32, show_default=True)
 @click.option("--categories", default=None, help="Only these categories (names or synset ids, comma-separated).")
-@click.option("--category", default=None, help="Give every mesh this category instead of the folder's.")
+@click.option("--category", default=None, callback=lambda ctx, param, v: _not_blank(v, param),
+              help="Give every mesh this category instead of the folder's.")
 @click.option("--split", default="random:0.7,0.1,0.2", show_default=True, help=SPLIT_HELP)
 @click.option("--split-file", multiple=True, help=SPLIT_FILE_HELP + " Repeatable.")
 @click.option("--seed", type=int, default=0, show_default=True)

@@ -6,6 +6,7 @@ import sys
 
 import click
 
+from sc3d_cli.folder_path import FolderPath
 from sc3d_cli.scale_options import axis_value, executor_options, part_from_slurm_note, part_option, run_scaled, timeout_option
 
 
@@ -23,7 +24,7 @@ def meshes_only_options_given(ctx: click.Context) -> list[str]:
 @click.argument("shards", required=False, type=click.Path(exists=True, file_okay=False))
 @click.option("--meshes", type=click.Path(exists=True),
               help="Instead of shards: a folder of meshes; writes one .binvox per mesh to --out.")
-@click.option("--out", type=click.Path(file_okay=False), help="Output folder of --meshes (same structure).")
+@click.option("--out", type=FolderPath(), help="Output folder of --meshes (same structure).")
 @click.option("--resolution", default=32, show_default=True, type=click.IntRange(2, 512),
               help="Voxels per side over [-0.5, 0.5]^3 (32, 64, 128 ...).")
 @click.option("--normalize", type=click.Choice(["fit", "diagonal"]), default="fit", show_default=True,

@@ -1,5 +1,5 @@
-"""The type of the folder options of ``sc3d-train`` (``--shards``, ``--out``, ...): a folder path
-that refuses an empty value. ``--out ''`` (an unset ``$RUN``) would otherwise be the current
+"""The type of the folder options of ``sc3d-train`` and ``sc3d-data`` (``--shards``, ``--out``,
+...): a folder path that refuses an empty value. ``--out ''`` (an unset ``$RUN``) would otherwise be the current
 folder, and a run, an evaluation or predictions would land among the user's files."""
 from __future__ import annotations
 
@@ -9,10 +9,11 @@ import click
 
 
 class FolderPath(click.Path):
-    """``click.Path(file_okay=False, path_type=Path)`` that fails on an empty (or blank) value."""
+    """``click.Path(file_okay=False, path_type=Path)`` that fails on an empty (or blank) value
+    (``file_okay=True``: the command names a file given for the folder with its own message)."""
 
-    def __init__(self):
-        super().__init__(file_okay=False, path_type=Path)
+    def __init__(self, file_okay: bool = False):
+        super().__init__(file_okay=file_okay, path_type=Path)
 
     def convert(self, value, param, ctx):
         if isinstance(value, str) and value.strip() == "":

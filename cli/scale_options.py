@@ -93,11 +93,32 @@ def timeout_option(f):
                                                 "failed).")(f)
 
 
+#: the options of one executor (``--executor``), refused on the command line with another
+EXECUTOR_ONLY = {"address": "ray", "retries": "ray", "slurm_cpus_per_task": "slurm", "slurm_partition": "slurm",
+                 "slurm_time": "slurm", "slurm_cluster": "slurm", "slurm": "slurm"}
+
+
+def check_executor_options(executor: str) -> None:
+    """``click.UsageError`` naming the options given on the command line that ``executor`` does
+    not read (``--slurm-parts 16`` without ``--executor slurm`` rendered everything here, silently)."""
+    from click.core import ParameterSource
+
+    ctx = click.get_current_context()
+    given = [p for p in ctx.command.params if EXECUTOR_ONLY.get(p.name, executor) != executor
+             and ctx.get_parameter_source(p.name) == ParameterSource.COMMANDLINE]
+    if given:
+        names = ", ".join(p.opts[0] for p in given)
+        raise click.UsageError(f"{names}: not read by --executor {executor} (only by --executor "
+                               f"{' / '.join(sorted({EXECUTOR_ONLY[p.name] for p in given}))}); give that "
+                               f"executor or leave them out")
+
+
 def run_scaled(config, slurm, run_local, run_slurm):
     """``run_slurm(config, slurm)`` with ``--executor slurm``, else ``run_local(config)``
-    (local pool or Ray); errors become one line."""
+    (local pool or Ray); errors become one line. Options of another executor are refused first."""
     from sc3d_data.io.shards import one_line
 
+    check_executor_options(config.executor)
     try:
         return run_slurm(config, slurm) if config.executor == "slurm" else run_local(config)
     except (ValueError, RuntimeError, OSError, ImportError) as e:  # option, folder, lock, disk, missing extra

@@ -232,6 +232,8 @@ class WorkerPool:
                         task = w.tasks[0] if w.tasks else None
                         w.proc.join(5)
                         code = w.proc.exitcode
+                        if code == 0 and task is not None:  # it stopped on Ctrl-C (_worker_main), whose
+                            raise KeyboardInterrupt  # KeyboardInterrupt here was lost (a weakref callback's)
                         todo.extend(self._replace(w)[::-1])
                         if task is not None:
                             from sc3d_data.render.probe import exit_status
@@ -277,16 +279,16 @@ def start_pool(n: int, config, job: Job) -> WorkerPool:
     (the workers themselves are the probe: the main process never creates a GL context), EGL
     alone when ``config.gpus`` names devices. Raises ``BackendError`` naming the Debian packages
     when no backend works."""
-    errors = []
+    errors, gpus = [], bool(job.gl and getattr(config, "gpus", ()))
     backends = job.backends(getattr(config, "backend", "auto"))
-    if job.gl and getattr(config, "gpus", ()):
-        # --gpus names EGL devices: one that fails is an error, not a fall back to OSMesa's CPU
-        backends = [b for b in backends if b == "egl"]
+    if gpus:  # EGL devices: one that fails is an error, not a fall back to OSMesa's CPU
+        if not (backends := [b for b in backends if b == "egl"]):
+            raise BackendError("--gpus names EGL devices and --backend osmesa renders on the CPU: give one of them")
     for backend in backends:
         pool = WorkerPool(n, config, backend, job)
         # work starts with the first worker up; --gpus waits for all, so a device that fails is
         # named before any object is rendered
-        err = pool.wait_ready(every=bool(job.gl and getattr(config, "gpus", ())))
+        err = pool.wait_ready(every=gpus)
         if err is None:
             pool.backend = backend
             return pool

@@ -1,0 +1,81 @@
+"""Defects of the data half found by the fourteenth attack on the commands (2026-11-28), each test
+failing without its fix."""
+from __future__ import annotations
+
+import os
+import signal
+
+import pytest
+
+from sc3d_data.pipeline.executors.job import ExecOptions, Job
+from sc3d_data.pipeline.executors.local_pool import start_pool
+from sc3d_data.pipeline.run.plan import Task
+from sc3d_cli.data import main as data_main
+from conftest import SAMPLE_MESHES, error_lines, run_cli
+
+
+def interrupted_at_task_2(config, backend: str, task) -> tuple:
+    """The worker's Ctrl-C arrives while it works on task 2 (the terminal sends SIGINT to the whole
+    process group; here to the worker alone, as when the main process's KeyboardInterrupt is lost
+    in a weakref callback, which the attack saw: 'Exception ignored in: ... KeyboardInterrupt')."""
+    if task.pos == 2:
+        os.kill(os.getpid(), signal.SIGINT)
+    return task.pos, "ok", None
+
+
+# ----------------------------------------------------------------------------- Ctrl-C lost
+def test_a_worker_stopped_by_ctrl_c_stops_the_run_instead_of_failing_its_object():
+    """``voxelize`` went on after Ctrl-C: its worker stopped (exit code 0), the object was recorded
+    as a failure of its mesh ('worker exited with code 0 while working on it'), the run exited 0.
+    A worker that exits 0 in a task stopped on Ctrl-C: the pool raises KeyboardInterrupt."""
+    tasks = [Task(pos=i, path=f"object{i}", category="c", model_id=str(i), split="train") for i in range(5)]
+    pool = start_pool(1, ExecOptions(workers=1, timeout_s=120.0), Job("ctrl-c test", interrupted_at_task_2))
+    results = []
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            for r in pool.run(tasks):
+                results.append(r)
+    finally:
+        pool.close()
+    assert [(pos, status) for pos, status, _ in results] == [(0, "ok"), (1, "ok")]
+
+
+# ----------------------------------------------------------------------------- options
+CHAIR = SAMPLE_MESHES / "chair"
+
+
+@pytest.mark.parametrize("args,message", [
+    (["render", "--meshes", CHAIR, "--out", ""], "Invalid value for '--out': is empty: give a folder"),
+    (["import-r2n2", "--renderings", ".", "--voxels", ".", "--out", " "], "Invalid value for '--out': is empty"),
+    (["voxelize", "--meshes", CHAIR, "--out", ""], "Invalid value for '--out': is empty"),
+    (["merge", "", "."], "Invalid value for 'OUT': is empty"),
+    (["render", "--meshes", CHAIR, "--out", "o", "--category", ""], "Invalid value for '--category': is empty"),
+], ids=["render-out", "import-out", "voxelize-out", "merge-out", "category"])
+def test_an_empty_out_or_category_is_refused(tmp_path, monkeypatch, args, message):
+    """``--out "$OUT"`` with OUT unset wrote a dataset into the current folder (render,
+    import-r2n2), exit 0; ``--category ""`` was ignored (the folder's category kept)."""
+    monkeypatch.chdir(tmp_path)
+    res = run_cli(data_main, args, expect_exit=2)
+    assert message in res.output and list(tmp_path.iterdir()) == [], res.output
+
+
+def test_gpus_with_the_cpu_backend_is_refused_in_one_line(tmp_path):
+    """``--backend osmesa --gpus 0``: --gpus kept EGL alone, no backend was left, and the error was
+    'no headless OpenGL backend works:' with no reason and apt-get advice."""
+    res = run_cli(data_main, ["render", "--meshes", CHAIR, "--out", tmp_path / "o", "--backend", "osmesa",
+                              "--gpus", "0", "--workers", 1, "--no-progress"], expect_exit=1)
+    assert error_lines(res.output) == ["Error: --gpus names EGL devices and --backend osmesa renders on the CPU: "
+                                       "give one of them"], res.output
+
+
+@pytest.mark.parametrize("args,names,executor", [
+    (["--slurm-parts", 16, "--slurm-partition", "gpu"], "--slurm-partition, --slurm-parts", "slurm"),
+    (["--address", "10.0.0.1:6379", "--retries", 9], "--address, --retries", "ray"),
+], ids=["slurm", "ray"])
+def test_options_of_another_executor_are_refused(tmp_path, args, names, executor):
+    """``render --slurm-parts 16`` without ``--executor slurm`` rendered the whole dataset here and
+    exited 0, the options ignored without a word."""
+    res = run_cli(data_main, ["render", "--meshes", CHAIR, "--out", tmp_path / "o", *args, "--workers", 1,
+                              "--no-progress"], expect_exit=2)
+    assert f"Error: {names}: not read by --executor local (only by --executor {executor})" in res.output
+    assert not (tmp_path / "o").exists()
