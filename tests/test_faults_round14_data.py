@@ -79,3 +79,38 @@ def test_options_of_another_executor_are_refused(tmp_path, args, names, executor
                               "--no-progress"], expect_exit=2)
     assert f"Error: {names}: not read by --executor local (only by --executor {executor})" in res.output
     assert not (tmp_path / "o").exists()
+
+
+# ----------------------------------------------------------------------------- settings by meaning
+@pytest.mark.parametrize("old,new,differ", [
+    ({"categories": "chair,car"}, {"categories": "car,chair"}, []),
+    ({"categories": "chair,car"}, {"categories": "03001627,02958343"}, []),   # ShapeNet's synset ids
+    ({"categories": "chair,car"}, {"categories": "chair"}, ["categories"]),
+    ({"split": "random:0.7,0.3"}, {"split": "random:0.7,0,0.3"}, []),        # an empty val split
+    ({"split": "random:0.7,0.3"}, {"split": "random:0.70,0.30"}, []),
+    ({"split": "random:0.7,0.3"}, {"split": "random:0.6,0.4"}, ["split"]),
+    ({"split": "random:0.7,0.3"}, {"split": "random:0.7,0.2,0.1"}, ["split"]),
+    ({"split": "R2N2"}, {"split": "r2n2"}, []),
+    ({"split_file": "sp.txt"}, {"split_file": ["./sp.txt"]}, []),
+    ({"split_file": "sp.txt"}, {"split_file": "other/sp.txt"}, ["split_file"]),
+    ({"up": "+z"}, {"up": "+Z"}, []),
+])
+def test_settings_compare_by_meaning(old, new, differ, tmp_path, monkeypatch):
+    """A rerun of the same selection and split typed otherwise was refused as 'other settings',
+    leaving --overwrite (the finished shards lost) or guessing the first spelling; the controls
+    (other categories, other fractions, another file) still differ."""
+    from sc3d_data.pipeline.run.resume import settings_differ
+
+    monkeypatch.chdir(tmp_path)
+    assert settings_differ(old, new) == differ
+
+
+def test_a_rerun_with_the_categories_in_another_order_resumes(tmp_path):
+    meshes = tmp_path / "m"
+    for cat, name in (("chair", "chair2_blendswap"), ("car", "jeep_psionic")):
+        (meshes / cat).mkdir(parents=True)
+        (meshes / cat / f"{name}.glb").write_bytes((SAMPLE_MESHES / cat / f"{name}.glb").read_bytes())
+    common = ["render", "--meshes", meshes, "--out", tmp_path / "o", "--views", 2, "--workers", 1, "--no-progress"]
+    run_cli(data_main, [*common, "--categories", "chair,car", "--split", "random:0.7,0.3"])
+    res = run_cli(data_main, [*common, "--categories", "02958343,chair", "--split", "random:0.7,0,0.3"])
+    assert "done 0, resumed 2" in res.output

@@ -28,9 +28,6 @@ from sc3d_data.pipeline.run.plan import Task
 OWN_TMP = re.compile(r"^(?:[A-Za-z0-9][A-Za-z0-9_.-]*\.h5|index\.json)(?:\.[0-9]+)?\.tmp$")
 
 
-#: settings that name an axis (``--up``, ``--front``), any spelling that ``axis_vector`` reads
-AXIS_SETTINGS = ("up", "front")
-
 
 def clean_tmp(out: Path) -> None:
     """Delete the temporary files (:data:`OWN_TMP`) a killed run left in ``out``."""
@@ -113,14 +110,14 @@ def check_out(out: Path) -> None:
 def settings_differ(old: dict, new: dict, defaults: dict | None = None) -> list[str]:
     """Settings that differ between an existing index and this run, or between two parts
     (keys an older index lacks count as their value in ``defaults``; the GL backend is not
-    compared: EGL and OSMesa give the same images; axes compare by meaning: ``+z`` is ``+Z``)."""
-    from sc3d_data.geometry.normalize import axis_name
+    compared: EGL and OSMesa give the same images; values compare by meaning: ``+z`` is ``+Z``,
+    ``chair,car`` is ``car,chair``, ``setting_meaning.py``)."""
+    from sc3d_data.pipeline.run.setting_meaning import setting_meaning
 
     defaults = defaults or {}
 
     def value(settings, k):
-        v = settings.get(k, defaults.get(k))
-        return axis_name(v) if k in AXIS_SETTINGS and isinstance(v, str) else v
+        return setting_meaning(k, settings.get(k, defaults.get(k)))
 
     skip = ("backend", "requested_backend")
     keys = (set(old) | set(new)) - set(skip)
