@@ -114,3 +114,29 @@ def test_a_rerun_with_the_categories_in_another_order_resumes(tmp_path):
     run_cli(data_main, [*common, "--categories", "chair,car", "--split", "random:0.7,0.3"])
     res = run_cli(data_main, [*common, "--categories", "02958343,chair", "--split", "random:0.7,0,0.3"])
     assert "done 0, resumed 2" in res.output
+
+
+# ----------------------------------------------------------------------------- voxelize --meshes
+def test_voxelize_meshes_removes_the_old_grid_of_an_edited_mesh_that_now_fails(tmp_path):
+    """An edited mesh that now fails (a broken re-export) kept the ``.binvox`` of its earlier
+    geometry, unmarked, and the summary said '1 of them again'. Now the old grid is removed, its
+    failure names it, and the summary counts no redone file; the untouched mesh keeps its grid."""
+    import json
+
+    import trimesh
+
+    (tmp_path / "m" / "x").mkdir(parents=True)
+    mesh, other = tmp_path / "m" / "x" / "a.obj", tmp_path / "m" / "x" / "b.obj"
+    trimesh.creation.box([1, 0.2, 0.2]).export(mesh)
+    trimesh.creation.icosphere().export(other)
+    args = ["voxelize", "--meshes", tmp_path / "m", "--out", tmp_path / "vo", "--no-progress", "--workers", "1"]
+    run_cli(data_main, args)
+    binvox = tmp_path / "vo" / "x" / "a.binvox"
+    mesh.write_text("v 0 0 0\nf 1 2 3\n")  # a face naming vertices the file does not have
+    now = binvox.stat().st_mtime_ns
+    os.utime(binvox, ns=(now - 10 * 10**9,) * 2)  # grid older than the edit (clear of time resolution)
+    res = run_cli(data_main, args)
+    assert "1 failed" in res.output and "again" not in res.output, res.output
+    assert not binvox.exists() and (tmp_path / "vo" / "x" / "b.binvox").is_file()
+    failures = json.loads((tmp_path / "vo" / "failures.json").read_text())
+    assert [f["source"] for f in failures] == [str(mesh)] and failures[0]["removed"].startswith(str(binvox))

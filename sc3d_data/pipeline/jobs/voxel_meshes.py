@@ -149,14 +149,14 @@ def _voxelize_entries(config: VoxelMeshesConfig, out: Path, part: Part, entries:
     if not part.whole:
         entries = [e for e in entries if part_of(e.category, e.model_id, part.count) == part.index]
         problems = problems if part.index == 0 else []
-    todo = []
+    todo, stale = [], {}  # stale: pos -> the .binvox of the mesh's earlier version
     for e in entries:  # a file of another resolution, cut short or unreadable is done again
         target = binvox_target(config, str(e.path))
         if not config.overwrite and target.is_file() and binvox_intact(target, config.resolution):
             if not mesh_is_newer(e.path, target):
                 summary.shards_skipped += 1
                 continue
-            summary.stale += 1
+            stale[len(todo)] = target
         todo.append(Task(len(todo), str(e.path), e.category, e.model_id, ""))
     failures = [dict(p) for p in problems]
     summary.failed = sum(1 for p in problems if not p.get("skipped"))  # counted as render counts them
@@ -173,9 +173,13 @@ def _voxelize_entries(config: VoxelMeshesConfig, out: Path, part: Part, entries:
             for pos, status, payload in pool.run(todo):
                 if status == "ok":
                     summary.objects += 1
+                    summary.stale += pos in stale
                 else:
                     failures.append({"source": todo[pos].path, "reason": payload})
                     summary.failed += 1
+                    if pos in stale:  # the grid of a mesh that is no more would pass for this one's
+                        stale[pos].unlink(missing_ok=True)
+                        failures[-1]["removed"] = f"{stale[pos]} (of the mesh before it changed)"
                 if bar is not None:
                     bar.update(1)
         finally:
