@@ -140,3 +140,20 @@ def test_voxelize_meshes_removes_the_old_grid_of_an_edited_mesh_that_now_fails(t
     assert not binvox.exists() and (tmp_path / "vo" / "x" / "b.binvox").is_file()
     failures = json.loads((tmp_path / "vo" / "failures.json").read_text())
     assert [f["source"] for f in failures] == [str(mesh)] and failures[0]["removed"].startswith(str(binvox))
+
+
+def test_a_legal_255_byte_output_name_is_written(tmp_path):
+    """A mesh of a 248-character stem needs a 255-byte ``.binvox`` name (the most a name may have):
+    the write failed with 'File name too long' for its temporary ``NAME.binvox.tmp`` (259)."""
+    import trimesh
+
+    from sc3d_data.io.binvox import read_binvox
+
+    stem = "a" * 248
+    (tmp_path / "m" / "x").mkdir(parents=True)
+    trimesh.creation.box([1, 0.5, 0.5]).export(tmp_path / "m" / "x" / f"{stem}.obj")
+    res = run_cli(data_main, ["voxelize", "--meshes", tmp_path / "m", "--out", tmp_path / "vo", "--no-progress",
+                              "--workers", "1"])
+    assert "wrote 1 .binvox files" in res.output and "0 failed" in res.output, res.output
+    assert os.listdir(tmp_path / "vo" / "x") == [f"{stem}.binvox"]
+    assert read_binvox(tmp_path / "vo" / "x" / f"{stem}.binvox").voxels.any()

@@ -52,6 +52,7 @@ the index are changed together whenever the format changes.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -226,6 +227,8 @@ def atomic_write_bytes(path: Path, data: bytes, shared: bool = False) -> None:
     same time (``--part`` jobs), so the temporary file is this process's own (``NAME.PID.tmp``)."""
     path = Path(path)
     tmp = path.with_name(path.name + (f".{os.getpid()}.tmp" if shared else ".tmp"))
+    if len(os.fsencode(tmp.name)) > 255:  # a legal name whose suffix passes NAME_MAX: a short one
+        tmp = path.with_name(f".{hashlib.sha256(os.fsencode(path.name)).hexdigest()[:16]}" + tmp.name[len(path.name):])
     try:
         with create_new_file(tmp) as f:
             f.write(data)
