@@ -157,3 +157,27 @@ def test_a_legal_255_byte_output_name_is_written(tmp_path):
     assert "wrote 1 .binvox files" in res.output and "0 failed" in res.output, res.output
     assert os.listdir(tmp_path / "vo" / "x") == [f"{stem}.binvox"]
     assert read_binvox(tmp_path / "vo" / "x" / f"{stem}.binvox").voxels.any()
+
+
+def test_a_whole_voxelize_meshes_run_drops_the_parts_failure_lists(tmp_path):
+    """After ``--part 0/2`` and ``1/2`` runs with a broken mesh, the mesh removed and a whole run
+    done, ``failures.json`` was [] but ``failures.part-*.json`` still listed the failure."""
+    import json
+
+    import trimesh
+
+    (tmp_path / "m" / "x").mkdir(parents=True)
+    for i in range(4):
+        trimesh.creation.box([1, 0.5, 0.5]).export(tmp_path / "m" / "x" / f"good{i}.obj")
+    for i in range(4):
+        (tmp_path / "m" / "x" / f"bad{i}.obj").write_text("v 0 0 0\nf 1 2 3\n")
+    args = ["voxelize", "--meshes", tmp_path / "m", "--out", tmp_path / "vo", "--no-progress", "--workers", "1"]
+    for part in ("0/2", "1/2"):
+        run_cli(data_main, [*args, "--part", part])
+    listed = [json.loads(p.read_text()) for p in sorted((tmp_path / "vo").glob("failures.part-*.json"))]
+    assert sum(len(f) for f in listed) == 4  # each part lists its own bad meshes
+    for i in range(4):
+        (tmp_path / "m" / "x" / f"bad{i}.obj").unlink()
+    run_cli(data_main, args)
+    assert json.loads((tmp_path / "vo" / "failures.json").read_text()) == []
+    assert sorted(p.name for p in (tmp_path / "vo").glob("failures*.json")) == ["failures.json"]

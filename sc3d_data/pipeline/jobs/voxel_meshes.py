@@ -188,6 +188,9 @@ def _voxelize_entries(config: VoxelMeshesConfig, out: Path, part: Part, entries:
                 bar.close()
     failures.sort(key=lambda f: f["source"])
     write_json_atomic(out / failures_name(part), failures)
+    if part.whole:  # it covered every part's meshes: the parts' lists are out of date
+        for stale_list in out.glob("failures.part-*-of-*.json"):
+            stale_list.unlink(missing_ok=True)
     summary.seconds = time.monotonic() - t0
     return summary
 
