@@ -143,3 +143,15 @@ def test_the_semi_shares_out_of_range_name_their_option(sample_shards, tmp_path)
         res = run_cli(main, ["fit", "--shards", sample_shards, "--out", tmp_path / "run", *TINY, "--steps", 2,
                              "--semi", option, 1.5], expect_exit=None)
         assert res.exit_code != 0 and error_lines(res.output) == [f"Error: {message}"], res.output
+
+
+def test_a_config_key_given_twice_is_refused(sample_shards, tmp_path):
+    """``steps: 4`` and, below, ``steps: 6`` trained 6 steps without a word (yaml keeps the last)."""
+    config = tmp_path / "run.yaml"
+    config.write_text(f"shards: {sample_shards}\nsteps: 4\nbatch_size: 4\nsteps: 6\n")
+    res = run_cli(main, ["fit", "--config", config, "--out", tmp_path / "run", *TINY], expect_exit=1)
+    assert error_lines(res.output) == [f"Error: {config}: not valid YAML at line 4 (key 'steps' given twice)"]
+    model = tmp_path / "model.yaml"  # nested mappings too; a key in two mappings is no repeat
+    model.write_text(f"shards: {sample_shards}\nsteps: 1\nmodel:\n  shape_dim: 8\n  shape_dim: 16\n")
+    res = run_cli(main, ["fit", "--config", model, "--out", tmp_path / "run", *TINY], expect_exit=1)
+    assert "at line 5 (key 'shape_dim' given twice)" in res.output

@@ -144,6 +144,27 @@ def dump_yaml(data: dict, header: str = "") -> str:
     return "".join(f"# {line}\n" for line in header.splitlines()) + text
 
 
+def _unique_keys_loader():
+    """yaml's ``SafeLoader`` refusing a key given twice in one mapping (``steps: 700`` and, lines
+    below, ``steps: 7000``: safe_load kept the last without a word)."""
+    import yaml
+
+    class UniqueKeysLoader(yaml.SafeLoader):
+        def construct_mapping(self, node, deep=False):
+            seen = set()
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=deep)
+                if not isinstance(key, (str, int, float, bool)):
+                    continue  # an unhashable key: the base constructor names it
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(None, None, f"key {key!r} given twice",
+                                                            key_node.start_mark)
+                seen.add(key)
+            return super().construct_mapping(node, deep)
+
+    return UniqueKeysLoader
+
+
 def load_yaml(path: Path) -> dict:
     """The mapping in YAML (or JSON) file ``path``; ``ConfigError`` naming the file when it is
     missing, unreadable, not text (a checkpoint given as ``--config``), not YAML or not a mapping."""
@@ -158,7 +179,7 @@ def load_yaml(path: Path) -> dict:
         raise ConfigError(f"{path}: not a YAML config file (not UTF-8 text: byte {e.object[e.start]:#04x} at "
                           f"offset {e.start}; a checkpoint is resumed with --resume, not --config)") from e
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_unique_keys_loader())
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark is not None else ""
