@@ -7,7 +7,7 @@ import sys
 import click
 
 from sc3d_cli.folder_path import FolderPath
-from sc3d_cli.scale_options import axis_value, executor_options, part_from_slurm_note, part_option, run_scaled, timeout_option
+from sc3d_cli.scale_options import axis_value, check_executor_options, executor_options, part_from_slurm_note, part_option, run_scaled, timeout_option
 
 
 #: options that only ``--meshes`` reads (shards carry their frame and are written in place)
@@ -65,6 +65,8 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
                                "were rendered in (each object's stored to_canonical), into their own files")
     if shards is not None and scale["executor"] != "local":
         raise click.UsageError("--executor is for --meshes; shards are voxelized by a local pool (--workers)")
+    if shards is not None:
+        check_executor_options("local", "shards are voxelized by a local pool (--workers): leave them out")
     try:
         if shards is not None:
             s = voxelize_shards(shards, resolution, workers or os.cpu_count() or 1, overwrite, progress,

@@ -98,7 +98,7 @@ EXECUTOR_ONLY = {"address": "ray", "retries": "ray", "slurm_cpus_per_task": "slu
                  "slurm_time": "slurm", "slurm_cluster": "slurm", "slurm": "slurm"}
 
 
-def check_executor_options(executor: str) -> None:
+def check_executor_options(executor: str, advice: str = "give that executor or leave them out") -> None:
     """``click.UsageError`` naming the options given on the command line that ``executor`` does
     not read (``--slurm-parts 16`` without ``--executor slurm`` rendered everything here, silently)."""
     from click.core import ParameterSource
@@ -109,8 +109,7 @@ def check_executor_options(executor: str) -> None:
     if given:
         names = ", ".join(p.opts[0] for p in given)
         raise click.UsageError(f"{names}: not read by --executor {executor} (only by --executor "
-                               f"{' / '.join(sorted({EXECUTOR_ONLY[p.name] for p in given}))}); give that "
-                               f"executor or leave them out")
+                               f"{' / '.join(sorted({EXECUTOR_ONLY[p.name] for p in given}))}); {advice}")
 
 
 def run_scaled(config, slurm, run_local, run_slurm):

@@ -93,6 +93,7 @@ def test_options_of_another_executor_are_refused(tmp_path, args, names, executor
     ({"split": "R2N2"}, {"split": "r2n2"}, []),
     ({"split_file": "sp.txt"}, {"split_file": ["./sp.txt"]}, []),
     ({"split_file": "sp.txt"}, {"split_file": "other/sp.txt"}, ["split_file"]),
+    ({"split_file": ["a.txt", "b.txt"]}, {"split_file": ["b.txt", "a.txt"]}, ["split_file"]),  # first file wins
     ({"up": "+z"}, {"up": "+Z"}, []),
 ])
 def test_settings_compare_by_meaning(old, new, differ, tmp_path, monkeypatch):
@@ -181,3 +182,23 @@ def test_a_whole_voxelize_meshes_run_drops_the_parts_failure_lists(tmp_path):
     run_cli(data_main, args)
     assert json.loads((tmp_path / "vo" / "failures.json").read_text()) == []
     assert sorted(p.name for p in (tmp_path / "vo").glob("failures*.json")) == ["failures.json"]
+
+
+def test_voxelize_shards_refuses_options_of_another_executor(tmp_path):
+    """The review: ``voxelize SHARDS --slurm-parts 4`` (or ``--address``) was still ignored."""
+    res = run_cli(data_main, ["voxelize", tmp_path, "--slurm-parts", 4, "--no-progress"], expect_exit=2)
+    assert ("Error: --slurm-parts: not read by --executor local (only by --executor slurm); shards are voxelized "
+            "by a local pool (--workers): leave them out") in res.output
+
+
+@pytest.mark.parametrize("executor", ["ray", "slurm"])
+def test_gpus_with_the_cpu_backend_is_refused_before_any_executor_starts(tmp_path, executor):
+    """The review: the refusal lived in the local pool, so a slurm array submitted its tasks
+    (each failing) and Ray never checked; now the render's settings check refuses it."""
+    res = run_cli(data_main, ["render", "--meshes", CHAIR, "--out", tmp_path / "o", "--backend", "osmesa",
+                              "--gpus", "0", "--executor", executor, "--slurm-cluster", "local", "--no-progress"]
+                  if executor == "slurm" else
+                  ["render", "--meshes", CHAIR, "--out", tmp_path / "o", "--backend", "osmesa", "--gpus", "0",
+                   "--executor", executor, "--no-progress"], expect_exit=1)
+    assert error_lines(res.output) == ["Error: --gpus names EGL devices and --backend osmesa renders on the CPU: "
+                                       "give one of them"], res.output

@@ -155,3 +155,42 @@ def test_a_config_key_given_twice_is_refused(sample_shards, tmp_path):
     model.write_text(f"shards: {sample_shards}\nsteps: 1\nmodel:\n  shape_dim: 8\n  shape_dim: 16\n")
     res = run_cli(main, ["fit", "--config", model, "--out", tmp_path / "run", *TINY], expect_exit=1)
     assert "at line 5 (key 'shape_dim' given twice)" in res.output
+    merged = tmp_path / "merged.yaml"  # a YAML merge key repeats nothing (the review's control)
+    merged.write_text(f"shards: {sample_shards}\nsteps: 1\nbatch_size: 2\nmodel: &m\n  shape_dim: 8\n"
+                      f"loss_weights:\n  <<: {{}}\n  ray: 1.0\n")
+    run_cli(main, ["fit", "--config", merged, "--out", tmp_path / "merged", *TINY, "--val-every", 0])
+
+
+def test_a_ctrl_c_in_the_first_checkpoint_write_leaves_a_run_that_starts_again(sample_shards, tmp_path,
+                                                                               monkeypatch):
+    """Found by the review of the fix above: a step that both validates and saves wrote
+    ``best.pt`` first, so a Ctrl-C in the first checkpoint's write (validation every 2 steps,
+    checkpoints every 2: the defaults 100 and 500 line up the same way) left ``best.pt`` of
+    the first checkpoint's step and no ``last.pt``: the same dead end. The step now saves, then
+    validates: the interrupted run leaves no checkpoint at all and starts again."""
+    from sc3d_train.loop import trainer
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    out = tmp_path / "run"
+    args = ["fit", "--shards", sample_shards, "--out", out, "--batch-size", 2, *TINY, "--checkpoint-every", 2,
+            "--val-every", 2, "--val-min-objects", 1, "--steps", 4]
+    with monkeypatch.context() as m:
+        m.setattr(trainer, "save", interrupted)
+        res = run_cli(main, args, expect_exit=None)
+    assert res.exit_code != 0 and "nothing to resume (start the run again)" in res.output, res.output
+    run_cli(main, args)
+    assert load_checkpoint(out / "checkpoints" / "last.pt")["step"] == 4
+
+
+def test_the_final_curves_picture_is_drawn_after_the_last_validation(sample_shards, tmp_path):
+    """The fifteenth attack: with the step saving before it validates, ``curves.png`` (drawn
+    with the checkpoint) missed the run's last validation and could mark an earlier ``best.pt``
+    step than the one kept. The picture is now drawn after the step's validation."""
+    out = tmp_path / "run"
+    run_cli(main, ["fit", "--shards", sample_shards, "--out", out, "--batch-size", 2, *TINY, "--steps", 4,
+                   "--checkpoint-every", 2, "--val-every", 2, "--val-min-objects", 1])
+    rows = (out / "validation.csv").read_text().splitlines()
+    assert [r.split(",")[0] for r in rows[1:]] == ["2", "4"]
+    assert (out / "curves.png").stat().st_mtime_ns >= (out / "validation.csv").stat().st_mtime_ns

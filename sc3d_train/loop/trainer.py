@@ -162,9 +162,8 @@ def wrap_ddp(t: Training) -> None:
             find_unused_parameters=t.cfg.mode == "semi")
 
 
-def save(t: Training, step_done: int, log: MetricsLog) -> Path | None:
-    """Checkpoint after ``step_done`` steps (every rank's RNG state; rank 0 writes it and redraws
-    ``curves.png``: ``MetricsLog.draw_curves``) once every rank holds the same weights."""
+def save(t: Training, step_done: int) -> Path | None:
+    """Checkpoint after ``step_done`` steps (every rank's RNG; rank 0 writes it) once the ranks agree."""
     check_same_weights(t.model, t.dist, step_done)
     states = all_gather(rng_state(), t.dist)
     if not t.dist.is_main:
@@ -174,7 +173,6 @@ def save(t: Training, step_done: int, log: MetricsLog) -> Path | None:
         "scaler": t.scaler.state_dict() if t.scaler is not None else None, "rng": states,
         "step": step_done, "config": t.cfg.to_dict(),
         "data_position": data_position(t.cfg, step_done, t.local_batch)})
-    log.draw_curves(t.run_dir / "curves.png", final=step_done >= t.cfg.steps)
     return path
 
 
@@ -283,11 +281,13 @@ def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --
                                          samples_s=f"{rate:.1f}", data_wait=f"{100 * wait_share:.0f}%")
             if progress is not None:
                 progress.update(1)
+            if save_now:  # before validating: a best.pt of this step then has a checkpoint beside it
+                path = save(t, done)
+                last_good = str(path) if path else last_good
             if validate_now:
                 validator.run(t.model, done)
-            if save_now:
-                path = save(t, done, log)
-                last_good = str(path) if path else last_good
+            if save_now and t.dist.is_main:  # curves.png after the step's validation (its best.pt)
+                log.draw_curves(t.run_dir / "curves.png", final=done >= cfg.steps)
     except KeyboardInterrupt:
         if t.dist.is_main:
             print("\n" + interrupted_line(t.run_dir, resume_hint))

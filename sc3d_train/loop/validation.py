@@ -132,7 +132,9 @@ def best_of_an_early_stop(run_dir: Path) -> bool:
         return False
     try:
         best = load_checkpoint(best_path(run_dir))
-        first = min(int(best["config"]["checkpoint_every"]), int(best["config"]["steps"]))  # or its end
+        c = best["config"]  # the first checkpoint: every N steps, the end, a semi run's pretraining's end
+        first = min(int(c["checkpoint_every"]), int(c["steps"]),
+                    *([int(c.get("pretrain_steps") or int(c["steps"]) // 2)] if c.get("mode") == "semi" else []))
         log = run_dir / "metrics.csv"
         logged = [int(r["step"]) + 1 for r in complete_rows(log)] if log.is_file() else []  # 0-based
         return int(best["step"]) < first and max(logged, default=0) < first

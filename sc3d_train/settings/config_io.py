@@ -153,13 +153,15 @@ def _unique_keys_loader():
         def construct_mapping(self, node, deep=False):
             seen = set()
             for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":  # "<<: *anchor": keys merged, not repeated
+                    continue
                 key = self.construct_object(key_node, deep=deep)
                 if not isinstance(key, (str, int, float, bool)):
                     continue  # an unhashable key: the base constructor names it
-                if key in seen:
+                if (type(key), key) in seen:  # by type too: 1 and true are two keys
                     raise yaml.constructor.ConstructorError(None, None, f"key {key!r} given twice",
                                                             key_node.start_mark)
-                seen.add(key)
+                seen.add((type(key), key))
             return super().construct_mapping(node, deep)
 
     return UniqueKeysLoader

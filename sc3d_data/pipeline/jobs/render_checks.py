@@ -24,9 +24,15 @@ def object_pixels(fov_deg: float, distance: float, image_size: int) -> float:
     return (image_size / 2) / math.tan(math.radians(fov_deg) / 2) / distance
 
 
+#: the error of ``--gpus`` (EGL devices) with ``--backend osmesa`` (the CPU)
+GPUS_NEED_EGL = "--gpus names EGL devices and --backend osmesa renders on the CPU: give one of them"
+
+
 def check_render_config(config, n_workers: int = 1) -> None:
     """Raise ``ValueError`` naming the option when a value of ``config`` (a ``RenderConfig``) is
     out of what the renderer or this machine's memory can do (module doc)."""
+    if config.gpus and config.backend == "osmesa":  # for every executor, before any work is sent
+        raise ValueError(GPUS_NEED_EGL)
     if not config.elevations:  # `--elevations ''` or `,`: no view to render (and no atlas to size)
         raise ValueError("--elevations: give at least one elevation")
     views = config.num_views * len(config.elevations)

@@ -7,8 +7,9 @@ options were typed (``settings_differ`` in ``resume.py``).
   ``02958343,03001627``; ``shapenet.resolve_categories``);
 - ``split``: ``random:0.7,0.3`` is ``random:0.70,0,0.30`` (the fractions that are not 0, as
   numbers: an empty val split assigns no object), ``R2N2`` is ``r2n2``;
-- ``split_file``: the files' absolute paths (``./sp.txt`` is ``sp.txt``; their contents are held
-  to the run by the split description's SHA-256).
+- ``split_file``: the files' absolute paths, in their order (``./sp.txt`` is ``sp.txt``; the first
+  file's split wins where two list an id; their contents are held to the run by the split
+  description's SHA-256).
 
 A value that does not parse is compared as recorded (the run refuses it with its own message).
 """
@@ -37,7 +38,8 @@ def setting_meaning(key: str, value):
                 return ["random", sorted((name, f) for name, f in parse_random_spec(spec).items() if f)]
             return spec
         if key == "split_file" and value:
-            return sorted(str(Path(f).resolve()) for f in ([value] if isinstance(value, str) else value))
+            # in their order: the first file's split wins where two list an id
+            return [str(Path(f).resolve()) for f in ([value] if isinstance(value, str) else value)]
     except (ValueError, TypeError, OSError):
         pass
     return value
