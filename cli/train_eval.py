@@ -64,4 +64,5 @@ def eval_cmd(ctx, checkpoint, shards, out, pose_from, device, split, pick, batch
                    "these figures are optimistic; evaluate " + ("on objects it was not chosen on, or " if split == "test"
                                                                else "on --split test or ") + "with --pick last")
     out = Path(result["out"])
-    click.echo(f"wrote {out / 'metrics.json'} and {out / 'predictions.png'}")
+    pictures = f" and {out / 'predictions.png'}" if (out / "predictions.png").is_file() else " (--examples 0: no picture)"
+    click.echo(f"wrote {out / 'metrics.json'}{pictures}")

@@ -194,3 +194,14 @@ def test_the_final_curves_picture_is_drawn_after_the_last_validation(sample_shar
     rows = (out / "validation.csv").read_text().splitlines()
     assert [r.split(",")[0] for r in rows[1:]] == ["2", "4"]
     assert (out / "curves.png").stat().st_mtime_ns >= (out / "validation.csv").stat().st_mtime_ns
+
+
+def test_eval_with_no_examples_writes_no_blank_picture(sample_shards, tmp_path):
+    """The fifteenth attack: ``eval --examples 0`` wrote an all-white predictions.png and said so."""
+    out = tmp_path / "run"
+    run_cli(main, ["fit", "--shards", sample_shards, "--out", out, "--batch-size", 2, *TINY, "--steps", 1,
+                   "--val-every", 0])
+    res = run_cli(main, ["eval", "--checkpoint", out, "--shards", sample_shards, "--out", tmp_path / "ev",
+                         "--examples", 0, "--device", "cpu"])
+    assert "(--examples 0: no picture)" in res.output and not (tmp_path / "ev" / "predictions.png").exists()
+    assert (tmp_path / "ev" / "metrics.json").is_file()

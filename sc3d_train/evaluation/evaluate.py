@@ -189,7 +189,9 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
                   "selected_on_this_split": selected_on, "data_sha256": data_sha256,
                   "shards_complete": dataset.info["complete"], **summary}
         (out / "metrics.json").unlink(missing_ok=True)  # written last: it marks a finished evaluation
-        plot_examples(kept, out / "predictions.png")
+        (out / "predictions.png").unlink(missing_ok=True)  # --examples 0: none (an earlier one is not of these)
+        if kept:
+            plot_examples(kept, out / "predictions.png")
         atomic_write_bytes(out / "metrics.json", json.dumps(_finite(result), indent=1).encode())
         result["table"] = format_table(summary)
         result["out"] = str(out)

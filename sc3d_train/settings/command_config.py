@@ -51,7 +51,7 @@ class EvalConfig(InferenceConfig):
     split: str = setting("test", "Split of the shards to evaluate.")
     pick: str = setting("best", PICK_HELP, choices=CHECKPOINT_PICKS)
     batch_size: int = setting(64, "Images per forward pass.")
-    examples: int = setting(2, "Objects per category shown in predictions.png (views 3 and 15 of each).")
+    examples: int = setting(2, "Objects per category shown in predictions.png (views 3 and 15 of each; 0: no picture).")
 
 
 @dataclass
