@@ -3,6 +3,7 @@
 sample meshes."""
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -205,3 +206,23 @@ def test_eval_with_no_examples_writes_no_blank_picture(sample_shards, tmp_path):
                          "--examples", 0, "--device", "cpu"])
     assert "(--examples 0: no picture)" in res.output and not (tmp_path / "ev" / "predictions.png").exists()
     assert (tmp_path / "ev" / "metrics.json").is_file()
+
+
+def test_a_claims_rerun_of_some_runs_keeps_the_studys_other_finished_runs(sample_shards, tmp_path):
+    """The fifteenth attack: the study ``--runs sup-3tube,ray`` then a rerun ``--runs ray`` (as
+    training.md shows: the full study, then a subset) rewrote claims.md/json/png with ray alone;
+    sup-3tube's finished row was gone without a word. A run not finished for every seed (here all
+    the others) stays out."""
+    from sc3d_train.evaluation.claims import ClaimsPreset, run_all
+
+    preset = ClaimsPreset(steps=2, batch_size=4, lr=1e-3, tiny=True, extra={"val_min_objects": 1})
+    out = tmp_path / "claims"
+    run_all(sample_shards, sample_shards, out, preset, eval_split="test", device="cpu", runs=["sup-3tube", "ray"],
+            echo=lambda line: None)
+    lines = []
+    results = run_all(sample_shards, sample_shards, out, preset, eval_split="test", device="cpu", runs=["ray"],
+                      echo=lines.append)
+    assert {"sup-3tube", "ray"} <= set(results) and "semi" not in results
+    assert f"also in the report, finished before in {out}: sup-3tube" in lines
+    assert "Ours (Sup), 3 tubes" in (out / "claims.md").read_text()
+    assert set(json.loads((out / "claims.json").read_text())["results"]) == set(results)

@@ -219,8 +219,9 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path,
             preset: "str | ClaimsPreset" = ClaimsConfig.preset, eval_split: str = ClaimsConfig.eval_split,
             device: str = ClaimsConfig.device, workers: int | None = ClaimsConfig.workers, runs=None,
             echo=print, seeds: int = ClaimsConfig.seeds, pick: str = ClaimsConfig.pick) -> dict:
-    """Train and evaluate every run of ``preset`` with each of ``seeds`` seeds (skipping finished
-    (run, seed) pairs); write the report. ``seeds`` and ``device`` that cannot serve, and evaluation
+    """Train and evaluate every run of ``preset`` (or ``runs``) with each of ``seeds`` seeds (skipping
+    finished (run, seed) pairs); write the report, with the preset's other runs that ``out`` holds
+    finished for every seed. ``seeds`` and ``device`` that cannot serve, and evaluation
     data that cannot serve (of another image size or voxel resolution than the training shards,
     objects trained on or that choose the runs' best.pt, an empty split, shards without voxels)
     is refused before any training. Returns
@@ -238,7 +239,12 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path,
     out.mkdir(parents=True, exist_ok=True)
     per_seed, timings = {}, {}
     names = list(runs or p.runs)
-    for name in names:
+    finished = [n for n in p.runs if n not in names and all(  # a rerun with --runs keeps the study's other runs
+        evaluated_on(eval_folder(run_folder(out, n, s), pick) / "metrics.json", eval_shards, eval_split, data_digest)
+        for s in seed_values)]
+    if finished:
+        echo(f"also in the report, finished before in {out}: {', '.join(finished)}")
+    for name in names + finished:
         per_seed[name] = {}
         for seed in seed_values:
             res, seconds = train_and_evaluate(name, seed, p, train_shards, eval_shards, out, eval_split,
