@@ -2,12 +2,11 @@
 a config file, the tiny preset, the options given, and the facts of the shards."""
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 from sc3d_train.loop.run_folder import check_no_foreign_files, check_no_linked_files, check_path_names
 from sc3d_train.settings.config import RESUMABLE_FIELDS, TINY_MODEL, RunConfig
-from sc3d_train.settings.config_io import load_yaml
+from sc3d_train.settings.config_io import defaults_of, load_yaml
 
 
 def resolve_config(options: dict, model_options: dict | None = None, resume: bool = False,
@@ -36,9 +35,10 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
         plain = RunConfig.load(config_file, given_paths(options)).to_dict()
         if defaulted_pretraining(load_yaml(config_file).get("pretrain_steps"), plain, options):
             plain["pretrain_steps"] = None  # loading set it from the file's steps: [steps // 2] of this run's instead
-        if options.get("mode", plain["mode"]) != plain["mode"]:  # --semi / --labeled-only switch the file's mode:
-            plain.update({k: getattr(RunConfig, k) for k, modes in MODE_ONLY_OPTIONS.items()  # its mode's own
-                          if plain["mode"] in modes and options["mode"] not in modes})  # settings go back to defaults
+        # --semi / --labeled-only switch the file's mode: the settings only its mode reads go back to defaults
+        if (mode := options.get("mode", plain["mode"])) != plain["mode"]:
+            plain.update({k: v for k, v in defaults_of(RunConfig).items()
+                          if plain["mode"] in MODE_ONLY_OPTIONS.get(k, ()) and mode not in MODE_ONLY_OPTIONS[k]})
     plain.update(options)
     if plain.get("out") is None or plain.get("shards") is None:
         raise ValueError("a new run needs --shards and --out (or a --config file that names them)")
@@ -267,7 +267,7 @@ def check_mode_options(cfg: RunConfig, given: dict, config_file: Path | None = N
         raise ValueError(f"{names}: not read by a {cfg.mode} run (config.yaml would record it, training ignore it); "
                          f"train in a mode that reads it ({', '.join('--' + m for m in modes)}) or leave it out")
     in_file = load_yaml(config_file) if config_file is not None else {}
-    defaults = {f.name: f.default for f in dataclasses.fields(RunConfig)}
+    defaults = defaults_of(RunConfig)
     set_there = [k for k, modes in MODE_ONLY_OPTIONS.items() if k in in_file and in_file[k] != defaults[k]
                  and cfg.mode not in modes and in_file.get("mode", defaults["mode"]) not in modes]
     if set_there:

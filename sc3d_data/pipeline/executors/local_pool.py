@@ -281,8 +281,8 @@ def start_pool(n: int, config, job: Job) -> WorkerPool:
     when no backend works."""
     errors, gpus = [], bool(job.gl and getattr(config, "gpus", ()))
     backends = job.backends(getattr(config, "backend", "auto"))
-    if gpus:  # EGL devices: one that fails is an error, not a fall back to OSMesa's CPU (with --backend
-        backends = [b for b in backends if b == "egl"]  # osmesa: refused by render_checks first)
+    if gpus:  # EGL devices: one that fails is an error, not a fall back to OSMesa (refused: render_checks)
+        backends = [b for b in backends if b == "egl"]
     for backend in backends:
         pool = WorkerPool(n, config, backend, job)
         # work starts with the first worker up; --gpus waits for all, so a device that fails is

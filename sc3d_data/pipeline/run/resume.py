@@ -28,7 +28,6 @@ from sc3d_data.pipeline.run.plan import Task
 OWN_TMP = re.compile(r"^(?:[A-Za-z0-9][A-Za-z0-9_.-]*\.h5|index\.json)(?:\.[0-9]+)?\.tmp$")
 
 
-
 def clean_tmp(out: Path) -> None:
     """Delete the temporary files (:data:`OWN_TMP`) a killed run left in ``out``."""
     for p in out.glob("*.tmp"):
