@@ -5,6 +5,7 @@ fit`` (on its run folder) hold it for their whole run (the parts of ``voxelize -
 I/N``, which share one folder, hold it shared, and each its own part's lock exclusively); a second writer is refused at once with one line naming the folder
 (and the PID that holds it), and the first one is not disturbed. The lock is released by the
 kernel when the holder exits, also on SIGKILL, so a stale lock file never blocks a rerun.
+Readers take no lock; ``writer_of`` tells them who is writing, when what they read looks broken.
 """
 from __future__ import annotations
 
@@ -85,3 +86,30 @@ def exclusive_lock(folder: Path, command: str = "sc3d-data", create: bool = Fals
             path.unlink()  # still held: nobody else can have taken it
             folder.rmdir()
         os.close(fd)  # closing the descriptor releases the lock
+
+
+def writer_of(folder: Path, name: str = LOCK_NAME) -> str | None:
+    """``"PID n: command"`` of another process that holds ``folder``'s lock exclusively (a writer
+    at work), else None. Reads ``/proc/locks`` (Linux; None where it cannot be read) and takes no
+    lock itself, so a writer starting at that moment is not refused because of the question."""
+    path = Path(folder) / name
+    try:
+        st = os.stat(path, follow_symlinks=False)
+        lines = Path("/proc/locks").read_text().splitlines()
+    except OSError:
+        return None
+    for line in lines:  # "1: FLOCK  ADVISORY  WRITE 4814 fe:00:2146343 0 EOF" (a waiter's has "->")
+        f = line.split()
+        if len(f) < 6 or f[1] != "FLOCK" or f[3] != "WRITE" or f[5].count(":") != 2:
+            continue
+        major, minor, inode = f[5].split(":")
+        try:
+            same = (int(major, 16), int(minor, 16), int(inode)) == (os.major(st.st_dev), os.minor(st.st_dev),
+                                                                    st.st_ino)
+            pid = int(f[4])
+        except ValueError:
+            continue
+        if same and pid != os.getpid():
+            first, _, what = path.read_text(errors="replace").strip().partition(" ")
+            return f"PID {pid}: {what if first == str(pid) and what else 'unknown'}"
+    return None

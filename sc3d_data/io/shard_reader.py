@@ -20,6 +20,7 @@ import h5py
 import numpy as np
 
 from sc3d_data.io.index_check import version_problem
+from sc3d_data.io.outlock import writer_of
 from sc3d_data.io.shard_layout import layout_problem
 from sc3d_data.io.shards import (OBJECT_ARRAYS, SCHEMA_VERSION, STRING_FIELDS, ObjectRecord, ShardError, file_sha256,
                                  io_reason, load_index, shard_files, shard_path)
@@ -286,5 +287,14 @@ def refuse_changed(shard_dir: Path, entries: list[dict], consequence: str) -> No
 
 
 def verify_shards(shard_dir: Path, full: bool = True) -> list[str]:
-    """Problems (one line each, naming the file) of every shard listed in the index."""
-    return [p for e in load_index(shard_dir).get("shards", []) if (p := verify_shard(shard_dir, e, full))]
+    """Problems (one line each, naming the file) of every shard listed in the index; ``ShardError``
+    naming the writer instead when another process writes the folder (``voxelize`` rewriting its
+    shards, a resumed ``render``), whose shards and index are then not yet each other's."""
+    for _ in range(2):  # a writer that ended between reading and asking left them matching: look again
+        problems = [p for e in load_index(shard_dir).get("shards", []) if (p := verify_shard(shard_dir, e, full))]
+        if not problems:
+            return []
+        if writer := writer_of(shard_dir):
+            raise ShardError(f"{shard_dir}: another process ({writer}) is writing to this folder, so its shards do "
+                             "not match its index yet; run this again when it has finished")
+    return problems

@@ -24,7 +24,10 @@ which are those of a run over the whole collection (``tests/test_scale.py``).
 Resumable: a shard already in ``OUT`` with the right size and SHA-256 is kept; the index is
 written last, so an interrupted merge is finished by running it again. A merge run again after
 ``sc3d-data voxelize OUT`` keeps the voxelized dataset when ``OUT`` still holds the same merge,
-and is refused when the parts changed since (``--overwrite`` merges afresh, without the voxels).
+and is refused when the parts changed since (``--overwrite`` merges afresh, without the voxels);
+``merged.voxels`` records the grids the parts gave, so parts voxelized after the merge merge
+again. A merge into an ``OUT`` that holds a merge made with other settings is refused
+(``--overwrite`` replaces it), as ``render`` refuses a rerun with other settings.
 """
 from __future__ import annotations
 
@@ -211,6 +214,17 @@ def _voxelized_since(out: Path, old: dict, parts: list[dict], objects: list[dict
                      "or --overwrite (then run `sc3d-data voxelize` on it again)")
 
 
+def check_same_settings(out: Path, old: dict, first: dict) -> None:
+    """``MergeError`` when ``out`` holds a merge made with other settings than the parts (other
+    meshes, views, source...; compared as ``render`` compares a rerun's, by meaning, grids
+    apart): merging would replace that dataset, which needs ``--overwrite``. The same settings
+    merge again (a part rerun after a fix, more meshes in the same collection)."""
+    diff = [k for k in settings_differ(old.get("settings", {}), first.get("settings", {})) if k not in VOXEL_SETTINGS]
+    if diff:
+        raise MergeError(f"{out}: holds a merge made with other settings than {first['_dir']} ({', '.join(diff)} "
+                         "differ); merging would replace it: use another OUT or --overwrite")
+
+
 def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite: bool = False) -> MergeSummary:
     """Merge ``part_dirs`` into ``out`` (module doc)."""
     from sc3d_data.io.outlock import exclusive_lock
@@ -243,8 +257,11 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
             skipped += index.get("skipped", [])
             warnings += index.get("warnings", [])
         voxels = merged_voxels_record(parts)
-        if old.get("merged") and old.get("voxels") != voxels and not overwrite:
-            return _voxelized_since(out, old, parts, objects, [e["sha256"] for _, _, e in places], t0)
+        if old.get("merged") and not overwrite:
+            given = old["merged"].get("voxels", voxels if old.get("voxels") else None)  # older merges: no record
+            if old.get("voxels") != given:
+                return _voxelized_since(out, old, parts, objects, [e["sha256"] for _, _, e in places], t0)
+            check_same_settings(out, old, parts[0])
         kept = [dst.is_file() and dst.stat().st_size == entry["bytes"] and file_sha256(dst) == entry["sha256"]
                 for _, dst, entry in places]
         if not overwrite:  # a shard-named file no merge wrote is someone's: refused before any write
@@ -262,6 +279,7 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
                             "planned_total": first["part"]["planned_total"],
                             "sources_sha256": [e["sha256"] for _, _, e in places],
                             "backends": sorted({str(p["settings"].get("backend")) for p in parts})}}
+        extra["merged"]["voxels"] = voxels  # what the parts gave: a later `voxelize OUT` changes "voxels" alone
         if voxels is not None:
             extra["voxels"] = voxels
         write_index(out, complete=True, settings=first["settings"], split=first.get("split", {}), shards=shards,
