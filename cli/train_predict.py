@@ -28,10 +28,6 @@ def predict(ctx, checkpoint, images, out, pose_from, device, threshold, pick):
     pick_given = ctx.get_parameter_source("pick") == click.core.ParameterSource.COMMANDLINE
     try:
         checkpoint = run_checkpoint(checkpoint, pick, pick_given)
-        if out is None:
-            from sc3d_train.evaluation.evaluate import default_output_dir
-
-            out = default_output_dir(checkpoint, "predictions")
         results = run_predict(checkpoint, list(images), out, device, threshold, pose_from, pick)
     except (ImageError, CheckpointError, ValueError, OSError, LockError) as e:  # LockError: another eval/predict writes to --out
         from sc3d_data.io.shards import one_line

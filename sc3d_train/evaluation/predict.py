@@ -25,7 +25,6 @@ an input is not (NaN, inf), is refused in one line before any output is written.
 from __future__ import annotations
 
 import io
-import json
 from pathlib import Path
 
 import numpy as np
@@ -34,13 +33,11 @@ import torch
 from sc3d_data.io.pictures import write_figure
 from sc3d_data.io.shards import atomic_write_bytes
 from sc3d_train.loop.checkpoint import load_model, run_checkpoint
+from sc3d_train.evaluation.prediction_files import (ImageError, check_default_folder_free, check_inputs_kept,
+                                                    check_outputs_replaceable, output_files)
 from sc3d_train.settings.command_config import PredictConfig, check_pose_source
 
 ACCEPTED_MODES = ("RGB", "RGBA", "LA", "L", "P")
-
-
-class ImageError(ValueError):
-    """An input image that cannot be fed to the model (size, mode, unreadable)."""
 
 
 def load_image(path: Path, image_size: int, background: list[int]) -> np.ndarray:
@@ -134,7 +131,7 @@ def plot_prediction(path: Path, image: np.ndarray, mask: np.ndarray, silhouette:
 
 
 @torch.no_grad()
-def predict(checkpoint: Path, images: list[Path], out: Path, device: str = PredictConfig.device,
+def predict(checkpoint: Path, images: list[Path], out: Path | None, device: str = PredictConfig.device,
             threshold: float = PredictConfig.threshold, pose_from: str = PredictConfig.pose_from,
             pick: str = PredictConfig.pick) -> list[dict]:
     """Predict every image (all are checked before the model runs) with ``checkpoint`` (a file,
@@ -142,12 +139,15 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
     a checkpoint whose weights, or prediction of an image, are not finite (NaN, inf) is refused
     (``CheckpointError``) before anything is written; returns one dict per image (the content of
     its JSON file). ``pose_from``: ``"search"`` (the default of every entry point,
-    :data:`~sc3d_train.settings.command_config.DEFAULT_POSE_SOURCE`) or ``"head"``, as in ``eval``."""
+    :data:`~sc3d_train.settings.command_config.DEFAULT_POSE_SOURCE`) or ``"head"``, as in ``eval``.
+    ``out`` None: ``RUN_DIR/predictions`` beside the checkpoint, which is never given to the
+    prediction of an image of the same name by another checkpoint file or ``pose_from``
+    (:func:`check_default_folder_free`)."""
     from sc3d_data.io.binvox import write_binvox
     from sc3d_data.io.outlock import exclusive_lock
     from sc3d_data.io.shards import write_json_atomic
     from sc3d_data.io.names import printable
-    from sc3d_train.evaluation.evaluate import require_finite_weights, voxel_silhouette
+    from sc3d_train.evaluation.evaluate import default_output_dir, require_finite_weights, voxel_silhouette
     from sc3d_train.loop.checkpoint import CheckpointError
 
     check_pose_source(pose_from)
@@ -158,10 +158,13 @@ def predict(checkpoint: Path, images: list[Path], out: Path, device: str = Predi
     from sc3d_train.loop.runtime import resolve_device
 
     checkpoint = run_checkpoint(checkpoint, pick)
-    out = Path(out)
+    default_out = out is None
+    out = default_output_dir(checkpoint, "predictions") if default_out else Path(out)
     with exclusive_lock(out, "sc3d-train predict", create=True):  # one predict writes here at a time
         outputs = output_files(images, out)
         check_inputs_kept(images, outputs, out)
+        if default_out:
+            check_default_folder_free(outputs, checkpoint, pose_from, out)
         check_outputs_replaceable(outputs, out)
         dev = resolve_device(device)
         model, cfg, _ = load_model(checkpoint, dev)
@@ -214,58 +217,6 @@ def predict_one(model, cfg, image: np.ndarray, K: np.ndarray, dev, pose_from: st
     probs = torch.sigmoid(res.voxel_logits.float())[0].cpu().numpy()
     mask = torch.sigmoid(res.mask_logits.float())[0].cpu().numpy()
     return probs, mask, float(res.azimuth[0]), float(res.elevation[0])
-
-
-def output_files(images: list[Path], out: Path) -> list[dict]:
-    """Per image, ``{kind: out/NAME.kind}`` of the files :func:`predict` writes (binvox, npz, obj,
-    json, png): NAME is the image's stem, with ``_`` appended while an earlier image took it."""
-    used, outputs = set(), []
-    for path in images:
-        name = Path(path).stem
-        while name in used:
-            name += "_"
-        used.add(name)
-        outputs.append({k: Path(out) / f"{name}.{k}" for k in ("binvox", "npz", "obj", "json", "png")})
-    return outputs
-
-
-def check_inputs_kept(images: list[Path], outputs: list[dict], out: Path) -> None:
-    """``ImageError`` naming ``--out`` when a file of ``outputs`` (:func:`output_files`) is one of
-    the input ``images`` (``--out`` the images' folder: ``NAME.png`` would replace ``NAME.png``)."""
-    import os
-
-    inputs = {os.path.realpath(p): p for p in images}
-    for files in outputs:
-        for kind, path in files.items():
-            if os.path.realpath(path) in inputs:
-                raise ImageError(f"--out {out}: its {path.name} (the prediction's .{kind}) would overwrite "
-                                 f"the input image {inputs[os.path.realpath(path)]}; choose another --out")
-
-
-def check_outputs_replaceable(outputs: list[dict], out: Path) -> None:
-    """``ImageError`` naming ``--out`` and the file when a file of ``outputs`` (:func:`output_files`)
-    exists and is not of an earlier prediction: one that the prediction's ``NAME.json`` beside it
-    lists (an image named ``index.png`` into a shard folder would otherwise replace its
-    ``index.json``; ``curves.png`` into a run folder its curves). Predicting again into the same
-    folder replaces its own files."""
-    import os
-
-    for files in outputs:
-        existing = [p for p in files.values() if os.path.lexists(p)]
-        if not existing:
-            continue
-        listed = set()
-        try:
-            info = json.loads(Path(files["json"]).read_text())
-            if isinstance(info, dict) and "checkpoint" in info and isinstance(info.get("files"), dict):
-                listed = {Path(v).name for v in info["files"].values() if isinstance(v, str)}  # all in ``out``
-        except (OSError, ValueError):
-            pass
-        for path in existing:
-            if path.name not in listed:
-                raise ImageError(f"--out {out}: {path.name} exists and is not a file of an earlier prediction "
-                                 f"(no {Path(files['json']).name} of predict lists it), which this prediction would "
-                                 "replace; choose another --out")
 
 
 def _default_K(size: int) -> np.ndarray:

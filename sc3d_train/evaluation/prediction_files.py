@@ -1,0 +1,84 @@
+"""Where ``sc3d-train predict`` writes: the output files of each image and the checks, made before
+anything is written, that they replace no input image, no file of someone else and, in the default
+folder, no prediction of another checkpoint or ``--pose``."""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+
+class ImageError(ValueError):
+    """An input image that cannot be fed to the model (size, mode, unreadable)."""
+
+
+def output_files(images: list[Path], out: Path) -> list[dict]:
+    """Per image, ``{kind: out/NAME.kind}`` of the files :func:`~sc3d_train.evaluation.predict.predict` writes (binvox, npz, obj,
+    json, png): NAME is the image's stem, with ``_`` appended while an earlier image took it."""
+    used, outputs = set(), []
+    for path in images:
+        name = Path(path).stem
+        while name in used:
+            name += "_"
+        used.add(name)
+        outputs.append({k: Path(out) / f"{name}.{k}" for k in ("binvox", "npz", "obj", "json", "png")})
+    return outputs
+
+
+def check_inputs_kept(images: list[Path], outputs: list[dict], out: Path) -> None:
+    """``ImageError`` naming ``--out`` when a file of ``outputs`` (:func:`output_files`) is one of
+    the input ``images`` (``--out`` the images' folder: ``NAME.png`` would replace ``NAME.png``)."""
+    inputs = {os.path.realpath(p): p for p in images}
+    for files in outputs:
+        for kind, path in files.items():
+            if os.path.realpath(path) in inputs:
+                raise ImageError(f"--out {out}: its {path.name} (the prediction's .{kind}) would overwrite "
+                                 f"the input image {inputs[os.path.realpath(path)]}; choose another --out")
+
+
+def check_outputs_replaceable(outputs: list[dict], out: Path) -> None:
+    """``ImageError`` naming ``--out`` and the file when a file of ``outputs`` (:func:`output_files`)
+    exists and is not of an earlier prediction: one that the prediction's ``NAME.json`` beside it
+    lists (an image named ``index.png`` into a shard folder would otherwise replace its
+    ``index.json``; ``curves.png`` into a run folder its curves). Predicting again into the same
+    folder replaces its own files."""
+    for files in outputs:
+        existing = [p for p in files.values() if os.path.lexists(p)]
+        if not existing:
+            continue
+        listed = set()
+        try:
+            info = json.loads(Path(files["json"]).read_text())
+            if isinstance(info, dict) and "checkpoint" in info and isinstance(info.get("files"), dict):
+                listed = {Path(v).name for v in info["files"].values() if isinstance(v, str)}  # all in ``out``
+        except (OSError, ValueError):
+            pass
+        for path in existing:
+            if path.name not in listed:
+                raise ImageError(f"--out {out}: {path.name} exists and is not a file of an earlier prediction "
+                                 f"(no {Path(files['json']).name} of predict lists it), which this prediction would "
+                                 "replace; choose another --out")
+
+
+def check_default_folder_free(outputs: list[dict], checkpoint: Path, pose_from: str, out: Path) -> None:
+    """``ImageError`` when the default output folder ``out`` (``RUN_DIR/predictions``) holds, under
+    the name of an image of ``outputs`` (:func:`output_files`), the prediction of another
+    checkpoint file or another ``--pose``, which this one would replace without a word
+    (``predict --checkpoint RUN`` then ``--pick last``), as ``eval``'s default folder does. The same
+    checkpoint file again replaces its own predictions; an explicit ``--out`` is not judged."""
+    for files in outputs:
+        try:
+            was = json.loads(Path(files["json"]).read_text())
+        except (OSError, ValueError):
+            continue
+        if not isinstance(was, dict):
+            continue
+        changed = []
+        if "checkpoint" in was and os.path.realpath(str(was["checkpoint"])) != os.path.realpath(checkpoint):
+            changed.append((f"checkpoint {was['checkpoint']}", f"checkpoint {checkpoint}"))
+        if "pose_from" in was and was["pose_from"] != pose_from:
+            changed.append((f"--pose {was['pose_from']}", f"--pose {pose_from}"))
+        if changed:
+            raise ImageError(f"{out}: {files['json'].name} holds the prediction of {', '.join(w for w, _ in changed)}, "
+                             f"which this one ({', '.join(n for _, n in changed)}) would replace; give --out for this "
+                             "one (or remove those files)")

@@ -1,0 +1,46 @@
+"""Defects of the training half left by the fifteenth attack (2026-11-28), each test failing without
+its fix. Real checkpoints of a real (tiny) run, real files."""
+from __future__ import annotations
+
+import shutil
+
+import h5py
+from PIL import Image
+
+from sc3d_cli.train import main as train_main
+from conftest import one_error, run_cli
+from test_faults_train import tiny_run  # noqa: F401 - the fixture (a 2-step run)
+
+
+def _files(folder):
+    return {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file() and p.name != ".sc3d.lock"}
+
+
+def test_predict_never_gives_its_default_folder_to_another_checkpoint(sample_shards, tiny_run, tmp_path):  # noqa: F811
+    """``predict --checkpoint RUN/checkpoints/last.pt view.png`` then the same image with another
+    checkpoint file (or ``--pose``) replaced ``RUN/predictions/view.*`` without a word, as ``eval``'s
+    default folder no longer does. Now refused in one line naming both, nothing written; the same
+    checkpoint again, another image, or an explicit ``--out`` still predict (controls)."""
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run, run)
+    other = run / "checkpoints" / "step_000001.pt"
+    shutil.copy(run / "checkpoints" / "last.pt", other)
+    image = tmp_path / "view.png"
+    with h5py.File(sorted(sample_shards.glob("shard-*.h5"))[0]) as f:
+        Image.fromarray(f["images"][0, 0]).save(image)
+    last = ["predict", "--checkpoint", run / "checkpoints" / "last.pt", "--device", "cpu"]
+    run_cli(train_main, [*last, image])
+    before = _files(run / "predictions")
+
+    res = run_cli(train_main, ["predict", "--checkpoint", other, image, "--device", "cpu"], expect_exit=1)
+    error = one_error(res.output)
+    assert "view.json holds the prediction of checkpoint" in error and "last.pt" in error and "--out" in error, error
+    res = run_cli(train_main, [*last, image, "--pose", "head"], expect_exit=1)
+    assert "--pose search" in one_error(res.output)
+    assert _files(run / "predictions") == before
+
+    run_cli(train_main, [*last, image])  # the same checkpoint replaces its own prediction
+    second = tmp_path / "second.png"
+    shutil.copy(image, second)
+    run_cli(train_main, ["predict", "--checkpoint", other, second, "--device", "cpu"])  # another image's name
+    run_cli(train_main, ["predict", "--checkpoint", other, image, "--device", "cpu", "--out", run / "predictions"])
