@@ -108,8 +108,7 @@ def render(elevations, background, part, slurm, **options):
     where = f"part {s['part']}, " if s.get("part", "0/1") != "0/1" else ""
     warned = f", {s['warned']} with warnings" if s.get("warned") else ""
     click.echo(f"{where}done {s['done']}, resumed {s['resumed']}{retried}, skipped {s['skipped']}, failed {s['failed']}"
-               f"{warned} in {s['seconds']:.1f} s ({s['views_per_s']:.0f} views/s, {s['workers']} workers, "
-               f"backend {s['backend']}); index: {Path(s['out']) / 'index.json'}")
+               f"{warned} in {s['seconds']:.1f} s ({_rate(s)}backend {s['backend']}); index: {Path(s['out']) / 'index.json'}")
     listed = " and ".join(w for w, n in (("failures", s["failed"]), ("warnings", s.get("warned"))) if n)
     if listed:
         click.echo(f"{listed} are listed with reasons by `sc3d-data info {s['out']}`")
@@ -120,6 +119,12 @@ def render(elevations, background, part, slurm, **options):
     if s["skipped"] and not (s["done"] or s["resumed"] or s["failed"]) and s.get("part", "0/1") == "0/1":
         raise click.ClickException(f"no object was rendered: all {s['skipped']} were skipped"
                                    f"{_first_reason(s['out'], 'skipped')}; `sc3d-data info {s['out']}` lists them")
+
+
+def _rate(s: dict) -> str:
+    """``"N views/s, W workers, "`` of a run that rendered; nothing where every object was kept
+    (no worker started: a rate of 0 views/s would read as a fault)."""
+    return f"{s['views_per_s']:.0f} views/s, {s['workers']} workers, " if s["workers"] else "nothing to render, "
 
 
 def _split_files(values) -> str | list[str] | None:

@@ -132,3 +132,14 @@ def test_writer_of_names_only_another_process_holding_the_lock(tmp_path):
     with outlock.exclusive_lock(tmp_path, "sc3d-data render"):
         assert outlock.writer_of(tmp_path) is None
     assert outlock.writer_of(tmp_path) is None
+
+
+def test_a_render_that_kept_every_object_prints_no_rate(tmp_path):
+    """A rerun that had everything already rendered printed "(0 views/s, 0 workers, ...)", which
+    reads as a fault; it says there was nothing to render."""
+    out = tmp_path / "ds"
+    first = run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES / "table", "--out", out, *FAST]).output
+    again = run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES / "table", "--out", out, *FAST]).output
+    assert " views/s, 1 workers" in first, first
+    assert "done 0, resumed 1" in again and "nothing to render" in again and "views/s" not in again, again
+
