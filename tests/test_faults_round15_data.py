@@ -143,3 +143,24 @@ def test_a_render_that_kept_every_object_prints_no_rate(tmp_path):
     assert " views/s, 1 workers" in first, first
     assert "done 0, resumed 1" in again and "nothing to render" in again and "views/s" not in again, again
 
+
+def test_a_command_refused_on_its_inputs_leaves_no_folders_behind(tmp_path):
+    """``render``/``import-r2n2``/``fit`` refused on their inputs into a new ``--out a/b/c`` left
+    ``a/b/c/.sc3d.lock`` (render, import-r2n2) or ``a/b`` (fit): folders the user never asked
+    for, found later beside real output. Now none of them is left; a folder that existed before
+    stays (control)."""
+    from sc3d_cli.train import main as train_main
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    commands = {
+        "render": (data_main, ["render", "--meshes", empty, *FAST]),
+        "import-r2n2": (data_main, ["import-r2n2", "--renderings", empty, "--voxels", empty, "--no-progress"]),
+        "fit": (train_main, ["fit", "--shards", empty, "--steps", "2", "--tiny", "--no-progress"]),
+    }
+    for name, (group, args) in commands.items():
+        one_error(run_cli(group, [*args, "--out", tmp_path / "a" / "b" / "c"], expect_exit=1).output)
+        assert not (tmp_path / "a").exists(), name
+        (tmp_path / "kept").mkdir(exist_ok=True)
+        one_error(run_cli(group, [*args, "--out", tmp_path / "kept" / "c"], expect_exit=1).output)
+        assert (tmp_path / "kept").is_dir() and not (tmp_path / "kept" / "c").exists(), name

@@ -51,17 +51,24 @@ def open_lock_file(path: Path) -> int:
         raise
 
 
+def missing_folders(folder: Path) -> list[Path]:
+    """``folder`` and those of its parents that do not exist, deepest first."""
+    return [f for f in (Path(folder), *Path(folder).parents) if not f.exists()]
+
+
 @contextmanager
 def exclusive_lock(folder: Path, command: str = "sc3d-data", create: bool = False, shared: bool = False,
-                   name: str = LOCK_NAME) -> Iterator[Path]:
+                   name: str = LOCK_NAME, made: list[Path] | None = None) -> Iterator[Path]:
     """Hold the write lock of ``folder`` for the ``with`` block; raises ``LockError`` when another
     process holds it. ``create``: make ``folder`` (and its parents) if missing, and remove it
-    again at the end when the block left nothing in it but the lock file (a command that failed
-    on its inputs leaves no empty folder behind). ``shared``: a lock that other shared holders
+    and the parents it made again at the end when the block left nothing in it but the lock file
+    (a command that failed on its inputs leaves no empty folder behind). ``shared``: a lock that other shared holders
     may hold at the same time but no exclusive one (the parts of one ``voxelize --meshes
-    --part I/N`` job, each of which also holds an exclusive lock of its own ``name``)."""
+    --part I/N`` job, each of which also holds an exclusive lock of its own ``name``). ``made``: the
+    folders the caller made for this run, ``folder`` first (:func:`missing_folders` before making
+    them), removed as those of ``create`` are."""
     folder = Path(folder)
-    made = create and not folder.exists()
+    made = missing_folders(folder) if create else list(made or [])
     if create:
         folder.mkdir(parents=True, exist_ok=True)
     path = folder / name
@@ -84,7 +91,11 @@ def exclusive_lock(folder: Path, command: str = "sc3d-data", create: bool = Fals
         _HELD.discard(fd)
         if made and held and os.listdir(folder) == [LOCK_NAME]:
             path.unlink()  # still held: nobody else can have taken it
-            folder.rmdir()
+            for f in made:  # the folder, then the parents this call made, while nothing else is in them
+                try:
+                    f.rmdir()
+                except OSError:
+                    break
         os.close(fd)  # closing the descriptor releases the lock
 
 

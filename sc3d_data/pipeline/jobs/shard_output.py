@@ -68,16 +68,18 @@ _INDEX_KEYS = ("schema_version", "sc3d_version", "complete", "settings", "split"
 def locked_output(out: Path, command: str, create: bool = True) -> Iterator[Path]:
     """Hold ``out``'s write lock for the ``with`` block (``LockError`` naming the folder and the
     PID that holds it); ``create``: make the folder first (``ValueError`` when ``out`` is a file
-    or cannot be made). Stale ``*.tmp`` files of a killed run are deleted at the start and
+    or cannot be made; a folder made here that the run leaves empty is removed, with the parents
+    made for it). Stale ``*.tmp`` files of a killed run are deleted at the start and
     whatever this run leaves at the end. (``--overwrite`` deletes the old outputs only when the
     run starts, after every check: ``NewShards.resume``.)"""
-    from sc3d_data.io.outlock import exclusive_lock
+    from sc3d_data.io.outlock import exclusive_lock, missing_folders
     from sc3d_data.pipeline.run.resume import check_out, tmp_cleaned
 
     out = Path(out)
+    made = missing_folders(out) if create else []  # removed again when the run leaves nothing in them
     if create:
         check_out(out)
-    with exclusive_lock(out, command):
+    with exclusive_lock(out, command, made=made):
         with tmp_cleaned(out):
             yield out
 
