@@ -42,6 +42,7 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
     from sc3d_train.loop.checkpoint import CheckpointError
     from sc3d_train.data.dataset import DataError
     from sc3d_train.loop.resolve import check_mode_options, given_paths, pose_grid_warning, resolve_config
+    from sc3d_train.loop.schedule import no_semi_phase_warning
     from sc3d_train.loop.runtime import check_device_name
     from sc3d_train.loop.trainer import TrainingDiverged, fit as run_fit
 
@@ -79,8 +80,9 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
             cfg = resolve_config(options, model_options, resume, config_file)
             check_mode_options(cfg, options, config_file)
             check_device_name(cfg.device)  # before the run's first line
-            if main_rank and (warning := pose_grid_warning(cfg)):
-                click.echo(f"warning: {warning}", err=True)
+            for warning in (pose_grid_warning(cfg), no_semi_phase_warning(cfg)) if main_rank else ():
+                if warning:
+                    click.echo(f"warning: {warning}", err=True)
             if main_rank:
                 click.echo(f"training {cfg.mode} for {cfg.steps} steps, batch {cfg.batch_size}, "
                            f"model {cfg.model}, run dir {cfg.out}")

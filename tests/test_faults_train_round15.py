@@ -44,3 +44,17 @@ def test_predict_never_gives_its_default_folder_to_another_checkpoint(sample_sha
     shutil.copy(image, second)
     run_cli(train_main, ["predict", "--checkpoint", other, second, "--device", "cpu"])  # another image's name
     run_cli(train_main, ["predict", "--checkpoint", other, image, "--device", "cpu", "--out", run / "predictions"])
+
+
+def test_a_semi_run_that_never_leaves_its_pretraining_is_warned_of(sample_shards, tmp_path):
+    """``fit --semi --pretrain-steps 3 --steps 3`` trained labelled-only from start to end without a
+    word (no step of the unlabelled phase). One warning line now says so; a semi run that does
+    reach its unlabelled phase gets none (control)."""
+    from test_faults_train import TINY
+
+    semi = ["fit", "--shards", sample_shards, "--semi", *TINY]
+    res = run_cli(train_main, [*semi, "--out", tmp_path / "a", "--steps", "3", "--pretrain-steps", "3"])
+    warned = [ln for ln in res.output.splitlines() if "never reaches its phase on unlabelled images" in ln]
+    assert len(warned) == 1 and warned[0].startswith("warning: --pretrain-steps 3 >= --steps 3"), res.output
+    res = run_cli(train_main, [*semi, "--out", tmp_path / "b", "--steps", "3", "--pretrain-steps", "2"])
+    assert "never reaches" not in res.output

@@ -77,3 +77,14 @@ def data_position(cfg: RunConfig, step: int, local_batch: int) -> dict:
         return {"phase": phase, "phase_start": start, "samples_per_rank": (step - start) * unlabeled,
                 "labeled_samples_per_rank": (step - start) * labeled}
     return {"phase": phase, "phase_start": start, "samples_per_rank": (step - start) * local_batch}
+
+
+def no_semi_phase_warning(cfg: RunConfig) -> str | None:
+    """The warning ``fit`` prints for a ``semi`` run whose ``pretrain_steps`` reach ``steps``: it
+    never reaches its unlabelled phase, so it trains as ``labeled-only`` (its pretraining) from
+    start to end; None for any other run."""
+    if cfg.mode != "semi" or cfg.pretrain_steps < cfg.steps:
+        return None
+    return (f"--pretrain-steps {cfg.pretrain_steps} >= --steps {cfg.steps}: this semi run never reaches its phase "
+            f"on unlabelled images and trains on the labelled objects only (as --labeled-only); give --steps above "
+            f"{cfg.pretrain_steps}")
