@@ -27,7 +27,7 @@ def claims(train_shards, eval_shards, eval_split, out, preset, runs, device, wor
     from sc3d_data.io.outlock import LockError, exclusive_lock
     from sc3d_data.io.shards import one_line
     from sc3d_train.loop.checkpoint import CheckpointError
-    from sc3d_train.loop.trainer import TrainingDiverged
+    from sc3d_train.loop.loss_window import TrainingDiverged
     from sc3d_train.evaluation.claims import PRESETS, RUNS, check_study_options, run_all
     from sc3d_train.data.dataset import DataError
 

@@ -44,7 +44,8 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
     from sc3d_train.loop.resolve import check_mode_options, given_paths, pose_grid_warning, resolve_config
     from sc3d_train.loop.schedule import no_semi_phase_warning
     from sc3d_train.loop.runtime import check_device_name
-    from sc3d_train.loop.trainer import TrainingDiverged, fit as run_fit
+    from sc3d_train.loop.loss_window import TrainingDiverged
+    from sc3d_train.loop.trainer import fit as run_fit
 
     if semi and labeled_only:
         raise click.UsageError("--semi and --labeled-only exclude each other")

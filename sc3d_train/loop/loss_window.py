@@ -7,6 +7,12 @@ from __future__ import annotations
 import torch
 
 from sc3d_train.loop.runtime import DistInfo, all_min
+from sc3d_train.loop.schedule import phase_at
+from sc3d_train.settings.config import RunConfig
+
+
+class TrainingDiverged(RuntimeError):
+    """The loss became NaN/inf; the message names the step and the last good checkpoint."""
 
 
 class LossWindow:
@@ -44,3 +50,15 @@ class LossWindow:
             return None
         i = int(bad[0, 0])
         return first + i, float(values[i])
+
+
+def check_finite(window: LossWindow, dist: DistInfo, cfg: RunConfig, last_good: str | None) -> None:
+    """:class:`TrainingDiverged` naming the first step of ``window`` whose loss was not finite
+    (on any rank of ``dist``), its phase in run ``cfg``, and the last good checkpoint (every
+    checkpoint is written after a check)."""
+    bad = window.check(dist)
+    if bad is not None:
+        step, value = bad
+        raise TrainingDiverged(
+            f"loss is {value} at step {step} (phase {phase_at(cfg, step)}); "
+            f"last good checkpoint: {last_good or 'none (no checkpoint written yet)'}")

@@ -50,7 +50,7 @@ from sc3d_train.loop.checkpoint import (CheckpointError, build_model, checkpoint
 from sc3d_train.settings.config import CONFIG_NAME, RunConfig
 from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.data.device_prefetch import DevicePrefetcher
-from sc3d_train.loop.loss_window import LossWindow
+from sc3d_train.loop.loss_window import LossWindow, check_finite
 from sc3d_train.loop.memory_check import check_cpu_batch_fits
 from sc3d_train.loop.metrics_log import DataWaitClock, GpuUtilisation, MetricsLog, in_loop_rate
 from sc3d_train.loop.phase_step import augment_step, training_batch
@@ -63,10 +63,6 @@ from sc3d_train.loop.train_step import TrainStep, compile_plan
 from sc3d_train.loop.validation import Validator
 from sc3d_train.paper.pose import PoseGrid
 from sc3d_train.paper.pose_search import dataset_pose_targets
-
-
-class TrainingDiverged(RuntimeError):
-    """The loss became NaN/inf; the message names the step and the last good checkpoint."""
 
 
 @dataclass
@@ -198,17 +194,6 @@ def train_step(t: Training, step_fn: TrainStep, batches: dict, step: int, window
     return losses
 
 
-def check_finite(t: Training, window: LossWindow, last_good: str | None) -> None:
-    """:class:`TrainingDiverged` naming the first step of ``window`` whose loss was not finite
-    (on any rank) and the last good checkpoint (every checkpoint is written after a check)."""
-    bad = window.check(t.dist)
-    if bad is not None:
-        step, value = bad
-        raise TrainingDiverged(
-            f"loss is {value} at step {step} (phase {phase_at(t.cfg, step)}); "
-            f"last good checkpoint: {last_good or 'none (no checkpoint written yet)'}")
-
-
 def mean_scalars(t: Training, losses: dict) -> dict:
     """The scalar losses as floats, averaged over the ranks."""
     scalars = {k: v.detach().float() for k, v in losses.items() if torch.is_tensor(v) and v.ndim == 0}
@@ -219,7 +204,7 @@ def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --
     """Train according to ``cfg`` (see module doc); ``resume_hint``: printed on Ctrl-C. Returns a summary dict: ``step``, ``last_losses``,
     ``samples_per_s`` (:func:`in_loop_rate`), ``device`` (e.g. ``cuda:0``), ``checkpoint`` (last.pt), ``best``.
 
-    Raises :class:`TrainingDiverged` on a non-finite loss, ``DataError`` / ``CheckpointError``
+    Raises :class:`~sc3d_train.loop.loss_window.TrainingDiverged` on a non-finite loss, ``DataError`` / ``CheckpointError``
     on bad inputs, before any training step."""
     t = prepare(cfg)
     start_step, last_good = 0, None
@@ -263,7 +248,7 @@ def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --
             save_now = done % cfg.checkpoint_every == 0 or done == cfg.steps or boundary
             validate_now = validator is not None and validator.due(done)
             if log_now or save_now or validate_now:  # the loop's only host syncs; best.pt never of NaN weights
-                check_finite(t, window, last_good)
+                check_finite(window, t.dist, cfg, last_good)
             if log_now:
                 if t.device.type == "cuda":
                     torch.cuda.synchronize()
