@@ -104,7 +104,12 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
                    f"{cfg.steps}; give a larger --steps to train further")
         return
     losses = ", ".join(f"{k} {v:.4f}" for k, v in summary["last_losses"].items())
-    click.echo(f"done: step {summary['step']}, {summary['samples_per_s']:.1f} samples/s on {summary['device']}; {losses}")
+    if losses:
+        click.echo(f"done: step {summary['step']}, {summary['samples_per_s']:.1f} samples/s on {summary['device']}; "
+                   f"{losses}")
+    else:  # a finished run stopped while validating its last step: that validation alone was done
+        click.echo(f"nothing to train: the run is at step {summary['step']}; validated that step, which the run had "
+                   "stopped while validating")
     click.echo(f"checkpoint: {summary['checkpoint']}")
     best = summary.get("best")
     if best:

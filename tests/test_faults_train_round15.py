@@ -58,3 +58,41 @@ def test_a_semi_run_that_never_leaves_its_pretraining_is_warned_of(sample_shards
     assert len(warned) == 1 and warned[0].startswith("warning: --pretrain-steps 3 >= --steps 3"), res.output
     res = run_cli(train_main, [*semi, "--out", tmp_path / "b", "--steps", "3", "--pretrain-steps", "2"])
     assert "never reaches" not in res.output
+
+
+def _val_rows(run) -> dict[str, list[str]]:
+    lines = (run / "validation.csv").read_text().splitlines()[1:]
+    return {ln.split(",")[0]: ln.split(",")[1:5] for ln in lines}  # step -> the four figures
+
+
+def test_a_validation_cut_short_by_ctrl_c_is_done_on_resume(sample_shards, tmp_path, monkeypatch):
+    """A step saves its checkpoint, then validates. A Ctrl-C in that validation left the step's
+    checkpoint and no validation of it; ``--resume`` went on from there (or, at the last step,
+    said "nothing to train"), so that step never became a candidate for ``best.pt``. Now the
+    resumed run validates it first. Expected: the rows of an uninterrupted run, figure for figure
+    (an exact resume holds the same weights)."""
+    from sc3d_train.loop.validation import Validator
+
+    args = ["fit", "--shards", sample_shards, "--batch-size", 2, "--tiny", "--base-channels", "4", "--no-progress",
+            "--checkpoint-every", 2, "--val-every", 2, "--val-min-objects", 1, "--steps", 4]
+    whole = tmp_path / "whole"
+    run_cli(train_main, [*args, "--out", whole])
+    assert list(_val_rows(whole)) == ["2", "4"]
+    original = Validator.run
+    for stop_at in (2, 4):
+        def interrupted(self, model, done):
+            if done == stop_at:
+                raise KeyboardInterrupt
+            return original(self, model, done)
+
+        run = tmp_path / f"stopped_at_{stop_at}"
+        with monkeypatch.context() as m:
+            m.setattr(Validator, "run", interrupted)
+            res = run_cli(train_main, [*args, "--out", run], expect_exit=None)
+        assert res.exit_code != 0 and stop_at not in map(int, _val_rows(run)), res.output
+        res = run_cli(train_main, [*args, "--out", run, "--resume"])
+        assert _val_rows(run) == _val_rows(whole), res.output
+        if stop_at == 4:
+            assert "validated that step" in res.output, res.output
+    res = run_cli(train_main, [*args, "--out", run, "--resume"])  # control: nothing owed, nothing done
+    assert "nothing to train" in res.output and "validated" not in res.output

@@ -60,7 +60,7 @@ from sc3d_train.loop.batch_floor import check_batch_parts
 from sc3d_train.loop.schedule import data_position, lr_at, phase_at, step_samples
 from sc3d_train.loop.streams import labeled_dataset, phase_loaders, run_datasets, write_labeled_objects
 from sc3d_train.loop.train_step import TrainStep, compile_plan
-from sc3d_train.loop.validation import Validator
+from sc3d_train.loop.validation import Validator, final_validation_owed
 from sc3d_train.paper.pose import PoseGrid
 from sc3d_train.paper.pose_search import dataset_pose_targets
 
@@ -211,7 +211,7 @@ def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --
     if resume:
         start_step, ckpt_file = restore(t)
         last_good = str(last_path(t.run_dir))
-        if start_step >= cfg.steps:
+        if start_step > cfg.steps or (start_step == cfg.steps and not final_validation_owed(cfg, start_step)):
             return {"step": start_step, "last_losses": {}, "samples_per_s": 0.0, "checkpoint": str(ckpt_file),
                     "best": None, "already_done": True}
     else:
@@ -227,6 +227,9 @@ def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --
             write_labeled_objects(t.run_dir / "labeled_objects.txt", t.labeled)
     log = MetricsLog(t.run_dir, start_step, enabled=t.dist.is_main)
     validator = Validator.for_run(cfg, t.device, start_step, t.dist.is_main, getattr(log, "tb", None))
+    if validator is not None and validator.owed(start_step):  # stopped while validating it: done now
+        validator.run(t.model, start_step)
+        log.draw_curves(t.run_dir / "curves.png", final=start_step >= cfg.steps)
     progress = None
     if t.dist.is_main and cfg.progress:
         from sc3d_data.pipeline.run.progress import progress_bar

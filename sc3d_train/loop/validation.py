@@ -32,7 +32,9 @@ validation off too: :func:`resumed_rows`) and
 ``best.pt``'s record is the best to beat; a ``best.pt`` of a step after the resumed one (kept by
 the interrupted run from steps now trained again, on another schedule where ``--steps`` changed:
 weights of no step of the resumed run) is removed, and the best is chosen again from there
-(exact resume retraces the same weights and keeps the same step). The torch RNG
+(exact resume retraces the same weights and keeps the same step). A resumed step that was due a
+validation and has none (the run stopped while validating it, after saving its checkpoint) is
+validated before training goes on, also at a finished run's last step. The torch RNG
 state is restored after each validation, so the trajectory does not depend on ``val_every``.
 
 **Only the last phase's weights.** A ``semi`` run validates during its labelled pretraining too
@@ -123,6 +125,16 @@ def resumed_best(run_dir: Path, start_step: int, cfg: RunConfig) -> dict | None:
     return best
 
 
+def final_validation_owed(cfg: RunConfig, start_step: int) -> bool:
+    """Whether run ``cfg``, resumed at its last step ``start_step`` (nothing left to train), lacks
+    that step's validation (:meth:`Validator.owed`): ``fit --resume`` then validates it rather
+    than saying there is nothing to do."""
+    path = Path(cfg.out) / VAL_CSV
+    if not cfg.val_every or start_step != cfg.steps or not path.is_file():
+        return False
+    return start_step not in {int(r["step"]) for r in complete_rows(path)} and validation_dataset(cfg) is not None
+
+
 def best_of_an_early_stop(run_dir: Path) -> bool:
     """Whether ``run_dir``'s checkpoints are a ``best.pt`` alone of a step before its run's first
     checkpoint, whose ``metrics.csv`` logged no step from there on (a run stopped, e.g. by Ctrl-C,
@@ -163,6 +175,7 @@ class Validator:
         self.run_dir = Path(cfg.out)
         self.path = self.run_dir / VAL_CSV
         rows = resumed_rows(self.path, start_step)
+        self.validated = {int(r["step"]) for r in rows}  # the steps validated before this run
         for r in rows:  # TensorBoard's resume purge (from start_step on) took the resumed step's own row
             if int(r["step"]) >= start_step > 0:
                 self._to_tb({k: float(r[k]) for k in FIELDS[1:5]}, int(r["step"]))
@@ -204,6 +217,11 @@ class Validator:
     def due(self, done: int) -> bool:
         """Whether to validate after ``done`` steps."""
         return done % self.cfg.val_every == 0 or done == self.cfg.steps
+
+    def owed(self, start_step: int) -> bool:
+        """Whether the step a run resumes from was due a validation that it lacks: the run was
+        stopped (Ctrl-C, a kill) while validating it, after its checkpoint was saved (first)."""
+        return start_step > 0 and self.due(start_step) and start_step not in self.validated
 
     def run(self, model: torch.nn.Module, done: int) -> dict:
         """Validate ``model`` after ``done`` steps: figures to ``validation.csv`` and TensorBoard,
