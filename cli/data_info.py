@@ -30,6 +30,8 @@ def info(shard_dir: Path, max_failures: int, verify: bool):
     if broken:
         made_by = ("merge command (same parts)" if "merged" in index
                    else "import-r2n2 command" if index.get("settings", {}).get("source") == "3D-R2N2" else "render command")
+        if all("voxel grids, its index records" in line for line in broken):  # shard_layout.grid_problem
+            made_by = "voxelize command that stopped part-way, to finish it"
         click.echo(f"\nBROKEN shards: {len(broken)} of {n} (rerun the {made_by} to make them again)")
         for line in broken:
             click.echo(f"  {line}")

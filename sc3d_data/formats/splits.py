@@ -106,6 +106,17 @@ def _r2n2_splits(keys) -> dict:
     return out
 
 
+def absolute_split_file(split_file):
+    """``--split-file`` as an index records it: each path made absolute (``./sp.txt`` typed in
+    ``/data`` is ``/data/sp.txt``), so that a rerun or a part started in another folder is
+    compared by the file it names (``setting_meaning``); None and ``""`` as given."""
+    if not split_file:
+        return split_file
+    if isinstance(split_file, (str, Path)):
+        return str(Path(split_file).absolute())
+    return [str(Path(f).absolute()) for f in split_file]
+
+
 def split_files_of(split_file) -> list[Path]:
     """The files a ``--split-file`` argument names: a file, a directory (its ``*.txt``), or a
     list of those. Missing paths raise ``FileNotFoundError``."""

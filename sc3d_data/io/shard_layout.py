@@ -102,3 +102,19 @@ def layout_problem(f: h5py.File) -> str | None:
         if not _dtype_ok(name, ds.dtype):
             return f"'{name}' is {ds.dtype}, not {np.dtype(ARRAY_DTYPES[name])}"
     return None
+
+
+def grid_problem(f: h5py.File, resolution: int | None) -> str | None:
+    """How the voxel grids of shard ``f`` differ from the side ``resolution`` its index records
+    (None: no grids; ``shards.held_voxel_resolution``), or None when they agree: the shards of a
+    ``sc3d-data voxelize --resolution R`` stopped part-way hold R^3 grids, and the others the old
+    ones, while the index (whose record is written at the end) names one size."""
+    side = f["voxels"].shape[1] if "voxels" in f else None
+    if side == resolution:
+        return None
+
+    def grids(g):
+        return "no voxel grids" if g is None else f"{g}^3 voxel grids"
+
+    return (f"holds {grids(side)}, its index records {grids(resolution)} (a `sc3d-data voxelize` stopped part-way? "
+            "run it again to finish it)")

@@ -7,6 +7,9 @@ only the chunks holding them are decompressed) through HDF5 handles it keeps per
 copy opens its own, never the parent's). Errors are ``ShardError`` naming the
 file and pointing at ``sc3d-data info --verify``. The layout itself (dataset names, shapes, dtypes)
 is documented in ``sc3d_data.io.shards``.
+
+Length: one module because it is the one place that opens shards for reading: every reader and
+every check of a shard against its index (``verify_shard``) share its handles and its errors.
 """
 from __future__ import annotations
 
@@ -21,9 +24,9 @@ import numpy as np
 
 from sc3d_data.io.index_check import version_problem
 from sc3d_data.io.outlock import writer_of
-from sc3d_data.io.shard_layout import layout_problem
+from sc3d_data.io.shard_layout import grid_problem, layout_problem
 from sc3d_data.io.shards import (OBJECT_ARRAYS, SCHEMA_VERSION, STRING_FIELDS, ObjectRecord, ShardError, file_sha256,
-                                 io_reason, load_index, shard_files, shard_path)
+                                 held_voxel_resolution, io_reason, load_index, shard_files, shard_path)
 
 
 @dataclass
@@ -244,11 +247,26 @@ def read_records(path: Path) -> list[ObjectRecord]:
             for i in range(len(strings["model_id"]))]
 
 
-def verify_shard(shard_dir: Path, entry: dict, full: bool = True) -> str | None:
+def verify_shard(shard_dir: Path, entry: dict, full: bool = True, grids: int | None | bool = False) -> str | None:
     """Problem of the shard of index ``entry`` (missing, size or SHA-256 differs from the index,
     not readable), or None when it is intact. ``full=False`` checks existence and size only
     (cheap). Entries without a recorded checksum (older datasets) are checked by reading every
-    dataset (HDF5 Fletcher-32 / gzip errors)."""
+    dataset (HDF5 Fletcher-32 / gzip errors). ``grids``: the voxel grid side the index records
+    (None: no grids), checked against the file's (``shard_layout.grid_problem``); False: not checked."""
+    problem = _file_problem(shard_dir, entry, full)
+    if problem is None and grids is not False:
+        path = shard_path(shard_dir, entry.get("file"))
+        try:
+            with open_shard(path) as f:
+                problem = grid_problem(f, grids)
+        except ShardError as e:
+            return str(e)
+        return f"{path}: {problem}" if problem else None
+    return problem
+
+
+def _file_problem(shard_dir: Path, entry: dict, full: bool) -> str | None:
+    """:func:`verify_shard` without the grids."""
     try:
         path = shard_path(shard_dir, entry.get("file"))
     except ShardError as e:
@@ -287,11 +305,14 @@ def refuse_changed(shard_dir: Path, entries: list[dict], consequence: str) -> No
 
 
 def verify_shards(shard_dir: Path, full: bool = True) -> list[str]:
-    """Problems (one line each, naming the file) of every shard listed in the index; ``ShardError``
+    """Problems (one line each, naming the file) of every shard listed in the index, their voxel
+    grids against the index's record included; ``ShardError``
     naming the writer instead when another process writes the folder (``voxelize`` rewriting its
     shards, a resumed ``render``), whose shards and index are then not yet each other's."""
     for _ in range(2):  # a writer that ended between reading and asking left them matching: look again
-        problems = [p for e in load_index(shard_dir).get("shards", []) if (p := verify_shard(shard_dir, e, full))]
+        index = load_index(shard_dir)
+        problems = [p for e in index.get("shards", [])
+                    if (p := verify_shard(shard_dir, e, full, grids=held_voxel_resolution(index)))]
         if not problems:
             return []
         if writer := writer_of(shard_dir):

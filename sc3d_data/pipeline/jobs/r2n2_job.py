@@ -30,6 +30,7 @@ from sc3d_data.formats.r2n2 import (BLENDER_LENS_MM, BLENDER_SENSOR_MM, MASK_THR
                                     load_r2n2_object)
 from sc3d_data.pipeline.executors.job import ExecOptions, Job
 from sc3d_data.pipeline.executors.slurm_executor import SlurmOptions, run_array, summed_parts
+from sc3d_data.pipeline.run.setting_meaning import config_defaults
 from sc3d_data.io.shards import CHUNK_LAYOUTS, encode_arrays
 from sc3d_data.pipeline.run.partition import Part
 from sc3d_data.pipeline.run.plan import Task
@@ -58,11 +59,13 @@ class ImportConfig(ExecOptions):
 
     def settings(self) -> dict:
         """JSON-able record of every setting (stored in the shards and the index)."""
+        from sc3d_data.formats.splits import absolute_split_file
+
         return {
             "source": "3D-R2N2", "renderings": str(Path(self.renderings).resolve()),
             "voxels": str(Path(self.voxels).resolve()), "image_size": int(self.image_size),
             "background": [int(c) for c in self.background], "categories": self.categories,
-            "split": self.split, "split_file": self.split_file, "seed": int(self.seed),
+            "split": self.split, "split_file": absolute_split_file(self.split_file), "seed": int(self.seed),
             "voxel_frame": self.voxel_frame, "front": self.front, "objects_per_shard": int(self.objects_per_shard),
             "num_views": R2N2_NUM_VIEWS, "voxel_resolution": R2N2_VOXEL_RESOLUTION,
             "r2n2_camera": {"distance": "distance_ratio * 1.75", "lens_mm": BLENDER_LENS_MM,
@@ -161,8 +164,8 @@ def _import_locked(config: ImportConfig, out: Path, progress) -> dict:
     tasks, split_desc, part, problems, skipped = plan_models(config)
     index = ShardIndex(out, config.settings(), split_desc, extra={"part": part},
                        problems=[dict(p, category="", model_id="") for p in problems], skipped=skipped)
-    run = NewShards.resume(index, tasks, max(1, int(config.objects_per_shard)), retry_failed=True,
-                           overwrite=config.overwrite)
+    run = NewShards.resume(index, tasks, max(1, int(config.objects_per_shard)), config_defaults(ImportConfig),
+                           retry_failed=True, overwrite=config.overwrite)
     pool, n_workers = None, 1
     try:
         if run.todo:
@@ -189,7 +192,7 @@ def import_on_slurm(config, options: SlurmOptions) -> dict:
 
     t0 = time.monotonic()
     configs, summaries = run_array(import_part, config, options, paths=("renderings", "voxels"))
-    merge_parts(Path(config.out), [c.out for c in configs])
+    merge_parts(Path(config.out), [c.out for c in configs], defaults_of=lambda _: config_defaults(ImportConfig))
     out = summed_parts(summaries, ("done", "resumed", "failed", "skipped", "planned"), t0, config)
     out["failures"] = [f for s in summaries for f in s["failures"]]
     return out

@@ -85,8 +85,11 @@ class RenderConfig:
 
     def settings(self, backend: str) -> dict:
         """JSON-able record of every setting that shapes the output (stored in shards and index)."""
+        from sc3d_data.formats.splits import absolute_split_file
+
         d = {k: v for k, v in asdict(self).items() if k not in RUNTIME_ONLY + ("out", "overwrite")}
         d["meshes"] = str(Path(self.meshes).resolve())
+        d["split_file"] = absolute_split_file(self.split_file)
         d["elevations"] = [float(e) for e in self.elevations]
         d["background"] = [int(c) for c in self.background]
         d["backend"] = backend

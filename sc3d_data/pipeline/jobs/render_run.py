@@ -34,6 +34,7 @@ from pathlib import Path
 from sc3d_data.formats.discover import no_meshes_found
 from sc3d_data.pipeline.executors.executor import start_executor
 from sc3d_data.pipeline.executors.slurm_executor import SlurmOptions, run_array, summed_parts
+from sc3d_data.pipeline.run.setting_meaning import config_defaults
 from sc3d_data.pipeline.jobs.render_job import RENDER, RenderConfig
 from sc3d_data.pipeline.jobs.shard_output import NewShards, ShardIndex, locked_output
 from sc3d_data.pipeline.run.resume_voxels import voxels_as_recorded
@@ -72,7 +73,7 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
     plan = make_plan(config)
     if not plan.found_any:
         raise no_meshes_found(config.meshes)
-    defaults = {k: getattr(RenderConfig, k) for k in RenderConfig.__dataclass_fields__ if hasattr(RenderConfig, k)}
+    defaults = config_defaults(RenderConfig)
     index = ShardIndex(out, settings, plan.split_desc, extra={"part": plan.part}, problems=plan.problems,
                        skipped=plan.skipped)
     run = NewShards.resume(index, plan.tasks, config.objects_per_shard, defaults, config.retry_failed,
@@ -115,7 +116,7 @@ def render_on_slurm(config: RenderConfig, options: SlurmOptions) -> dict:
 
     t0 = time.monotonic()
     configs, summaries = run_array(render_part, config, options)
-    merged = merge_parts(Path(config.out), [c.out for c in configs])
+    merged = merge_parts(Path(config.out), [c.out for c in configs], defaults_of=lambda _: config_defaults(RenderConfig))
     out = summed_parts(summaries, ("done", "resumed", "skipped", "failed", "warned", "retried", "added",
                                    "repaired", "views"), t0, config)
     out.update(notes=[n for s in summaries for n in s["notes"]],

@@ -1,11 +1,12 @@
 """``sc3d-data merge OUT PART_DIR...``: part folders (``--part I/N`` runs of ``render`` or
 ``import-r2n2``) -> one normal dataset folder.
 
-Checks, before anything is written (each refusal is one line naming the folder):
+Checks, before anything is written (each refusal is one line naming the folder; ``merge_checks.py``):
 
 - every part is a finished dataset (``index.json`` says complete, every listed shard intact);
-- all parts have the same settings and split (the GL backend may differ), the same part count
-  ``N`` and the same plan digest (planned from the same collection);
+- all parts have the same settings and split, by meaning (the GL backend may differ; a setting
+  an older sc3d did not record counts as its default), the same part count ``N`` and the same
+  plan digest (planned from the same collection);
 - parts ``0..N-1`` are each given exactly once (a missing part is named);
 - each part accounts for the objects it was assigned (shards + failures), and no object id
   appears twice across parts;
@@ -26,8 +27,9 @@ written last, so an interrupted merge is finished by running it again. A merge r
 ``sc3d-data voxelize OUT`` keeps the voxelized dataset when ``OUT`` still holds the same merge,
 and is refused when the parts changed since (``--overwrite`` merges afresh, without the voxels);
 ``merged.voxels`` records the grids the parts gave, so parts voxelized after the merge merge
-again. A merge into an ``OUT`` that holds a merge made with other settings is refused
-(``--overwrite`` replaces it), as ``render`` refuses a rerun with other settings.
+again. A merge into an ``OUT`` that holds a merge made with other settings, or in which an
+object of the parts has another split, is refused (``--overwrite`` replaces it), as ``render``
+refuses a rerun with other settings or splits.
 """
 from __future__ import annotations
 
@@ -36,20 +38,11 @@ import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
-from sc3d_data.pipeline.run.resume import check_unlisted_shard, settings_differ
-from sc3d_data.io.shards import (INDEX_NAME, SHARD_PATTERN, file_sha256, held_voxel_resolution, io_reason,
-                                 load_index, shard_path, write_index)
-from sc3d_data.io.shard_reader import verify_shard
-
-
-#: render settings that say how the grids were made: parts are compared by the grids they hold
-#: instead (``render --voxelize`` and ``voxelize PART`` afterwards give the same grids)
-VOXEL_SETTINGS = ("voxelize", "voxel_resolution")
-
-
-def _grids(resolution: int | None) -> str:
-    return "no voxels" if resolution is None else f"{resolution}^3 voxels"
+from sc3d_data.io.shards import INDEX_NAME, SHARD_PATTERN, file_sha256, io_reason, load_index, shard_path, write_index
+from sc3d_data.pipeline.run.merge_checks import MergeError, check_parts, check_same_settings
+from sc3d_data.pipeline.run.resume import check_unlisted_shard
 
 
 def merged_voxels_record(parts: list[dict]) -> dict | None:
@@ -60,10 +53,6 @@ def merged_voxels_record(parts: list[dict]) -> dict | None:
     if not records:
         return None
     return dict(records[0], failed=sum(r.get("failed", 0) for r in records))
-
-
-class MergeError(ValueError):
-    """Parts that cannot be merged (message names the folder and the problem)."""
 
 
 @dataclass
@@ -79,86 +68,11 @@ class MergeSummary:
     out: str
 
 
-def _object_key(entry: dict) -> tuple[str, str] | None:
-    return (entry["category"], entry["model_id"]) if entry.get("model_id") else None
-
-
-def _lost_objects(index: dict) -> list[dict]:
-    """The failures of ``index`` that stand for an object missing from its shards: those of the
-    render/import stage with an object id. A ``voxelize`` failure names an object that keeps
-    its row (with an empty grid), so it is no object of its own."""
-    return [f for f in index.get("failures", []) if _object_key(f) and f.get("stage") != "voxelize"]
-
-
 def _renamed_failures(failures: list[dict], names: dict[str, str]) -> list[dict]:
     """``failures`` of one part with the ``shard`` of each ``voxelize`` failure renamed by
     ``names`` (the part's shard file -> its merged name); the others unchanged."""
     return [dict(f, shard=names.get(f.get("shard"), f.get("shard"))) if f.get("stage") == "voxelize" else f
             for f in failures]
-
-
-def check_parts(dirs: list[Path]) -> list[dict]:
-    """The parts' indexes, in part order, after every check of the module doc."""
-    if not dirs:
-        raise MergeError("no part folders given")
-    indexes = []
-    for d in dirs:
-        try:
-            index = load_index(d)
-        except (FileNotFoundError, ValueError) as e:
-            raise MergeError(str(e)) from None
-        if "part" not in index:
-            raise MergeError(f"{d}: index has no part record (made by an older sc3d?); rerun it with --part")
-        if not index.get("complete"):
-            raise MergeError(f"{d}: part {index['part']['index']}/{index['part']['count']} is not finished "
-                             "(index incomplete); rerun it (it resumes), then merge")
-        for entry in index.get("shards", []):
-            problem = verify_shard(d, entry, full=False)
-            if problem:
-                raise MergeError(f"{problem}; rerun that part (it re-renders the shard), then merge")
-        indexes.append(index)
-    first, d0 = indexes[0], dirs[0]
-    n = first["part"]["count"]
-    seen: dict[int, Path] = {}
-    for d, index in zip(dirs, indexes):
-        p = index["part"]
-        diff = [k for k in settings_differ(first.get("settings", {}), index.get("settings", {}))
-                if k not in VOXEL_SETTINGS]  # compared by the grids the shards hold, below
-        if diff:
-            raise MergeError(f"{d}: made with other settings than {d0} ({', '.join(diff)} differ); refused")
-        if index.get("split") != first.get("split"):
-            raise MergeError(f"{d}: split differs from {d0}; refused")
-        grids, grids0 = held_voxel_resolution(index), held_voxel_resolution(first)
-        if grids != grids0:
-            raise MergeError(f"{d}: {_grids(grids)}, {d0}: {_grids(grids0)}; refused: give every part the same "
-                             f"grids (`sc3d-data voxelize PART --resolution R`), then merge")
-        if p["count"] != n or p.get("plan_sha256") != first["part"].get("plan_sha256"):
-            raise MergeError(f"{d}: part {p['index']}/{p['count']} of another plan than {d0} "
-                             f"(part {first['part']['index']}/{n}); refused")
-        if p["index"] in seen:
-            raise MergeError(f"{d}: part {p['index']}/{n} is given twice (also {seen[p['index']]})")
-        seen[p["index"]] = d
-        done = len(index.get("objects", [])) + len(_lost_objects(index))
-        if done != p["assigned"]:
-            raise MergeError(f"{d}: part {p['index']}/{n} accounts for {done} of its {p['assigned']} objects")
-    missing = sorted(set(range(n)) - set(seen))
-    if missing:
-        raise MergeError(f"missing part(s) {', '.join(f'{i}/{n}' for i in missing)} (given: "
-                         f"{', '.join(str(i) for i in sorted(seen))}); run them, then merge")
-    owner: dict[tuple[str, str], Path] = {}
-    for d, index in zip(dirs, indexes):
-        for e in index.get("objects", []) + _lost_objects(index):
-            key = _object_key(e)
-            if key is None:
-                continue
-            if key in owner:
-                raise MergeError(f"{d}: object {key[0]}/{key[1]} is also in {owner[key]} (duplicate); refused")
-            owner[key] = d
-    if sum(ix["part"]["assigned"] for ix in indexes) != first["part"]["planned_total"]:
-        raise MergeError(f"the parts were assigned {sum(ix['part']['assigned'] for ix in indexes)} objects, "
-                         f"the plan has {first['part']['planned_total']}")
-    order = sorted(range(len(dirs)), key=lambda k: indexes[k]["part"]["index"])
-    return [dict(indexes[k], _dir=str(dirs[k])) for k in order]
 
 
 def _place(src: Path, dst: Path, copy: bool) -> str:
@@ -214,19 +128,9 @@ def _voxelized_since(out: Path, old: dict, parts: list[dict], objects: list[dict
                      "or --overwrite (then run `sc3d-data voxelize` on it again)")
 
 
-def check_same_settings(out: Path, old: dict, first: dict) -> None:
-    """``MergeError`` when ``out`` holds a merge made with other settings than the parts (other
-    meshes, views, source...; compared as ``render`` compares a rerun's, by meaning, grids
-    apart): merging would replace that dataset, which needs ``--overwrite``. The same settings
-    merge again (a part rerun after a fix, more meshes in the same collection)."""
-    diff = [k for k in settings_differ(old.get("settings", {}), first.get("settings", {})) if k not in VOXEL_SETTINGS]
-    if diff:
-        raise MergeError(f"{out}: holds a merge made with other settings than {first['_dir']} ({', '.join(diff)} "
-                         "differ); merging would replace it: use another OUT or --overwrite")
-
-
-def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite: bool = False) -> MergeSummary:
-    """Merge ``part_dirs`` into ``out`` (module doc)."""
+def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite: bool = False,
+                defaults_of: Callable[[dict], dict] = lambda settings: {}) -> MergeSummary:
+    """Merge ``part_dirs`` into ``out`` (module doc); ``defaults_of``: as for :func:`check_parts`."""
     from sc3d_data.io.outlock import exclusive_lock
     from sc3d_data.pipeline.run.resume import tmp_cleaned
 
@@ -235,7 +139,7 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
     dirs = [Path(d) for d in part_dirs]
     if any(d.resolve() == out.resolve() for d in dirs):
         raise MergeError(f"{out}: the output folder cannot be one of the parts")
-    parts = check_parts(dirs)
+    parts = check_parts(dirs, defaults_of)
     out.mkdir(parents=True, exist_ok=True)
     with exclusive_lock(out, "sc3d-data merge"), tmp_cleaned(out):  # a killed merge's *.tmp go
         old = load_index(out) if (out / INDEX_NAME).is_file() else {}
@@ -258,10 +162,10 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
             warnings += index.get("warnings", [])
         voxels = merged_voxels_record(parts)
         if old.get("merged") and not overwrite:
+            check_same_settings(out, old, parts[0], objects, defaults_of(old.get("settings", {})))
             given = old["merged"].get("voxels", voxels if old.get("voxels") else None)  # older merges: no record
             if old.get("voxels") != given:
                 return _voxelized_since(out, old, parts, objects, [e["sha256"] for _, _, e in places], t0)
-            check_same_settings(out, old, parts[0])
         kept = [dst.is_file() and dst.stat().st_size == entry["bytes"] and file_sha256(dst) == entry["sha256"]
                 for _, dst, entry in places]
         if not overwrite:  # a shard-named file no merge wrote is someone's: refused before any write

@@ -1,0 +1,141 @@
+"""Defects of the data half found by the sixteenth attack on the commands (2026-11-28): merges that
+compared splits and settings by spelling or replaced a dataset whose splits an edited split file
+had moved, and the mixed grids of a ``voxelize --resolution`` stopped part-way passing ``info
+--verify`` and ``check``. Real renderer, real HDF5; each test fails without its fix."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import h5py
+
+from sc3d_cli.data import main as data_main
+from conftest import SAMPLE_MESHES, one_error, run_cli
+from test_faults import index_of
+from test_faults_round10_data import _dataset_bytes
+
+FAST = ["--views", "2", "--no-progress", "--workers", "1"]
+#: the four sample meshes these tests split (category folder / model id)
+SPLITS = "train airplane/centrair101_glider_fgai\ntrain car/peugeot_308cc_scopia\ntrain car/jeep_psionic\n" \
+         "test chair/chair2_blendswap\n"
+
+
+def _parts(folder: Path, *options, n: int = 2) -> list[Path]:
+    parts = [folder / f"p{i}" for i in range(n)]
+    for i, part in enumerate(parts):
+        run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", part, "--part", f"{i}/{n}", *FAST, *options])
+    return parts
+
+
+def test_a_merge_that_would_move_objects_to_another_split_is_refused(tmp_path, monkeypatch):
+    """An edited split file, parts rendered again with it, merged into the folder of the first
+    merge: the dataset was replaced (an object moved from train to test) with exit 0, where
+    ``render`` refuses the same change. Refused in one line naming the object; the folder is
+    kept; ``--overwrite`` replaces it."""
+    monkeypatch.chdir(tmp_path)
+    Path("splits.txt").write_text(SPLITS)
+    data = tmp_path / "data"
+    run_cli(data_main, ["merge", data, *_parts(tmp_path / "a", "--split-file", "splits.txt")])
+    before = _dataset_bytes(data)
+    Path("splits.txt").write_text(SPLITS.replace("train car/jeep_psionic", "test car/jeep_psionic"))
+    moved = _parts(tmp_path / "b", "--split-file", "splits.txt")
+    error = one_error(run_cli(data_main, ["merge", data, *moved], expect_exit=1).output)
+    assert "1 object(s) of these parts have another split" in error and "jeep_psionic: train -> test" in error, error
+    assert _dataset_bytes(data) == before
+    run_cli(data_main, ["merge", data, *moved, "--overwrite"])
+    assert {o["model_id"]: o["split"] for o in index_of(data)["objects"]}["jeep_psionic"] == "test"
+
+
+def test_parts_whose_split_is_spelt_differently_merge(tmp_path, monkeypatch):
+    """``--split random:0.7,0.3`` for one part and ``random:0.70,0,0.30`` for the other (data.md's
+    own example of one split), or one split file given as ``./splits.txt`` and by its absolute
+    path: merge refused them ("split differs"), comparing the split records as typed."""
+    monkeypatch.chdir(tmp_path)
+    Path("splits.txt").write_text(SPLITS)
+    for name, spellings in {"random": (["--split", "random:0.7,0.3"], ["--split", "random:0.70,0,0.30"]),
+                            "file": (["--split-file", "./splits.txt"], ["--split-file", str(tmp_path / "splits.txt")])
+                            }.items():
+        parts = [tmp_path / name / f"p{i}" for i in range(2)]
+        for i, (part, options) in enumerate(zip(parts, spellings)):
+            run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", part, "--part", f"{i}/2", *FAST,
+                                *options])
+        run_cli(data_main, ["merge", tmp_path / name / "merged", *parts])
+
+
+def test_a_split_file_is_recorded_by_the_file_it_names(tmp_path, monkeypatch):
+    """``--split-file splits.txt`` was recorded as typed, so a rerun from another folder naming the
+    same file by its absolute path was refused as "other settings (split_file differ)". It is
+    recorded absolute, and the rerun resumes."""
+    Path(tmp_path / "splits.txt").write_text(SPLITS)
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "ds"
+    run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", out, "--split-file", "splits.txt", *FAST])
+    assert index_of(out)["settings"]["split_file"] == str(tmp_path / "splits.txt")
+    monkeypatch.chdir(SAMPLE_MESHES)
+    res = run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", out, "--split-file",
+                              tmp_path / "splits.txt", *FAST])
+    assert "done 0, resumed 4" in res.output, res.output
+
+
+def test_parts_of_an_older_sc3d_merge_with_parts_of_a_newer(tmp_path):
+    """An older sc3d did not record ``outside_textures`` (added later; its default, ``warn``, is
+    what the older code did). ``render`` resumes such a part; ``merge`` refused to merge it with a
+    part the current sc3d resumed ("outside_textures differ"), and refused the parts again into
+    the older merge. A setting an index lacks now counts as its default there too; another
+    value still differs (control)."""
+    parts = _parts(tmp_path)
+    for part in parts:
+        index = json.loads((part / "index.json").read_text())
+        del index["settings"]["outside_textures"]
+        (part / "index.json").write_text(json.dumps(index))
+    data = tmp_path / "data"
+    run_cli(data_main, ["merge", data, *parts])
+    run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", parts[0], "--part", "0/2", *FAST])
+    assert index_of(parts[0])["settings"]["outside_textures"] == "warn"
+    run_cli(data_main, ["merge", data, *parts])
+    index = json.loads((parts[1] / "index.json").read_text())
+    index["settings"]["outside_textures"] = "fail"
+    (parts[1] / "index.json").write_text(json.dumps(index))
+    error = one_error(run_cli(data_main, ["merge", tmp_path / "other", *parts], expect_exit=1).output)
+    assert "outside_textures differ" in error, error
+
+
+def _grid_sides(out: Path) -> list:
+    sides = []
+    for shard in sorted(out.glob("shard-*.h5")):
+        with h5py.File(shard, "r") as f:
+            sides.append(f["voxels"].shape[1] if "voxels" in f else None)
+    return sides
+
+
+def test_the_mixed_grids_of_a_voxelize_stopped_part_way_are_reported(tmp_path, monkeypatch):
+    """``voxelize --resolution 16`` stopped after its first shard (Ctrl-C) leaves 16^3 grids in
+    that shard, whose SHA-256 the index already records, and 32^3 in the others while the
+    index's record still says 32^3: ``info --verify`` and ``check`` passed, exit 0. Now both
+    name the shard and say to run the voxelize again; once it has finished, they pass."""
+    out = tmp_path / "ds"
+    run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", out, "--voxelize", "--objects-per-shard", "4",
+                        *FAST])
+    from sc3d_data.pipeline.jobs import shard_output
+
+    real = shard_output.write_chunks
+
+    def stopped_after_the_first_shard(index, pool, todo, K, n_workers, store):
+        def store_then_stop(c, results, last):
+            store(c, results, last)
+            index.write()  # as the lazy write after a chunk does
+            raise KeyboardInterrupt
+        return real(index, pool, todo, K, n_workers, store_then_stop)
+
+    with monkeypatch.context() as m:
+        m.setattr(shard_output, "write_chunks", stopped_after_the_first_shard)
+        run_cli(data_main, ["voxelize", out, "--resolution", "16", *FAST[2:]], expect_exit=None)
+    assert _grid_sides(out) == [16, 32, 32], _grid_sides(out)
+    res = run_cli(data_main, ["info", out, "--verify"], expect_exit=1)
+    assert "BROKEN shards: 1 of 3 (rerun the voxelize command that stopped part-way" in res.output, res.output
+    assert "shard-00000.h5: holds 16^3 voxel grids, its index records 32^3" in res.output, res.output
+    assert "holds 16^3 voxel grids" in one_error(run_cli(data_main, ["check", out], expect_exit=1).output)
+
+    run_cli(data_main, ["voxelize", out, "--resolution", "16", *FAST[2:]])
+    assert _grid_sides(out) == [16, 16, 16]
+    run_cli(data_main, ["info", out, "--verify"])
