@@ -46,7 +46,7 @@ class StepRunner:
     """One variant: its own model (seed 0), Adam and :class:`TrainStep` on fixed device batches."""
 
     def __init__(self, cfg, batch: dict, device, amp_dtype, channels_last: bool, compile_: str, phase: str):
-        from sc3d_train.loop.checkpoint import build_model
+        from sc3d_train.loop.checkpoint_model import build_model
         from sc3d_train.loop.train_step import TrainStep, compile_plan
 
         cfg = replace(cfg, compile=compile_, mode="semi" if phase == "semi" else "supervised")

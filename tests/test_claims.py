@@ -127,7 +127,7 @@ def test_claims_with_two_seeds_reports_mean_and_standard_deviation(sample_shards
     # resume per (run, seed): a lost evaluation is redone from the trained run, the rest read back
     (out / "runs" / "semi" / "seed-1" / "eval" / "metrics.json").unlink()
     again = study()
-    assert again.count("done before") == 3 and "semi seed 1: semi, " in again and "(resuming)" in again
+    assert again.count("done before") == 3 and "semi seed 1: semi, " in again and "(trained; evaluating)" in again
 
 
 def test_cpu_preset_pretrains_semi_for_200_steps_and_leaves_the_other_runs_alone(sample_shards, tmp_path):

@@ -17,7 +17,7 @@ MIXED = 20
 def median_rotation_error(checkpoint, dataset) -> float:
     """Median over every view of ``dataset`` of the rotation error (degrees) of the test-time
     self-consistent pose (eval's default) of ``checkpoint``."""
-    from sc3d_train.loop.checkpoint import load_model
+    from sc3d_train.loop.checkpoint_model import load_model
     from sc3d_train.paper.metrics import predict_dataset
 
     model, cfg, _ = load_model(checkpoint, "cpu")

@@ -32,7 +32,7 @@ def test_fit_writes_the_run_and_learns(trained_run, sample_shards):
     Spread, 20 runs (seeds 0-9 x torch threads 1 and 2, scripts/test_spread.py, 2-core Xeon,
     2026-11-25): loss last 20 / first 10 steps 0.15-0.25, mask loss 0.25-0.41, train IoU@0.4
     0.27-0.74 (gain over the untrained net 0.23-0.70). Bounds: 0.5, 0.75, 0.15 and 0.10."""
-    from sc3d_train.loop.checkpoint import build_model, load_model
+    from sc3d_train.loop.checkpoint_model import build_model, load_model
     from sc3d_train.settings.config import RunConfig
     from sc3d_train.data.dataset import ShardDataset
     from sc3d_train.paper.metrics import predict_dataset, summarize

@@ -187,7 +187,8 @@ def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path
         return json.loads(metrics_file.read_text()), None
     t0 = time.perf_counter()
     resume = (run_dir / "checkpoints" / "last.pt").is_file()
-    echo(f"{name} seed {seed}: {cfg.mode}, {cfg.steps} steps of {cfg.batch_size}" + (" (resuming)" if resume else ""))
+    echo(f"{name} seed {seed}: {cfg.mode}, {cfg.steps} steps of {cfg.batch_size}" + (resumed_state(run_dir, cfg.steps)
+                                                                                   if resume else ""))
     fit(cfg, resume=resume, resume_hint="run the same claims command again to resume")
     drop_intermediate_checkpoints(run_dir, cfg.steps)
     res = evaluate(run_checkpoint(run_dir, pick), eval_shards, eval_split, eval_folder(run_dir, pick), device)
@@ -195,6 +196,19 @@ def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path
     echo(f"    {name} seed {seed} (step {res['step']}): mean IoU@0.4 {res['mean']['voxel_iou_0.4']:.3f}, median "
          f"rotation error {res['mean']['pose_rotation_median']:.1f} deg ({seconds / 60:.1f} min)")
     return res, seconds
+
+
+def resumed_state(run_dir: Path, steps: int) -> str:
+    """``" (resuming at step N)"``, or ``" (trained; evaluating)"`` where the run's ``last.pt``
+    has all ``steps`` (a study run again with another ``--pick``): what ``claims`` says of a run
+    it finds begun."""
+    from sc3d_train.loop.checkpoint import CheckpointError, last_path, load_checkpoint
+
+    try:
+        done = int(load_checkpoint(last_path(run_dir))["step"])
+    except (CheckpointError, KeyError, TypeError, ValueError):
+        return " (resuming)"
+    return " (trained; evaluating)" if done >= steps else f" (resuming at step {done})"
 
 
 def evaluated_on(metrics_file: Path, shards: Path, split: str, data_digest: str | None = None) -> bool:

@@ -35,7 +35,8 @@ from sc3d_data.formats.shapenet import category_label
 from sc3d_data.io.outlock import exclusive_lock
 from sc3d_data.io.pictures import write_figure
 from sc3d_data.io.shards import atomic_write_bytes
-from sc3d_train.loop.checkpoint import load_model, run_checkpoint
+from sc3d_train.loop.checkpoint import run_checkpoint
+from sc3d_train.loop.checkpoint_model import load_model
 from sc3d_train.settings.command_config import EvalConfig
 from sc3d_train.settings.config import MAX_BATCH_SIZE, batch_size_too_large
 from sc3d_train.data.dataset import ShardDataset
@@ -148,8 +149,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
     picture first and ``metrics.json`` last, atomically, so that ``metrics.json`` exists only for a
     finished evaluation (``claims`` reads it back instead of evaluating again while the shards
     give the same ``data_sha256``, :func:`~sc3d_train.evaluation.evaluated_data.evaluated_data_digest`);
-    ``examples`` objects per category are drawn. Returns the metrics dict (also holding
-    ``table``, the text table, and ``out``)."""
+    ``examples`` objects per category are drawn. Returns the metrics dict (with ``table``, the text table, and ``out``)."""
     from sc3d_train.loop.runtime import resolve_device
 
     if batch_size < 1 or examples < 0:

@@ -32,7 +32,8 @@ import torch
 
 from sc3d_data.io.pictures import write_figure
 from sc3d_data.io.shards import atomic_write_bytes
-from sc3d_train.loop.checkpoint import load_model, run_checkpoint
+from sc3d_train.loop.checkpoint import run_checkpoint
+from sc3d_train.loop.checkpoint_model import load_model
 from sc3d_train.evaluation.prediction_files import (ImageError, check_default_folder_free, check_inputs_kept,
                                                     check_outputs_replaceable, output_files)
 from sc3d_train.settings.command_config import PredictConfig, check_pose_source

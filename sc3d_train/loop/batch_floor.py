@@ -20,7 +20,7 @@ def smallest_norm_plane(cfg: RunConfig) -> int:
     feature plane, 1 for a flat one), measured by a forward pass of 2 blank images through the
     run's network, built on the CPU in eval mode (no statistics updated; random state: the run
     seeds everything after this). Without BatchNorm layers: a large number."""
-    from sc3d_train.loop.checkpoint import build_model
+    from sc3d_train.loop.checkpoint_model import build_model
 
     model = build_model(cfg).eval()
     planes: list[int] = []

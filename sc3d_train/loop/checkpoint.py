@@ -1,5 +1,5 @@
-"""Checkpoints of ``sc3d-train fit``: what they hold, how they are written, and how a model
-is rebuilt from one (for ``--resume``, ``eval`` and ``predict``).
+"""Checkpoints of ``sc3d-train fit``: what they hold, how they are written and read (a model is
+rebuilt from one by :mod:`~sc3d_train.loop.checkpoint_model`, for ``--resume``, ``eval`` and ``predict``).
 
 A checkpoint (``torch.save`` dict) holds ``model`` (state dict of the unwrapped network),
 ``optimizer``, ``scaler`` (AMP GradScaler or None), ``rng`` (one entry per DDP rank: torch CPU,
@@ -71,11 +71,15 @@ def last_path(run_dir: Path) -> Path:
 
 def interrupted_line(run_dir: Path, resume_hint: str) -> str:
     """What ``fit`` prints on Ctrl-C: the run's ``last.pt`` (written atomically after the loss was
-    checked: a good checkpoint, also when the interrupt came before the loop noted it) and
-    ``resume_hint`` (how the caller's command resumes), or that there is nothing to resume."""
-    if not last_path(run_dir).is_file():
+    checked: a good checkpoint, also when the interrupt came before the loop noted it), or the
+    step file ``--resume`` reads where there is none yet, and ``resume_hint`` (how the caller's
+    command resumes); or that there is nothing to resume."""
+    if last_path(run_dir).is_file():
+        return f"interrupted; last good checkpoint: {last_path(run_dir)} ({resume_hint})"
+    try:  # stopped between a step's step_XXXXXX.pt and its last.pt: --resume reads the step file
+        return f"interrupted; last good checkpoint: {resume_checkpoint(run_dir)[0]} ({resume_hint})"
+    except CheckpointError:
         return "interrupted before the first checkpoint: nothing to resume (start the run again)"
-    return f"interrupted; last good checkpoint: {last_path(run_dir)} ({resume_hint})"
 
 
 def best_path(run_dir: Path) -> Path:
@@ -265,36 +269,3 @@ def checkpoint_config(path: Path, ckpt: dict) -> RunConfig:
         return RunConfig.from_dict(ckpt["config"])
     except ValueError as e:
         raise CheckpointError(f"{path}: its config is not one this version reads ({e})") from e
-
-
-def build_model(run_config: RunConfig):
-    """The network described by ``run_config.model`` (a :class:`~sc3d_train.settings.config.ModelConfig`)."""
-    from sc3d_train.paper.model import SelfConsistencyNet
-
-    return SelfConsistencyNet(run_config.model)
-
-
-def state_dict_mismatch(expected: dict, found: dict) -> str:
-    """A short description of how ``found`` differs from ``expected`` (empty when they match)."""
-    missing = [k for k in expected if k not in found]
-    unexpected = [k for k in found if k not in expected]
-    shapes = [k for k in expected if k in found and tuple(expected[k].shape) != tuple(found[k].shape)]
-    parts = []
-    for label, keys in (("missing", missing), ("unexpected", unexpected), ("shape differs", shapes)):
-        if keys:
-            parts.append(f"{len(keys)} {label}, e.g. {keys[0]}")
-    return "; ".join(parts)
-
-
-def load_model(path: Path, device="cpu"):
-    """``(model in eval mode on device, RunConfig, checkpoint dict)`` from a checkpoint file;
-    a clear error when the weights do not fit the stored configuration."""
-    ckpt = load_checkpoint(path)
-    cfg = checkpoint_config(path, ckpt)
-    model = build_model(cfg)
-    problems = state_dict_mismatch(model.state_dict(), ckpt["model"])
-    if problems:
-        raise CheckpointError(f"{path}: weights do not match the model config stored in it "
-                              f"({problems}; a different config or version of sc3d_train.paper.model?)")
-    model.load_state_dict(ckpt["model"])
-    return model.to(device).eval(), cfg, ckpt

@@ -44,9 +44,9 @@ from pathlib import Path
 
 import torch
 
-from sc3d_train.loop.checkpoint import (CheckpointError, build_model, checkpoint_config, last_path,
-                                        resume_checkpoint, rng_state, save_checkpoint, set_rng_state,
-                                        interrupted_line, state_dict_mismatch)
+from sc3d_train.loop.checkpoint import (CheckpointError, checkpoint_config, interrupted_line, last_path,
+                                        resume_checkpoint, rng_state, save_checkpoint, set_rng_state)
+from sc3d_train.loop.checkpoint_model import build_model, state_dict_mismatch
 from sc3d_train.settings.config import CONFIG_NAME, RunConfig
 from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.data.device_prefetch import DevicePrefetcher

@@ -106,7 +106,7 @@ def from_plain(cls, data, prefix: str = ""):
         raise ConfigError(f"{prefix.rstrip('.') or cls.__name__}: expected a mapping of "
                           f"{cls.__name__} keys, got {type(data).__name__}")
     known = [f.name for f in fields(cls) if f.init]
-    unknown = sorted(set(data) - set(known))
+    unknown = sorted((str(k) for k in set(data) - set(known)), key=str)  # YAML keys may be numbers, true...
     if unknown:
         raise ConfigError(f"unknown {cls.__name__} keys {[prefix + k for k in unknown]}; "
                           f"known: {sorted(known)}")

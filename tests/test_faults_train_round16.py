@@ -1,0 +1,69 @@
+"""Defects of the training half found by the sixteenth attack on the commands (2026-11-28), each
+test failing without its fix. Real (tiny) runs, real checkpoint files, real YAML."""
+from __future__ import annotations
+
+import shutil
+
+import pytest
+import torch
+from PIL import Image
+
+from sc3d_cli.train import main as train_main
+from conftest import one_error, run_cli
+from test_faults_train import TINY, tiny_run  # noqa: F401 - the fixture (a 2-step run)
+
+
+def test_ctrl_c_between_the_step_file_and_last_pt_names_the_step_file(sample_shards, tmp_path, monkeypatch):
+    """A Ctrl-C after ``step_000002.pt`` was written but before it was copied to ``last.pt`` said
+    "interrupted before the first checkpoint: nothing to resume (start the run again)"; starting
+    again is then refused (the folder holds a step file) while ``--resume`` works. The line now
+    names the step file and says to resume, which then continues from it."""
+    from sc3d_train.loop import checkpoint
+
+    real = checkpoint.shutil.copyfile
+
+    def stopped_before_last(src, dst):
+        if "step_000002" in str(src):
+            raise KeyboardInterrupt
+        return real(src, dst)
+
+    out = tmp_path / "run"
+    args = ["fit", "--shards", sample_shards, "--out", out, "--steps", 4, "--checkpoint-every", 2, *TINY]
+    with monkeypatch.context() as m:
+        m.setattr(checkpoint.shutil, "copyfile", stopped_before_last)
+        res = run_cli(train_main, args, expect_exit=None)
+    assert res.exit_code != 0 and not (out / "checkpoints" / "last.pt").exists(), res.output
+    assert f"last good checkpoint: {out / 'checkpoints' / 'step_000002.pt'} (resume with --resume)" in res.output, \
+        res.output
+    res = run_cli(train_main, [*args, "--resume"])
+    assert "resuming from" in res.output and "(step 2)" in res.output, res.output
+
+
+@pytest.mark.parametrize("text, key", [("1: 2\n", "'1'"), ("model: {true: 4}\n", "'model.True'")])
+def test_a_config_key_that_is_no_string_is_refused_in_one_line(sample_shards, tmp_path, text, key):
+    """A ``--config`` file with a key YAML reads as a number or a boolean (``1: 2``, ``model:
+    {true: 4}``) ended in a traceback (``TypeError: can only concatenate str (not "int") to str``)
+    or a line that meant nothing; one line now names the file and the key."""
+    config = tmp_path / "c.yaml"
+    config.write_text(f"shards: {sample_shards}\nout: {tmp_path / 'run'}\n" + text)
+    error = one_error(run_cli(train_main, ["fit", "--config", config], expect_exit=1).output)
+    assert "c.yaml" in error and f"keys [{key}]" in error, error
+
+
+def test_a_checkpoint_naming_a_huge_network_is_refused_before_it_is_built(tiny_run, tmp_path):  # noqa: F811
+    """A 2-step checkpoint whose stored config was edited to ``base_channels: 1000000`` made
+    ``eval`` and ``predict`` build that network before comparing it with the file's weights:
+    "DefaultCPUAllocator: can't allocate memory: you tried to allocate 36000000000000 bytes"
+    (a smaller number would really take tens of GB). The shapes are now compared first, on the
+    meta device, and the file is refused in one line."""
+    ckpt = torch.load(tiny_run / "checkpoints" / "last.pt", weights_only=False)
+    ckpt["config"]["model"]["base_channels"] = 1000000
+    huge = tmp_path / "huge.pt"
+    torch.save(ckpt, huge)
+    image = tmp_path / "view.png"
+    Image.new("RGB", (64, 64), (200, 30, 30)).save(image)
+    error = one_error(run_cli(train_main, ["predict", "--checkpoint", huge, image, "--out", tmp_path / "p"],
+                              expect_exit=1).output)
+    assert "weights do not match the model config stored in it" in error and "shape differs" in error, error
+    shutil.copy(tiny_run / "checkpoints" / "last.pt", tmp_path / "fine.pt")  # control: the same file unedited
+    run_cli(train_main, ["predict", "--checkpoint", tmp_path / "fine.pt", image, "--out", tmp_path / "q"])
