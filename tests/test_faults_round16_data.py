@@ -139,3 +139,55 @@ def test_the_mixed_grids_of_a_voxelize_stopped_part_way_are_reported(tmp_path, m
     run_cli(data_main, ["voxelize", out, "--resolution", "16", *FAST[2:]])
     assert _grid_sides(out) == [16, 16, 16]
     run_cli(data_main, ["info", out, "--verify"])
+
+
+HOLD = """
+import sys
+from pathlib import Path
+from sc3d_data.io.outlock import exclusive_lock, reading_lock
+folder, how = Path(sys.argv[1]), sys.argv[2]
+with (exclusive_lock(folder, "sc3d-data render") if how == "write" else reading_lock(folder, "merge", "")):
+    print("held", flush=True)
+    sys.stdin.readline()
+"""
+
+
+def _holding(tmp_path: Path, folder: Path, how: str):
+    """A process holding ``folder``'s lock with sc3d's own code: as a writer, or as a reader (a merge)."""
+    import subprocess
+    import sys
+
+    script = tmp_path / f"hold_{how}.py"
+    script.write_text(HOLD)
+    proc = subprocess.Popen([sys.executable, script, folder, how], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            text=True)
+    assert proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def test_merge_and_a_writer_of_its_parts_exclude_each_other(tmp_path):
+    """``merge`` read its parts without a lock: a part being rendered again could be linked half
+    way (a shard replaced after its checksum was read). A part being written is now refused,
+    naming its writer, and a writer of a part that a merge is reading is refused, naming the
+    merge's process; once each has ended, the other runs (controls)."""
+    parts = _parts(tmp_path)
+    writer = _holding(tmp_path, parts[1], "write")
+    try:
+        error = one_error(run_cli(data_main, ["merge", tmp_path / "data", *parts], expect_exit=1).output)
+        assert f"{parts[1]}: another process (PID {writer.pid}: sc3d-data render) is writing" in error, error
+        assert error.endswith("merge when it has finished"), error
+    finally:
+        writer.stdin.close()
+        writer.wait(timeout=30)
+    assert not (tmp_path / "data").exists()
+    reader = _holding(tmp_path, parts[0], "read")
+    try:
+        rerun = ["render", "--meshes", SAMPLE_MESHES, "--out", parts[0], "--part", "0/2", *FAST]
+        error = one_error(run_cli(data_main, rerun, expect_exit=1).output)
+        assert f"{parts[0]}: another process (PID {reader.pid}: hold_read.py {parts[0]} read) is using this folder" \
+            in error, error
+        run_cli(data_main, ["merge", tmp_path / "data", *parts])  # readers share the parts
+    finally:
+        reader.stdin.close()
+        reader.wait(timeout=30)
+    run_cli(data_main, rerun)

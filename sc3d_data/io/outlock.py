@@ -12,7 +12,7 @@ from __future__ import annotations
 import errno
 import fcntl
 import os
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Iterator
 
@@ -58,7 +58,8 @@ def missing_folders(folder: Path) -> list[Path]:
 
 @contextmanager
 def exclusive_lock(folder: Path, command: str = "sc3d-data", create: bool = False, shared: bool = False,
-                   name: str = LOCK_NAME, made: list[Path] | None = None) -> Iterator[Path]:
+                   name: str = LOCK_NAME, made: list[Path] | None = None,
+                   advice: str = "wait for it to finish or use another --out") -> Iterator[Path]:
     """Hold the write lock of ``folder`` for the ``with`` block; raises ``LockError`` when another
     process holds it. ``create``: make ``folder`` (and its parents) if missing, and remove it
     and the parents it made again at the end when the block left nothing in it but the lock file
@@ -78,9 +79,7 @@ def exclusive_lock(folder: Path, command: str = "sc3d-data", create: bool = Fals
         try:
             fcntl.flock(fd, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
         except BlockingIOError:
-            pid, _, what = os.pread(fd, 200, 0).decode(errors="replace").strip().partition(" ")
-            raise LockError(f"{folder}: another process (PID {pid or '?'}: {what or 'unknown'}) is writing to this folder; "
-                            f"wait for it to finish or use another --out") from None
+            raise LockError(f"{holder_problem(folder, path)}; {advice}") from None
         held = True
         _HELD.add(fd)
         if not shared:  # shared holders leave the file alone: the last one's line would win
@@ -99,28 +98,83 @@ def exclusive_lock(folder: Path, command: str = "sc3d-data", create: bool = Fals
         os.close(fd)  # closing the descriptor releases the lock
 
 
-def writer_of(folder: Path, name: str = LOCK_NAME) -> str | None:
-    """``"PID n: command"`` of another process that holds ``folder``'s lock exclusively (a writer
-    at work), else None. Reads ``/proc/locks`` (Linux; None where it cannot be read) and takes no
-    lock itself, so a writer starting at that moment is not refused because of the question."""
-    path = Path(folder) / name
+def _flock_holders(path: Path) -> list[tuple[int, str]] | None:
+    """``[(pid, "WRITE" or "READ")]`` of the ``flock`` locks held on ``path`` (waiters left out),
+    from ``/proc/locks`` (Linux); None where it, or ``path``, cannot be read. Takes no lock."""
     try:
         st = os.stat(path, follow_symlinks=False)
         lines = Path("/proc/locks").read_text().splitlines()
     except OSError:
         return None
+    key, holders = (os.major(st.st_dev), os.minor(st.st_dev), st.st_ino), []
     for line in lines:  # "1: FLOCK  ADVISORY  WRITE 4814 fe:00:2146343 0 EOF" (a waiter's has "->")
         f = line.split()
-        if len(f) < 6 or f[1] != "FLOCK" or f[3] != "WRITE" or f[5].count(":") != 2:
+        if len(f) < 6 or f[1] != "FLOCK" or f[3] not in ("WRITE", "READ") or f[5].count(":") != 2:
             continue
         major, minor, inode = f[5].split(":")
         try:
-            same = (int(major, 16), int(minor, 16), int(inode)) == (os.major(st.st_dev), os.minor(st.st_dev),
-                                                                    st.st_ino)
-            pid = int(f[4])
+            if (int(major, 16), int(minor, 16), int(inode)) == key:
+                holders.append((int(f[4]), f[3]))
         except ValueError:
             continue
-        if same and pid != os.getpid():
-            first, _, what = path.read_text(errors="replace").strip().partition(" ")
-            return f"PID {pid}: {what if first == str(pid) and what else 'unknown'}"
+    return holders
+
+
+def _described(path: Path, pid: int) -> str:
+    """``"PID n: command"``: the lock file's line where it names ``pid`` (an exclusive holder
+    writes one), else the process's command line (a shared holder writes none), else ``unknown``."""
+    try:
+        first, _, what = path.read_text(errors="replace").strip().partition(" ")
+    except OSError:
+        first, what = "", ""
+    if first == str(pid) and what:
+        return f"PID {pid}: {what}"
+    try:
+        argv = [a.decode(errors="replace") for a in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0") if a]
+    except OSError:
+        argv = []
+    if len(argv) > 1 and Path(argv[0]).name.startswith("python"):
+        argv = argv[1:]  # "python .../sc3d-data merge ..." -> "sc3d-data merge ..."
+    command = " ".join([Path(argv[0]).name, *argv[1:]])[:120] if argv else "unknown"
+    return f"PID {pid}: {command}"
+
+
+def holder_problem(folder: Path, path: Path) -> str:
+    """The line of a lock on ``path`` (``folder``'s lock file) refused because another process
+    holds it: the writer (an exclusive holder), else a process that shares it (a ``merge``
+    reading its parts, a part of ``voxelize --meshes --part``)."""
+    holders = _flock_holders(path) or []
+    writer = next((pid for pid, kind in holders if kind == "WRITE"), None)
+    if writer is not None or not holders:
+        if writer is None:  # /proc/locks unreadable: the lock file's line, as written by its last writer
+            first, _, what = path.read_text(errors="replace").strip().partition(" ") if path.is_file() else ("", "", "")
+            return f"{folder}: another process (PID {first or '?'}: {what or 'unknown'}) is writing to this folder"
+        return f"{folder}: another process ({_described(path, writer)}) is writing to this folder"
+    return f"{folder}: another process ({_described(path, holders[0][0])}) is using this folder"
+
+
+@contextmanager
+def reading_lock(folder: Path, command: str, advice: str) -> Iterator[None]:
+    """A shared hold of ``folder``'s lock for the ``with`` block, for a command that reads a
+    dataset folder another command may write (``merge`` reading its parts): a writer is refused
+    while it is held, and it is refused while one writes (``LockError`` naming it, then
+    ``advice``). A folder where the lock file cannot be opened for writing (read-only storage)
+    is read without it: nobody writes there either."""
+    with ExitStack() as stack:
+        try:
+            stack.enter_context(exclusive_lock(folder, command, shared=True, advice=advice))
+        except OSError as e:
+            if e.errno not in (errno.EACCES, errno.EPERM, errno.EROFS):
+                raise
+        yield
+
+
+def writer_of(folder: Path, name: str = LOCK_NAME) -> str | None:
+    """``"PID n: command"`` of another process that holds ``folder``'s lock exclusively (a writer
+    at work), else None. Reads ``/proc/locks`` (Linux; None where it cannot be read) and takes no
+    lock itself, so a writer starting at that moment is not refused because of the question."""
+    path = Path(folder) / name
+    for pid, kind in _flock_holders(path) or []:
+        if kind == "WRITE" and pid != os.getpid():
+            return _described(path, pid)
     return None

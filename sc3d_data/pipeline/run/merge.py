@@ -22,6 +22,9 @@ counts, the settings of the parts and ``"merged"`` (which parts, when). The shar
 not rewritten: each object's arrays, cameras and attributes are the bytes the part wrote,
 which are those of a run over the whole collection (``tests/test_scale.py``).
 
+The parts are held (a shared lock) while they are checked and linked: a rerun of a part started
+meanwhile is refused, naming the merge, and a part being written is refused, naming its writer.
+
 Resumable: a shard already in ``OUT`` with the right size and SHA-256 is kept; the index is
 written last, so an interrupted merge is finished by running it again. A merge run again after
 ``sc3d-data voxelize OUT`` keeps the voxelized dataset when ``OUT`` still holds the same merge,
@@ -36,6 +39,7 @@ from __future__ import annotations
 import os
 import shutil
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -131,7 +135,7 @@ def _voxelized_since(out: Path, old: dict, parts: list[dict], objects: list[dict
 def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite: bool = False,
                 defaults_of: Callable[[dict], dict] = lambda settings: {}) -> MergeSummary:
     """Merge ``part_dirs`` into ``out`` (module doc); ``defaults_of``: as for :func:`check_parts`."""
-    from sc3d_data.io.outlock import exclusive_lock
+    from sc3d_data.io.outlock import exclusive_lock, reading_lock
     from sc3d_data.pipeline.run.resume import tmp_cleaned
 
     t0 = time.monotonic()
@@ -139,54 +143,57 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
     dirs = [Path(d) for d in part_dirs]
     if any(d.resolve() == out.resolve() for d in dirs):
         raise MergeError(f"{out}: the output folder cannot be one of the parts")
-    parts = check_parts(dirs, defaults_of)
-    out.mkdir(parents=True, exist_ok=True)
-    with exclusive_lock(out, "sc3d-data merge"), tmp_cleaned(out):  # a killed merge's *.tmp go
-        old = load_index(out) if (out / INDEX_NAME).is_file() else {}
-        if old and not overwrite and "merged" not in old:
-            raise MergeError(f"{out}: already holds a dataset that is not a merge; use another OUT or --overwrite")
-        listed = {e["file"] for e in old.get("shards", [])}
-        shards, objects, failures, skipped, warnings, places = [], [], [], [], [], []
-        counts = {"linked": 0, "copied": 0, "kept": 0}
-        for index in parts:
-            src_dir, names = Path(index["_dir"]), {}
-            for entry in index.get("shards", []):
-                name = SHARD_PATTERN.format(len(shards))
-                places.append((src_dir / entry["file"], out / name, entry))
-                objects += [dict(o, shard=name, chunk=len(shards)) for o in index["objects"]
-                            if o["shard"] == entry["file"]]
-                names[entry["file"]] = name
-                shards.append(dict(entry, file=name, chunk=len(shards)))
-            failures += _renamed_failures(index.get("failures", []), names)
-            skipped += index.get("skipped", [])
-            warnings += index.get("warnings", [])
-        voxels = merged_voxels_record(parts)
-        if old.get("merged") and not overwrite:
-            check_same_settings(out, old, parts[0], objects, defaults_of(old.get("settings", {})))
-            given = old["merged"].get("voxels", voxels if old.get("voxels") else None)  # older merges: no record
-            if old.get("voxels") != given:
-                return _voxelized_since(out, old, parts, objects, [e["sha256"] for _, _, e in places], t0)
-        kept = [dst.is_file() and dst.stat().st_size == entry["bytes"] and file_sha256(dst) == entry["sha256"]
-                for _, dst, entry in places]
-        if not overwrite:  # a shard-named file no merge wrote is someone's: refused before any write
-            for (_, dst, _), same in zip(places, kept):
-                if not same and dst.name not in listed:
-                    check_unlisted_shard(dst, parts[0]["settings"], out / INDEX_NAME, "this merge",
-                                         "move it away, use another OUT or --overwrite")
-        for (src, dst, _), same in zip(places, kept):
-            counts["kept" if same else _place(src, dst, copy)] += 1
-        for stale in listed - {s["file"] for s in shards}:
-            shard_path(out, stale).unlink(missing_ok=True)  # listed by an earlier merge of other parts
-        first = parts[0]
-        extra = {"merged": {"parts": [p["_dir"] for p in parts], "count": first["part"]["count"],
-                            "rule": first["part"]["rule"], "plan_sha256": first["part"]["plan_sha256"],
-                            "planned_total": first["part"]["planned_total"],
-                            "sources_sha256": [e["sha256"] for _, _, e in places],
-                            "backends": sorted({str(p["settings"].get("backend")) for p in parts})}}
-        extra["merged"]["voxels"] = voxels  # what the parts gave: a later `voxelize OUT` changes "voxels" alone
-        if voxels is not None:
-            extra["voxels"] = voxels
-        write_index(out, complete=True, settings=first["settings"], split=first.get("split", {}), shards=shards,
-                    objects=objects, failures=failures, skipped=skipped, warnings=warnings, extra=extra)
-    return MergeSummary(parts=len(parts), shards=len(shards), objects=len(objects),
-                        failed=sum(1 for f in failures), seconds=time.monotonic() - t0, out=str(out), **counts)
+    with ExitStack() as reading:  # no part is rewritten while it is checked and linked, nor merged while written
+        for d in dict.fromkeys(dirs):
+            reading.enter_context(reading_lock(d, "sc3d-data merge", "merge when it has finished"))
+        parts = check_parts(dirs, defaults_of)
+        out.mkdir(parents=True, exist_ok=True)
+        with exclusive_lock(out, "sc3d-data merge"), tmp_cleaned(out):  # a killed merge's *.tmp go
+            old = load_index(out) if (out / INDEX_NAME).is_file() else {}
+            if old and not overwrite and "merged" not in old:
+                raise MergeError(f"{out}: already holds a dataset that is not a merge; use another OUT or --overwrite")
+            listed = {e["file"] for e in old.get("shards", [])}
+            shards, objects, failures, skipped, warnings, places = [], [], [], [], [], []
+            counts = {"linked": 0, "copied": 0, "kept": 0}
+            for index in parts:
+                src_dir, names = Path(index["_dir"]), {}
+                for entry in index.get("shards", []):
+                    name = SHARD_PATTERN.format(len(shards))
+                    places.append((src_dir / entry["file"], out / name, entry))
+                    objects += [dict(o, shard=name, chunk=len(shards)) for o in index["objects"]
+                                if o["shard"] == entry["file"]]
+                    names[entry["file"]] = name
+                    shards.append(dict(entry, file=name, chunk=len(shards)))
+                failures += _renamed_failures(index.get("failures", []), names)
+                skipped += index.get("skipped", [])
+                warnings += index.get("warnings", [])
+            voxels = merged_voxels_record(parts)
+            if old.get("merged") and not overwrite:
+                check_same_settings(out, old, parts[0], objects, defaults_of(old.get("settings", {})))
+                given = old["merged"].get("voxels", voxels if old.get("voxels") else None)  # older merges: no record
+                if old.get("voxels") != given:
+                    return _voxelized_since(out, old, parts, objects, [e["sha256"] for _, _, e in places], t0)
+            kept = [dst.is_file() and dst.stat().st_size == entry["bytes"] and file_sha256(dst) == entry["sha256"]
+                    for _, dst, entry in places]
+            if not overwrite:  # a shard-named file no merge wrote is someone's: refused before any write
+                for (_, dst, _), same in zip(places, kept):
+                    if not same and dst.name not in listed:
+                        check_unlisted_shard(dst, parts[0]["settings"], out / INDEX_NAME, "this merge",
+                                             "move it away, use another OUT or --overwrite")
+            for (src, dst, _), same in zip(places, kept):
+                counts["kept" if same else _place(src, dst, copy)] += 1
+            for stale in listed - {s["file"] for s in shards}:
+                shard_path(out, stale).unlink(missing_ok=True)  # listed by an earlier merge of other parts
+            first = parts[0]
+            extra = {"merged": {"parts": [p["_dir"] for p in parts], "count": first["part"]["count"],
+                                "rule": first["part"]["rule"], "plan_sha256": first["part"]["plan_sha256"],
+                                "planned_total": first["part"]["planned_total"],
+                                "sources_sha256": [e["sha256"] for _, _, e in places],
+                                "backends": sorted({str(p["settings"].get("backend")) for p in parts})}}
+            extra["merged"]["voxels"] = voxels  # what the parts gave: a later `voxelize OUT` changes "voxels" alone
+            if voxels is not None:
+                extra["voxels"] = voxels
+            write_index(out, complete=True, settings=first["settings"], split=first.get("split", {}), shards=shards,
+                        objects=objects, failures=failures, skipped=skipped, warnings=warnings, extra=extra)
+        return MergeSummary(parts=len(parts), shards=len(shards), objects=len(objects),
+                            failed=sum(1 for f in failures), seconds=time.monotonic() - t0, out=str(out), **counts)
