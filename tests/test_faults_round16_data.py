@@ -13,6 +13,7 @@ from sc3d_cli.data import main as data_main
 from conftest import SAMPLE_MESHES, one_error, run_cli
 from test_faults import index_of
 from test_faults_round10_data import _dataset_bytes
+from test_import_r2n2 import fake_r2n2  # noqa: F401 - the fixture (fake 3D-R2N2 folders)
 
 FAST = ["--views", "2", "--no-progress", "--workers", "1"]
 #: the four sample meshes these tests split (category folder / model id)
@@ -191,3 +192,28 @@ def test_merge_and_a_writer_of_its_parts_exclude_each_other(tmp_path):
         reader.stdin.close()
         reader.wait(timeout=30)
     run_cli(data_main, rerun)
+
+
+def test_import_r2n2_into_a_merged_folder_names_its_own_command(fake_r2n2, tmp_path):  # noqa: F811
+    """``import-r2n2 --out`` a merged folder of imported parts said "render parts into their own
+    folders and merge again": the command to run is import-r2n2."""
+    renderings, voxels, _ = fake_r2n2
+    source = ["import-r2n2", "--renderings", renderings, "--voxels", voxels, "--no-progress"]
+    parts = [tmp_path / f"r{i}" for i in range(2)]
+    for i, part in enumerate(parts):
+        run_cli(data_main, [*source, "--out", part, "--part", f"{i}/2"])
+    run_cli(data_main, ["merge", tmp_path / "data", *parts])
+    error = one_error(run_cli(data_main, [*source, "--out", tmp_path / "data"], expect_exit=1).output)
+    assert "is a merged dataset (sc3d-data merge); import-r2n2 parts into their own folders" in error, error
+
+
+def test_a_merge_lists_only_the_backends_that_rendered(tmp_path):
+    """A part with no object to render starts no worker and records no backend; the merge listed
+    ``"None"`` among the parts' GL backends."""
+    parts = [tmp_path / f"p{i}" for i in range(2)]
+    for i, part in enumerate(parts):
+        run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES / "table", "--out", part, "--part", f"{i}/2", *FAST])
+    used = [index_of(p)["settings"]["backend"] for p in parts]
+    assert sorted(map(str, used))[0] == "None"  # the empty part's
+    run_cli(data_main, ["merge", tmp_path / "data", *parts])
+    assert index_of(tmp_path / "data")["merged"]["backends"] == [b for b in used if b]

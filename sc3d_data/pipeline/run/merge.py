@@ -189,7 +189,7 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
                                 "rule": first["part"]["rule"], "plan_sha256": first["part"]["plan_sha256"],
                                 "planned_total": first["part"]["planned_total"],
                                 "sources_sha256": [e["sha256"] for _, _, e in places],
-                                "backends": sorted({str(p["settings"].get("backend")) for p in parts})}}
+                                "backends": sorted({str(b) for p in parts if (b := p["settings"].get("backend"))})}}
             extra["merged"]["voxels"] = voxels  # what the parts gave: a later `voxelize OUT` changes "voxels" alone
             if voxels is not None:
                 extra["voxels"] = voxels

@@ -245,7 +245,8 @@ def check_resume(out: Path, old: dict, settings: dict, defaults: dict, part: dic
     """``ValueError`` when ``out``'s index cannot be resumed by this run: other settings, another
     ``--part`` or a merged dataset."""
     if "merged" in old:
-        raise ValueError(f"{out}: is a merged dataset (sc3d-data merge); render parts into their own "
+        made_by = "import-r2n2" if settings.get("source") == "3D-R2N2" else "render"
+        raise ValueError(f"{out}: is a merged dataset (sc3d-data merge); {made_by} parts into their own "
                          "folders and merge again, or use another --out")
     diff = settings_differ(old.get("settings", {}), settings, defaults)
     if diff:
