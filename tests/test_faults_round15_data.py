@@ -164,3 +164,6 @@ def test_a_command_refused_on_its_inputs_leaves_no_folders_behind(tmp_path):
         (tmp_path / "kept").mkdir(exist_ok=True)
         one_error(run_cli(group, [*args, "--out", tmp_path / "kept" / "c"], expect_exit=1).output)
         assert (tmp_path / "kept").is_dir() and not (tmp_path / "kept" / "c").exists(), name
+        one_error(run_cli(group, [*args, "--out", tmp_path / "new" / ".." / "kept"], expect_exit=1).output)
+        assert (tmp_path / "kept").is_dir(), name  # the user's empty folder, named through a folder not yet made
+        assert not (tmp_path / "new").exists(), name

@@ -217,3 +217,24 @@ def test_a_merge_lists_only_the_backends_that_rendered(tmp_path):
     assert sorted(map(str, used))[0] == "None"  # the empty part's
     run_cli(data_main, ["merge", tmp_path / "data", *parts])
     assert index_of(tmp_path / "data")["merged"]["backends"] == [b for b in used if b]
+
+
+def test_parts_whose_split_files_have_the_same_content_merge(tmp_path):
+    """Each node kept its own copy of the split file (``a/splits.txt``, ``b/splits.txt``, the same
+    lines): merge refused the parts ("split_file differ"), comparing the paths although the split
+    record holds the files' SHA-256. Merged now; a copy with other lines is still refused."""
+    copies = []
+    for name, text in (("a", SPLITS), ("b", SPLITS), ("c", SPLITS.replace("train car/jeep", "test car/jeep"))):
+        (tmp_path / name).mkdir()
+        copies.append(tmp_path / name / "splits.txt")
+        copies[-1].write_text(text)
+    parts = [tmp_path / f"p{i}" for i in range(2)]
+    for i, (part, split_file) in enumerate(zip(parts, copies)):
+        run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", part, "--part", f"{i}/2", *FAST,
+                            "--split-file", split_file])
+    run_cli(data_main, ["merge", tmp_path / "data", *parts])
+    run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", tmp_path / "q1", "--part", "1/2", *FAST,
+                        "--split-file", copies[2]])
+    error = one_error(run_cli(data_main, ["merge", tmp_path / "other", parts[0], tmp_path / "q1"], expect_exit=1).output)
+    assert "split differs" in error, error
+

@@ -21,22 +21,22 @@ def test_ctrl_c_between_the_step_file_and_last_pt_names_the_step_file(sample_sha
     from sc3d_train.loop import checkpoint
 
     real = checkpoint.shutil.copyfile
+    for stop_at in (2, 4):  # the first checkpoint (no last.pt yet), and a later one (last.pt of step 2)
+        def stopped_before_last(src, dst):
+            if f"step_{stop_at:06d}" in str(src):
+                raise KeyboardInterrupt
+            return real(src, dst)
 
-    def stopped_before_last(src, dst):
-        if "step_000002" in str(src):
-            raise KeyboardInterrupt
-        return real(src, dst)
-
-    out = tmp_path / "run"
-    args = ["fit", "--shards", sample_shards, "--out", out, "--steps", 4, "--checkpoint-every", 2, *TINY]
-    with monkeypatch.context() as m:
-        m.setattr(checkpoint.shutil, "copyfile", stopped_before_last)
-        res = run_cli(train_main, args, expect_exit=None)
-    assert res.exit_code != 0 and not (out / "checkpoints" / "last.pt").exists(), res.output
-    assert f"last good checkpoint: {out / 'checkpoints' / 'step_000002.pt'} (resume with --resume)" in res.output, \
-        res.output
-    res = run_cli(train_main, [*args, "--resume"])
-    assert "resuming from" in res.output and "(step 2)" in res.output, res.output
+        out = tmp_path / f"run{stop_at}"
+        args = ["fit", "--shards", sample_shards, "--out", out, "--steps", 6, "--checkpoint-every", 2, *TINY]
+        with monkeypatch.context() as m:
+            m.setattr(checkpoint.shutil, "copyfile", stopped_before_last)
+            res = run_cli(train_main, args, expect_exit=None)
+        assert res.exit_code != 0, res.output
+        step_file = out / "checkpoints" / f"step_{stop_at:06d}.pt"
+        assert f"last good checkpoint: {step_file} (resume with --resume)" in res.output, res.output
+        res = run_cli(train_main, [*args, "--resume"])
+        assert "resuming from" in res.output and f"(step {stop_at})" in res.output, res.output
 
 
 @pytest.mark.parametrize("text, key", [("1: 2\n", "'1'"), ("model: {true: 4}\n", "'model.True'")])
@@ -67,3 +67,21 @@ def test_a_checkpoint_naming_a_huge_network_is_refused_before_it_is_built(tiny_r
     assert "weights do not match the model config stored in it" in error and "shape differs" in error, error
     shutil.copy(tiny_run / "checkpoints" / "last.pt", tmp_path / "fine.pt")  # control: the same file unedited
     run_cli(train_main, ["predict", "--checkpoint", tmp_path / "fine.pt", image, "--out", tmp_path / "q"])
+
+
+def test_the_same_checkpoint_named_from_another_folder_keeps_its_default_folders(sample_shards, tiny_run, tmp_path,  # noqa: F811
+                                                                              monkeypatch):
+    """``predict`` and ``eval`` recorded the checkpoint (and shards) as typed; their default
+    folder's check resolved that against the current folder, so the same checkpoint named from
+    another folder (``run/checkpoints/last.pt``, then ``checkpoints/last.pt`` inside ``run``) was
+    refused as "the prediction of another checkpoint". They record absolute paths now."""
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run, run)
+    image = tmp_path / "view.png"
+    Image.new("RGB", (64, 64), (200, 30, 30)).save(image)
+    monkeypatch.chdir(tmp_path)
+    run_cli(train_main, ["predict", "--checkpoint", "run/checkpoints/last.pt", "view.png"])
+    run_cli(train_main, ["eval", "--checkpoint", "run/checkpoints/last.pt", "--shards", sample_shards, "--examples", 0])
+    monkeypatch.chdir(run)
+    run_cli(train_main, ["predict", "--checkpoint", "checkpoints/last.pt", "../view.png"])
+    run_cli(train_main, ["eval", "--checkpoint", "checkpoints/last.pt", "--shards", sample_shards, "--examples", 0])

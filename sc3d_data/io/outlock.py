@@ -52,8 +52,10 @@ def open_lock_file(path: Path) -> int:
 
 
 def missing_folders(folder: Path) -> list[Path]:
-    """``folder`` and those of its parents that do not exist, deepest first."""
-    return [f for f in (Path(folder), *Path(folder).parents) if not f.exists()]
+    """``folder`` and those of its parents that do not exist, deepest first (of the path with
+    ``..`` resolved: ``new/../data`` is ``data``, which may exist)."""
+    folder = Path(os.path.abspath(folder))
+    return [f for f in (folder, *folder.parents) if not f.exists()]
 
 
 @contextmanager
@@ -71,7 +73,7 @@ def exclusive_lock(folder: Path, command: str = "sc3d-data", create: bool = Fals
     folder = Path(folder)
     made = missing_folders(folder) if create else list(made or [])
     if create:
-        folder.mkdir(parents=True, exist_ok=True)
+        Path(os.path.abspath(folder)).mkdir(parents=True, exist_ok=True)  # as missing_folders: no "new" of new/..
     path = folder / name
     fd = open_lock_file(path)
     held = False

@@ -181,7 +181,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
                                      loss_weights=cfg.loss_weights)
         require_finite_predictions(checkpoint, rows)
         summary = summarize(rows)
-        result = {"checkpoint": str(checkpoint), "step": int(ckpt.get("step", -1)), "shards": str(shards),
+        result = {"checkpoint": os.path.abspath(checkpoint), "step": int(ckpt.get("step", -1)), "shards": os.path.abspath(shards),
                   "split": split, "pose_from": pose_from, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
                   "differs_from_training": differences, "outside_pose_grid": outside_pose_grid(cfg, dataset.info),
                   "pose_grid_elevations": [cfg.model.elevation_min, cfg.model.elevation_max],

@@ -25,6 +25,7 @@ an input is not (NaN, inf), is refused in one line before any output is written.
 from __future__ import annotations
 
 import io
+import os
 from pathlib import Path
 
 import numpy as np
@@ -183,7 +184,7 @@ def predict(checkpoint: Path, images: list[Path], out: Path | None, device: str 
         results = []
         for path, arr, files, (probs, mask, az, el) in zip(images, arrays, outputs, predictions):
             voxels = probs >= threshold
-            info = {"image": str(path), "checkpoint": str(checkpoint), "azimuth_deg": az, "elevation_deg": el, "pose_from": pose_from,
+            info = {"image": str(path), "checkpoint": os.path.abspath(checkpoint), "azimuth_deg": az, "elevation_deg": el, "pose_from": pose_from,
                     "camera_distance": cfg.camera_distance, "threshold": threshold,
                     "occupied_voxels": int(voxels.sum()), "files": {k: str(v) for k, v in files.items()}}
             # the listing first (whole or not at all): a run stopped before the image's other files

@@ -74,8 +74,10 @@ def interrupted_line(run_dir: Path, resume_hint: str) -> str:
     checked: a good checkpoint, also when the interrupt came before the loop noted it), or the
     step file ``--resume`` reads where there is none yet, and ``resume_hint`` (how the caller's
     command resumes); or that there is nothing to resume."""
-    if last_path(run_dir).is_file():
-        return f"interrupted; last good checkpoint: {last_path(run_dir)} ({resume_hint})"
+    last = last_path(run_dir)
+    steps = [p.stat().st_mtime_ns for p in checkpoint_dir(run_dir).glob("step_*.pt")]
+    if last.is_file() and max(steps, default=0) <= last.stat().st_mtime_ns:  # last.pt is copied after its step file
+        return f"interrupted; last good checkpoint: {last} ({resume_hint})"
     try:  # stopped between a step's step_XXXXXX.pt and its last.pt: --resume reads the step file
         return f"interrupted; last good checkpoint: {resume_checkpoint(run_dir)[0]} ({resume_hint})"
     except CheckpointError:

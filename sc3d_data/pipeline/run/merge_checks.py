@@ -66,7 +66,7 @@ def check_parts(dirs: list[Path], defaults_of: Callable[[dict], dict] = lambda s
         p = index["part"]
         diff = [k for k in settings_differ(first.get("settings", {}), index.get("settings", {}),
                                            defaults_of(index.get("settings", {})))
-                if k not in VOXEL_SETTINGS]  # compared by the grids the shards hold, below
+                if k not in VOXEL_SETTINGS + ("split_file",)]  # the grids they hold and the split, below
         if diff:
             raise MergeError(f"{d}: made with other settings than {d0} ({', '.join(diff)} differ); refused")
         if split_record_meaning(index.get("split")) != split_record_meaning(first.get("split")):
@@ -114,7 +114,7 @@ def check_same_settings(out: Path, old: dict, first: dict, objects: list[dict], 
     from sc3d_data.io.names import printable
 
     diff = [k for k in settings_differ(old.get("settings", {}), first.get("settings", {}), defaults)
-            if k not in VOXEL_SETTINGS]
+            if k not in VOXEL_SETTINGS + ("split_file",)]  # a split file by the splits it gives, below
     if diff:
         raise MergeError(f"{out}: holds a merge made with other settings than {first['_dir']} ({', '.join(diff)} "
                          "differ); merging would replace it: use another OUT or --overwrite")

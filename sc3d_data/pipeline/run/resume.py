@@ -14,6 +14,8 @@ index would describe splits the shards do not hold.
 """
 from __future__ import annotations
 
+import os
+
 import re
 from contextlib import contextmanager, suppress
 from pathlib import Path
@@ -101,7 +103,7 @@ def check_out(out: Path) -> None:
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: exists and is not a folder")
     try:
-        out.mkdir(parents=True, exist_ok=True)
+        Path(os.path.abspath(out)).mkdir(parents=True, exist_ok=True)  # `new/../data` makes no `new`
     except OSError as e:
         raise ValueError(f"--out {out}: cannot create the folder ({e.strerror or e})") from e
 
