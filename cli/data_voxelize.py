@@ -83,7 +83,8 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
                                        front=front, workers=workers, overwrite=overwrite, progress=progress,
                                        part=part, **scale)
             s = run_scaled(config, slurm, lambda c: voxelize_meshes(c).as_dict(), voxelize_on_slurm)
-            stale = f", {s['stale']} of them again: their mesh is newer" if s.get("stale") else ""
+            stale = "".join(f", {s[k]} of them again: {why}" for k, why in (
+                ("stale", "their mesh is newer"), ("remade", "made by another mesh or with other settings")) if s.get(k))
             click.echo(f"wrote {s['done']} .binvox files to {out}{stale} ({s['resumed']} already there), "
                        f"{s['failed']} failed, {s['seconds']:.1f} s")
             if (note := part_from_slurm_note(part)) is not None:

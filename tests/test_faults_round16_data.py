@@ -238,3 +238,48 @@ def test_parts_whose_split_files_have_the_same_content_merge(tmp_path):
     error = one_error(run_cli(data_main, ["merge", tmp_path / "other", parts[0], tmp_path / "q1"], expect_exit=1).output)
     assert "split differs" in error, error
 
+
+# ------------------------------------------------------------------ voxelize --meshes: whose grid is kept
+def _vox(meshes: Path, out: Path, *options) -> str:
+    return run_cli(data_main, ["voxelize", "--meshes", meshes, "--out", out, "--workers", "1", "--no-progress",
+                               *options]).output
+
+
+def test_a_kept_binvox_made_by_another_mesh_of_the_same_id_is_done_again(tmp_path):
+    """``x.glb`` (a chair) and ``x.GLB`` (a jeep) have one id and write one ``x.binvox``; with the
+    one used deleted, the rerun kept its grid as the other's ("1 already there"), exit 0. The
+    folder's record of which mesh made each file (``sources.json``) sends it to be done again:
+    expected, the grid of a fresh run on the mesh that is left."""
+    import shutil
+
+    meshes = tmp_path / "m" / "chair"
+    meshes.mkdir(parents=True)
+    shutil.copy(SAMPLE_MESHES / "chair" / "chair2_blendswap.glb", meshes / "x.glb")
+    shutil.copy(SAMPLE_MESHES / "car" / "jeep_psionic.glb", meshes / "x.GLB")
+    _vox(meshes.parent, tmp_path / "vox")
+    (duplicate,) = json.loads((tmp_path / "vox" / "failures.json").read_text())
+    used = Path(duplicate["reason"].split("also ")[1].split(", which is used")[0])
+    used.unlink()
+    res = _vox(meshes.parent, tmp_path / "vox")
+    assert "1 of them again: made by another mesh or with other settings" in res, res
+    _vox(meshes.parent, tmp_path / "fresh")
+    assert (tmp_path / "vox/chair/x.binvox").read_bytes() == (tmp_path / "fresh/chair/x.binvox").read_bytes()
+    assert "1 already there" in _vox(meshes.parent, tmp_path / "vox")  # control: now kept
+
+
+def test_parts_voxelized_with_old_settings_are_done_again_after_a_part_re_records_them(tmp_path):
+    """``voxelize --meshes --part 0/2 --normalize diagonal --overwrite`` re-records the folder's
+    settings; part 1's files, made with ``fit``, were then kept by every rerun (also a whole
+    run): a folder of mixed grids, exit 0. They are done again; expected: the files of a fresh
+    ``--normalize diagonal`` run, byte for byte."""
+    out = tmp_path / "vox"
+    for i in range(2):
+        _vox(SAMPLE_MESHES, out, "--part", f"{i}/2")
+    _vox(SAMPLE_MESHES, out, "--part", "0/2", "--normalize", "diagonal", "--overwrite")
+    res = _vox(SAMPLE_MESHES, out, "--part", "1/2", "--normalize", "diagonal")
+    assert "of them again: made by another mesh or with other settings" in res, res
+    _vox(SAMPLE_MESHES, tmp_path / "fresh", "--normalize", "diagonal")
+    files = sorted(p.relative_to(out) for p in out.rglob("*.binvox"))
+    assert len(files) == 11
+    assert [f for f in files if (out / f).read_bytes() != (tmp_path / "fresh" / f).read_bytes()] == []
+    assert "(11 already there)" in _vox(SAMPLE_MESHES, out, "--normalize", "diagonal")

@@ -338,7 +338,7 @@ def test_voxelize_meshes_on_ray_equals_local_file_by_file(ray_cluster, tmp_path)
     for engine in ("local", "ray"):
         res = run_cli(main, [*common, "--out", tmp_path / engine, "--executor", engine])
         assert "wrote 6 .binvox files" in res.output and "(0 already there), 2 failed" in res.output
-    assert _files(tmp_path / "ray") == _files(tmp_path / "local") and len(_files(tmp_path / "local")) == 8  # + failures.json, voxelize.json
+    assert _files(tmp_path / "ray") == _files(tmp_path / "local") and len(_files(tmp_path / "local")) == 9  # + failures.json, voxelize.json, sources.json
     reasons = {Path(f["source"]).name: f["reason"] for f in json.loads((tmp_path / "ray" / "failures.json").read_text())}
     assert reasons == {"broken.obj": f"MeshError: {meshes / 'chair' / 'broken.obj'}: empty mesh (no triangles)",
                        "hang.gltf": f"{meshes / 'chair' / 'hang.gltf'}: timed out after 2 s (--timeout)"}

@@ -131,8 +131,8 @@ def resolve_source(source: str, meshes_root: str | None) -> str:
 
 @dataclass
 class VoxelizeSummary:
-    """Counts of a voxelize run (``objects`` voxelized by this run, ``failed`` of them; ``--meshes``:
-    ``objects`` files written, ``stale`` of them for a newer mesh, ``shards_skipped`` files already there)."""
+    """Counts of a voxelize run (``objects`` voxelized by this run, ``failed`` of them; ``--meshes``: ``objects`` files
+    written, ``stale`` of them for a newer mesh, ``remade`` for another's or other settings, ``shards_skipped`` kept)."""
 
     shards_done: int = 0
     shards_skipped: int = 0
@@ -142,6 +142,7 @@ class VoxelizeSummary:
     seconds: float = 0.0
     reused: int = 0  # objects of retried shards whose grids an earlier run made, kept
     stale: int = 0
+    remade: int = 0
 
     def as_dict(self) -> dict:
         """``done``/``resumed``/``failed`` (the keys of a part's summary) plus the fields."""
@@ -293,8 +294,7 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
         if bar is not None:
             bar.close()
     index.failures = base + [f for fails in by_shard for f in fails]
-    index.extra["voxels"] = {"resolution": resolution, "occupancy": OCCUPANCY_RULE,
-                             "failed": sum(map(len, by_shard))}
+    index.extra["voxels"] = {"resolution": resolution, "occupancy": OCCUPANCY_RULE, "failed": sum(map(len, by_shard))}
     index.write()
     summary.seconds = time.monotonic() - t0
     return summary

@@ -7,7 +7,8 @@ that voxelized it (job ``VOXELIZE_MESH`` on the local pool or Ray, ``executor.py
 the per-mesh time limit ``--timeout``; ``--executor slurm``: ``slurm_executor``). Existing
 ``.binvox`` files are complete (written atomically) and skipped on a rerun when their header has
 the run's resolution (another is done again) and their mesh file is not newer than they are (an
-edited mesh is done again: :func:`mesh_is_newer`), so a crash or
+edited mesh is done again: :func:`mesh_is_newer`) and ``binvox_sources``' record names this mesh and
+the run's settings for them (else done again), so a crash or
 Ctrl-C loses no finished file; failures (with the reason: error, time limit, worker
 killed) go to ``out/failures.json``, sorted by source. The settings that decide a grid
 (resolution, normalisation, axes) are recorded in ``out/voxelize.json``; a rerun with others is
@@ -26,6 +27,7 @@ import numpy as np
 
 from sc3d_data.io.binvox import binvox_intact
 from sc3d_data.io.shards import write_json_atomic
+from sc3d_data.pipeline.jobs.binvox_sources import record_sources, recorded_sources
 from sc3d_data.pipeline.executors.job import ExecOptions, Job
 from sc3d_data.pipeline.executors.slurm_executor import SlurmOptions, run_array, summed_parts
 from sc3d_data.pipeline.run.partition import Part
@@ -50,11 +52,15 @@ class VoxelMeshesConfig(ExecOptions):
     workers: int = field(default=1, kw_only=True)  # voxelize's --workers default (ExecOptions: 0)
 
 
+def mesh_name(config: VoxelMeshesConfig, path) -> str:
+    """The mesh ``path`` relative to ``config.meshes`` (its name for one mesh file), as ``binvox_sources`` records it."""
+    meshes = Path(config.meshes)
+    return (Path(path).relative_to(meshes) if meshes.is_dir() else Path(Path(path).name)).as_posix()
+
+
 def binvox_target(config: VoxelMeshesConfig, path: str) -> Path:
     """``out/<path relative to meshes>.binvox`` (``out/<name>.binvox`` for one mesh file)."""
-    meshes = Path(config.meshes)
-    rel = Path(path).relative_to(meshes) if meshes.is_dir() else Path(Path(path).name)
-    return Path(config.out) / rel.with_suffix(".binvox")
+    return Path(config.out) / Path(mesh_name(config, path)).with_suffix(".binvox")
 
 
 def voxelize_mesh_task(config: VoxelMeshesConfig, backend: str, task: Task):
@@ -141,7 +147,6 @@ def folder_locks(out: Path, part: Part):
 def _voxelize_entries(config: VoxelMeshesConfig, out: Path, part: Part, entries: list, problems: list,
                       t0: float) -> VoxelizeSummary:
     """:func:`voxelize_meshes` once ``out``'s locks are held."""
-    from sc3d_data.pipeline.executors.executor import start_executor
     from sc3d_data.pipeline.run.partition import part_of
 
     check_grid_settings(config)
@@ -149,43 +154,28 @@ def _voxelize_entries(config: VoxelMeshesConfig, out: Path, part: Part, entries:
     if not part.whole:
         entries = [e for e in entries if part_of(e.category, e.model_id, part.count) == part.index]
         problems = problems if part.index == 0 else []
-    todo, stale = [], {}  # stale: pos -> the .binvox of the mesh's earlier version
+    todo, stale = [], {}  # stale: pos -> (the .binvox there, "stale": of a newer mesh, or "remade": binvox_sources)
+    recorded, now, record, names = recorded_sources(out), grid_settings(config), {}, []
     for e in entries:  # a file of another resolution, cut short or unreadable is done again
         target = binvox_target(config, str(e.path))
+        name, source = target.relative_to(out).as_posix(), mesh_name(config, e.path)
         if not config.overwrite and target.is_file() and binvox_intact(target, config.resolution):
-            if not mesh_is_newer(e.path, target):
+            newer, same = mesh_is_newer(e.path, target), recorded.get(name, (source, now)) == (source, now)
+            if same and not newer:
                 summary.shards_skipped += 1
+                record[name] = (source, now)
                 continue
-            stale[len(todo)] = target
+            stale[len(todo)] = (target, "stale" if newer else "remade")
+            if name in recorded:  # kept until it is done again (binvox_sources: a stopped run)
+                record[name] = recorded[name]
         todo.append(Task(len(todo), str(e.path), e.category, e.model_id, ""))
+        names.append((name, source))
     failures = [dict(p) for p in problems]
     summary.failed = sum(1 for p in problems if not p.get("skipped"))  # counted as render counts them
-    if todo:
-        import os
-
-        n = max(1, min(config.workers or os.cpu_count() or 1, len(todo)))
-        pool, bar = start_executor(config, n, VOXELIZE_MESH), None
-        try:
-            if config.progress:
-                from sc3d_data.pipeline.run.progress import progress_bar
-
-                bar = progress_bar(total=len(todo), unit="mesh", desc="voxelize")
-            for pos, status, payload in pool.run(todo):
-                if status == "ok":
-                    summary.objects += 1
-                    summary.stale += pos in stale
-                else:
-                    failures.append({"source": todo[pos].path, "reason": payload})
-                    summary.failed += 1
-                    if pos in stale:  # the grid of a mesh that is no more would pass for this one's
-                        stale[pos].unlink(missing_ok=True)
-                        failures[-1]["removed"] = f"{stale[pos]} (of the mesh before it changed)"
-                if bar is not None:
-                    bar.update(1)
-        finally:
-            pool.close()
-            if bar is not None:
-                bar.close()
+    try:
+        _run_todo(config, todo, stale, names, now, record, failures, summary)
+    finally:  # also when stopped: the files done so far
+        record_sources(out, part, record)
     failures.sort(key=lambda f: f["source"])
     write_json_atomic(out / failures_name(part), failures)
     if part.whole:  # it covered every part's meshes: the parts' lists are out of date
@@ -194,6 +184,46 @@ def _voxelize_entries(config: VoxelMeshesConfig, out: Path, part: Part, entries:
     summary.seconds = time.monotonic() - t0
     return summary
 
+
+def _run_todo(config: VoxelMeshesConfig, todo: list, stale: dict, names: list, now: dict, record: dict,
+              failures: list, summary: VoxelizeSummary) -> None:
+    """Voxelize ``todo`` on the run's executor: each file made goes into ``record`` (``names``: the
+    ``(binvox name, mesh name)`` of each task), each failure into ``failures`` (a ``stale`` file
+    of a mesh that fails is removed, and its record with it)."""
+    import os
+
+    from sc3d_data.pipeline.executors.executor import start_executor
+
+    if not todo:
+        return
+    n = max(1, min(config.workers or os.cpu_count() or 1, len(todo)))
+    pool, bar = start_executor(config, n, VOXELIZE_MESH), None
+    try:
+        if config.progress:
+            from sc3d_data.pipeline.run.progress import progress_bar
+
+            bar = progress_bar(total=len(todo), unit="mesh", desc="voxelize")
+        for pos, status, payload in pool.run(todo):
+            name, source = names[pos]
+            if status == "ok":
+                summary.objects += 1
+                if pos in stale:
+                    setattr(summary, stale[pos][1], getattr(summary, stale[pos][1]) + 1)
+                record[name] = (source, now)
+            else:
+                failures.append({"source": todo[pos].path, "reason": payload})
+                summary.failed += 1
+                if pos in stale:  # the grid of a mesh that is no more (or of another) would pass for this one's
+                    stale[pos][0].unlink(missing_ok=True)
+                    record.pop(name, None)
+                    failures[-1]["removed"] = f"{stale[pos][0]} (" + ("of the mesh before it changed)" if stale[pos][1] == "stale"
+                                                                   else "made by another mesh or with other settings)")
+            if bar is not None:
+                bar.update(1)
+    finally:
+        pool.close()
+        if bar is not None:
+            bar.close()
 
 def mesh_is_newer(mesh: Path, binvox: Path) -> bool:
     """Whether ``mesh`` was modified after ``binvox`` was written (``make``'s rule: an edited or
