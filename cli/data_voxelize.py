@@ -69,10 +69,15 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
         check_executor_options("local", "shards are voxelized by a local pool (--workers): leave them out")
     try:
         if shards is not None:
+            from sc3d_data.io.shards import load_index
+
             s = voxelize_shards(shards, resolution, workers or os.cpu_count() or 1, overwrite, progress,
                                 scale["timeout_s"])
             click.echo(f"voxelized {s.objects - s.failed} objects in {s.shards_done} shards ({s.shards_skipped} shards "
                        f"already done), {s.failed} failed, {s.seconds:.1f} s")
+            if not s.shards_done and not s.shards_skipped and load_index(shards).get("failures"):  # not an empty part
+                raise click.ClickException(f"{shards}: holds no shard, so nothing was voxelized (no object was rendered "
+                                           f"into it: `sc3d-data info {shards}` lists why)")
             if s.failed and s.failed == s.objects and not s.reused:
                 grids = (f"earlier grid kept for {s.kept}, the others' are empty" if s.kept
                          else "their grids are empty")

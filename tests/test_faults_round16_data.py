@@ -283,3 +283,17 @@ def test_parts_voxelized_with_old_settings_are_done_again_after_a_part_re_record
     assert len(files) == 11
     assert [f for f in files if (out / f).read_bytes() != (tmp_path / "fresh" / f).read_bytes()] == []
     assert "(11 already there)" in _vox(SAMPLE_MESHES, out, "--normalize", "diagonal")
+
+
+def test_voxelize_of_a_dataset_without_shards_fails_in_one_line(tmp_path):
+    """A dataset every object of which failed to render holds no shard; ``voxelize`` of it said
+    "voxelized 0 objects in 0 shards" and exited 0, where ``check``, ``preview`` and ``fit``
+    refuse it. It fails in one line now, saying why."""
+    broken = tmp_path / "m" / "chair"
+    broken.mkdir(parents=True)
+    (broken / "broken.obj").write_text("v 0 0 0\nf 1 2 3\n")
+    out = tmp_path / "ds"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST], expect_exit=1)
+    assert index_of(out)["shards"] == []
+    error = one_error(run_cli(data_main, ["voxelize", out, "--no-progress"], expect_exit=1).output)
+    assert "holds no shard, so nothing was voxelized" in error, error

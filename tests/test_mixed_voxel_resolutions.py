@@ -37,8 +37,8 @@ def mixed_shards(tmp_path_factory):
 
 def _expected(shards) -> str:
     return (f"{shards}: shards disagree on voxel resolution (16^3 in shard-00001.h5, 32^3 in shard-00000.h5; "
-            f"a voxelize at another --resolution cut short?): run `sc3d-data voxelize {shards} --resolution G "
-            "--overwrite` with the one G to train on")
+            f"a voxelize at another --resolution cut short?): run `sc3d-data voxelize {shards} --resolution G` "
+            "with the one G to train on (it redoes the shards of the other size)")
 
 
 def test_fit_names_both_voxel_resolutions_in_one_line(mixed_shards, tmp_path):
@@ -65,7 +65,9 @@ def test_the_advised_voxelize_makes_them_one_resolution(mixed_shards, tmp_path):
 
     shards = tmp_path / "shards"
     shutil.copytree(mixed_shards, shards)
-    run_cli(data_main, ["voxelize", shards, "--resolution", 32, "--overwrite", "--no-progress"])
+    kept = (shards / "shard-00000.h5").read_bytes()  # at 32^3 already
+    run_cli(data_main, ["voxelize", shards, "--resolution", 32, "--no-progress"])  # as advised: no --overwrite
+    assert (shards / "shard-00000.h5").read_bytes() == kept
     dataset = ShardDataset(shards, "train")
     assert dataset.info["voxel_resolution"] == 32 and dataset.info["voxel_resolutions"].keys() == {32}
     dataset.close()

@@ -113,8 +113,8 @@ def require_one_voxel_resolution(shard_dir: Path, info: dict) -> None:
     if len(found) > 1:
         sizes = ", ".join(f"{g}^3 in {name}" for g, name in sorted(found.items()))
         raise DataError(f"{shard_dir}: shards disagree on voxel resolution ({sizes}; a voxelize at another "
-                        f"--resolution cut short?): run `sc3d-data voxelize {shard_dir} --resolution G --overwrite` "
-                        "with the one G to train on")
+                        f"--resolution cut short?): run `sc3d-data voxelize {shard_dir} --resolution G` with the one G "
+                        "to train on (it redoes the shards of the other size)")
 
 
 def voxelize_failures(index: dict) -> set[tuple[str, int]]:
