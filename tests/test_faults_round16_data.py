@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 import h5py
+import pytest
 
 from sc3d_cli.data import main as data_main
 from conftest import SAMPLE_MESHES, one_error, run_cli
@@ -297,3 +298,18 @@ def test_voxelize_of_a_dataset_without_shards_fails_in_one_line(tmp_path):
     assert index_of(out)["shards"] == []
     error = one_error(run_cli(data_main, ["voxelize", out, "--no-progress"], expect_exit=1).output)
     assert "holds no shard, so nothing was voxelized" in error, error
+
+
+def test_a_slurm_array_that_cannot_be_submitted_leaves_no_folders(tmp_path):
+    """``--executor slurm`` where there is no SLURM fails in one line, as it should, but left
+    ``OUT/parts/part-000-of-002/`` ... (render) or an empty ``--out`` (voxelize --meshes) behind."""
+    import shutil as sh
+
+    if sh.which("sbatch") or sh.which("srun"):
+        pytest.skip("this machine has SLURM")
+    for args in (["render", "--meshes", SAMPLE_MESHES / "table", *FAST],
+                 ["voxelize", "--meshes", SAMPLE_MESHES / "table", "--no-progress"]):
+        error = one_error(run_cli(data_main, [*args, "--out", tmp_path / "new" / "out", "--executor", "slurm",
+                                              "--slurm-parts", "2"], expect_exit=1).output)
+        assert "--executor slurm" in error, error
+        assert not (tmp_path / "new").exists(), args[0]

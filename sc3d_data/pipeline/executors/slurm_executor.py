@@ -18,6 +18,8 @@ named with its error and the merge is not attempted until every part is complete
 """
 from __future__ import annotations
 
+import contextlib
+
 import dataclasses
 import time
 from dataclasses import dataclass
@@ -86,10 +88,21 @@ def run_array(fn, config, options: SlurmOptions, paths: tuple[str, ...] = ("mesh
                          "(--slurm-parts); give one or the other")
     if hasattr(config, "validate"):
         config.validate(options.cpus_per_task)
+    from sc3d_data.io.outlock import missing_folders
+
     configs = part_configs(config, options.parts, options.cpus_per_task, paths, shared_out)
+    logs = Path(config.out) / "parts" / "slurm-logs"
+    made = sorted({f for c in configs for f in missing_folders(Path(c.out))} | set(missing_folders(logs)),
+                  key=lambda f: len(f.parts), reverse=True)  # deepest first
     for c in configs:
         Path(c.out).mkdir(parents=True, exist_ok=True)
-    jobs = submit(fn, configs, options, Path(config.out) / "parts" / "slurm-logs", fn.__name__.split("_")[0])
+    try:
+        jobs = submit(fn, configs, options, logs, fn.__name__.split("_")[0])
+    except BaseException:  # no job submitted (no sbatch here, a bad partition): no folder of it is left
+        for f in made:
+            with contextlib.suppress(OSError):
+                f.rmdir()
+        raise
     summaries, errors = [None] * len(jobs), []
     pending = set(range(len(jobs)))
     while pending:
