@@ -1,8 +1,6 @@
 """The material and texture files a mesh file names: where they may lie, which exist and decode,
-and the resolver through which trimesh reads them.
+and the resolver through which trimesh reads them. Conventions:
 
-Conventions
------------
 - **Real file**: a mesh reached through a symlink names its companion files (``.mtl``,
   textures, glTF buffers) relative to the file the link points to (``os.path.realpath``), as
   the program that wrote them did, never relative to the link.
@@ -234,8 +232,9 @@ def make_resolver(path: Path, root: Path | None):
     relative to the real file's folder (:func:`real_file`), ``..`` allowed while inside; like trimesh's own it also tries
     the name without options and the bare file name, each also percent-decoded as glTF URIs are)
     and records every name it could not serve. For an OBJ, trimesh reads only its first ``mtllib``
-    statement, as one file name: asked for it, the resolver serves every material file the OBJ
-    names (:func:`mtllib_names`) one after the other, so none is dropped."""
+    statement (the first ``mtllib`` in the text, a comment's too) as one file name: asked for it, the
+    resolver serves every material file the statements name (:func:`mtllib_names`), so none is
+    dropped and none read that a comment names. An MTL's UTF-8 mark is dropped (it hid a ``newmtl``)."""
     from trimesh.resolvers import Resolver
 
     class _RootResolver(Resolver):
@@ -249,7 +248,7 @@ def make_resolver(path: Path, root: Path | None):
             return list(dict.fromkeys(names + [urllib.parse.unquote(n) for n in names]))  # glTF URIs
 
         def get(self, name: str) -> bytes:
-            if name.strip() == first_mtllib and len(libs) > 1:  # trimesh reads the first statement only
+            if name.strip() == first_mtllib and (len(libs) > 1 or first_mtllib not in libs):  # see above
                 return b"\n".join(self._read(lib) for lib in libs if self._inside_file(lib))
             return self._read(name)
 
@@ -262,8 +261,8 @@ def make_resolver(path: Path, root: Path | None):
             for cand in self._candidates(name):
                 p = (self.parent / cand).resolve()
                 if p.is_relative_to(self.top) and p.exists():
-                    with open(p, "rb") as f:
-                        return f.read()
+                    with open(p, "rb") as f:  # a material file's UTF-8 mark (Notepad) would hide its first newmtl
+                        return f.read().removeprefix(b"\xef\xbb\xbf") if p.suffix.lower() == ".mtl" else f.read()
             inside = first.is_relative_to(self.top)
             self.misses.append((name.strip(), str(first), "not found" if inside else
                                 f"outside the dataset folder {self.top}, not read"))
@@ -284,8 +283,8 @@ def make_resolver(path: Path, root: Path | None):
     if real.suffix.lower() == ".obj":  # all material files, served for the first statement
         text = real.read_text(errors="replace")
         libs = mtllib_names(real, text)
-        found = re.search(r"mtllib(.*)", text)
-        first_mtllib = found.group(1).strip() if found else None  # what trimesh asks for
+        found = re.search(r"mtllib(.*)", text.replace("\\\n", ""))  # what trimesh asks for (lines joined)
+        first_mtllib = found.group(1).strip() if found else None
     return _RootResolver(real.parent, texture_root(real, root), [])
 
 

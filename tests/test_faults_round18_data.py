@@ -1,0 +1,67 @@
+"""Textures the eighteenth attack on the commands (2026-11-28) found lost without a word: an MTL
+saved with a UTF-8 byte-order mark, and an OBJ whose comment names a material file. The
+expected images come from the same cube written plainly (a simpler route to the same object),
+rendered by the real renderer in the same run."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+from PIL import Image
+
+from sc3d_cli.data import main as data_main
+from conftest import run_cli
+from test_faults import index_of
+
+FAST = ["--views", "2", "--no-progress", "--workers", "1"]
+CUBE = [(-1, -1, -1), (1, -1, -1), (1, 1, -1), (-1, 1, -1), (-1, -1, 1), (1, -1, 1), (1, 1, 1), (-1, 1, 1)]
+QUADS = [(1, 2, 3, 4), (5, 8, 7, 6), (1, 5, 6, 2), (2, 6, 7, 3), (3, 7, 8, 4), (5, 1, 4, 8)]
+
+
+def textured_cube(folder: Path, header: str = "", mtl_prefix: bytes = b"") -> None:
+    """A cube whose every face maps a red/blue checker (``texture.png`` through ``model.mtl``)."""
+    folder.mkdir(parents=True)
+    rows, cols = np.mgrid[:64, :64]
+    checker = ((rows // 8 + cols // 8) % 2).astype(bool)
+    image = np.zeros((64, 64, 3), np.uint8)
+    image[checker], image[~checker] = (255, 0, 0), (0, 0, 255)
+    Image.fromarray(image).save(folder / "texture.png")
+    lines = ([header] if header else []) + ["mtllib model.mtl"] + [f"v {x} {y} {z}" for x, y, z in CUBE]
+    lines += ["vt 0 0", "vt 1 0", "vt 1 1", "vt 0 1", "usemtl mat"]
+    for a, b, c, d in QUADS:
+        lines += [f"f {a}/1 {b}/2 {c}/3", f"f {a}/1 {c}/3 {d}/4"]
+    (folder / "model.obj").write_text("\n".join(lines) + "\n")
+    (folder / "model.mtl").write_bytes(mtl_prefix + b"newmtl mat\nKd 0.8 0.8 0.8\nmap_Kd texture.png\n")
+
+
+def _images(out: Path) -> dict[str, np.ndarray]:
+    images = {}
+    for shard in sorted(out.glob("shard-*.h5")):
+        with h5py.File(shard, "r") as f:
+            for i, model_id in enumerate(f["model_id"][:]):
+                images[model_id.decode()] = f["images"][i]
+    return images
+
+
+def test_an_mtl_with_a_byte_order_mark_and_an_mtllib_in_a_comment_keep_their_texture(tmp_path):
+    """``bom``: its ``model.mtl`` starts with Notepad's UTF-8 mark, which hid its ``newmtl`` from
+    trimesh: the cube rendered flat grey, exit 0, no warning. ``comment``: a comment ``# mtllib
+    old.mtl`` above the real statement made the loader read ``old.mtl`` (a stale green material)
+    instead. ``gone``: the same comment without an ``old.mtl`` failed the object, blaming a file
+    the OBJ does not name. Each renders as the plain cube now, pixel for pixel."""
+    meshes = tmp_path / "m" / "02958343"
+    textured_cube(meshes / "plain")
+    textured_cube(meshes / "bom", mtl_prefix=b"\xef\xbb\xbf")
+    textured_cube(meshes / "comment", header="# mtllib old.mtl")
+    (meshes / "comment" / "old.mtl").write_text("newmtl mat\nKd 0 0.8 0\n")
+    textured_cube(meshes / "gone", header="# mtllib old.mtl")
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", meshes.parent, "--out", out, *FAST])
+    assert index_of(out)["failures"] == [] and index_of(out).get("warnings", []) == []
+    images = _images(out)
+    assert sorted(images) == ["bom", "comment", "gone", "plain"]
+    plain = images["plain"]
+    assert plain[0].reshape(-1, 3).max(axis=0)[0] == 255 and plain[0].reshape(-1, 3).max(axis=0)[2] == 255  # textured
+    for name in ("bom", "comment", "gone"):
+        assert np.array_equal(images[name], plain), name
