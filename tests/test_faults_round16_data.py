@@ -313,3 +313,71 @@ def test_a_slurm_array_that_cannot_be_submitted_leaves_no_folders(tmp_path):
                                               "--slurm-parts", "2"], expect_exit=1).output)
         assert "--executor slurm" in error, error
         assert not (tmp_path / "new").exists(), args[0]
+
+
+def test_swapped_meshes_and_an_overwrite_that_stops_or_fails_leave_no_wrong_grid(tmp_path, monkeypatch):
+    """The review of the record: (1) two meshes swapped by ``mv`` (times kept) were kept under
+    each other's names; (2) an ``--overwrite --normalize diagonal`` stopped after its first file
+    (Ctrl-C) left the others' ``fit`` grids unrecorded, and the next run kept them; (3) under
+    ``--overwrite`` a mesh that fails kept its old grid, which the next run counted as done.
+    Expected throughout: the files of a fresh run of the same meshes and settings."""
+    import os
+    import shutil
+
+    meshes = tmp_path / "m" / "chair"
+    shutil.copytree(SAMPLE_MESHES / "chair", meshes)
+    out = tmp_path / "vox"
+    _vox(meshes.parent, out)
+    a, b = meshes / "chair2_blendswap.glb", meshes / "silla_blanca_blendswap.glb"
+    a.rename(meshes / "tmp.glb")
+    b.rename(a)
+    (meshes / "tmp.glb").rename(b)
+    assert "2 of them again" in _vox(meshes.parent, out)
+    _vox(meshes.parent, tmp_path / "fresh")
+    same = lambda x, y: (x / "chair" / a.with_suffix(".binvox").name).read_bytes() == (y / "chair" / a.with_suffix(".binvox").name).read_bytes()  # noqa: E731
+    assert same(out, tmp_path / "fresh")
+
+    from sc3d_data.pipeline.executors import executor
+
+    real = executor.start_executor
+
+    def stopped_after_one(*args, **kwargs):
+        pool = real(*args, **kwargs)
+        run = pool.run
+
+        def first_then_ctrl_c(tasks):
+            for i, result in enumerate(run(tasks)):
+                yield result
+                raise KeyboardInterrupt
+        pool.run = first_then_ctrl_c
+        return pool
+
+    with monkeypatch.context() as m:
+        m.setattr(executor, "start_executor", stopped_after_one)
+        res = run_cli(data_main, ["voxelize", "--meshes", meshes.parent, "--out", out, "--workers", "1",
+                                  "--no-progress", "--normalize", "diagonal", "--overwrite"], expect_exit=None)
+    assert res.exit_code != 0
+    _vox(meshes.parent, out, "--normalize", "diagonal")
+    _vox(meshes.parent, tmp_path / "fresh_diagonal", "--normalize", "diagonal")
+    files = sorted(p.relative_to(out) for p in out.rglob("*.binvox"))
+    assert [f for f in files if (out / f).read_bytes() != (tmp_path / "fresh_diagonal" / f).read_bytes()] == []
+
+    broken = meshes / "dining_chair_katorlegaz.glb"
+    times = broken.stat()
+    broken.write_bytes(b"not a mesh")
+    os.utime(broken, ns=(times.st_atime_ns, times.st_mtime_ns))  # not newer than its grid: --overwrite redoes it
+    res = _vox(meshes.parent, out, "--normalize", "fit", "--overwrite")
+    (failure,) = json.loads((out / "failures.json").read_text())
+    assert failure["removed"].endswith("(made before --overwrite)"), failure
+    assert not (out / "chair" / "dining_chair_katorlegaz.binvox").exists()
+
+
+def test_merge_leaves_no_lock_file_in_a_folder_that_is_no_part(tmp_path):
+    """``merge data p0 Documents`` is refused ("no index.json"), and it left
+    ``Documents/.sc3d.lock`` beside the user's files: a folder without an index is not locked."""
+    parts = _parts(tmp_path)
+    docs = tmp_path / "Documents"
+    docs.mkdir()
+    (docs / "notes.txt").write_text("mine")
+    one_error(run_cli(data_main, ["merge", tmp_path / "data", parts[0], docs], expect_exit=1).output)
+    assert sorted(p.name for p in docs.iterdir()) == ["notes.txt"]

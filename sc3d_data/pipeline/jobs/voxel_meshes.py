@@ -27,7 +27,7 @@ import numpy as np
 
 from sc3d_data.io.binvox import binvox_intact
 from sc3d_data.io.shards import write_json_atomic
-from sc3d_data.pipeline.jobs.binvox_sources import record_sources, recorded_sources
+from sc3d_data.pipeline.jobs.binvox_sources import mesh_identity, record_sources, recorded_sources
 from sc3d_data.pipeline.executors.job import ExecOptions, Job
 from sc3d_data.pipeline.executors.slurm_executor import SlurmOptions, run_array, summed_parts
 from sc3d_data.pipeline.run.partition import Part
@@ -154,20 +154,24 @@ def _voxelize_entries(config: VoxelMeshesConfig, out: Path, part: Part, entries:
     if not part.whole:
         entries = [e for e in entries if part_of(e.category, e.model_id, part.count) == part.index]
         problems = problems if part.index == 0 else []
-    todo, stale = [], {}  # stale: pos -> (the .binvox there, "stale": of a newer mesh, or "remade": binvox_sources)
+    # stale: pos -> (the .binvox there, why it is redone: "stale" (a newer mesh), "remade" (binvox_sources), None (--overwrite))
+    todo, stale = [], {}
     recorded, now, record, names = recorded_sources(out), grid_settings(config), {}, []
     for e in entries:  # a file of another resolution, cut short or unreadable is done again
         target = binvox_target(config, str(e.path))
-        name, source = target.relative_to(out).as_posix(), mesh_name(config, e.path)
-        if not config.overwrite and target.is_file() and binvox_intact(target, config.resolution):
+        name, source = target.relative_to(out).as_posix(), mesh_identity(mesh_name(config, e.path), e.path)
+        there = target.is_file()
+        if not config.overwrite and there and binvox_intact(target, config.resolution):
             newer, same = mesh_is_newer(e.path, target), recorded.get(name, (source, now)) == (source, now)
             if same and not newer:
                 summary.shards_skipped += 1
                 record[name] = (source, now)
                 continue
             stale[len(todo)] = (target, "stale" if newer else "remade")
-            if name in recorded:  # kept until it is done again (binvox_sources: a stopped run)
-                record[name] = recorded[name]
+        elif there and config.overwrite:
+            stale[len(todo)] = (target, None)
+        if there:  # until it is done again (a stopped run): its old record, or one no run keeps
+            record[name] = recorded.get(name, (source, None))
         todo.append(Task(len(todo), str(e.path), e.category, e.model_id, ""))
         names.append((name, source))
     failures = [dict(p) for p in problems]
@@ -207,7 +211,7 @@ def _run_todo(config: VoxelMeshesConfig, todo: list, stale: dict, names: list, n
             name, source = names[pos]
             if status == "ok":
                 summary.objects += 1
-                if pos in stale:
+                if pos in stale and stale[pos][1]:
                     setattr(summary, stale[pos][1], getattr(summary, stale[pos][1]) + 1)
                 record[name] = (source, now)
             else:
@@ -216,8 +220,9 @@ def _run_todo(config: VoxelMeshesConfig, todo: list, stale: dict, names: list, n
                 if pos in stale:  # the grid of a mesh that is no more (or of another) would pass for this one's
                     stale[pos][0].unlink(missing_ok=True)
                     record.pop(name, None)
-                    failures[-1]["removed"] = f"{stale[pos][0]} (" + ("of the mesh before it changed)" if stale[pos][1] == "stale"
-                                                                   else "made by another mesh or with other settings)")
+                    why = {"stale": "of the mesh before it changed", "remade": "made by another mesh or with other "
+                           "settings", None: "made before --overwrite"}[stale[pos][1]]
+                    failures[-1]["removed"] = f"{stale[pos][0]} ({why})"
             if bar is not None:
                 bar.update(1)
     finally:

@@ -144,8 +144,9 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
     if any(d.resolve() == out.resolve() for d in dirs):
         raise MergeError(f"{out}: the output folder cannot be one of the parts")
     with ExitStack() as reading:  # no part is rewritten while it is checked and linked, nor merged while written
-        for d in dict.fromkeys(dirs):
-            reading.enter_context(reading_lock(d, "sc3d-data merge", "merge when it has finished"))
+        for d in dict.fromkeys(dirs):  # a folder without an index is refused below: no lock file left in it
+            if (d / INDEX_NAME).is_file():
+                reading.enter_context(reading_lock(d, "sc3d-data merge", "merge when it has finished"))
         parts = check_parts(dirs, defaults_of)
         out.mkdir(parents=True, exist_ok=True)
         with exclusive_lock(out, "sc3d-data merge"), tmp_cleaned(out):  # a killed merge's *.tmp go
