@@ -65,3 +65,15 @@ def test_an_mtl_with_a_byte_order_mark_and_an_mtllib_in_a_comment_keep_their_tex
     assert plain[0].reshape(-1, 3).max(axis=0)[0] == 255 and plain[0].reshape(-1, 3).max(axis=0)[2] == 255  # textured
     for name in ("bom", "comment", "gone"):
         assert np.array_equal(images[name], plain), name
+
+
+def test_map_options_whose_value_is_a_word_are_not_taken_for_the_file_name():
+    """``map_Kd -imfchan r texture.png`` failed "texture r texture.png not found": the MTL options
+    whose value is a word (``-imfchan r|g|b|m|l|z``, ``-type sphere|cube_top|...``) were read as part
+    of the name. Expected names by hand from the MTL format (numeric and on/off options too)."""
+    from sc3d_data.io.materials import map_file_name
+
+    assert map_file_name("-imfchan r texture.png") == "texture.png"
+    assert map_file_name("-type sphere -s 1 1 1 tex.png") == "tex.png"
+    assert map_file_name("-clamp on -bm 0.5 dir\\tex.png") == "dir/tex.png"
+    assert map_file_name("plain name.png") == "plain name.png"  # control: a name with a space

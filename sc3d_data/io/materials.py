@@ -78,7 +78,8 @@ def map_file_name(value: str) -> str:
     ``"-s 1 1 1 -clamp on tex.png"`` -> ``"tex.png"``; Windows separators become ``/``."""
     tokens = value.split()
     while len(tokens) > 1 and tokens[0].startswith("-") and not _OPTION_VALUE.match(tokens[0]):
-        tokens.pop(0)
+        if tokens.pop(0).lower() in ("-imfchan", "-type") and len(tokens) > 1:  # a word: r/g/b/m/l/z, sphere...
+            tokens.pop(0)
         while len(tokens) > 1 and _OPTION_VALUE.match(tokens[0]):
             tokens.pop(0)
     return " ".join(tokens).replace("\\", "/")
