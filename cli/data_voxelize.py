@@ -73,11 +73,11 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
 
             s = voxelize_shards(shards, resolution, workers or os.cpu_count() or 1, overwrite, progress,
                                 scale["timeout_s"])
-            click.echo(f"voxelized {s.objects - s.failed} objects in {s.shards_done} shards ({s.shards_skipped} shards "
-                       f"already done), {s.failed} failed, {s.seconds:.1f} s")
             if not s.shards_done and not s.shards_skipped and load_index(shards).get("failures"):  # not an empty part
                 raise click.ClickException(f"{shards}: holds no shard, so nothing was voxelized (no object was rendered "
                                            f"into it: `sc3d-data info {shards}` lists why)")
+            click.echo(f"voxelized {s.objects - s.failed} objects in {s.shards_done} shards ({s.shards_skipped} shards "
+                       f"already done), {s.failed} failed, {s.seconds:.1f} s")
             if s.failed and s.failed == s.objects and not s.reused:
                 grids = (f"earlier grid kept for {s.kept}, the others' are empty" if s.kept
                          else "their grids are empty")

@@ -298,6 +298,20 @@ def test_voxelize_of_a_dataset_without_shards_fails_in_one_line(tmp_path):
     assert index_of(out)["shards"] == []
     error = one_error(run_cli(data_main, ["voxelize", out, "--no-progress"], expect_exit=1).output)
     assert "holds no shard, so nothing was voxelized" in error, error
+    assert "voxelized 0 objects" not in run_cli(data_main, ["voxelize", out, "--no-progress"], expect_exit=1).output
+
+
+def test_voxelize_of_shards_held_by_a_writer_does_not_advise_another_out(tmp_path):
+    """``voxelize SHARDS`` has no ``--out``; refused beside a writer it said "use another --out"."""
+    out = tmp_path / "ds"
+    run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES / "table", "--out", out, *FAST])
+    writer = _holding(tmp_path, out, "write")
+    try:
+        error = one_error(run_cli(data_main, ["voxelize", out, "--no-progress"], expect_exit=1).output)
+    finally:
+        writer.stdin.close()
+        writer.wait(timeout=30)
+    assert error.endswith("is writing to this folder; wait for it to finish"), error
 
 
 def test_a_slurm_array_that_cannot_be_submitted_leaves_no_folders(tmp_path):

@@ -3,6 +3,7 @@ test failing without its fix. Real (tiny) runs, real checkpoint files, real YAML
 from __future__ import annotations
 
 import shutil
+from pathlib import Path
 
 import pytest
 import torch
@@ -85,3 +86,17 @@ def test_the_same_checkpoint_named_from_another_folder_keeps_its_default_folders
     monkeypatch.chdir(run)
     run_cli(train_main, ["predict", "--checkpoint", "checkpoints/last.pt", "../view.png"])
     run_cli(train_main, ["eval", "--checkpoint", "checkpoints/last.pt", "--shards", sample_shards, "--examples", 0])
+
+
+def test_an_image_given_twice_is_predicted_once(tiny_run, tmp_path, monkeypatch):  # noqa: F811
+    """``predict imA/x.png imA/x.png ./imA/x.png`` wrote three identical predictions, ``x.*``,
+    ``x_.*`` and ``x__.*``. One file is predicted once, under its first path; another file of
+    the same name still gets its own (``x_``: control)."""
+    monkeypatch.chdir(tmp_path)
+    for folder in ("imA", "imB"):
+        Path(folder).mkdir()
+        Image.new("RGB", (64, 64), (200, 30, 30)).save(f"{folder}/x.png")
+    res = run_cli(train_main, ["predict", "--checkpoint", tiny_run, "imA/x.png", "imA/x.png", "./imA/x.png",
+                               "imB/x.png", "--out", "p"])
+    assert sorted(p.name for p in Path("p").glob("*.json")) == ["x.json", "x_.json"], res.output
+    assert [ln.split(":")[0] for ln in res.output.splitlines() if "voxels ->" in ln] == ["imA/x.png", "imB/x.png"]

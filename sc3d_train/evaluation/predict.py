@@ -142,6 +142,7 @@ def predict(checkpoint: Path, images: list[Path], out: Path | None, device: str 
     (``CheckpointError``) before anything is written; returns one dict per image (the content of
     its JSON file). ``pose_from``: ``"search"`` (the default of every entry point,
     :data:`~sc3d_train.settings.command_config.DEFAULT_POSE_SOURCE`) or ``"head"``, as in ``eval``.
+    An image file given more than once (by any path) is predicted once, under its first path.
     ``out`` None: ``RUN_DIR/predictions`` beside the checkpoint, which is never given to the
     prediction of an image of the same name by another checkpoint file or ``pose_from``
     (:func:`check_default_folder_free`)."""
@@ -155,6 +156,8 @@ def predict(checkpoint: Path, images: list[Path], out: Path | None, device: str 
     check_pose_source(pose_from)
     if not images:
         raise ImageError("no input images given")
+    firsts: dict[str, Path] = {}  # a file given twice (by any path): once, under its first path
+    images = [firsts.setdefault(os.path.realpath(p), p) for p in images if os.path.realpath(p) not in firsts]
     if not 0.0 <= threshold <= 1.0:  # also NaN
         raise ValueError(f"--threshold must be an occupancy probability in [0, 1], got {threshold}")
     from sc3d_train.loop.runtime import resolve_device

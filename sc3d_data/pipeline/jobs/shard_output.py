@@ -79,7 +79,7 @@ def locked_output(out: Path, command: str, create: bool = True) -> Iterator[Path
     made = missing_folders(out) if create else []  # removed again when the run leaves nothing in them
     if create:
         check_out(out)
-    with exclusive_lock(out, command, made=made):
+    with exclusive_lock(out, command, made=made, advice="wait for it to finish" + " or use another --out" * create):
         with tmp_cleaned(out):
             yield out
 
