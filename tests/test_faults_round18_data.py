@@ -77,3 +77,22 @@ def test_map_options_whose_value_is_a_word_are_not_taken_for_the_file_name():
     assert map_file_name("-type sphere -s 1 1 1 tex.png") == "tex.png"
     assert map_file_name("-clamp on -bm 0.5 dir\\tex.png") == "dir/tex.png"
     assert map_file_name("plain name.png") == "plain name.png"  # control: a name with a space
+
+
+def test_a_texture_no_face_is_drawn_with_is_warned_of(tmp_path):
+    """``novt``: the cube's faces have no texture coordinates (``f 1 2 3``), so the loader draws its
+    ``map_Kd`` checker nowhere: it rendered in the material's grey, exit 0, without a word. One
+    warning now names the texture; the plain cube gets none (control)."""
+    meshes = tmp_path / "m" / "02958343"
+    textured_cube(meshes / "plain")
+    textured_cube(meshes / "novt")
+    obj = meshes / "novt" / "model.obj"
+    lines = obj.read_text().splitlines()
+    obj.write_text("\n".join(ln if not ln.startswith("f ") else "f " + " ".join(t.split("/")[0] for t in ln.split()[1:])
+                             for ln in lines) + "\n")
+    out = tmp_path / "out"
+    res = run_cli(data_main, ["render", "--meshes", meshes.parent, "--out", out, *FAST])
+    warnings = index_of(out)["warnings"]
+    assert len(warnings) == 1 and "novt" in warnings[0]["source"], warnings
+    assert "name the texture(s) texture.png, but no face is drawn with them" in warnings[0]["warning"], warnings
+    assert "1 with warnings" in res.output, res.output

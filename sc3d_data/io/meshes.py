@@ -237,8 +237,28 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     vertices, faces = scene_triangles(scene, str(path))
     faces = validate_triangles(vertices, faces, str(path), max_faces)
     warnings = ([f"{path}: {p}; rendered with material colours" for p in report.problems + missed]
-                + [f"{path}: {n}" for n in report.warnings + report.outside])
+                + [f"{path}: {n}" for n in report.warnings + report.outside] + unused_texture_warnings(path, scene, report))
     return scene, vertices, faces, warnings
+
+
+def unused_texture_warnings(path: Path, scene, report) -> list[str]:
+    """One warning when OBJ ``path``'s materials name ``map_Kd`` textures that exist and decode
+    (``report``: :func:`~sc3d_data.io.materials.material_report`) but no geometry of the loaded
+    ``scene`` is drawn with one (it needs a texture image and coordinates: faces without ``vt``
+    are drawn in the material's colour): such an object would otherwise render untextured
+    without a word."""
+    if Path(path).suffix.lower() != ".obj" or report.problems:
+        return []
+    named = sorted({Path(r).name for r in report.reported if not r.lower().endswith(".mtl") and Path(r).is_file()
+                    and not any(r in line for line in report.outside)})
+    for geometry in scene.geometry.values():
+        visual = getattr(geometry, "visual", None)
+        material = getattr(visual, "material", None)
+        if getattr(visual, "kind", None) == "texture" and getattr(visual, "uv", None) is not None \
+                and getattr(material, "image", None) is not None:
+            return []
+    return [f"{path}: its materials name the texture(s) {', '.join(named)}, but no face is drawn with them (faces "
+            "without texture coordinates `vt`?); rendered with material colours"] if named else []
 
 
 def load_mesh_triangles(path: Path, max_faces: int = DEFAULT_MAX_FACES) -> tuple[np.ndarray, np.ndarray]:
