@@ -4,12 +4,11 @@ and the resolver through which trimesh reads them. Conventions:
 - **Real file**: a mesh reached through a symlink names its companion files (``.mtl``,
   textures, glTF buffers) relative to the file the link points to (``os.path.realpath``), as
   the program that wrote them did, never relative to the link.
-- **Texture root** (:func:`texture_root`): the folder every ``.mtl``, texture or external glTF
-  file a mesh names must lie in, after resolving ``..`` and symlinks: the dataset folder
-  (``--meshes``) when the real file lies in it, else (no dataset folder, or a link that points
-  out of it) the real file's own folder. A ShapeNetCore v2 mesh
-  (``MODEL/models/model_normalized.obj``, whose ``.mtl`` names ``../images/textureN.jpg``) may
-  also read its model folder ``MODEL/``.
+- **Texture root** (:func:`texture_root`): the folder every ``.mtl``, texture or external glTF file a mesh names
+  must lie in, after resolving ``..`` and symlinks: the dataset folder (``--meshes``) when the real file lies in
+  it, else (no dataset folder, or a link that points out of it) the real file's own folder. A ShapeNetCore v2
+  mesh (``MODEL/models/model_normalized.obj``, whose ``.mtl`` names ``../images/textureN.jpg``) may also read
+  its model folder ``MODEL/``.
 - A reference is judged from its path alone (``Path.resolve``: string work and symlink reads,
   no file opened) before any file it names is opened. A reference outside the root is never
   opened: with ``outside="warn"`` the object renders without it and a warning says so, with
@@ -99,10 +98,12 @@ def _image_problem(data_or_path) -> str | None:
 
 @dataclass
 class MaterialReport:
-    """What the materials of one mesh file name. ``problems``: textures inside the root that are
-    missing or do not decode; ``warnings``: ``.mtl`` files that are missing; ``outside``: one
-    line per file outside the root (never opened); ``reported``: resolved paths of all of these."""
+    """What the materials of one mesh file name. ``problems``: textures inside the root that are missing or do
+    not decode; ``warnings``: ``.mtl`` files that are missing; ``outside``: one line per file outside the root
+    (never opened); ``reported``: resolved paths of all of these; ``textures``: the file names of the textures
+    inside the root that exist and decode."""
 
+    textures: list[str] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     outside: list[str] = field(default_factory=list)
@@ -187,12 +188,10 @@ def named_files(path: Path, root: Path | None = None) -> list[Path]:
 
 
 def material_report(path: Path, root: Path | None = None, outside: str = "warn") -> MaterialReport:
-    """The materials of mesh ``path`` (module doc), judged against :func:`texture_root`.
-
-    Files outside the root are decided on from their paths, before any is opened: with
-    ``outside="refuse"`` a ``ValueError`` lists them; otherwise they are listed in
-    ``report.outside`` and never opened. Then the textures inside are checked: missing or
-    undecodable ones go to ``report.problems``."""
+    """The materials of mesh ``path`` (module doc), judged against :func:`texture_root`: files outside
+    the root are decided on from their paths, before any is opened (``outside="refuse"``: a
+    ``ValueError`` lists them; else ``report.outside``, never opened); the textures inside that are
+    missing or undecodable go to ``report.problems``, the others to ``report.textures``."""
     path = real_file(path)
     top = texture_root(path, root)
     report = MaterialReport()
@@ -222,6 +221,8 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn")
             report.problems.append(f"texture {name} not found")
         elif (p := _image_problem(ref)) is not None:
             report.problems.append(f"texture {name} unreadable ({p})")
+        else:
+            report.textures.append(ref.name)
     for name, data in embedded:
         if (p := _image_problem(data)) is not None:
             report.problems.append(f"{name} unreadable ({p})")
@@ -229,13 +230,12 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn")
 
 
 def make_resolver(path: Path, root: Path | None):
-    """A trimesh resolver for mesh ``path`` that serves files inside :func:`texture_root` (names
-    relative to the real file's folder (:func:`real_file`), ``..`` allowed while inside; like trimesh's own it also tries
-    the name without options and the bare file name, each also percent-decoded as glTF URIs are)
-    and records every name it could not serve. For an OBJ, trimesh reads only its first ``mtllib``
-    statement (the first ``mtllib`` in the text, a comment's too) as one file name: asked for it, the
-    resolver serves every material file the statements name (:func:`mtllib_names`), so none is
-    dropped and none read that a comment names. An MTL's UTF-8 mark is dropped (it hid a ``newmtl``)."""
+    """A trimesh resolver for mesh ``path`` that serves files inside :func:`texture_root` (names relative to the
+    real file's folder (:func:`real_file`), ``..`` allowed while inside; like trimesh's own it also tries the name
+    without options and the bare file name, each also percent-decoded (glTF URIs)) and records every name it could
+    not serve. For an OBJ, trimesh reads only its first ``mtllib`` statement (the first ``mtllib`` in the text, a
+    comment's too) as one file name: asked for it, the resolver serves every material file the statements name
+    (:func:`mtllib_names`), so none is dropped and none read that a comment names. An MTL's UTF-8 mark is dropped."""
     from trimesh.resolvers import Resolver
 
     class _RootResolver(Resolver):

@@ -243,14 +243,13 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
 
 def unused_texture_warnings(path: Path, scene, report) -> list[str]:
     """One warning when OBJ ``path``'s materials name ``map_Kd`` textures that exist and decode
-    (``report``: :func:`~sc3d_data.io.materials.material_report`) but no geometry of the loaded
+    (``report.textures``: :func:`~sc3d_data.io.materials.material_report`) but no geometry of the loaded
     ``scene`` is drawn with one (it needs a texture image and coordinates: faces without ``vt``
     are drawn in the material's colour): such an object would otherwise render untextured
     without a word."""
     if Path(path).suffix.lower() != ".obj" or report.problems:
         return []
-    named = sorted({Path(r).name for r in report.reported if not r.lower().endswith(".mtl") and Path(r).is_file()
-                    and not any(r in line for line in report.outside)})
+    named = sorted(set(report.textures))
     for geometry in scene.geometry.values():
         visual = getattr(geometry, "visual", None)
         material = getattr(visual, "material", None)

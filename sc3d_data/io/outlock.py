@@ -58,6 +58,16 @@ def missing_folders(folder: Path) -> list[Path]:
     return [f for f in (folder, *folder.parents) if not f.exists()]
 
 
+def remove_made_folders(made: list[Path]) -> None:
+    """Remove the folders of ``made`` (:func:`missing_folders`, deepest first) that are empty; a
+    folder that holds anything (another run's files, the user's) stays, and so do its parents."""
+    for f in made:
+        try:
+            f.rmdir()
+        except OSError:
+            continue
+
+
 @contextmanager
 def exclusive_lock(folder: Path, command: str = "sc3d-data", create: bool = False, shared: bool = False,
                    name: str = LOCK_NAME, made: list[Path] | None = None,
@@ -92,11 +102,7 @@ def exclusive_lock(folder: Path, command: str = "sc3d-data", create: bool = Fals
         _HELD.discard(fd)
         if made and held and os.listdir(folder) == [LOCK_NAME]:
             path.unlink()  # still held: nobody else can have taken it
-            for f in made:  # the folder, then the parents this call made, while nothing else is in them
-                try:
-                    f.rmdir()
-                except OSError:
-                    break
+            remove_made_folders(made)
         os.close(fd)  # closing the descriptor releases the lock
 
 
@@ -122,13 +128,19 @@ def _flock_holders(path: Path) -> list[tuple[int, str]] | None:
     return holders
 
 
-def _described(path: Path, pid: int) -> str:
-    """``"PID n: command"``: the lock file's line where it names ``pid`` (an exclusive holder
-    writes one), else the process's command line (a shared holder writes none), else ``unknown``."""
+def _lock_file_line(path: Path) -> tuple[str, str]:
+    """``(pid, command)`` as the last exclusive holder of lock file ``path`` wrote them ("" where unread)."""
     try:
         first, _, what = path.read_text(errors="replace").strip().partition(" ")
     except OSError:
-        first, what = "", ""
+        return "", ""
+    return first, what
+
+
+def _described(path: Path, pid: int) -> str:
+    """``"PID n: command"``: the lock file's line where it names ``pid`` (an exclusive holder
+    writes one), else the process's command line (a shared holder writes none), else ``unknown``."""
+    first, what = _lock_file_line(path)
     if first == str(pid) and what:
         return f"PID {pid}: {what}"
     try:
@@ -145,14 +157,14 @@ def holder_problem(folder: Path, path: Path) -> str:
     """The line of a lock on ``path`` (``folder``'s lock file) refused because another process
     holds it: the writer (an exclusive holder), else a process that shares it (a ``merge``
     reading its parts, a part of ``voxelize --meshes --part``)."""
-    holders = _flock_holders(path) or []
+    holders = _flock_holders(path)
+    if not holders:  # /proc/locks unreadable: the lock file's line, as its last writer wrote it
+        first, what = _lock_file_line(path)
+        return f"{folder}: another process (PID {first or '?'}: {what or 'unknown'}) is writing to this folder"
     writer = next((pid for pid, kind in holders if kind == "WRITE"), None)
-    if writer is not None or not holders:
-        if writer is None:  # /proc/locks unreadable: the lock file's line, as written by its last writer
-            first, _, what = path.read_text(errors="replace").strip().partition(" ") if path.is_file() else ("", "", "")
-            return f"{folder}: another process (PID {first or '?'}: {what or 'unknown'}) is writing to this folder"
-        return f"{folder}: another process ({_described(path, writer)}) is writing to this folder"
-    return f"{folder}: another process ({_described(path, holders[0][0])}) is using this folder"
+    if writer is None:
+        return f"{folder}: another process ({_described(path, holders[0][0])}) is using this folder"
+    return f"{folder}: another process ({_described(path, writer)}) is writing to this folder"
 
 
 @contextmanager

@@ -311,8 +311,8 @@ def verify_shards(shard_dir: Path, full: bool = True) -> list[str]:
     shards, a resumed ``render``), whose shards and index are then not yet each other's."""
     for _ in range(2):  # a writer that ended between reading and asking left them matching: look again
         index = load_index(shard_dir)
-        problems = [p for e in index.get("shards", [])
-                    if (p := verify_shard(shard_dir, e, full, grids=held_voxel_resolution(index)))]
+        grids = held_voxel_resolution(index)
+        problems = [p for e in index.get("shards", []) if (p := verify_shard(shard_dir, e, full, grids))]
         if not problems:
             return []
         if writer := writer_of(shard_dir):

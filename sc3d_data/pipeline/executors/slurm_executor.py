@@ -18,8 +18,6 @@ named with its error and the merge is not attempted until every part is complete
 """
 from __future__ import annotations
 
-import contextlib
-
 import dataclasses
 import time
 from dataclasses import dataclass
@@ -88,7 +86,7 @@ def run_array(fn, config, options: SlurmOptions, paths: tuple[str, ...] = ("mesh
                          "(--slurm-parts); give one or the other")
     if hasattr(config, "validate"):
         config.validate(options.cpus_per_task)
-    from sc3d_data.io.outlock import missing_folders
+    from sc3d_data.io.outlock import missing_folders, remove_made_folders
 
     configs = part_configs(config, options.parts, options.cpus_per_task, paths, shared_out)
     logs = Path(config.out) / "parts" / "slurm-logs"
@@ -99,9 +97,7 @@ def run_array(fn, config, options: SlurmOptions, paths: tuple[str, ...] = ("mesh
     try:
         jobs = submit(fn, configs, options, logs, fn.__name__.split("_")[0])
     except BaseException:  # no job submitted (no sbatch here, a bad partition): no folder of it is left
-        for f in made:
-            with contextlib.suppress(OSError):
-                f.rmdir()
+        remove_made_folders(made)
         raise
     summaries, errors = [None] * len(jobs), []
     pending = set(range(len(jobs)))

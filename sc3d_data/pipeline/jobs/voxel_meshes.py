@@ -230,6 +230,7 @@ def _run_todo(config: VoxelMeshesConfig, todo: list, stale: dict, names: list, n
         if bar is not None:
             bar.close()
 
+
 def mesh_is_newer(mesh: Path, binvox: Path) -> bool:
     """Whether ``mesh`` was modified after ``binvox`` was written (``make``'s rule: an edited or
     re-exported mesh is voxelized again; a file whose times cannot be read counts as newer)."""

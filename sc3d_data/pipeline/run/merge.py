@@ -135,8 +135,7 @@ def _voxelized_since(out: Path, old: dict, parts: list[dict], objects: list[dict
 def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite: bool = False,
                 defaults_of: Callable[[dict], dict] = lambda settings: {}) -> MergeSummary:
     """Merge ``part_dirs`` into ``out`` (module doc); ``defaults_of``: as for :func:`check_parts`."""
-    from sc3d_data.io.outlock import exclusive_lock, reading_lock
-    from sc3d_data.pipeline.run.resume import tmp_cleaned
+    from sc3d_data.io.outlock import reading_lock
 
     t0 = time.monotonic()
     out = Path(out)
@@ -147,54 +146,62 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
         for d in dict.fromkeys(dirs):  # a folder without an index is refused below: no lock file left in it
             if (d / INDEX_NAME).is_file():
                 reading.enter_context(reading_lock(d, "sc3d-data merge", "merge when it has finished"))
-        parts = check_parts(dirs, defaults_of)
-        out.mkdir(parents=True, exist_ok=True)
-        with exclusive_lock(out, "sc3d-data merge"), tmp_cleaned(out):  # a killed merge's *.tmp go
-            old = load_index(out) if (out / INDEX_NAME).is_file() else {}
-            if old and not overwrite and "merged" not in old:
-                raise MergeError(f"{out}: already holds a dataset that is not a merge; use another OUT or --overwrite")
-            listed = {e["file"] for e in old.get("shards", [])}
-            shards, objects, failures, skipped, warnings, places = [], [], [], [], [], []
-            counts = {"linked": 0, "copied": 0, "kept": 0}
-            for index in parts:
-                src_dir, names = Path(index["_dir"]), {}
-                for entry in index.get("shards", []):
-                    name = SHARD_PATTERN.format(len(shards))
-                    places.append((src_dir / entry["file"], out / name, entry))
-                    objects += [dict(o, shard=name, chunk=len(shards)) for o in index["objects"]
-                                if o["shard"] == entry["file"]]
-                    names[entry["file"]] = name
-                    shards.append(dict(entry, file=name, chunk=len(shards)))
-                failures += _renamed_failures(index.get("failures", []), names)
-                skipped += index.get("skipped", [])
-                warnings += index.get("warnings", [])
-            voxels = merged_voxels_record(parts)
-            if old.get("merged") and not overwrite:
-                check_same_settings(out, old, parts[0], objects, defaults_of(old.get("settings", {})))
-                given = old["merged"].get("voxels", voxels if old.get("voxels") else None)  # older merges: no record
-                if old.get("voxels") != given:
-                    return _voxelized_since(out, old, parts, objects, [e["sha256"] for _, _, e in places], t0)
-            kept = [dst.is_file() and dst.stat().st_size == entry["bytes"] and file_sha256(dst) == entry["sha256"]
-                    for _, dst, entry in places]
-            if not overwrite:  # a shard-named file no merge wrote is someone's: refused before any write
-                for (_, dst, _), same in zip(places, kept):
-                    if not same and dst.name not in listed:
-                        check_unlisted_shard(dst, parts[0]["settings"], out / INDEX_NAME, "this merge",
-                                             "move it away, use another OUT or --overwrite")
-            for (src, dst, _), same in zip(places, kept):
-                counts["kept" if same else _place(src, dst, copy)] += 1
-            for stale in listed - {s["file"] for s in shards}:
-                shard_path(out, stale).unlink(missing_ok=True)  # listed by an earlier merge of other parts
-            first = parts[0]
-            extra = {"merged": {"parts": [p["_dir"] for p in parts], "count": first["part"]["count"],
-                                "rule": first["part"]["rule"], "plan_sha256": first["part"]["plan_sha256"],
-                                "planned_total": first["part"]["planned_total"],
-                                "sources_sha256": [e["sha256"] for _, _, e in places],
-                                "backends": sorted({str(b) for p in parts if (b := p["settings"].get("backend"))})}}
-            extra["merged"]["voxels"] = voxels  # what the parts gave: a later `voxelize OUT` changes "voxels" alone
-            if voxels is not None:
-                extra["voxels"] = voxels
-            write_index(out, complete=True, settings=first["settings"], split=first.get("split", {}), shards=shards,
-                        objects=objects, failures=failures, skipped=skipped, warnings=warnings, extra=extra)
-        return MergeSummary(parts=len(parts), shards=len(shards), objects=len(objects),
-                            failed=sum(1 for f in failures), seconds=time.monotonic() - t0, out=str(out), **counts)
+        return _merge_checked(out, check_parts(dirs, defaults_of), copy, overwrite, defaults_of, t0)
+
+
+def _merge_checked(out: Path, parts: list[dict], copy: bool, overwrite: bool, defaults_of: Callable[[dict], dict],
+                   t0: float) -> MergeSummary:
+    """:func:`merge_parts` once the ``parts`` (their checked indexes, in part order) are held."""
+    from sc3d_data.io.outlock import exclusive_lock
+    from sc3d_data.pipeline.run.resume import tmp_cleaned
+
+    out.mkdir(parents=True, exist_ok=True)
+    with exclusive_lock(out, "sc3d-data merge"), tmp_cleaned(out):  # a killed merge's *.tmp go
+        old = load_index(out) if (out / INDEX_NAME).is_file() else {}
+        if old and not overwrite and "merged" not in old:
+            raise MergeError(f"{out}: already holds a dataset that is not a merge; use another OUT or --overwrite")
+        listed = {e["file"] for e in old.get("shards", [])}
+        shards, objects, failures, skipped, warnings, places = [], [], [], [], [], []
+        counts = {"linked": 0, "copied": 0, "kept": 0}
+        for index in parts:
+            src_dir, names = Path(index["_dir"]), {}
+            for entry in index.get("shards", []):
+                name = SHARD_PATTERN.format(len(shards))
+                places.append((src_dir / entry["file"], out / name, entry))
+                objects += [dict(o, shard=name, chunk=len(shards)) for o in index["objects"]
+                            if o["shard"] == entry["file"]]
+                names[entry["file"]] = name
+                shards.append(dict(entry, file=name, chunk=len(shards)))
+            failures += _renamed_failures(index.get("failures", []), names)
+            skipped += index.get("skipped", [])
+            warnings += index.get("warnings", [])
+        voxels = merged_voxels_record(parts)
+        if old.get("merged") and not overwrite:
+            check_same_settings(out, old, parts[0], objects, defaults_of(old.get("settings", {})))
+            given = old["merged"].get("voxels", voxels if old.get("voxels") else None)  # older merges: no record
+            if old.get("voxels") != given:
+                return _voxelized_since(out, old, parts, objects, [e["sha256"] for _, _, e in places], t0)
+        kept = [dst.is_file() and dst.stat().st_size == entry["bytes"] and file_sha256(dst) == entry["sha256"]
+                for _, dst, entry in places]
+        if not overwrite:  # a shard-named file no merge wrote is someone's: refused before any write
+            for (_, dst, _), same in zip(places, kept):
+                if not same and dst.name not in listed:
+                    check_unlisted_shard(dst, parts[0]["settings"], out / INDEX_NAME, "this merge",
+                                         "move it away, use another OUT or --overwrite")
+        for (src, dst, _), same in zip(places, kept):
+            counts["kept" if same else _place(src, dst, copy)] += 1
+        for stale in listed - {s["file"] for s in shards}:
+            shard_path(out, stale).unlink(missing_ok=True)  # listed by an earlier merge of other parts
+        first = parts[0]
+        extra = {"merged": {"parts": [p["_dir"] for p in parts], "count": first["part"]["count"],
+                            "rule": first["part"]["rule"], "plan_sha256": first["part"]["plan_sha256"],
+                            "planned_total": first["part"]["planned_total"],
+                            "sources_sha256": [e["sha256"] for _, _, e in places],
+                            "backends": sorted({str(b) for p in parts if (b := p["settings"].get("backend"))})}}
+        extra["merged"]["voxels"] = voxels  # what the parts gave: a later `voxelize OUT` changes "voxels" alone
+        if voxels is not None:
+            extra["voxels"] = voxels
+        write_index(out, complete=True, settings=first["settings"], split=first.get("split", {}), shards=shards,
+                    objects=objects, failures=failures, skipped=skipped, warnings=warnings, extra=extra)
+    return MergeSummary(parts=len(parts), shards=len(shards), objects=len(objects),
+                        failed=sum(1 for f in failures), seconds=time.monotonic() - t0, out=str(out), **counts)
