@@ -40,8 +40,8 @@ from sc3d_train.loop.checkpoint_model import load_model
 from sc3d_train.settings.command_config import EvalConfig
 from sc3d_train.settings.config import MAX_BATCH_SIZE, batch_size_too_large
 from sc3d_train.data.dataset import ShardDataset
-from sc3d_train.evaluation.evaluated_data import (evaluated_data_digest, run_objects, selection_objects_among,
-                                                  training_objects_among, untrained_categories)
+from sc3d_train.evaluation.evaluated_data import (evaluated_data_digest, replaced_provenance, run_objects,
+                                                  selection_objects_among, training_objects_among, untrained_categories)
 from sc3d_train.paper.metrics import MASK_THRESHOLD, VOXEL_THRESHOLDS, predict_dataset, summarize
 
 TABLE_COLUMNS = (("images", "n", "{:d}"), ("voxel_iou_0.4", "IoU@.4", "{:.3f}"),
@@ -204,21 +204,10 @@ def check_default_folder_free(out: Path, checkpoint: Path, shards: Path, pose_fr
     replace without a word (``eval --checkpoint RUN`` then ``eval --checkpoint RUN/checkpoints/
     step_000500.pt``). Evaluating the same checkpoint file again (after training went on) replaces
     its own evaluation; an explicit ``--out`` is the user's choice and is not judged."""
-    try:
-        was = json.loads((Path(out) / "metrics.json").read_text())
-    except (OSError, ValueError):
-        return
-    if not isinstance(was, dict):
-        return
-    now = {"checkpoint": os.path.realpath(checkpoint), "shards": os.path.realpath(shards), "pose_from": pose_from}
-    changed = [k for k, v in now.items()
-               if k in was and (os.path.realpath(str(was[k])) if k != "pose_from" else was[k]) != v]
-    if changed:
-        label = {"checkpoint": "checkpoint", "shards": "shards", "pose_from": "--pose"}
-        given = {"checkpoint": checkpoint, "shards": shards, "pose_from": pose_from}
-        raise ValueError(f"{out}: holds the evaluation of {', '.join(f'{label[k]} {was[k]}' for k in changed)}, which "
-                         f"this one ({', '.join(f'{label[k]} {given[k]}' for k in changed)}) would replace; give "
-                         "--out for this one (or remove that folder)")
+    given = {"checkpoint": checkpoint, "shards": shards, "pose_from": pose_from}
+    if changed := replaced_provenance(Path(out) / "metrics.json", given):
+        raise ValueError(f"{out}: holds the evaluation of {changed[0]}, which this one ({changed[1]}) would replace; "
+                         "give --out for this one (or remove that folder)")
 
 
 def require_finite_weights(checkpoint: Path, model: torch.nn.Module) -> None:

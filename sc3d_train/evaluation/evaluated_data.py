@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from pathlib import Path
 
 
@@ -107,3 +108,30 @@ def selection_objects_among(cfg, validation: dict | None, objects, shards: Path,
     if chose is None:
         return Path(shards).resolve() == Path(cfg.shards).resolve() and any(r.split == val_split for r in objects)
     return any((r.category, r.model_id) in chose for r in objects)
+
+
+#: how :func:`replaced_provenance` names what an output was made from
+PROVENANCE_LABELS = {"checkpoint": "checkpoint", "shards": "shards", "pose_from": "--pose"}
+
+
+def replaced_provenance(record: Path, given: dict) -> tuple[str, str] | None:
+    """Whether the JSON file ``record`` (an evaluation's ``metrics.json``, a prediction's
+    ``NAME.json``) holds the output of another ``checkpoint`` or ``shards`` (paths, compared by real
+    path) or ``pose_from`` than ``given`` records: ``(what it holds, what is given)``, each as
+    ``"LABEL VALUE, ..."`` (:data:`PROVENANCE_LABELS`), which a default output folder must not
+    replace without a word; None where it holds the same, or is no readable record."""
+    try:
+        was = json.loads(Path(record).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(was, dict):
+        return None
+
+    def same(key, recorded, now) -> bool:
+        return recorded == now if key == "pose_from" else os.path.realpath(str(recorded)) == os.path.realpath(now)
+
+    changed = [k for k, v in given.items() if k in was and not same(k, was[k], v)]
+    if not changed:
+        return None
+    return (", ".join(f"{PROVENANCE_LABELS[k]} {was[k]}" for k in changed),
+            ", ".join(f"{PROVENANCE_LABELS[k]} {given[k]}" for k in changed))

@@ -157,7 +157,9 @@ def predict(checkpoint: Path, images: list[Path], out: Path | None, device: str 
     if not images:
         raise ImageError("no input images given")
     firsts: dict[str, Path] = {}  # a file given twice (by any path): once, under its first path
-    images = [firsts.setdefault(os.path.realpath(p), p) for p in images if os.path.realpath(p) not in firsts]
+    for image in images:
+        firsts.setdefault(os.path.realpath(image), image)
+    images = list(firsts.values())
     if not 0.0 <= threshold <= 1.0:  # also NaN
         raise ValueError(f"--threshold must be an occupancy probability in [0, 1], got {threshold}")
     from sc3d_train.loop.runtime import resolve_device

@@ -66,19 +66,9 @@ def check_default_folder_free(outputs: list[dict], checkpoint: Path, pose_from: 
     checkpoint file or another ``--pose``, which this one would replace without a word
     (``predict --checkpoint RUN`` then ``--pick last``), as ``eval``'s default folder does. The same
     checkpoint file again replaces its own predictions; an explicit ``--out`` is not judged."""
+    from sc3d_train.evaluation.evaluated_data import replaced_provenance
+
     for files in outputs:
-        try:
-            was = json.loads(Path(files["json"]).read_text())
-        except (OSError, ValueError):
-            continue
-        if not isinstance(was, dict):
-            continue
-        changed = []
-        if "checkpoint" in was and os.path.realpath(str(was["checkpoint"])) != os.path.realpath(checkpoint):
-            changed.append((f"checkpoint {was['checkpoint']}", f"checkpoint {checkpoint}"))
-        if "pose_from" in was and was["pose_from"] != pose_from:
-            changed.append((f"--pose {was['pose_from']}", f"--pose {pose_from}"))
-        if changed:
-            raise ImageError(f"{out}: {files['json'].name} holds the prediction of {', '.join(w for w, _ in changed)}, "
-                             f"which this one ({', '.join(n for _, n in changed)}) would replace; give --out for this "
-                             "one (or remove those files)")
+        if changed := replaced_provenance(files["json"], {"checkpoint": checkpoint, "pose_from": pose_from}):
+            raise ImageError(f"{out}: {files['json'].name} holds the prediction of {changed[0]}, which this one "
+                             f"({changed[1]}) would replace; give --out for this one (or remove those files)")
