@@ -179,6 +179,26 @@ def _color_factor(c) -> np.ndarray:
     return np.concatenate([c, np.ones(4)])[:4]
 
 
+def material_vertex_colors(visual, n: int) -> np.ndarray | None:
+    """``[n, 4]`` uint8 RGBA vertex colours that multiply a material's colour (and texture), or
+    None: a glTF primitive with both a material and ``COLOR_0``, which trimesh's loader keeps as
+    the visual's ``vertex_attributes["color"]`` beside the material (glTF 2.0: base colour =
+    ``baseColorFactor`` x texture x ``COLOR_0``). Floats are 0-1, unsigned bytes 0-255, unsigned
+    shorts 0-65535 (the spec's normalised encodings); RGB gets alpha 1."""
+    colors = getattr(visual, "vertex_attributes", {}).get("color")
+    if colors is None or len(colors) != n:
+        return None
+    colors = np.asarray(colors)
+    if colors.ndim != 2 or colors.shape[1] not in (3, 4):
+        return None
+    if colors.dtype.kind == "f":
+        colors = np.rint(np.clip(colors, 0.0, 1.0) * 255.0)
+    elif colors.dtype == np.uint16:
+        colors = np.rint(colors / 257.0)
+    colors = colors.astype(np.uint8)
+    return colors if colors.shape[1] == 4 else np.concatenate([colors, np.full((n, 1), 255, np.uint8)], 1)
+
+
 def mesh_parts(scene, to_canonical: np.ndarray):
     """``(model [4,4], positions [N,3] f32, faces [M,3] u32, colors [N,4] u8 or None,
     uv [N,2] f32 or None, base_color [4], texture image or None)`` per geometry of a
@@ -219,6 +239,7 @@ def mesh_parts(scene, to_canonical: np.ndarray):
                 uv = vis.uv
             else:
                 image = None  # a texture needs uv, and uv is read only for a texture
+            colors = material_vertex_colors(vis, len(pos))
         pos = np.asarray(pos, dtype=np.float64)
         centre = (pos.min(axis=0) + pos.max(axis=0)) / 2
         shift = np.eye(4)
