@@ -71,7 +71,7 @@ def test_map_options_whose_value_is_a_word_are_not_taken_for_the_file_name():
     """``map_Kd -imfchan r texture.png`` failed "texture r texture.png not found": the MTL options
     whose value is a word (``-imfchan r|g|b|m|l|z``, ``-type sphere|cube_top|...``) were read as part
     of the name. Expected names by hand from the MTL format (numeric and on/off options too)."""
-    from sc3d_data.io.materials import map_file_name
+    from sc3d_data.io.mtl_text import map_file_name
 
     assert map_file_name("-imfchan r texture.png") == "texture.png"
     assert map_file_name("-type sphere -s 1 1 1 tex.png") == "tex.png"

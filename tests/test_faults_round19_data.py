@@ -65,3 +65,67 @@ def test_vertex_colours_of_a_glTF_primitive_with_a_material_are_drawn(tmp_path):
         np.testing.assert_array_equal(objects[name]["images"], plain["images"], err_msg=name)
     blue_red = objects["blue_float"]
     assert (blue_red["images"][blue_red["masks"] > 0] < 10).all()
+
+
+def _textured_obj(folder: Path, mtl: bytes, usemtl: str = "mat", texture: bytes = b"t.png") -> None:
+    """A unit cube ``folder/m.obj`` with texture coordinates, ``mtllib m.mtl`` (whose bytes are
+    ``mtl``) and ``usemtl``, beside an all-red 8 x 8 PNG whose file name is the bytes ``texture``."""
+    import os
+
+    import trimesh
+    from PIL import Image
+
+    folder.mkdir(parents=True)
+    box = trimesh.creation.box()
+    lines = ["mtllib m.mtl"] + ["v %f %f %f" % tuple(p) for p in box.vertices]
+    lines += ["vt %f %f" % tuple(p[:2] + 0.5) for p in box.vertices] + [f"usemtl {usemtl}"]
+    lines += ["f %d/%d %d/%d %d/%d" % (a, a, b, b, c, c) for a, b, c in box.faces + 1]
+    (folder / "m.obj").write_text("\n".join(lines) + "\n")
+    (folder / "m.mtl").write_bytes(mtl)
+    Image.new("RGB", (8, 8), (255, 0, 0)).save(os.fsdecode(os.fsencode(folder) + b"/" + texture), format="PNG")
+
+
+def _looks(out: Path) -> dict[str, str]:
+    """``{model: "red" | "grey"}`` of every object of dataset ``out``: red where every masked pixel
+    is red (the texture drawn), grey where every one is grey (material colour)."""
+    looks = {}
+    for name, obj in objects_by_id(out).items():
+        px = obj["images"][obj["masks"] > 0].astype(int)
+        looks[name[1].split("/")[0]] = "red" if ((px[:, 0] > 100) & (px[:, 1:] < 10).all(1)).all() else \
+            "grey" if (np.ptp(px, axis=1) < 3).all() else "mixed"
+    return looks
+
+
+def test_textures_named_in_quotes_or_in_latin1_bytes_are_drawn(tmp_path):
+    """An MTL's ``map_Kd "my tex.png"`` names ``my tex.png`` (quotes are not part of the name), and
+    a Latin-1 MTL's ``map_Kd caf\\xe9.png`` names the file of those bytes (an exporter on a Latin-1
+    system wrote both). Before, both objects failed "texture ... not found". Controls: the same
+    name in a UTF-8 MTL, and a plain name."""
+    meshes = tmp_path / "m" / "c"
+    _textured_obj(meshes / "quoted", b'newmtl mat\nKd 1 1 1\nmap_Kd "my tex.png"\n', texture=b"my tex.png")
+    _textured_obj(meshes / "latin1", b"newmtl mat\nKd 1 1 1\nmap_Kd caf\xe9.png\n", texture=b"caf\xe9.png")
+    _textured_obj(meshes / "utf8", "newmtl mat\nKd 1 1 1\nmap_Kd café.png\n".encode(), texture="café.png".encode())
+    _textured_obj(meshes / "plain", b"newmtl mat\nKd 1 1 1\nmap_Kd t.png\n")
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    assert index_of(out)["failures"] == [] and index_of(out).get("warnings", []) == []
+    assert _looks(out) == {"quoted": "red", "latin1": "red", "utf8": "red", "plain": "red"}
+
+
+def test_a_material_used_but_not_defined_or_textured_by_map_Ka_alone_is_warned_of(tmp_path):
+    """``usemtl other`` when the MTL defines only ``mat`` draws the faces with trimesh's default
+    material, and a material whose texture is given only as ``map_Ka`` draws no texture (only
+    ``map_Kd`` is drawn): both rendered grey without a word before. Now one warning each, naming
+    the material; controls: a defined material, and ``map_Ka`` beside ``map_Kd`` (red, no warning)."""
+    meshes = tmp_path / "m" / "c"
+    _textured_obj(meshes / "undefined", b"newmtl mat\nKd 1 1 1\nmap_Kd t.png\n", usemtl="other")
+    _textured_obj(meshes / "ambient", b"newmtl mat\nKd 1 1 1\nmap_Ka t.png\n")
+    _textured_obj(meshes / "both", b"newmtl mat\nKd 1 1 1\nmap_Ka t.png\nmap_Kd t.png\n")
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    warnings = {Path(w["source"]).parent.name: w["warning"] for w in index_of(out)["warnings"]}
+    assert set(warnings) == {"undefined", "ambient"}
+    assert "usemtl names other, which its material files do not define" in warnings["undefined"]
+    assert "material mat of m.mtl gives its texture t.png as map_Ka (ambient), which is not drawn" \
+        in warnings["ambient"]
+    assert _looks(out) == {"undefined": "grey", "ambient": "grey", "both": "red"}

@@ -140,7 +140,8 @@ def test_f5_every_material_file_an_obj_names_is_read(tmp_path):
     one missing file "a.mtl b.mtl", and a second ``mtllib`` statement was never read (trimesh
     reads the first statement only): faces using a material of ``b.mtl`` rendered grey. Now both
     forms render the faces in ``b.mtl``'s blue (Kd 0 0 1), with no warning. Control: an OBJ that
-    names only ``a.mtl`` renders the same faces without blue."""
+    names only ``a.mtl`` renders the same faces without blue, warned of (``usemtl blue`` is not
+    defined there)."""
     folder = tmp_path / "m" / "thing"
     folder.mkdir(parents=True)
     (folder / "a.mtl").write_text("newmtl red\nKd 1 0 0\n")
@@ -152,7 +153,10 @@ def test_f5_every_material_file_an_obj_names_is_read(tmp_path):
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
     index = index_of(out)
-    assert index["failures"] == [] and not index.get("warnings"), index.get("warnings")
+    assert index["failures"] == []
+    assert [(w["source"].rsplit("/", 1)[1], w["warning"].split(": ", 1)[1]) for w in index["warnings"]] == [
+        ("only_a.obj", "usemtl names blue, which its material files do not define; those faces are drawn with the "
+         "default material")]
     colour = {mid: o["images"][o["masks"].astype(bool)].astype(float).mean(0) for (_, mid), o in objects_by_id(out).items()}
     for name in ("one_statement", "two_statements"):
         r, g, b = colour[name]

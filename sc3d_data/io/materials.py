@@ -1,5 +1,5 @@
-"""The material and texture files a mesh file names: where they may lie, which exist and decode,
-and the resolver through which trimesh reads them. Conventions:
+"""The material and texture files a mesh file names: where they may lie, which exist and decode.
+Conventions:
 
 - **Real file**: a mesh reached through a symlink names its companion files (``.mtl``,
   textures, glTF buffers) relative to the file the link points to (``os.path.realpath``), as
@@ -13,15 +13,16 @@ and the resolver through which trimesh reads them. Conventions:
   no file opened) before any file it names is opened. A reference outside the root is never
   opened: with ``outside="warn"`` the object renders without it and a warning says so, with
   ``"refuse"`` the object fails.
-- Everything trimesh asks for goes through :class:`_RootResolver` (rooted at the texture root),
-  which records what it could not serve, so a texture that is named but not loaded is reported
-  (:func:`loader_misses`), never dropped silently.
+- Everything trimesh asks for goes through the resolver of ``io.texture_resolver`` (rooted at
+  the texture root), which records what it could not serve, so a texture that is named but not
+  loaded is reported, never dropped silently.
+- An OBJ's ``usemtl`` of a material its material files do not define, and a material whose only
+  texture is ``map_Ka`` (not drawn), are warned about: either renders without its look.
 """
 from __future__ import annotations
 
 import io
 import os
-import re
 import struct
 import urllib.parse
 from dataclasses import dataclass, field
@@ -29,15 +30,14 @@ from pathlib import Path
 
 from sc3d_data.io.gltf_check import read_gltf
 from sc3d_data.io.names import printable
+from sc3d_data.io.mtl_text import mtl_materials, read_obj_text
 from sc3d_data.io.obj_statements import statement_values
 
-__all__ = ["SHAPENET_V2_MESH", "MaterialReport", "dataset_folder", "loader_misses", "make_resolver",
-           "material_report", "named_files", "real_file", "texture_root"]
+__all__ = ["SHAPENET_V2_MESH", "MaterialReport", "dataset_folder", "material_report", "mtllib_names",
+           "named_files", "real_file", "texture_root"]
 
 #: ShapeNetCore v2's mesh inside a model folder
 SHAPENET_V2_MESH = ("models", "model_normalized.obj")
-#: numbers and switches that follow an option of an MTL map statement (``-s 1 1 1``, ``-clamp on``)
-_OPTION_VALUE = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^(on|off)$")
 
 
 def _inside(path: Path, folder: Path) -> bool:
@@ -72,18 +72,6 @@ def texture_root(path: Path, root: Path | None) -> Path:
     return base
 
 
-def map_file_name(value: str) -> str:
-    """The file name of an MTL map statement's value, without its options:
-    ``"-s 1 1 1 -clamp on tex.png"`` -> ``"tex.png"``; Windows separators become ``/``."""
-    tokens = value.split()
-    while len(tokens) > 1 and tokens[0].startswith("-") and not _OPTION_VALUE.match(tokens[0]):
-        if tokens.pop(0).lower() in ("-imfchan", "-type") and len(tokens) > 1:  # a word: r/g/b/m/l/z, sphere...
-            tokens.pop(0)
-        while len(tokens) > 1 and _OPTION_VALUE.match(tokens[0]):
-            tokens.pop(0)
-    return " ".join(tokens).replace("\\", "/")
-
-
 def _image_problem(data_or_path) -> str | None:
     from PIL import Image
 
@@ -115,30 +103,38 @@ def mtllib_names(path: Path, text: str | None = None) -> list[str]:
     ``mtllib`` statement, each of which may name several files separated by spaces (OBJ allows
     it); a statement whose whole text names an existing file is that one file (a name with spaces)."""
     names = []
-    text = path.read_text(errors="replace") if text is None else text
+    text = read_obj_text(path) if text is None else text
     for value in statement_values(text, "mtllib"):  # io.obj_statements
         names += [value] if (path.parent / value).is_file() else value.split()
     return names
 
 
-def _obj_refs(path: Path, root: Path, report: MaterialReport, libs: list[str] | None = None
-              ) -> list[tuple[str, Path]]:
-    """``[(name as written, path)]`` of the textures an OBJ's material files (``libs``, else
-    :func:`mtllib_names`) name; material files outside ``root`` are noted in ``report`` and not
-    read, missing ones warned about."""
-    refs = []
-    for lib in mtllib_names(path) if libs is None else libs:
+def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None = None) -> list[tuple[str, Path]]:
+    """``[(name as written, path)]`` of the textures an OBJ's material files (:func:`mtllib_names`;
+    ``text``: the OBJ's, when already read) name; material files outside ``root`` are noted in ``report`` and not
+    read, missing ones warned about. The OBJ's ``usemtl`` of materials that the material files
+    read do not define, and materials whose only texture is ``map_Ka``, are warned about."""
+    refs, defined, text = [], None, read_obj_text(path) if text is None else text
+    for lib in mtllib_names(path, text):
         mtl = path.parent / lib
         if not _inside(mtl, root):
-            refs.append((lib, mtl))
+            refs.append((printable(lib), mtl))
             continue
         if not mtl.is_file():
-            report.warnings.append(f"material file {lib} not found; rendered with the default material")
+            report.warnings.append(f"material file {printable(lib)} not found; rendered with the default material")
             report.reported.add(str(mtl.resolve()))
             continue
-        for tex in re.findall(r"^\s*map_Kd\s+(.+?)\s*$", mtl.read_text(errors="replace"), flags=re.M | re.I):
-            name = map_file_name(tex)
-            refs.append((f"{name} (from {mtl.name})", mtl.parent / name))
+        materials = mtl_materials(read_obj_text(mtl))
+        defined = (defined or set()) | set(materials.names)
+        refs += [(f"{printable(name)} (from {printable(mtl.name)})", mtl.parent / name) for _, name in materials.textures]
+        report.warnings += [f"material {printable(m)} of {printable(mtl.name)} gives its texture {printable(name)} as "
+                            "map_Ka (ambient), which is not drawn (only map_Kd is); rendered in its colour"
+                            for m, name in materials.ambient_only]
+    undefined = [] if defined is None else list(dict.fromkeys(
+        m for m in statement_values(text, "usemtl") if m not in defined))
+    if undefined:
+        report.warnings.append(f"usemtl names {', '.join(printable(m) for m in undefined)}, which its material "
+                               "files do not define; those faces are drawn with the default material")
     return refs
 
 
@@ -173,8 +169,8 @@ def named_files(path: Path, root: Path | None = None) -> list[Path]:
     top, suffix = texture_root(path, root), path.suffix.lower()
     try:
         if suffix == ".obj":
-            libs = mtllib_names(path)
-            refs = _obj_refs(path, top, MaterialReport(), libs) + [(lib, path.parent / lib) for lib in libs]
+            text = read_obj_text(path)
+            refs = _obj_refs(path, top, MaterialReport(), text) + [(lib, path.parent / lib) for lib in mtllib_names(path, text)]
         elif suffix in (".glb", ".gltf"):  # its images, and its buffers in files (the geometry)
             doc = read_gltf(path)[0]  # not a glTF document: ValueError, the loader reports it
             refs = _gltf_refs(path, doc, None)[0] + [
@@ -222,79 +218,8 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn")
         elif (p := _image_problem(ref)) is not None:
             report.problems.append(f"texture {name} unreadable ({p})")
         else:
-            report.textures.append(ref.name)
+            report.textures.append(printable(ref.name))
     for name, data in embedded:
         if (p := _image_problem(data)) is not None:
             report.problems.append(f"{name} unreadable ({p})")
     return report
-
-
-def make_resolver(path: Path, root: Path | None):
-    """A trimesh resolver for mesh ``path`` that serves files inside :func:`texture_root` (names relative to the
-    real file's folder (:func:`real_file`), ``..`` allowed while inside; like trimesh's own it also tries the name
-    without options and the bare file name, each also percent-decoded (glTF URIs)) and records every name it could
-    not serve. For an OBJ, trimesh reads only its first ``mtllib`` statement (the first ``mtllib`` in the text, a
-    comment's too) as one file name: asked for it, the resolver serves every material file the statements name
-    (:func:`mtllib_names`), so none is dropped and none read that a comment names. An MTL's UTF-8 mark is dropped."""
-    from trimesh.resolvers import Resolver
-
-    class _RootResolver(Resolver):
-        def __init__(self, folder: Path, top: Path, misses: list):
-            self.parent, self.top, self.misses = Path(os.path.abspath(folder)), top.resolve(), misses
-            self.file_name = printable(Path(path).name)  # trimesh names (and hashes) geometry by it
-
-        def _candidates(self, name: str) -> list[str]:
-            stripped = map_file_name(name.strip())
-            names = [name.strip(), stripped, stripped.lstrip("/"), os.path.basename(stripped)]
-            return list(dict.fromkeys(names + [urllib.parse.unquote(n) for n in names]))  # glTF URIs
-
-        def get(self, name: str) -> bytes:
-            if name.strip() == first_mtllib and (len(libs) > 1 or first_mtllib not in libs):  # see above
-                return b"\n".join(self._read(lib) for lib in libs if self._inside_file(lib))
-            return self._read(name)
-
-        def _inside_file(self, name: str) -> bool:
-            p = (self.parent / name).resolve()
-            return p.is_relative_to(self.top) and p.is_file()
-
-        def _read(self, name: str) -> bytes:
-            first = (self.parent / map_file_name(name.strip())).resolve()
-            for cand in self._candidates(name):
-                p = (self.parent / cand).resolve()
-                if p.is_relative_to(self.top) and p.exists():
-                    with open(p, "rb") as f:  # a material file's UTF-8 mark (Notepad) would hide its first newmtl
-                        return f.read().removeprefix(b"\xef\xbb\xbf") if p.suffix.lower() == ".mtl" else f.read()
-            inside = first.is_relative_to(self.top)
-            self.misses.append((name.strip(), str(first), "not found" if inside else
-                                f"outside the dataset folder {self.top}, not read"))
-            raise FileNotFoundError(f"{name.strip()}: " + self.misses[-1][2])
-
-        def namespaced(self, namespace: str):
-            return _RootResolver(self.parent / namespace, self.top, self.misses)
-
-        def keys(self):
-            for folder, _, names in os.walk(self.parent):
-                for n in names:
-                    yield os.path.relpath(os.path.join(folder, n), self.parent)
-
-        def write(self, name, data):
-            raise PermissionError(f"{name}: sc3d does not write beside meshes")
-
-    real, libs, first_mtllib = real_file(path), [], None
-    if real.suffix.lower() == ".obj":  # all material files, served for the first statement
-        text = real.read_text(errors="replace")
-        libs = mtllib_names(real, text)
-        found = re.search(r"mtllib(.*)", text.replace("\\\n", ""))  # what trimesh asks for (lines joined)
-        first_mtllib = found.group(1).strip() if found else None
-    return _RootResolver(real.parent, texture_root(real, root), [])
-
-
-def loader_misses(resolver, report: MaterialReport) -> list[str]:
-    """Files the loader asked ``resolver`` for and did not get, except those ``report`` already
-    lists: one line each (``name: reason``)."""
-    lines = []
-    for name, resolved, reason in resolver.misses:
-        if resolved not in report.reported:
-            report.reported.add(resolved)
-            lines.append(f"{name} named by the mesh or its materials was not loaded ({reason})")
-    return lines

@@ -49,7 +49,7 @@ class MeshError(ValueError):
 
 def load_scene(path: Path, resolver=None):
     """Parse ``path`` into a ``trimesh.Scene`` (no validation), reading the files it names
-    through ``resolver`` (``io.materials.make_resolver``; None: trimesh's own, rooted at the
+    through ``resolver`` (``io.texture_resolver.make_resolver``; None: trimesh's own, rooted at the
     mesh's folder). Raises ``MeshError`` when the file does not parse."""
     import trimesh
 
@@ -205,7 +205,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     bad input (see module doc)."""
     from sc3d_data.io.gltf_check import judge_gltf
     from sc3d_data.io.gltf_features import apply_texture_transforms
-    from sc3d_data.io.materials import loader_misses, make_resolver, material_report
+    from sc3d_data.io.materials import material_report
+    from sc3d_data.io.texture_resolver import loader_misses, make_resolver
 
     path = Path(path)
     if bad_texture not in ("fail", "fallback"):

@@ -1,0 +1,87 @@
+"""The text of OBJ material files (``.mtl``): how it is decoded, the file name a map statement
+gives, and which materials a file defines with which textures.
+
+Conventions:
+
+- **Decoding** (:func:`decode_obj_text`, also of OBJ text): UTF-8, a leading UTF-8 mark (Notepad's) dropped;
+  bytes that are not UTF-8 (a Latin-1 or cp1252 file from an old exporter) are kept as lone
+  surrogates (``surrogateescape``, as Python names files: ``io.names``), so a texture name
+  written in such bytes names the file of exactly those bytes on disk.
+- **Map file names** (:func:`map_file_name`): the statement's options (``-s 1 1 1``, ``-clamp
+  on``, ``-imfchan r``) are dropped, a name in double quotes loses them, Windows separators become
+  ``/``.
+- **Materials** (:func:`mtl_materials`): a material is named as trimesh names it (the words after
+  ``newmtl`` joined by one space); only its ``map_Kd`` texture is drawn (trimesh reads no other
+  map), so a material whose only texture is ``map_Ka`` is noted (``ambient_only``).
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+__all__ = ["MtlMaterials", "decode_obj_text", "map_file_name", "mtl_materials", "read_obj_text"]
+
+#: numbers and switches that follow an option of an MTL map statement (``-s 1 1 1``, ``-clamp on``)
+_OPTION_VALUE = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^(on|off)$")
+#: options whose value is a word: ``-imfchan r|g|b|m|l|z``, ``-type sphere|cube_top|...``
+_WORD_OPTIONS = ("-imfchan", "-type")
+
+
+def decode_obj_text(data: bytes) -> str:
+    """``data`` (an OBJ's or material file's bytes) as text (module doc): UTF-8 without its
+    mark, other bytes as lone surrogates."""
+    return data.removeprefix(b"\xef\xbb\xbf").decode("utf-8", errors="surrogateescape")
+
+
+def read_obj_text(path: Path) -> str:
+    """The text of OBJ or material file ``path`` (:func:`decode_obj_text`)."""
+    return decode_obj_text(Path(path).read_bytes())
+
+
+def map_file_name(value: str) -> str:
+    """The file name of an MTL map statement's value, without its options:
+    ``"-s 1 1 1 -clamp on tex.png"`` -> ``"tex.png"``, ``'"my tex.png"'`` -> ``"my tex.png"``;
+    Windows separators become ``/``."""
+    tokens = value.split()
+    while len(tokens) > 1 and tokens[0].startswith("-") and not _OPTION_VALUE.match(tokens[0]):
+        if tokens.pop(0).lower() in _WORD_OPTIONS and len(tokens) > 1:
+            tokens.pop(0)
+        while len(tokens) > 1 and _OPTION_VALUE.match(tokens[0]):
+            tokens.pop(0)
+    name = " ".join(tokens)
+    if len(name) >= 2 and name[0] == name[-1] == '"':
+        name = name[1:-1]
+    return name.replace("\\", "/")
+
+
+@dataclass
+class MtlMaterials:
+    """What one material file defines: ``names`` of its materials (in order), ``textures``
+    ``[(material, map_Kd file name)]``, ``ambient_only`` ``[(material, map_Ka file name)]`` of
+    the materials whose only texture is ``map_Ka``, which is not drawn."""
+
+    names: list[str] = field(default_factory=list)
+    textures: list[tuple[str, str]] = field(default_factory=list)
+    ambient_only: list[tuple[str, str]] = field(default_factory=list)
+
+
+def mtl_materials(text: str) -> MtlMaterials:
+    """The materials of material-file ``text`` (module doc). Statements are matched without
+    regard to case (``map_kd``, ``NEWMTL``), as trimesh reads them."""
+    found, ambient, current = MtlMaterials(), {}, None
+    for line in text.splitlines():
+        words = line.split(maxsplit=1)
+        if len(words) < 2:
+            continue
+        key, value = words[0].lower(), words[1].strip()
+        if key == "newmtl":
+            current = " ".join(value.split())
+            found.names.append(current)
+        elif key == "map_kd":
+            found.textures.append((current, map_file_name(value)))
+        elif key == "map_ka":
+            ambient.setdefault(current, map_file_name(value))
+    drawn = {material for material, _ in found.textures}
+    found.ambient_only = [(m, name) for m, name in ambient.items() if m not in drawn]
+    return found

@@ -1,0 +1,118 @@
+"""The resolver through which trimesh reads the files a mesh names (materials, textures, glTF
+buffers): it serves only files inside the mesh's texture root (``io.materials.texture_root``) and
+records every name it could not serve, so that a texture named but not loaded is reported
+(:func:`loader_misses`), never dropped silently.
+
+Names are tried as trimesh's own resolver tries them (as written, without the map statement's
+options, without leading ``/``, the bare file name, each also percent-decoded: glTF URIs). A
+material file that is not UTF-8 is served as the UTF-8 text of its Latin-1 reading (each byte one
+character), so trimesh reads the same text whatever its encoding guess, and a texture name of
+such a file is also tried as the bytes it was written in (``io.names``: a name that is not UTF-8
+is a ``str`` with lone surrogates).
+"""
+from __future__ import annotations
+
+import os
+import re
+import urllib.parse
+from pathlib import Path
+
+from sc3d_data.io.materials import MaterialReport, mtllib_names, real_file, texture_root
+from sc3d_data.io.mtl_text import map_file_name, read_obj_text
+from sc3d_data.io.names import printable
+
+__all__ = ["loader_misses", "make_resolver"]
+
+
+def _as_written(name: str) -> str | None:
+    """``name`` as trimesh read it from a material file served as Latin-1 text, back as the file
+    name of the bytes it was written in (None where ``name`` cannot have come from there)."""
+    try:
+        return os.fsdecode(name.encode("latin-1"))
+    except UnicodeEncodeError:
+        return None
+
+
+def _served_material(data: bytes) -> bytes:
+    """A material file's bytes as served to trimesh: without a UTF-8 mark (Notepad's, which would
+    hide its first ``newmtl``), and when not UTF-8, the UTF-8 text of its Latin-1 reading."""
+    data = data.removeprefix(b"\xef\xbb\xbf")
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError:
+        return data.decode("latin-1").encode("utf-8")
+    return data
+
+
+def make_resolver(path: Path, root: Path | None):
+    """A trimesh resolver for mesh ``path`` that serves files inside :func:`texture_root` (names relative to the
+    real file's folder (:func:`real_file`), ``..`` allowed while inside; like trimesh's own it also tries the name
+    without options and the bare file name, each also percent-decoded (glTF URIs)) and records every name it could
+    not serve. For an OBJ, trimesh reads only its first ``mtllib`` statement (the first ``mtllib`` in the text, a
+    comment's too) as one file name: asked for it, the resolver serves every material file the statements name
+    (:func:`mtllib_names`), so none is dropped and none read that a comment names. A material file is served as :func:`_served_material` says."""
+    from trimesh.resolvers import Resolver
+
+    class _RootResolver(Resolver):
+        def __init__(self, folder: Path, top: Path, misses: list):
+            self.parent, self.top, self.misses = Path(os.path.abspath(folder)), top.resolve(), misses
+            self.file_name = printable(Path(path).name)  # trimesh names (and hashes) geometry by it
+
+        def _candidates(self, name: str) -> list[str]:
+            stripped = map_file_name(name.strip())
+            names = [name.strip(), stripped, stripped.lstrip("/"), os.path.basename(stripped)]
+            names += [urllib.parse.unquote(n) for n in names]  # glTF URIs
+            return list(dict.fromkeys(names + [n for n in map(_as_written, names) if n is not None]))
+
+        def get(self, name: str) -> bytes:
+            if name.strip() == first_mtllib and (len(libs) > 1 or first_mtllib not in libs):  # see above
+                return b"\n".join(self._read(lib) for lib in libs if self._inside_file(lib))
+            return self._read(name)
+
+        def _inside_file(self, name: str) -> bool:
+            p = (self.parent / name).resolve()
+            return p.is_relative_to(self.top) and p.is_file()
+
+        def _read(self, name: str) -> bytes:
+            first = (self.parent / map_file_name(name.strip())).resolve()
+            for cand in self._candidates(name):
+                p = (self.parent / cand).resolve()
+                if p.is_relative_to(self.top) and p.exists():
+                    with open(p, "rb") as f:
+                        return _served_material(f.read()) if p.suffix.lower() == ".mtl" else f.read()
+            inside = first.is_relative_to(self.top)
+            self.misses.append((name.strip(), str(first), "not found" if inside else
+                                f"outside the dataset folder {self.top}, not read"))
+            raise FileNotFoundError(f"{name.strip()}: " + self.misses[-1][2])
+
+        def namespaced(self, namespace: str):
+            return _RootResolver(self.parent / namespace, self.top, self.misses)
+
+        def keys(self):
+            for folder, _, names in os.walk(self.parent):
+                for n in names:
+                    yield os.path.relpath(os.path.join(folder, n), self.parent)
+
+        def write(self, name, data):
+            raise PermissionError(f"{name}: sc3d does not write beside meshes")
+
+    real, libs, first_mtllib = real_file(path), [], None
+    if real.suffix.lower() == ".obj":  # all material files, served for the first statement
+        text = read_obj_text(real)
+        libs = mtllib_names(real, text)
+        found = re.search(r"mtllib(.*)", text.replace("\\\n", ""))  # what trimesh asks for (lines joined)
+        first_mtllib = found.group(1).strip() if found else None
+    return _RootResolver(real.parent, texture_root(real, root), [])
+
+
+
+
+def loader_misses(resolver, report: MaterialReport) -> list[str]:
+    """Files the loader asked ``resolver`` for and did not get, except those ``report`` already
+    lists: one line each (``name: reason``)."""
+    lines = []
+    for name, resolved, reason in resolver.misses:
+        if resolved not in report.reported:
+            report.reported.add(resolved)
+            lines.append(f"{name} named by the mesh or its materials was not loaded ({reason})")
+    return lines
