@@ -42,8 +42,8 @@ def import_r2n2(renderings, voxels, out, image_size, background, categories, spl
                 voxel_frame, front, objects_per_shard, overwrite, progress, part, slurm, **scale):
     """Build sc3d shards from 3D-R2N2's released renderings and voxels, without re-rendering.
 
-    Cameras are rebuilt from rendering_metadata.txt as explicit K, R, t (see README,
-    "ShapeNet and 3D-R2N2 data"); check them with `sc3d-data check --shards OUT`. A rerun
+    Cameras are rebuilt from rendering_metadata.txt as explicit K, R, t (see docs/data.md,
+    "ShapeNet and 3D-R2N2 conventions, with evidence"); check them with `sc3d-data check --shards OUT`. A rerun
     keeps the finished shards and imports the rest (resumable); runs on the local pool, Ray or
     a SLURM job array (--executor)."""
     from sc3d_data.pipeline.jobs.r2n2_job import ImportConfig, import_r2n2 as run

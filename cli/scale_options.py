@@ -32,7 +32,9 @@ def part_option(f):
     """``--part I/N`` (default: the SLURM array task's, else the whole plan)."""
     return click.option("--part", callback=_part, default=None, metavar="I/N",
                         help="Only part I of N (0 <= I < N) of the objects, chosen by a hash of the object id; "
-                             "default: SLURM_ARRAY_TASK_ID/SLURM_ARRAY_TASK_COUNT inside a job array, else all. "
+                             "default inside a SLURM job array: part (SLURM_ARRAY_TASK_ID - SLURM_ARRAY_TASK_MIN) / "
+                             "SLURM_ARRAY_TASK_STEP of SLURM_ARRAY_TASK_COUNT, so --array=1-16 gives 0/16 to 15/16; "
+                             "else all. "
                              "render, import-r2n2: combine the part folders with `sc3d-data merge`; voxelize "
                              "--meshes: the parts share one --out.")(f)
 

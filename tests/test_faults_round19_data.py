@@ -129,3 +129,26 @@ def test_a_material_used_but_not_defined_or_textured_by_map_Ka_alone_is_warned_o
     assert "material mat of m.mtl gives its texture t.png as map_Ka (ambient), which is not drawn" \
         in warnings["ambient"]
     assert _looks(out) == {"undefined": "grey", "ambient": "grey", "both": "red"}
+
+
+def test_voxelize_shards_writes_the_grids_settings_into_each_shard(tmp_path):
+    """SPEC: every value used is written into the shard attributes. ``voxelize SHARDS
+    --resolution 16`` on shards rendered without voxels left each shard's attributes saying
+    ``voxelize: false``, ``voxel_resolution: 32`` beside 16^3 grids (only the index knew). Now each
+    rewritten shard carries the attribute ``voxels`` (resolution, occupancy rule), read here with
+    h5py, and its grids have that size; the render's own ``settings`` are left as they were."""
+    import h5py
+
+    from sc3d_data.io.shards import shard_files
+
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--out", out, *FAST])
+    run_cli(data_main, ["voxelize", out, "--resolution", "16", "--workers", "1", "--no-progress"])
+    shards = shard_files(out)
+    assert shards
+    for path in shards:
+        with h5py.File(path, "r") as f:
+            made, settings = json.loads(f.attrs["voxels"]), json.loads(f.attrs["settings"])
+            assert f["voxels"].shape[1:] == (16, 16, 16)
+        assert made["resolution"] == 16 and "winding number" in made["occupancy"]
+        assert settings["voxelize"] is False  # the render's settings, as the render wrote them

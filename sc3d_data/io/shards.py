@@ -314,8 +314,10 @@ def _write_encoded(f: h5py.File, name: str, arrays: list[EncodedArray]) -> None:
             dset.id.write_direct_chunk((row,) + offset, chunk)
 
 
-def replace_dataset_atomically(path: Path, name: str, data: np.ndarray, update_index: bool = True) -> str:
-    """Add (or replace) the per-object dataset ``name`` in an existing shard without ever leaving
+def replace_dataset_atomically(path: Path, name: str, data: np.ndarray, update_index: bool = True,
+                               attrs: dict[str, str] | None = None) -> str:
+    """Add (or replace) the per-object dataset ``name`` in an existing shard (and set the file's
+    attributes ``attrs``, which describe it: ``voxelize`` writes ``voxels``) without ever leaving
     a half-written file named ``*.h5``: the shard is read into memory and modified there, then
     written to ``NAME.tmp`` (``atomic_write_bytes``) and renamed over the original. HDF5 never
     writes to the disk here: an HDF5 file whose writes failed (disk full) could not be closed
@@ -339,6 +341,7 @@ def replace_dataset_atomically(path: Path, name: str, data: np.ndarray, update_i
                 del f[name]
             data = np.asarray(data, dtype=ARRAY_DTYPES.get(name))
             f.create_dataset(name, data=data, chunks=(1,) + data.shape[1:], **COMPRESSION)
+            f.attrs.update(attrs or {})
         new = image.getvalue()
         del image
         atomic_write_bytes(path, new)

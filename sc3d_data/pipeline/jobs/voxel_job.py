@@ -1,7 +1,6 @@
-"""``sc3d-data voxelize SHARDS`` as a library: add ``voxels`` to existing shards; and the
+"""``sc3d-data voxelize SHARDS`` as a library (``voxelize_shards``): add ``voxels`` to existing shards; and the
 voxelization of one mesh file shared with ``voxel_meshes.py`` (``voxelize --meshes``).
 
-Shards (``voxelize_shards``)
     For every object the source mesh recorded in the shard (``source``) is loaded with
     ``sc3d_data.io.meshes.load_mesh_triangles`` (exactly the geometry the renderer drew), moved
     into the canonical frame with the object's stored ``to_canonical`` and voxelized with
@@ -17,16 +16,15 @@ Shards (``voxelize_shards``)
     ``bytes``/``sha256`` of a shard are written right after it is rewritten, and the run holds
     the folder's write lock. An object that fails (mesh missing or unreadable) gets an all-empty
     grid so the shard stays rectangular, and is recorded in the index under ``failures`` with
-    ``"stage": "voxelize"``, its shard, row and reason. The index also gets ``"voxels":
-    {"resolution": G, "occupancy": ...}``. When none of the source meshes exists (shards moved
+    ``"stage": "voxelize"``, its shard, row and reason. The index and each rewritten shard (a file
+    attribute, JSON) get ``"voxels": {"resolution": G, "occupancy": ...}``, over the render
+    settings' voxel entries. When none of the source meshes exists (shards moved
     without their meshes) nothing is changed: one line names the folder, and no shard's grids
-    are replaced by empty ones. A dataset of ``import-r2n2`` (R2N2's own voxels, no meshes) is
-    refused in one line.
-
-Meshes (``voxelize --meshes``): ``voxel_meshes.py``.
+    are replaced by empty ones. A dataset of ``import-r2n2`` (R2N2's own voxels, no meshes) is refused in one line.
 """
 from __future__ import annotations
 
+import json
 import os
 import time
 from dataclasses import dataclass
@@ -255,6 +253,8 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
         bar = progress_bar(total=len(paths), unit="shard", desc="voxelize")
         bar.update(summary.shards_skipped)
 
+    made = {"resolution": resolution, "occupancy": OCCUPANCY_RULE}  # the index's and each shard's voxels record
+
     def store(c: int, results: list, last: bool) -> None:
         path = paths[c]
         # a retried shard keeps the grids of the objects not retried
@@ -273,7 +273,7 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
                 failure.update(reason=f"{payload}; its earlier grid is kept", grid_kept=True)
                 summary.kept += 1
             by_shard[c].append(failure)
-        index.shards[c]["sha256"] = replace_dataset_atomically(path, "voxels", grids, update_index=False)
+        index.shards[c]["sha256"] = replace_dataset_atomically(path, "voxels", grids, False, {"voxels": json.dumps(made)})
         index.shards[c]["bytes"] = path.stat().st_size
         index.failures = base + [f for fails in by_shard for f in fails]
         summary.shards_done += 1
@@ -294,7 +294,7 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
         if bar is not None:
             bar.close()
     index.failures = base + [f for fails in by_shard for f in fails]
-    index.extra["voxels"] = {"resolution": resolution, "occupancy": OCCUPANCY_RULE, "failed": sum(map(len, by_shard))}
+    index.extra["voxels"] = {**made, "failed": sum(map(len, by_shard))}
     index.write()
     summary.seconds = time.monotonic() - t0
     return summary
