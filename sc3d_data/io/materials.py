@@ -109,6 +109,17 @@ def mtllib_names(path: Path, text: str | None = None) -> list[str]:
     return names
 
 
+def _texture_file(folder: Path, name: str, root: Path) -> Path:
+    """The file map-statement file ``name`` of a material file in ``folder`` reaches: the name as
+    written, or where that is no file inside ``root`` (an absolute or Windows path of the machine
+    that wrote it, ``C:/Users/me/t.png``), the same file name in ``folder`` when that exists, which
+    is the file the loader's resolver reads then (``io.texture_resolver``)."""
+    written, local = folder / name, folder / name.rsplit("/", 1)[-1]
+    if not (_inside(written, root) and written.is_file()) and _inside(local, root) and local.is_file():
+        return local
+    return written
+
+
 def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None = None) -> list[tuple[str, Path]]:
     """``[(name as written, path)]`` of the textures an OBJ's material files (:func:`mtllib_names`;
     ``text``: the OBJ's, when already read) name; material files outside ``root`` are noted in ``report`` and not
@@ -126,7 +137,8 @@ def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None =
             continue
         materials = mtl_materials(read_obj_text(mtl))
         defined = (defined or set()) | set(materials.names)
-        refs += [(f"{printable(name)} (from {printable(mtl.name)})", mtl.parent / name) for _, name in materials.textures]
+        refs += [(f"{printable(name)} (from {printable(mtl.name)})", _texture_file(mtl.parent, name, root))
+                 for _, name in materials.textures]
         report.warnings += [f"material {printable(m)} of {printable(mtl.name)} gives its texture {printable(name)} as "
                             "map_Ka (ambient), which is not drawn (only map_Kd is); rendered in its colour"
                             for m, name in materials.ambient_only]
