@@ -41,7 +41,7 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
     shards = shards_opt or shards_arg
     if shards is None:
         raise click.UsageError("give the shard directory (SHARDS or --shards)")
-    from sc3d_data.io.shards import one_line, refuse_dataset_file
+    from sc3d_data.io.shards import load_index, one_line, refuse_dataset_file
 
     default_png = not png
     png = Path(png) if png else Path(shards) / "check_worst.png"
@@ -56,6 +56,9 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
     if not report.objects:
         raise click.ClickException(f"{shards}: no objects to check")
     click.echo(report.text(worst))
+    if not load_index(Path(shards)).get("complete"):  # the verdict covers only what the shards hold
+        click.echo(f"note: {shards} is incomplete (the command that writes it stopped before its end; rerun it to "
+                   "finish): the verdict is on the objects written so far", err=True)
     try:
         png_path = write_worst_png(Path(shards), report, png, n=min(worst, 8))
     except OSError as e:  # a folder that cannot be made or written (the message names the file)

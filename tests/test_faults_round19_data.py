@@ -152,3 +152,104 @@ def test_voxelize_shards_writes_the_grids_settings_into_each_shard(tmp_path):
             assert f["voxels"].shape[1:] == (16, 16, 16)
         assert made["resolution"] == 16 and "winding number" in made["occupancy"]
         assert settings["voxelize"] is False  # the render's settings, as the render wrote them
+
+
+def test_a_texture_named_by_another_machines_path_is_read_from_beside_the_material_file(tmp_path):
+    """An MTL written elsewhere names its texture by that machine's path (``map_Kd
+    C:\\Users\\me\\textures\\t.png``, ``/home/someone/textures/t.png``) and the texture was copied
+    beside it. The loader reads ``t.png`` from beside the MTL (trimesh's resolver falls back to
+    the bare file name), but the checks judged the path as written: the Windows-path object failed
+    "not found" and the other got the warning "not read; rendered without it" while drawn with
+    it. Now both render red without a word; control: with no ``t.png`` beside the MTL, the
+    Windows path still fails "not found"."""
+    meshes = tmp_path / "m" / "c"
+    _textured_obj(meshes / "windows", b"newmtl mat\nKd 1 1 1\nmap_Kd C:\\Users\\me\\textures\\t.png\n")
+    _textured_obj(meshes / "unix", b"newmtl mat\nKd 1 1 1\nmap_Kd /home/someone/textures/t.png\n")
+    _textured_obj(meshes / "missing", b"newmtl mat\nKd 1 1 1\nmap_Kd C:\\Users\\me\\textures\\gone.png\n")
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    index = index_of(out)
+    assert [(Path(f["source"]).parent.name, f["reason"].split(": ", 1)[1]) for f in index["failures"]] == [
+        ("missing", "texture C:/Users/me/textures/gone.png (from m.mtl) not found (use --bad-texture fallback to "
+                    "render with material colours)")]
+    assert index.get("warnings", []) == []
+    assert _looks(out) == {"windows": "red", "unix": "red"}
+
+
+def test_an_object_dropped_from_the_index_is_rendered_again_once(tmp_path):
+    """A rerun after an object's entry was removed from ``index.json`` (its row still in the
+    shard) renders it again, as it should, but kept the old row too: the shard held the object
+    twice (7 rows for 6 meshes), and ``info --verify`` and ``check`` passed. Now the new row
+    replaces the old: one row per mesh file, the same pixels as before."""
+    import collections
+
+    import h5py
+
+    from sc3d_data.io.shards import shard_files
+
+    meshes = tmp_path / "m"
+    for category in ("chair", "car"):
+        (meshes / category).mkdir(parents=True)
+        for glb in (Path(__file__).parent.parent / "assets" / "sample_meshes" / category).glob("*.glb"):
+            (meshes / category / glb.name).symlink_to(glb)
+    n_meshes = len(list(meshes.rglob("*.glb")))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", meshes, "--out", out, *FAST])
+    before = objects_by_id(out)
+    index = index_of(out)
+    dropped = index["objects"].pop(1)
+    (out / "index.json").write_text(json.dumps(index))
+    run_cli(data_main, ["render", "--meshes", meshes, "--out", out, *FAST])
+    ids = []
+    for path in shard_files(out):
+        with h5py.File(path, "r") as f:
+            ids += [(c.decode(), m.decode()) for c, m in zip(f["category"][()], f["model_id"][()])]
+    assert len(ids) == n_meshes and collections.Counter(ids).most_common(1)[0][1] == 1
+    assert index_of(out)["counts"]["total"] == n_meshes
+    key = (dropped["category"], dropped["model_id"])
+    np.testing.assert_array_equal(objects_by_id(out)[key]["images"], before[key]["images"])
+
+
+def test_a_mesh_it_had_skipped_is_not_called_new(tmp_path):
+    """A mesh in no split of ``--split-file`` is skipped; adding it to the split file and
+    rendering again (where that moves objects to other shards) was refused as "1 mesh(es) are
+    new ...; move the new ones away", though the mesh had been there all along. Now the refusal
+    says it was skipped, and why. A run without ``--part`` over a part's folder is no longer
+    called "part 0/1"."""
+    meshes = tmp_path / "m"
+    for category in ("car", "chair"):
+        (meshes / category).mkdir(parents=True)
+        for glb in (Path(__file__).parent.parent / "assets" / "sample_meshes" / category).glob("*.glb"):
+            (meshes / category / glb.name).symlink_to(glb)
+    chairs = sorted(p.stem for p in (meshes / "chair").glob("*.glb"))
+    split = tmp_path / "sp.txt"
+    split.write_text(f"train chair/{chairs[1]}\ntest chair/{chairs[2]}\n")
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", meshes, "--out", out, "--split-file", split,
+                        "--objects-per-shard", "1", *FAST])
+    split.write_text(split.read_text() + f"train chair/{chairs[0]}\n")  # sorts before the kept ones
+    res = run_cli(data_main, ["render", "--meshes", meshes, "--out", out, "--split-file", split,
+                              "--objects-per-shard", "1", *FAST], expect_exit=1)
+    assert (f"1 mesh(es) it skipped are now to be done ({meshes}/chair/{chairs[0]}.glb: skipped as not in any "
+            "split (--split-file)); give the settings that skipped them again") in res.output
+    assert "are new" not in res.output
+
+    parts = tmp_path / "parts"
+    run_cli(data_main, ["render", "--out", parts, "--part", "0/2", *FAST])
+    res = run_cli(data_main, ["render", "--out", parts, *FAST], expect_exit=1)
+    assert "holds part 0/2, this run is of all objects (no --part); give each part its own --out" in res.output
+
+
+def test_check_says_when_the_dataset_it_passes_is_incomplete(tmp_path):
+    """``check`` of a dataset whose render stopped part-way (its index says ``complete: false``,
+    as an interrupted run leaves it) printed PASS with no word that objects are missing. Now a
+    note says the verdict covers the objects written so far; control: no note when complete."""
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--out", out, "--voxelize", *FAST])
+    res = run_cli(data_main, ["check", out, "--no-progress"])
+    assert "incomplete" not in res.output
+    index = index_of(out)
+    index["complete"] = False
+    (out / "index.json").write_text(json.dumps(index))
+    res = run_cli(data_main, ["check", out, "--no-progress"])
+    assert f"note: {out} is incomplete" in res.output and "the verdict is on the objects written so far" in res.output

@@ -33,8 +33,7 @@ Decisions:
   index must never describe the old bytes of a rewritten shard.
 - A rerun refuses (``ValueError``, before any work) an index whose objects sit in other chunks
   than this run's plan puts them (the collection changed, or another sc3d made them): resuming
-  it would mix two plans in one dataset. It names the gone and new meshes (``resume.plan_changes``:
-  a gone mesh that had failed too, as the objects after it move to other chunks).
+  it would mix two plans in one dataset. It names the gone and new meshes (``run.plan_changes``).
 - A file named like a shard this run writes that the index does not list is replaced only if
   it is a shard made with this run's settings (left by a run killed before its index listed
   it); anything else stops the run before any work, naming the file.
@@ -51,8 +50,9 @@ from sc3d_data.io.shards import (SHARD_PATTERN, ShardError, add_shard_to_index, 
                                  shard_path)
 from sc3d_data.io.shards import write_index as write_index_file
 from sc3d_data.pipeline.executors.executor import Executor, finished_chunks
-from sc3d_data.pipeline.run.resume import (check_resume, empty_state, plan_change_text, plan_changes, remaining,
-                                           listed_shard_names, remove_listed_outputs, resume_state)
+from sc3d_data.pipeline.run.plan_changes import plan_change_text, plan_changes
+from sc3d_data.pipeline.run.resume import (check_resume, empty_state, listed_shard_names, remaining, remove_listed_outputs,
+                                           resume_state)
 from sc3d_data.pipeline.run.resume_voxels import voxels_after_rewrite
 
 #: an index listing more objects than this is written lazily (module doc)
@@ -212,7 +212,7 @@ class NewShards:
             listed = {s["file"] for s in old.get("shards", [])}
         pos_of = {(t.category, t.model_id): t.pos for t in tasks}
         if any(pos_of.get((o["category"], o["model_id"]), -K) // K != o["chunk"] for o in state["objects"]):
-            raise ValueError(plan_change_text(out, *plan_changes(old, tasks, K)))
+            raise ValueError(plan_change_text(out, *plan_changes(old, tasks, K), old.get("skipped", [])))
         for key in ("shards", "objects", "warnings", "empty_chunks"):
             setattr(index, key, state[key])
         index.failures = sorted(state["failures"], key=lambda f: f.get("pos", -1))
@@ -258,9 +258,8 @@ class NewShards:
                 shown.close()
 
     def store(self, pool: Executor, c: int, results: list, last: bool) -> None:
-        """Chunk ``c``'s results ``[(task, status, payload)]`` (payload ``(ObjectRecord,
-        warnings)`` or the reason) into its shard, written by ``pool``, and the index; a chunk
-        whose re-tried objects all failed again keeps its shard as it is."""
+        """Chunk ``c``'s results ``[(task, status, payload)]`` (payload ``(ObjectRecord, warnings)`` or the reason)
+        into its shard, written by ``pool``, and the index; a chunk whose re-tried objects all failed again keeps it."""
         from sc3d_data.io.shard_reader import read_records
 
         index = self.index
@@ -283,9 +282,10 @@ class NewShards:
         kept = [sh for sh in index.shards if sh["chunk"] == c]
         if kept and not records:
             return
-        if kept:  # a re-tried chunk: its shard's objects plus the new ones, in plan order
-            records += [(self.pos_of[(r.category, r.model_id)], r)
-                        for r in read_records(shard_path(index.out, kept[0]["file"]))]
+        if kept:  # a re-tried chunk: its shard's objects plus the new ones, in plan order (a new one replaces its row)
+            redone = {pos for pos, _ in records}
+            records += [(pos, r) for r in read_records(shard_path(index.out, kept[0]["file"]))
+                        if (pos := self.pos_of[(r.category, r.model_id)]) not in redone]
             index.shards.remove(kept[0])
             index.objects[:] = [o for o in index.objects if o.get("chunk") != c]
         if c in index.empty_chunks:
