@@ -62,9 +62,10 @@ def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
     """All objects of a shard directory (reading only string fields) and facts about the data:
     ``{"image_size", "num_views", "voxel_resolution" (None without voxels or where the shards
     disagree), "files_without_voxels", "voxel_resolutions" ({G: first shard file of G^3 grids}),
-    "settings", "K" (3x3 list, pixels), "distance", "left_out",
-    "complete" (the index's: false while a render was cut short)}`` (camera of the
-    first view of the first object: all views share intrinsics and distance, SPEC). Objects whose
+    "settings", "K" (3x3 list, pixels; the first view's: all views share it), "distance" (world
+    units, the median of every view's), "distance_range" ([min, max] of every view's: one value
+    for ``render``'s shards, 3D-R2N2's imports vary by view), "left_out",
+    "complete" (the index's: false while a render was cut short)}``. Objects whose
     voxelization failed are left out (:func:`voxelize_failures`; ``left_out``: their
     ``category/model_id``, also told once on stderr). Clear errors for a missing/empty directory."""
     shard_dir = Path(shard_dir)
@@ -94,13 +95,15 @@ def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
         if sm.voxel_resolution is not None:
             vres_files.setdefault(sm.voxel_resolution, sm.path.name)
     no_vox = [str(sm.path) for sm in summaries if sm.voxel_resolution is None]
-    camera = {"K": summaries[0].K.tolist(), "distance": summaries[0].distance}
+    distances = np.concatenate([sm.distances for sm in summaries])
+    camera = {"K": summaries[0].K.tolist(), "distance": float(np.median(distances)),
+              "distance_range": [float(distances.min()), float(distances.max())]}
     if len(image_sizes) != 1 or len(views) != 1:
         raise DataError(f"{shard_dir}: shards disagree on image size {image_sizes} or views {views}")
     info = {"image_size": image_sizes.pop(), "num_views": views.pop(),
             "voxel_resolution": vres.pop() if len(vres) == 1 else None,
             "files_without_voxels": no_vox, "voxel_resolutions": vres_files, "settings": reader.settings,
-            "K": camera["K"], "distance": camera["distance"],
+            "K": camera["K"], "distance": camera["distance"], "distance_range": camera["distance_range"],
             "left_out": [f"{r.category}/{r.model_id}" for r in left_out],
             "complete": reader.index.get("complete", True) is not False}
     return refs, info

@@ -241,10 +241,16 @@ def require_finite_predictions(checkpoint: Path, rows: list[dict]) -> None:
                               "inputs; nothing written")
 
 
+def _span(low: float, high: float) -> str:
+    """``"2"`` or ``"1.63 to 2.25"``: a range of camera distances as a note names it."""
+    return f"{low:g}" if math.isclose(low, high, rel_tol=1e-4) else f"{low:.3g} to {high:.3g}"
+
+
 def differences_from_training(cfg, info: dict) -> list[str]:
     """How the evaluated shards' images differ from those the checkpoint was trained on
     (``cfg``: its run config; ``info``: ``ShardDataset.info``), one phrase each; empty when
-    they are alike. Background, intrinsics, camera distance and the view setup (axes,
+    they are alike (camera distances: where the evaluated shards hold views outside the range of those
+    trained on; focal lengths within 0.1%). Background, intrinsics, camera distance and the view setup (axes,
     normalisation, shading: ``loop.resolve.view_setup``) change what the network sees
     (elevations outside the pose grid are :func:`outside_pose_grid`). Not refused: evaluating across such a change (other renders, 3D-R2N2's imports) is a
     legitimate experiment, but its figures must say so (``eval`` prints a note, and
@@ -256,11 +262,13 @@ def differences_from_training(cfg, info: dict) -> list[str]:
     background = background_of(info)
     if list(cfg.background) != background:
         found.append(f"background {background} (trained on {list(cfg.background)})")
-    if cfg.intrinsics is not None and not np.allclose(info["K"], cfg.intrinsics, rtol=1e-4):
+    if cfg.intrinsics is not None and not np.allclose(info["K"], cfg.intrinsics, rtol=1e-3):
         fx, trained_fx = np.asarray(info["K"])[0, 0], np.asarray(cfg.intrinsics)[0, 0]
-        found.append(f"intrinsics K (focal length {fx:.1f} px, trained on {trained_fx:.1f} px)")
-    if not math.isclose(info["distance"], cfg.camera_distance, rel_tol=1e-4):
-        found.append(f"camera distance {info['distance']:g} (trained at {cfg.camera_distance:g})")
+        found.append(f"intrinsics K (focal length {fx:.2f} px, trained on {trained_fx:.2f} px)")
+    near, far = info["distance_range"]
+    trained = cfg.camera_distance_range or [cfg.camera_distance] * 2  # a run of an earlier version: one distance
+    if near < trained[0] * (1 - 1e-4) or far > trained[1] * (1 + 1e-4):  # views at distances never trained on
+        found.append(f"camera distance {_span(near, far)} (trained at {_span(*trained)})")
     if cfg.view_setup is not None:  # elevations: outside_pose_grid
         now, was = (view_setup_but_elevations(v) for v in (view_setup(info.get("settings", {})), cfg.view_setup))
         if now != was:

@@ -17,11 +17,10 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     ``claims``); ``model_options``: :class:`~sc3d_train.settings.config.ModelConfig` fields set likewise,
     plus ``tiny`` (bool): the :data:`~sc3d_train.settings.config.TINY_MODEL` preset.
 
-    New run, later wins: the dataclass defaults, ``config_file`` (a run's ``config.yaml``), the
-    tiny preset, ``model_options`` and ``options``; then the model's ``image_size`` and
-    ``voxel_resolution`` and the dataset facts (views, background, intrinsics, camera distance)
-    are read from the shards. ``resume``: the run's saved config, where ``options`` may change
-    only :data:`~sc3d_train.settings.config.RESUMABLE_FIELDS` and ``model_options`` nothing."""
+    New run, later wins: the dataclass defaults, ``config_file`` (a run's ``config.yaml``), the tiny preset,
+    ``model_options`` and ``options``; then the facts of the shards (:func:`shard_facts`). ``resume``: the run's
+    saved config, where ``options`` may change only :data:`~sc3d_train.settings.config.RESUMABLE_FIELDS` and
+    ``model_options`` nothing."""
     from sc3d_train.loop.checkpoint import CheckpointError
     from sc3d_train.data.dataset import DataError
 
@@ -110,7 +109,7 @@ def shard_facts(shards: Path, split: str, val_split: str) -> dict:
         raise DataError(f"{shards}: shards have no voxels; run `sc3d-data voxelize` first")
     return {"model.image_size": info["image_size"], "model.voxel_resolution": info["voxel_resolution"],
             "image_size": info["image_size"], "num_views": info["num_views"], "background": background_of(info),
-            "intrinsics": info["K"], "camera_distance": info["distance"],
+            "intrinsics": info["K"], "camera_distance": info["distance"], "camera_distance_range": info["distance_range"],
             "objects_sha256": objects_digest(refs, split), "val_objects_sha256": objects_digest(refs, val_split),
             "view_setup": view_setup(info["settings"])}
 
@@ -148,9 +147,8 @@ def run_facts(cfg: RunConfig) -> dict:
     """The facts that run ``cfg`` took from its shards when it started (:func:`shard_facts`)."""
     return {"model.image_size": cfg.model.image_size, "model.voxel_resolution": cfg.model.voxel_resolution,
             "image_size": cfg.image_size, "num_views": cfg.num_views, "background": cfg.background,
-            "intrinsics": cfg.intrinsics, "camera_distance": cfg.camera_distance,
-            "objects_sha256": cfg.objects_sha256, "val_objects_sha256": cfg.val_objects_sha256,
-            "view_setup": cfg.view_setup}
+            "intrinsics": cfg.intrinsics, "camera_distance": cfg.camera_distance, "camera_distance_range": cfg.camera_distance_range,
+            "objects_sha256": cfg.objects_sha256, "val_objects_sha256": cfg.val_objects_sha256, "view_setup": cfg.view_setup}
 
 
 def check_same_shards(cfg: RunConfig, out: Path) -> None:
@@ -165,6 +163,8 @@ def check_same_shards(cfg: RunConfig, out: Path) -> None:
     was, now = run_facts(cfg), shard_facts(Path(cfg.shards), cfg.split, cfg.val_split)
     if not cfg.val_every:
         was["val_objects_sha256"] = None  # no validation from here: the split is not read
+    if was["camera_distance_range"] is None and len(set(now["camera_distance_range"])) > 1:
+        was["camera_distance"] = None  # an earlier version recorded one view's of distances that vary by view
     changed = [k for k, v in was.items() if v is not None and v != now[k]]
     digests = {"objects_sha256": cfg.split, "val_objects_sha256": cfg.val_split}
     if changed:

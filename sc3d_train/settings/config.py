@@ -253,7 +253,10 @@ class RunConfig(_Plain):
     background: list = setting(help="Background RGB of the shards.", cli=False,
                                default_factory=lambda: [255, 255, 255])
     intrinsics: list | None = setting(None, "K [3][3] in pixels at image_size.", cli=False)
-    camera_distance: float = setting(2.0, "Camera distance of the shards (world units).", cli=False)
+    camera_distance: float = setting(2.0, "Camera distance of the shards (world units; the median of their views': "
+                                     "predict draws at it).", cli=False)
+    camera_distance_range: list | None = setting(None, "[min, max] of the shard views' camera distances (world "
+                                                 "units; 3D-R2N2's imports vary by view).", cli=False)
     objects_sha256: str | None = setting(None, "SHA-256 of the sorted category/model_id of the training split's "
                                          "objects (--resume refuses shards whose objects changed).", cli=False)
     val_objects_sha256: str | None = setting(None, "SHA-256 of the sorted category/model_id of the validation "
