@@ -80,3 +80,36 @@ def test_focal_lengths_that_differ_are_noted_with_the_digits_that_differ():
     found = differences_from_training(cfg, {**info, "K": longer, "distance_range": [1.5, 2.2]})
     assert "intrinsics K (focal length 73.51 px, trained on 70.01 px)" in found
     assert "camera distance 1.5 to 2.2 (trained at 1.6 to 2.2)" in found
+
+
+def test_a_ctrl_c_while_a_resumed_run_rewrites_its_logs_loses_no_row(tmp_path, monkeypatch):
+    """On resume ``validation.csv`` and ``metrics.csv`` are rewritten without the rows after the
+    resume step; the rewrite truncated the file first, so a Ctrl-C (or kill) while the rows were
+    being written back left a header alone: every earlier row lost. Now the file is replaced
+    whole or not at all: a Ctrl-C in the middle (raised here where the rows are written) leaves
+    the file as it was."""
+    import csv
+
+    from sc3d_train.loop.metrics_log import MetricsLog
+    from sc3d_train.loop.validation import FIELDS, resumed_rows
+
+    path = tmp_path / "validation.csv"
+    rows = [{k: (step if k == "step" else 0.5) for k in FIELDS} for step in (100, 200, 300)]
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=FIELDS)
+        w.writeheader()
+        w.writerows(rows)
+    metrics = tmp_path / "metrics.csv"
+    metrics.write_text("step,loss\n" + "".join(f"{s},1.0\n" for s in range(10)))
+    before = path.read_text(), metrics.read_text()
+
+    def interrupted(self, rows):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(csv.DictWriter, "writerows", interrupted)
+    for rewrite in (lambda: resumed_rows(path, 200), lambda: MetricsLog(tmp_path, start_step=5)):
+        try:
+            rewrite()
+        except KeyboardInterrupt:
+            pass
+    assert (path.read_text(), metrics.read_text()) == before

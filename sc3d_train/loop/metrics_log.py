@@ -30,6 +30,21 @@ def complete_rows(path: Path) -> list[dict]:
             if None not in r and None not in r.values() and str(r.get("step")).isdigit()]
 
 
+def write_csv_atomic(path: Path, fields: list[str] | None, rows: list[dict]) -> None:
+    """``path`` rewritten whole as CSV (header ``fields``, then ``rows``; empty without fields),
+    through a temporary file renamed over it (``io.shards.atomic_write_bytes``): a kill while a
+    resumed run drops its later rows, or a semi run widens the header, leaves the old file, never
+    a truncated one that would lose the rows already logged."""
+    from sc3d_data.io.shards import atomic_write_bytes
+
+    text = io.StringIO(newline="")
+    if fields is not None:
+        w = csv.DictWriter(text, fieldnames=fields)
+        w.writeheader()
+        w.writerows(rows)
+    atomic_write_bytes(path, text.getvalue().encode())
+
+
 class MetricsLog:
     """Scalars to ``metrics.csv`` (one row per logged step) and TensorBoard (``tb/``).
     On resume, rows at or after the resume step (written after the checkpoint by the
@@ -55,13 +70,7 @@ class MetricsLog:
         self.tb = SummaryWriter(str(Path(run_dir) / "tb"), purge_step=start_step or None)
 
     def _rewrite(self):
-        if self.fields is None:
-            self.path.write_text("")
-            return
-        with open(self.path, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=self.fields)
-            w.writeheader()
-            w.writerows(self.rows)
+        write_csv_atomic(self.path, self.fields, self.rows)
 
     def log(self, step: int, values: dict) -> None:
         if not self.enabled:

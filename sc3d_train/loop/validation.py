@@ -65,7 +65,7 @@ import numpy as np
 import torch
 
 from sc3d_train.loop.checkpoint import best_path, load_checkpoint, save_best
-from sc3d_train.loop.metrics_log import complete_rows
+from sc3d_train.loop.metrics_log import complete_rows, write_csv_atomic
 from sc3d_train.loop.schedule import phase_at
 from sc3d_train.settings.command_config import DEFAULT_POSE_SOURCE
 from sc3d_train.settings.config import RunConfig
@@ -159,10 +159,7 @@ def resumed_rows(path: Path, start_step: int) -> list[dict]:
     there; the rows after it are of steps it trains again), ``path`` rewritten to hold only them
     (only the header for a new run, ``start_step`` 0)."""
     rows = [r for r in complete_rows(path) if int(r["step"]) <= start_step] if start_step > 0 and path.is_file() else []
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=FIELDS)
-        w.writeheader()
-        w.writerows(rows)
+    write_csv_atomic(path, FIELDS, rows)
     return rows
 
 
