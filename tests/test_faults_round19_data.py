@@ -253,3 +253,31 @@ def test_check_says_when_the_dataset_it_passes_is_incomplete(tmp_path):
     (out / "index.json").write_text(json.dumps(index))
     res = run_cli(data_main, ["check", out, "--no-progress"])
     assert f"note: {out} is incomplete" in res.output and "the verdict is on the objects written so far" in res.output
+
+
+def test_a_specular_glossiness_material_draws_its_diffuse_texture(tmp_path):
+    """``KHR_materials_pbrSpecularGlossiness`` (older Sketchfab and Objaverse files): the diffuse
+    texture is the surface's colour, as viewers show it. trimesh converts the material to
+    metallic-roughness, whose base colour for the default specularFactor [1, 1, 1] is white, and
+    the cube whose diffuse texture is red where it is mapped rendered white, exit 0. Now red; a
+    diffuseFactor multiplies it (blue x red: black), and the same texture as a plain
+    baseColorTexture draws the same pixels as the diffuse one."""
+    from test_gltf_features import _half_red_half_green_cube
+
+    folder = tmp_path / "m" / "box"
+    folder.mkdir(parents=True)
+    gloss = "KHR_materials_pbrSpecularGlossiness"
+    _half_red_half_green_cube(folder / "gloss.gltf", {"extensions": {gloss: {"diffuseTexture": {"index": 0}}}})
+    _half_red_half_green_cube(folder / "gloss_blue.gltf", {"extensions": {gloss: {
+        "diffuseTexture": {"index": 0}, "diffuseFactor": [0, 0, 1, 1]}}})
+    _half_red_half_green_cube(folder / "metal_rough.gltf", {"pbrMetallicRoughness": {
+        "baseColorTexture": {"index": 0}, "metallicFactor": 0}})
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    assert index_of(out)["failures"] == []
+    objects = {name[1]: obj for name, obj in objects_by_id(out).items()}
+    reference = objects["metal_rough"]
+    pixels = reference["images"][reference["masks"] > 0].astype(int)
+    assert (pixels[:, 0] > 100).all() and (pixels[:, 1:] < 10).all()
+    np.testing.assert_array_equal(objects["gloss"]["images"], reference["images"])
+    assert (objects["gloss_blue"]["images"][objects["gloss_blue"]["masks"] > 0] < 10).all()

@@ -34,6 +34,12 @@ the wrong place, and which of its parts to draw plain cannot be told from what i
 :func:`apply_texture_transforms` applies every other ``KHR_texture_transform`` to the texture
 coordinates of the loaded geometries whose material has that name (an identity transform, offset
 0, scale 1, rotation 0, is no change and is not applied).
+
+:func:`read_spec_gloss_as_matte` makes the loader read a ``KHR_materials_pbrSpecularGlossiness``
+material (older Sketchfab and Objaverse files) as the renderer's matte shading draws every
+material: its diffuse colour (``diffuseFactor`` x ``diffuseTexture``) is the albedo, as viewers
+show it. trimesh's own reading converts it to metallic-roughness, whose base colour for the
+extension's default ``specularFactor`` [1, 1, 1] is white (a mirror): the texture was lost.
 """
 from __future__ import annotations
 
@@ -41,7 +47,8 @@ import importlib.util
 
 import numpy as np
 
-__all__ = ["UNDECODED", "apply_texture_transforms", "feature_problems", "transform_matrix"]
+__all__ = ["UNDECODED", "apply_texture_transforms", "feature_problems", "read_spec_gloss_as_matte",
+           "transform_matrix"]
 
 #: required extensions the loader cannot decode: ``{name: what it is}``
 UNDECODED = {"KHR_draco_mesh_compression": "Draco mesh compression",
@@ -53,6 +60,27 @@ def _undecoded(name: str) -> bool:
     if name == "KHR_draco_mesh_compression":
         return importlib.util.find_spec("DracoPy") is None  # trimesh decodes Draco through DracoPy
     return name in UNDECODED
+
+
+def _spec_gloss_matte(context: dict) -> dict:
+    """trimesh material-extension handler (``trimesh.exchange.gltf.extensions``): the base colour
+    (factor and texture) of a ``KHR_materials_pbrSpecularGlossiness`` material is its diffuse
+    colour; no metal; roughness 1 - glossiness (module doc)."""
+    data = context["parse_textures"](data=context["data"])
+    found = {"metallicFactor": 0.0, "roughnessFactor": 1.0 - float(data.get("glossinessFactor", 1.0))}
+    if data.get("diffuseTexture") is not None:
+        found["baseColorTexture"] = data["diffuseTexture"]
+    if data.get("diffuseFactor") is not None:
+        found["baseColorFactor"] = data["diffuseFactor"]
+    return found
+
+
+def read_spec_gloss_as_matte() -> None:
+    """Make this process's glTF loader read specular-glossiness materials by their diffuse
+    colour (module doc); idempotent, before loading."""
+    from trimesh.exchange.gltf.extensions import register_handler
+
+    register_handler("KHR_materials_pbrSpecularGlossiness", scope="material")(_spec_gloss_matte)
 
 
 def _moves(transform: dict) -> bool:

@@ -204,7 +204,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     ``root``, never read: refused when ``outside_textures="refuse"``). Raises ``MeshError`` on
     bad input (see module doc)."""
     from sc3d_data.io.gltf_check import judge_gltf
-    from sc3d_data.io.gltf_features import apply_texture_transforms
+    from sc3d_data.io.gltf_features import apply_texture_transforms, read_spec_gloss_as_matte
     from sc3d_data.io.materials import material_report
     from sc3d_data.io.texture_resolver import loader_misses, make_resolver
 
@@ -227,6 +227,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     if path.suffix.lower() == ".obj":
         check_obj_indices(path)
     resolver = make_resolver(path, root)
+    read_spec_gloss_as_matte()
     scene = load_scene(path, resolver)
     missed = loader_misses(resolver, report)
     if missed and bad_texture == "fail":
