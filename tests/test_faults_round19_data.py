@@ -144,14 +144,25 @@ def test_voxelize_shards_writes_the_grids_settings_into_each_shard(tmp_path):
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--out", out, *FAST])
     run_cli(data_main, ["voxelize", out, "--resolution", "16", "--workers", "1", "--no-progress"])
-    shards = shard_files(out)
-    assert shards
-    for path in shards:
-        with h5py.File(path, "r") as f:
-            made, settings = json.loads(f.attrs["voxels"]), json.loads(f.attrs["settings"])
-            assert f["voxels"].shape[1:] == (16, 16, 16)
-        assert made["resolution"] == 16 and "winding number" in made["occupancy"]
-        assert settings["voxelize"] is False  # the render's settings, as the render wrote them
+
+    def assert_attributes():
+        shards = shard_files(out)
+        assert shards
+        for path in shards:
+            with h5py.File(path, "r") as f:
+                made, settings = json.loads(f.attrs["voxels"]), json.loads(f.attrs["settings"])
+                assert f["voxels"].shape[1:] == (16, 16, 16)
+            assert made["resolution"] == 16 and "winding number" in made["occupancy"]
+            assert settings["voxelize"] is False  # the render's settings, as the render wrote them
+
+    assert_attributes()
+    # a render rerun rewrites a shard (an object dropped from the index is rendered again, at the grids'
+    # resolution): the rewritten shard keeps the attribute (the review found it dropped, and never written again)
+    index = index_of(out)
+    index["objects"].pop(0)
+    (out / "index.json").write_text(json.dumps(index))
+    run_cli(data_main, ["render", "--out", out, *FAST])
+    assert_attributes()
 
 
 def test_a_texture_named_by_another_machines_path_is_read_from_beside_the_material_file(tmp_path):
@@ -166,12 +177,16 @@ def test_a_texture_named_by_another_machines_path_is_read_from_beside_the_materi
     _textured_obj(meshes / "windows", b"newmtl mat\nKd 1 1 1\nmap_Kd C:\\Users\\me\\textures\\t.png\n")
     _textured_obj(meshes / "unix", b"newmtl mat\nKd 1 1 1\nmap_Kd /home/someone/textures/t.png\n")
     _textured_obj(meshes / "missing", b"newmtl mat\nKd 1 1 1\nmap_Kd C:\\Users\\me\\textures\\gone.png\n")
+    # a missing relative name is not swapped for a file of that name beside the MTL (the review's case)
+    _textured_obj(meshes / "relative", b"newmtl mat\nKd 1 1 1\nmap_Kd textures/t.png\n")
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
     index = index_of(out)
-    assert [(Path(f["source"]).parent.name, f["reason"].split(": ", 1)[1]) for f in index["failures"]] == [
+    assert sorted((Path(f["source"]).parent.name, f["reason"].split(": ", 1)[1]) for f in index["failures"]) == [
         ("missing", "texture C:/Users/me/textures/gone.png (from m.mtl) not found (use --bad-texture fallback to "
-                    "render with material colours)")]
+                    "render with material colours)"),
+        ("relative", "texture textures/t.png (from m.mtl) not found (use --bad-texture fallback to render with "
+                     "material colours)")]
     assert index.get("warnings", []) == []
     assert _looks(out) == {"windows": "red", "unix": "red"}
 

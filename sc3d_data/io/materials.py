@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import io
 import os
+import re
 import struct
 import urllib.parse
 from dataclasses import dataclass, field
@@ -111,11 +112,13 @@ def mtllib_names(path: Path, text: str | None = None) -> list[str]:
 
 def _texture_file(folder: Path, name: str, root: Path) -> Path:
     """The file map-statement file ``name`` of a material file in ``folder`` reaches: the name as
-    written, or where that is no file inside ``root`` (an absolute or Windows path of the machine
-    that wrote it, ``C:/Users/me/t.png``), the same file name in ``folder`` when that exists, which
-    is the file the loader's resolver reads then (``io.texture_resolver``)."""
+    written, or where it is an absolute or Windows path of the machine that wrote it
+    (``C:/Users/me/t.png``) and no file inside ``root``, the same file name in ``folder`` when that
+    exists, which is the file the loader's resolver reads then (``io.texture_resolver``); a missing
+    relative name (``textures/t.png``) stays missing, never swapped for another file."""
     written, local = folder / name, folder / name.rsplit("/", 1)[-1]
-    if not (_inside(written, root) and written.is_file()) and _inside(local, root) and local.is_file():
+    elsewhere = name.startswith("/") or re.match(r"[A-Za-z]:/", name) is not None  # a relative name is this tree's
+    if elsewhere and not (_inside(written, root) and written.is_file()) and _inside(local, root) and local.is_file():
         return local
     return written
 

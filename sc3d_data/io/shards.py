@@ -255,9 +255,16 @@ def chunk_shape(name: str, shape: tuple[int, ...], layout: str) -> tuple[int, ..
     return (1,) + tuple(shape[1:])
 
 
-def write_shard(path: Path, records: list[ObjectRecord], settings: dict) -> str:
+def voxels_attr(record: dict) -> dict[str, str]:
+    """The file attribute ``voxels`` of a shard whose grids ``sc3d-data voxelize SHARDS`` made
+    (SPEC: over the voxel entries of its ``settings``), from the index's ``voxels`` record (or
+    the one being made): JSON of its ``resolution`` and ``occupancy`` rule."""
+    return {"voxels": json.dumps({"resolution": record["resolution"], "occupancy": record["occupancy"]})}
+
+
+def write_shard(path: Path, records: list[ObjectRecord], settings: dict, attrs: dict[str, str] | None = None) -> str:
     """Write ``records`` into the shard file ``path`` (temporary name first, renamed when the
-    file is closed and complete) and return its SHA-256. All records must carry the same set
+    file is closed and complete; file attributes ``settings`` and ``attrs``) and return its SHA-256. All records must carry the same set
     of arrays. The chunk layout is ``settings["chunks"]`` (default ``CHUNK_LAYOUTS[0]``). On
     failure (disk full...) the temporary file is removed and ``ShardError`` names ``path`` and
     the reason."""
@@ -273,6 +280,7 @@ def write_shard(path: Path, records: list[ObjectRecord], settings: dict) -> str:
             f.attrs["schema_version"] = SCHEMA_VERSION
             f.attrs["sc3d_version"] = package_version()
             f.attrs["settings"] = json.dumps(settings, sort_keys=True)
+            f.attrs.update(attrs or {})
             for name in names:
                 _write_encoded(f, name, [_encoded(name, r.arrays[name], layout) for r in records])
             for name in STRING_FIELDS:

@@ -39,10 +39,10 @@ class Executor(Protocol):
         in the given order. A task that hangs past ``config.timeout_s`` or whose worker dies
         yields ``"fail"`` with the reason; nothing raises for one object."""
 
-    def write_shard(self, path: Path, records: list, settings: dict) -> str:
+    def write_shard(self, path: Path, records: list, settings: dict, attrs: dict[str, str] | None = None) -> str:
         """Write the shard ``path`` from the records of one chunk in plan order (``ObjectRecord``
         s, or what this executor yielded in their place) as ``sc3d_data.io.shards.write_shard``
-        does, and return its SHA-256."""
+        does (file attributes ``settings`` and ``attrs``), and return its SHA-256."""
 
     def close(self) -> None:
         """Stop the workers (and a cluster started for the run)."""

@@ -249,9 +249,9 @@ class WorkerPool:
             if status != "ready":
                 self._drop_unstarted(w, payload if status == "dead" else None)
 
-    def write_shard(self, path, records, settings: dict) -> str:
+    def write_shard(self, path, records, settings: dict, attrs: dict[str, str] | None = None) -> str:
         """Write the shard in this (the main) process (``Executor.write_shard``)."""
-        return write_shard(path, records, settings)
+        return write_shard(path, records, settings, attrs)
 
     def close(self) -> None:
         for w in self.workers:

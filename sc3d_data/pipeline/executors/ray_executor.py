@@ -129,11 +129,11 @@ def job_task_split(job: Job, config, backend: str, task):
     return (pos, status, (stub, warnings)), record
 
 
-def _write_shard_task(path: str, settings: dict, *records) -> str:
+def _write_shard_task(path: str, settings: dict, attrs: dict | None, *records) -> str:
     """``sc3d_data.io.shards.write_shard`` on a worker (Ray hands ``records`` over resolved)."""
     from sc3d_data.io.shards import write_shard
 
-    return write_shard(Path(path), list(records), settings)
+    return write_shard(Path(path), list(records), settings, attrs)
 
 
 def _probe_backend(job: Job, config) -> str:
@@ -235,7 +235,7 @@ class RayExecutor:
                     yield task.pos, "fail", (f"{task.path}: timed out: still running {backstop:g} s after it was "
                                              f"sent, its --timeout {timeout:g} s timer could not interrupt it")
 
-    def write_shard(self, path: Path, records: list, settings: dict) -> str:
+    def write_shard(self, path: Path, records: list, settings: dict, attrs: dict[str, str] | None = None) -> str:
         """Write the shard on a Ray worker from the objects' arrays in the object store (records
         read back from an existing shard on a retry are sent along); returns its SHA-256.
         ``ShardError`` naming the file when the worker cannot write it."""
@@ -243,7 +243,7 @@ class RayExecutor:
 
         args = [r.ref if isinstance(r, RecordRef) else r for r in records]
         try:
-            return self.ray.get(self.writer.remote(str(path), settings, *args))
+            return self.ray.get(self.writer.remote(str(path), settings, attrs, *args))
         except self.ray.exceptions.RayTaskError as e:
             cause = getattr(e, "cause", None)
             raise (cause if isinstance(cause, ShardError) else ShardError(f"{path}: cannot write shard on a Ray "

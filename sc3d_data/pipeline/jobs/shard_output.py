@@ -47,7 +47,7 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 from sc3d_data.io.shards import (SHARD_PATTERN, ShardError, add_shard_to_index, index_path, io_reason, load_index,
-                                 shard_path)
+                                 shard_path, voxels_attr)
 from sc3d_data.io.shards import write_index as write_index_file
 from sc3d_data.pipeline.executors.executor import Executor, finished_chunks
 from sc3d_data.pipeline.run.plan_changes import plan_change_text, plan_changes
@@ -292,9 +292,9 @@ class NewShards:
             index.empty_chunks.remove(c)
         records = [r for _, r in sorted(records, key=lambda pr: pr[0])]
         index.failures = voxels_after_rewrite(index, SHARD_PATTERN.format(c), records, self.notes)
-        if records:
-            name = SHARD_PATTERN.format(c)
+        if records:  # the grids voxelize SHARDS gave the dataset, where the shard keeps them: named in its attributes
+            name, made = SHARD_PATTERN.format(c), index.extra.get("voxels")
             add_shard_to_index(index.shards, index.objects, name, c, records,
-                               sha256=pool.write_shard(index.out / name, records, index.settings))
+                               sha256=pool.write_shard(index.out / name, records, index.settings, made and voxels_attr(made)))
         else:
             index.empty_chunks.append(c)

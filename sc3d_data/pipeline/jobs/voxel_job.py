@@ -24,7 +24,6 @@ voxelization of one mesh file shared with ``voxel_meshes.py`` (``voxelize --mesh
 """
 from __future__ import annotations
 
-import json
 import os
 import time
 from dataclasses import dataclass
@@ -32,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sc3d_data.io.shards import index_path, replace_dataset_atomically
+from sc3d_data.io.shards import index_path, replace_dataset_atomically, voxels_attr
 from sc3d_data.io.shard_reader import read_strings, refuse_changed
 from sc3d_data.pipeline.executors.job import ExecOptions, Job
 from sc3d_data.pipeline.run.plan import Task
@@ -273,7 +272,7 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
                 failure.update(reason=f"{payload}; its earlier grid is kept", grid_kept=True)
                 summary.kept += 1
             by_shard[c].append(failure)
-        index.shards[c]["sha256"] = replace_dataset_atomically(path, "voxels", grids, False, {"voxels": json.dumps(made)})
+        index.shards[c]["sha256"] = replace_dataset_atomically(path, "voxels", grids, False, voxels_attr(made))
         index.shards[c]["bytes"] = path.stat().st_size
         index.failures = base + [f for fails in by_shard for f in fails]
         summary.shards_done += 1
