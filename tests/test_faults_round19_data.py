@@ -296,3 +296,35 @@ def test_a_specular_glossiness_material_draws_its_diffuse_texture(tmp_path):
     assert (pixels[:, 0] > 100).all() and (pixels[:, 1:] < 10).all()
     np.testing.assert_array_equal(objects["gloss"]["images"], reference["images"])
     assert (objects["gloss_blue"]["images"][objects["gloss_blue"]["masks"] > 0] < 10).all()
+
+
+def test_a_texture_without_a_colour_factor_is_drawn_as_it_is_and_one_value_colours_spread(tmp_path):
+    """A texture the file gives no colour to multiply with (an MTL material with ``map_Kd`` and no
+    ``Kd``; a PLY's ``comment TextureFile``, which has no colour at all) was drawn at 40%
+    (trimesh's default diffuse 0.4), unlike Blender and MeshLab; and ``Kd 0.8`` (the MTL format:
+    g and b default to r) dropped the material for the default grey. References: the same files
+    with ``Kd 1 1 1`` and ``Kd 0.8 0.8 0.8`` written out."""
+    import trimesh
+
+    meshes = tmp_path / "m" / "c"
+    _textured_obj(meshes / "no_kd", b"newmtl mat\nmap_Kd t.png\n")
+    _textured_obj(meshes / "kd_white", b"newmtl mat\nKd 1 1 1\nmap_Kd t.png\n")
+    _textured_obj(meshes / "kd_one", b"newmtl mat\nKd 0.8\n")
+    _textured_obj(meshes / "kd_three", b"newmtl mat\nKd 0.8 0.8 0.8\n")
+    box = trimesh.creation.box()
+    (meshes / "ply").mkdir()
+    from PIL import Image
+    Image.new("RGB", (8, 8), (255, 0, 0)).save(meshes / "ply" / "t.png")
+    header = ["ply", "format ascii 1.0", "comment TextureFile t.png", f"element vertex {len(box.vertices)}",
+              "property float x", "property float y", "property float z", "property float texture_u",
+              "property float texture_v", f"element face {len(box.faces)}", "property list uchar int vertex_indices",
+              "end_header"]
+    rows = ["%g %g %g %g %g" % (*p, *(p[:2] + 0.5)) for p in box.vertices] + ["3 %d %d %d" % tuple(f) for f in box.faces]
+    (meshes / "ply" / "m.ply").write_text("\n".join(header + rows) + "\n")
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    assert index_of(out)["failures"] == []
+    objects = {name[1].split("/")[0]: obj for name, obj in objects_by_id(out).items()}
+    for name, reference in (("no_kd", "kd_white"), ("ply", "kd_white"), ("kd_one", "kd_three")):
+        np.testing.assert_array_equal(objects[name]["images"], objects[reference]["images"], err_msg=name)
+    assert _looks(out)["kd_white"] == "red"

@@ -183,12 +183,14 @@ def file_kind(mode: int) -> str:
 # ----------------------------------------------------------------------------- public API
 def match_ply_face_colors(scene, path: Path) -> None:
     """One face colour per triangle in each PLY geometry of ``scene`` whose quads or polygons the
-    loader split into triangles (``io.ply_colors``); ``MeshError`` where that cannot be done."""
-    from sc3d_data.io.ply_colors import per_triangle_face_colors
+    loader split into triangles, and its texture drawn as it is (``io.ply_colors``); ``MeshError``
+    where the colours cannot be matched."""
+    from sc3d_data.io.ply_colors import per_triangle_face_colors, texture_as_is
 
     for geometry in scene.geometry.values():
         if hasattr(geometry, "faces") and (refusal := per_triangle_face_colors(geometry, str(path))):
             raise MeshError(refusal)
+        texture_as_is(geometry)
 
 
 def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str = "fail",

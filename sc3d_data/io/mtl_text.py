@@ -13,6 +13,10 @@ Conventions:
 - **Materials** (:func:`mtl_materials`): a material is named as trimesh names it (the words after
   ``newmtl`` joined by one space); only its ``map_Kd`` texture is drawn (trimesh reads no other
   map), so a material whose only texture is ``map_Ka`` is noted (``ambient_only``).
+- **What the loader reads** (:func:`loader_mtl_text`): a colour of one value (``Kd 0.8``) is that
+  value three times, as the format says (trimesh dropped the material: default grey), and a
+  material with a ``map_Kd`` texture but no ``Kd`` gets ``Kd 1 1 1``: its texture is drawn as it
+  is, as Blender and MeshLab show it (trimesh's default diffuse, 0.4, drew it at 40%).
 """
 from __future__ import annotations
 
@@ -20,7 +24,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["MtlMaterials", "decode_obj_text", "map_file_name", "mtl_materials", "read_obj_text"]
+__all__ = ["MtlMaterials", "decode_obj_text", "loader_mtl_text", "map_file_name", "mtl_materials", "read_obj_text"]
 
 #: numbers and switches that follow an option of an MTL map statement (``-s 1 1 1``, ``-clamp on``)
 _OPTION_VALUE = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^(on|off)$")
@@ -85,3 +89,27 @@ def mtl_materials(text: str) -> MtlMaterials:
     drawn = {material for material, _ in found.textures}
     found.ambient_only = [(m, name) for m, name in ambient.items() if m not in drawn]
     return found
+
+
+def loader_mtl_text(text: str) -> str:
+    """Material-file ``text`` as the loader is given it (module doc): one-value colours spread
+    to three, ``Kd 1 1 1`` added to a textured material without ``Kd``; lines joined by ``\\n``."""
+    out: list[str] = []
+    block, has_kd, has_map = None, False, False  # where the current material's newmtl line is in out
+
+    def close_block() -> None:
+        if block is not None and has_map and not has_kd:
+            out.insert(block + 1, "Kd 1 1 1")
+
+    for line in text.splitlines():
+        words = line.split()
+        key = words[0].lower() if words else ""
+        if key == "newmtl":
+            close_block()
+            block, has_kd, has_map = len(out), False, False
+        elif key in ("kd", "ka", "ks") and len(words) == 2 and _OPTION_VALUE.match(words[1]):
+            line = " ".join([words[0]] + [words[1]] * 3)
+        has_kd, has_map = has_kd or key == "kd", has_map or key == "map_kd"
+        out.append(line)
+    close_block()
+    return "\n".join(out) + "\n"
