@@ -328,3 +328,56 @@ def test_a_texture_without_a_colour_factor_is_drawn_as_it_is_and_one_value_colou
     for name, reference in (("no_kd", "kd_white"), ("ply", "kd_white"), ("kd_one", "kd_three")):
         np.testing.assert_array_equal(objects[name]["images"], objects[reference]["images"], err_msg=name)
     assert _looks(out)["kd_white"] == "red"
+
+
+def _two_boxes_obj(relative: bool) -> str:
+    """Two unit boxes at x = -2 and x = +2, written object by object (``o``, 8 ``v``, 12 faces),
+    the faces by relative indices (``f -8 -7 -5``: counted back from the vertices read so far, as
+    per-object exporters write them) or by absolute ones."""
+    import trimesh
+
+    box = trimesh.creation.box()
+    lines = []
+    for k, x in enumerate((-2.0, 2.0)):
+        lines += [f"o box{k}"] + ["v %g %g %g" % (px + x, py, pz) for px, py, pz in box.vertices]
+        first = 8 * k + 1
+        lines += ["f " + " ".join(str(i - 8 if relative else first + i) for i in face) for face in box.faces]
+    return "\n".join(lines) + "\n"
+
+
+def test_relative_obj_indices_count_back_from_the_vertices_read_so_far(tmp_path):
+    """OBJ: a negative index counts back from the vertices read so far. trimesh counts it back
+    from the end of the whole file, so the first box's faces were drawn on the second box's
+    vertices: one box rendered where the file has two, exit 0. Reference: the same file with the
+    absolute indices written out; control: relative indices after all vertices load as before."""
+    meshes = tmp_path / "m" / "c"
+    meshes.mkdir(parents=True)
+    (meshes / "relative.obj").write_text(_two_boxes_obj(relative=True))
+    (meshes / "absolute.obj").write_text(_two_boxes_obj(relative=False))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, "--voxelize", *FAST])
+    assert index_of(out)["failures"] == []
+    objects = {name[1]: obj for name, obj in objects_by_id(out).items()}
+    for array in ("images", "masks", "voxels"):
+        np.testing.assert_array_equal(objects["relative"][array], objects["absolute"][array], err_msg=array)
+
+    from sc3d_data.io.obj_loader_text import absolute_indices
+
+    assert absolute_indices("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf -3/-1 -2/-1 -1/-1 # c\n") == \
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/1 3/1 # c\n"
+
+
+def test_a_latin1_obj_and_mtl_keep_their_material(tmp_path):
+    """A Latin-1 OBJ whose ``usemtl Mat\\xe9riau`` names a material of its Latin-1 MTL: trimesh
+    decoded the OBJ by a guess of its character set (mac_iceland, cp775 ...) and the MTL as
+    Latin-1, the names differed, and the cube rendered untextured without a word. Now both are
+    read as Latin-1: red, as its UTF-8 twin."""
+    meshes = tmp_path / "m" / "c"
+    for name, encoding in (("latin1", "latin-1"), ("utf8", "utf-8")):
+        _textured_obj(meshes / name, "newmtl Matériau\nKd 1 1 1\nmap_Kd t.png\n".encode(encoding), usemtl="Matériau")
+        obj = meshes / name / "m.obj"
+        obj.write_bytes(obj.read_text().encode(encoding))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    assert index_of(out)["failures"] == [] and index_of(out).get("warnings", []) == []
+    assert _looks(out) == {"latin1": "red", "utf8": "red"}

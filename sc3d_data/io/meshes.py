@@ -9,7 +9,7 @@ Bad input raises ``MeshError`` whose message names the file and the problem: a p
 a regular file (FIFO, device, a symlink to one: never opened), a file over ``max_file_bytes``
 (checked before parsing), a file that does not parse, no triangles, NaN/inf vertices, zero
 surface area, more than ``max_faces`` triangles, coordinates beyond float32 range (the renderer
-draws in float32), an OBJ whose text cannot be decoded, an OBJ face that names index 0 (OBJ
+draws in float32), a file whose text cannot be decoded, an OBJ face that names index 0 (OBJ
 counts from 1; trimesh would silently read 0 as the last vertex), a glTF/GLB that draws a
 TRIANGLE_FAN primitive (which trimesh skips) or a sparse POSITION/indices accessor (which trimesh
 does not apply; both judged from the JSON by ``sc3d_data.io.gltf_check``), or (``bad_texture="fail"``, the default)
@@ -47,17 +47,21 @@ class MeshError(ValueError):
     """A mesh file that cannot be used; the message names the file and the reason."""
 
 
-def load_scene(path: Path, resolver=None):
-    """Parse ``path`` into a ``trimesh.Scene`` (no validation), reading the files it names
-    through ``resolver`` (``io.texture_resolver.make_resolver``; None: trimesh's own, rooted at the
-    mesh's folder). Raises ``MeshError`` when the file does not parse."""
+def load_scene(path: Path, resolver=None, text: bytes | None = None):
+    """Parse ``path`` (or ``text``, its content to load instead: ``io.obj_loader_text``) into a
+    ``trimesh.Scene`` (no validation), reading the files it names through ``resolver``
+    (``io.texture_resolver.make_resolver``; None: trimesh's own, rooted at the mesh's folder).
+    Raises ``MeshError`` when the file does not parse."""
+    import io
+
     import trimesh
 
     path = Path(path)
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise MeshError(f"{path}: unsupported mesh format {path.suffix!r} (use one of {', '.join(MESH_SUFFIXES)})")
     try:
-        scene = trimesh.load(str(path), force="scene", process=False, resolver=resolver)
+        source = dict(file_obj=str(path)) if text is None else dict(file_obj=io.BytesIO(text), file_type="obj")
+        scene = trimesh.load(**source, force="scene", process=False, resolver=resolver)
     except (UnicodeDecodeError, ModuleNotFoundError) as e:  # text formats: bytes that no charset decodes
         raise MeshError(f"{path}: cannot decode the file as text (not UTF-8 and no other encoding "
                         f"detected; {type(e).__name__}: {e})") from e
@@ -208,6 +212,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     from sc3d_data.io.gltf_check import judge_gltf
     from sc3d_data.io.gltf_features import apply_texture_transforms, read_spec_gloss_as_matte
     from sc3d_data.io.materials import material_report
+    from sc3d_data.io.obj_loader_text import loader_obj_bytes
     from sc3d_data.io.texture_resolver import loader_misses, make_resolver
 
     path = Path(path)
@@ -226,11 +231,13 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     if report.problems and bad_texture == "fail":
         raise MeshError(f"{path}: {'; '.join(report.problems)} (use --bad-texture fallback to render with "
                         "material colours)")
+    text = None
     if path.suffix.lower() == ".obj":
         check_obj_indices(path)
+        text = loader_obj_bytes(path)  # relative indices as the format counts them; a non-UTF-8 file as Latin-1
     resolver = make_resolver(path, root)
     read_spec_gloss_as_matte()
-    scene = load_scene(path, resolver)
+    scene = load_scene(path, resolver, text)
     missed = loader_misses(resolver, report)
     if missed and bad_texture == "fail":
         raise MeshError(f"{path}: {'; '.join(missed)} (use --bad-texture fallback to render with material colours)")

@@ -1,0 +1,72 @@
+"""The OBJ text the loader is given where the file as written would be read as something else.
+
+trimesh's OBJ loader (``trimesh.exchange.obj``, 5.x) reads an index below 0 as counting back
+from the end of the whole file's vertices (numpy's negative indexing), but the OBJ format counts
+it back from the vertices read *so far* (``f -4 -3 -2 -1``: the last four before this line). A
+file that writes its objects one after the other, each with its own vertices and relative faces
+(``o A``, ``v`` x8, ``f -8 ...``, ``o B``, ``v`` x8, ``f -8 ...``), drew A's faces on B's
+vertices. And it decodes a file that is not UTF-8 by a guess of its character set
+(``charset-normalizer``) while the material files are served as Latin-1
+(``io.texture_resolver``), so a material name in such bytes could match in neither.
+
+:func:`loader_obj_bytes` returns the text to load instead of the file where either applies: the
+relative indices of faces that come before later vertices (``v``, ``vt`` or ``vn``) rewritten as
+the absolute ones they mean, and the text of a file that is not UTF-8 read as Latin-1 (each byte
+one character, as its material files), given to the loader as UTF-8. Otherwise None: the loader
+reads the file (the common case costs a few ``bytes.find`` calls).
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+__all__ = ["absolute_indices", "loader_obj_bytes"]
+
+#: a face statement holding a negative index (``f 1 -2``, ``f 1/-1 ...``)
+_RELATIVE_FACE = re.compile(rb"(?m)^[ \t]*f[ \t][^\n#]*?(?<=[ \t/])-\d")
+#: vertex statements whose counts relative indices refer to
+_VERTEX_KEYS = ("v", "vt", "vn")
+
+
+def _later_vertices(data: bytes) -> bool:
+    """Whether a vertex statement comes after the first face statement of OBJ ``data``."""
+    first_face = min((i for i in (data.find(b"\nf "), data.find(b"\nf\t")) if i != -1), default=-1)
+    return first_face != -1 and any(data.find(b"\n" + k + sep, first_face) != -1
+                                    for k in (b"v", b"vt", b"vn") for sep in (b" ", b"\t"))
+
+
+def absolute_indices(text: str) -> str:
+    """OBJ ``text`` with every negative index of its face statements replaced by the absolute
+    index it means (counted back from the ``v``/``vt``/``vn`` statements read before the face)."""
+    counts = dict.fromkeys(_VERTEX_KEYS, 0)
+    out = []
+    for line in text.split("\n"):
+        words = line.split()
+        key = words[0] if words else ""
+        if key in counts:
+            counts[key] += 1
+        elif key == "f" and "-" in line:
+            corners = []
+            for corner in words[1:]:
+                if corner.startswith("#"):
+                    corners.append(" ".join(words[words.index(corner):]))
+                    break
+                parts = corner.split("/")
+                corners.append("/".join(str(counts[k] + int(p) + 1) if p.startswith("-") else p
+                                        for k, p in zip(_VERTEX_KEYS, parts)))
+            line = "f " + " ".join(corners)
+        out.append(line)
+    return "\n".join(out)
+
+
+def loader_obj_bytes(path: Path) -> bytes | None:
+    """The text to give the loader in place of OBJ ``path`` (module doc), UTF-8; None to load the
+    file as it is."""
+    data = Path(path).read_bytes()
+    try:
+        text, rewrite = data.decode("utf-8"), False
+    except UnicodeDecodeError:
+        text, rewrite = data.decode("latin-1"), True
+    if _later_vertices(b"\n" + data) and _RELATIVE_FACE.search(data):
+        text, rewrite = absolute_indices(text), True
+    return text.encode("utf-8") if rewrite else None
