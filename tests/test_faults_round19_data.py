@@ -381,3 +381,64 @@ def test_a_latin1_obj_and_mtl_keep_their_material(tmp_path):
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
     assert index_of(out)["failures"] == [] and index_of(out).get("warnings", []) == []
     assert _looks(out) == {"latin1": "red", "utf8": "red"}
+
+
+def test_a_ktx2_texture_with_a_png_fallback_draws_the_png(tmp_path):
+    """``KHR_texture_basisu`` as gltfpack and gltf-transform write it: the texture's ``source`` is a
+    PNG (what a reader without KTX2 draws) and the extension names a KTX2 image. Every image of
+    the file was decoded, the KTX2 could not be, and the good file failed with a reason naming
+    ``<_io.BytesIO object at 0x...>``. Now the PNG is drawn (the same pixels as the file without
+    the extension); required (no fallback), the file is refused in one line naming the extension;
+    an image the loader reads that does not decode is named, not a Python object."""
+    import copy
+
+    from test_gltf_features import _half_red_half_green_cube
+
+    folder = tmp_path / "m" / "box"
+    folder.mkdir(parents=True)
+    material = {"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}, "metallicFactor": 0}}
+    _half_red_half_green_cube(folder / "png.gltf", material)
+    doc = json.loads((folder / "png.gltf").read_text())
+    ktx2 = "data:image/ktx2;base64," + base64.b64encode(b"\xabKTX 20\xbb\r\n\x1a\n" + bytes(64)).decode()
+    doc["images"].append({"uri": ktx2})
+    doc["textures"] = [{"source": 0, "extensions": {"KHR_texture_basisu": {"source": 1}}}]
+    doc["extensionsUsed"] = ["KHR_texture_basisu"]
+    (folder / "fallback.gltf").write_text(json.dumps(doc))
+    required = copy.deepcopy(doc)
+    required["extensionsRequired"] = ["KHR_texture_basisu"]
+    (folder / "required.gltf").write_text(json.dumps(required))
+    broken = copy.deepcopy(doc)
+    broken["textures"] = [{"source": 1}]  # the KTX2 as the texture the loader reads
+    (folder / "broken.gltf").write_text(json.dumps(broken))
+    _as_glb(doc, folder / "fallback_glb.glb")  # the images in the BIN chunk, as gltfpack writes them
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    reasons = {Path(f["source"]).stem: f["reason"].split(": ", 1)[1] for f in index_of(out)["failures"]}
+    assert reasons == {
+        "required": "it requires KHR_texture_basisu (KTX2 / Basis Universal textures), which the loader cannot "
+                    "decode; not read",
+        "broken": "texture image 1 unreadable (not an image format Pillow reads) (use --bad-texture fallback to "
+                  "render with material colours)"}
+    objects = {name[1]: obj for name, obj in objects_by_id(out).items()}
+    np.testing.assert_array_equal(objects["fallback"]["images"], objects["png"]["images"])
+    np.testing.assert_array_equal(objects["fallback_glb"]["images"], objects["png"]["images"])
+
+
+def _as_glb(doc: dict, path: Path) -> None:
+    """``doc`` (a .gltf whose buffer and images are data URIs) written as a GLB whose images are
+    bufferViews of its BIN chunk."""
+    import copy
+
+    from test_gltf_primitives import _write_glb_document
+
+    doc = copy.deepcopy(doc)
+    buf = base64.b64decode(doc["buffers"][0].pop("uri").split(",", 1)[1])
+    for image in doc["images"]:
+        head, data = image.pop("uri").split(",", 1)
+        buf += b"\0" * (-len(buf) % 4)
+        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(buf), "byteLength": len(base64.b64decode(data))})
+        image.update(bufferView=len(doc["bufferViews"]) - 1, mimeType=head[5:].split(";")[0])
+        buf += base64.b64decode(data)
+    buf += b"\0" * (-len(buf) % 4)
+    doc["buffers"][0]["byteLength"] = len(buf)
+    _write_glb_document(path, doc, buf)

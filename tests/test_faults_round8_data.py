@@ -154,7 +154,7 @@ def test_info_says_each_failure_once_and_a_gltf_texture_is_a_texture_once(tmp_pa
     meshes.mkdir(parents=True)
     (meshes / "degen.obj").write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n")
     doc = _write_gltf(meshes / "untextured.gltf", [(*_cube(), 4)])
-    doc["images"] = [{"uri": "missing.png"}]
+    doc["images"], doc["textures"] = [{"uri": "missing.png"}], [{"source": 0}]  # an image a texture reads
     (meshes / "untextured.gltf").write_text(json.dumps(doc))
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST], expect_exit=1)

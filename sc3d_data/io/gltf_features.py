@@ -53,7 +53,8 @@ __all__ = ["UNDECODED", "apply_texture_transforms", "feature_problems", "read_sp
 #: required extensions the loader cannot decode: ``{name: what it is}``
 UNDECODED = {"KHR_draco_mesh_compression": "Draco mesh compression",
              "EXT_meshopt_compression": "meshoptimizer compression",
-             "KHR_meshopt_compression": "meshoptimizer compression"}
+             "KHR_meshopt_compression": "meshoptimizer compression",
+             "KHR_texture_basisu": "KTX2 / Basis Universal textures"}
 
 
 def _undecoded(name: str) -> bool:

@@ -81,6 +81,8 @@ def _image_problem(data_or_path) -> str | None:
         with Image.open(src) as im:
             im.load()
     except Exception as e:  # noqa: BLE001 - any decoder error is the texture's problem
+        if type(e).__name__ == "UnidentifiedImageError":  # its text names the file object, not the image
+            return "not an image format Pillow reads"
         return f"{type(e).__name__}: {e}"
     return None
 
@@ -161,18 +163,40 @@ def gltf_uri_path(folder: Path, uri: str) -> Path:
     return literal if literal.exists() and not decoded.exists() else decoded
 
 
-def _gltf_refs(path: Path, doc: dict, binary: bytes | None) -> tuple[list[tuple[str, Path]], list[tuple[str, bytes]]]:
+def _gltf_refs(path: Path, doc: dict, binary: bytes | None, embedded_too: bool = True
+               ) -> tuple[list[tuple[str, Path]], list[tuple[str, bytes]]]:
     """``(external images [(name, path)], embedded images [(name, bytes)])`` of GLTF/GLB ``path``
-    (its JSON ``doc`` and binary chunk, ``read_gltf``; the embedded images only with ``binary``)."""
+    (its JSON ``doc`` and binary chunk, ``read_gltf``; the embedded images only with
+    ``embedded_too``: in data URIs, and in a GLB's ``binary``):
+    the images its textures have the loader read (``source``, or ``EXT_texture_webp``'s), not
+    those only another extension names (``KHR_texture_basisu``'s KTX2 beside a PNG fallback)."""
     external, embedded = [], []
+    read = {t.get("extensions", {}).get("EXT_texture_webp", {}).get("source", t.get("source"))
+            for t in doc.get("textures", []) if isinstance(t, dict)}
     for i, image in enumerate(doc.get("images", [])):
+        if i not in read:
+            continue
         if "uri" in image and not image["uri"].startswith("data:"):
             external.append((f"image {i} ({image['uri']})", gltf_uri_path(path.parent, image["uri"])))
         elif "bufferView" in image and binary is not None:
             view = doc["bufferViews"][image["bufferView"]]
             start = view.get("byteOffset", 0)
             embedded.append((f"texture image {i}", binary[start:start + view["byteLength"]]))
+        elif "uri" in image and embedded_too:  # a data URI: the image is in the JSON
+            embedded.append((f"texture image {i}", _data_uri_bytes(image["uri"])))
     return external, embedded
+
+
+def _data_uri_bytes(uri: str) -> bytes:
+    """The bytes of a ``data:`` URI (base64 or percent-encoded); what does not decode, none."""
+    import base64
+    import binascii
+
+    head, _, payload = uri.partition(",")
+    try:
+        return base64.b64decode(payload) if head.endswith(";base64") else urllib.parse.unquote_to_bytes(payload)
+    except (binascii.Error, ValueError):
+        return b""
 
 
 def named_files(path: Path, root: Path | None = None) -> list[Path]:
@@ -188,7 +212,7 @@ def named_files(path: Path, root: Path | None = None) -> list[Path]:
             refs = _obj_refs(path, top, MaterialReport(), text) + [(lib, path.parent / lib) for lib in mtllib_names(path, text)]
         elif suffix in (".glb", ".gltf"):  # its images, and its buffers in files (the geometry)
             doc = read_gltf(path)[0]  # not a glTF document: ValueError, the loader reports it
-            refs = _gltf_refs(path, doc, None)[0] + [
+            refs = _gltf_refs(path, doc, None, embedded_too=False)[0] + [
                 (b["uri"], gltf_uri_path(path.parent, b["uri"])) for b in doc.get("buffers", [])
                 if isinstance(b.get("uri"), str) and not b["uri"].startswith("data:")]
         else:
