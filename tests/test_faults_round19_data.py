@@ -442,3 +442,59 @@ def _as_glb(doc: dict, path: Path) -> None:
     buf += b"\0" * (-len(buf) % 4)
     doc["buffers"][0]["byteLength"] = len(buf)
     _write_glb_document(path, doc, buf)
+
+
+def test_a_mesh_with_weighted_morph_targets_is_refused(tmp_path):
+    """glTF morph targets (Blender's shape keys) with weights other than 0 change the shape; the
+    loader ignores them and drew the base cube where the file has a box twice as tall, exit 0.
+    Now refused in one line naming the mesh; control: the same file with weight 0 (the base
+    shape is the file's shape) renders."""
+    def morphed(path: Path, weight: float) -> None:
+        doc, buf = _gltf_doc(CUBE)
+        delta = np.zeros((8, 3), np.float32)
+        delta[:, 1] = np.where(np.asarray(CUBE[0][0])[:, 1] > 0, 1.0, 0.0)  # the top face up by 1
+        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(buf), "byteLength": delta.nbytes})
+        doc["accessors"].append({"bufferView": len(doc["bufferViews"]) - 1, "componentType": 5126, "count": 8,
+                                 "type": "VEC3", "min": delta.min(0).tolist(), "max": delta.max(0).tolist()})
+        buf += delta.tobytes()
+        doc["meshes"][0]["primitives"][0]["targets"] = [{"POSITION": len(doc["accessors"]) - 1}]
+        doc["meshes"][0]["weights"] = [weight]
+        doc["buffers"] = [{"byteLength": len(buf),
+                           "uri": "data:application/octet-stream;base64," + base64.b64encode(buf).decode()}]
+        path.write_text(json.dumps(doc))
+
+    folder = tmp_path / "m" / "box"
+    folder.mkdir(parents=True)
+    morphed(folder / "weighted.gltf", 1.0)
+    morphed(folder / "unweighted.gltf", 0.0)
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    assert [(Path(f["source"]).stem, f["reason"].split(": ", 1)[1]) for f in index_of(out)["failures"]] == [
+        ("weighted", "mesh 0 has morph targets with weights other than 0 (shape keys), which the loader does not "
+                     "apply: it would draw and voxelize the shape without them; not read")]
+    assert [name[1] for name in objects_by_id(out)] == ["unweighted"]
+
+
+def test_what_is_drawn_unlike_the_file_says_is_warned_of(tmp_path):
+    """Two things the renderer does not do, each now a warning naming the material where they
+    rendered without a word: a glTF material with ``alphaMode`` MASK (a cut-out, drawn opaque) and
+    an MTL texture moved by ``map_Kd -o``/``-s`` (drawn unmoved). Controls: OPAQUE, and ``-s 1 1 1
+    -clamp on`` (no move), get none."""
+    from test_gltf_features import _half_red_half_green_cube
+
+    folder = tmp_path / "m" / "box"
+    folder.mkdir(parents=True)
+    for mode in ("MASK", "OPAQUE"):
+        _half_red_half_green_cube(folder / f"{mode.lower()}.gltf", {"alphaMode": mode, "pbrMetallicRoughness": {
+            "baseColorTexture": {"index": 0}, "metallicFactor": 0}})
+    _textured_obj(folder / "offset", b"newmtl mat\nKd 1 1 1\nmap_Kd -o 0.5 0 0 t.png\n")
+    _textured_obj(folder / "unmoved", b"newmtl mat\nKd 1 1 1\nmap_Kd -s 1 1 1 -clamp on t.png\n")
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    warnings = sorted((Path(w["source"]).name if w["source"].endswith(".gltf") else Path(w["source"]).parent.name,
+                       w["warning"].split(": ", 1)[1]) for w in index_of(out)["warnings"])
+    assert warnings == [
+        ("mask.gltf", "material 0 has alphaMode MASK (a cut-out), which is drawn opaque: its cut-out texels are in "
+                      "the images and masks"),
+        ("offset", "material mat of m.mtl offsets or scales its texture t.png (map_Kd -o/-s), which the loader does "
+                   "not apply; drawn unmoved")]

@@ -47,7 +47,7 @@ import importlib.util
 
 import numpy as np
 
-__all__ = ["UNDECODED", "apply_texture_transforms", "feature_problems", "read_spec_gloss_as_matte",
+__all__ = ["UNDECODED", "apply_texture_transforms", "feature_problems", "feature_warnings", "read_spec_gloss_as_matte",
            "transform_matrix"]
 
 #: required extensions the loader cannot decode: ``{name: what it is}``
@@ -173,6 +173,33 @@ def integer_attribute_problems(doc: dict, drawn: set[int]) -> list[str]:
     return problems
 
 
+def morph_problems(doc: dict, drawn: set[int]) -> list[str]:
+    """The drawn meshes (indices ``drawn``) whose morph targets are weighted (the mesh's or a node's
+    ``weights`` not all 0: Blender's shape keys at their values): the loader draws the base shape
+    without them, another geometry."""
+    problems = []
+    for m in sorted(drawn):
+        mesh = doc["meshes"][m]
+        if not any(prim.get("targets") for prim in mesh.get("primitives", [])):
+            continue
+        weights = [mesh.get("weights", [])] + [n.get("weights", []) for n in doc.get("nodes", []) if n.get("mesh") == m]
+        if any(isinstance(w, (int, float)) and w != 0 for ws in weights if isinstance(ws, list) for w in ws):
+            problems.append(f"mesh {m} has morph targets with weights other than 0 (shape keys), which the loader "
+                            "does not apply: it would draw and voxelize the shape without them")
+    return problems
+
+
+def feature_warnings(doc: dict) -> list[str]:
+    """What of glTF document ``doc`` is drawn other than the file means, though close enough to
+    render with a warning: materials of its meshes with ``alphaMode`` MASK (cut-outs: leaves,
+    fences), which the renderer draws opaque (its images and masks show the cut-out texels)."""
+    materials = doc.get("materials", [])
+    used = sorted({p.get("material") for mesh in doc.get("meshes", []) for p in mesh.get("primitives", [])
+                   if isinstance(p.get("material"), int) and 0 <= p["material"] < len(materials)})
+    return [f"material {i} has alphaMode MASK (a cut-out), which is drawn opaque: its cut-out texels are in the "
+            "images and masks" for i in used if materials[i].get("alphaMode") == "MASK"]
+
+
 def feature_problems(doc: dict, drawn: set[int]) -> list[str]:
     """What of glTF document ``doc`` the loader would ignore (module doc), one phrase each:
     required extensions first, then the attributes stored as integers that it misreads
@@ -180,7 +207,7 @@ def feature_problems(doc: dict, drawn: set[int]) -> list[str]:
     ``drawn`` (mesh indices), each material once."""
     problems = [f"it requires {name} ({UNDECODED[name]}), which the loader cannot decode"
                 for name in doc.get("extensionsRequired", []) if isinstance(name, str) and _undecoded(name)]
-    problems += integer_attribute_problems(doc, drawn)
+    problems += integer_attribute_problems(doc, drawn) + morph_problems(doc, drawn)
     materials, seen = doc.get("materials", []), set()
     for m in sorted(drawn):
         for prim in doc["meshes"][m].get("primitives", []):

@@ -147,6 +147,9 @@ def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None =
         report.warnings += [f"material {printable(m)} of {printable(mtl.name)} gives its texture {printable(name)} as "
                             "map_Ka (ambient), which is not drawn (only map_Kd is); rendered in its colour"
                             for m, name in materials.ambient_only]
+        report.warnings += [f"material {printable(m)} of {printable(mtl.name)} offsets or scales its texture "
+                            f"{printable(name)} (map_Kd -o/-s), which the loader does not apply; drawn unmoved"
+                            for m, name in materials.moved]
     undefined = [] if defined is None else list(dict.fromkeys(
         m for m in statement_values(text, "usemtl") if m not in defined))
     if undefined:

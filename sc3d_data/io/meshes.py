@@ -210,7 +210,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     ``root``, never read: refused when ``outside_textures="refuse"``). Raises ``MeshError`` on
     bad input (see module doc)."""
     from sc3d_data.io.gltf_check import judge_gltf
-    from sc3d_data.io.gltf_features import apply_texture_transforms, read_spec_gloss_as_matte
+    from sc3d_data.io.gltf_features import apply_texture_transforms, feature_warnings, read_spec_gloss_as_matte
     from sc3d_data.io.materials import material_report
     from sc3d_data.io.obj_loader_text import loader_obj_bytes
     from sc3d_data.io.texture_resolver import loader_misses, make_resolver
@@ -247,8 +247,9 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
         apply_texture_transforms(scene, gltf_doc)
     vertices, faces = scene_triangles(scene, str(path))
     faces = validate_triangles(vertices, faces, str(path), max_faces)
+    notes = report.warnings + report.outside + (feature_warnings(gltf_doc) if gltf_doc is not None else [])
     warnings = ([f"{path}: {p}; rendered with material colours" for p in report.problems + missed]
-                + [f"{path}: {n}" for n in report.warnings + report.outside] + unused_texture_warnings(path, scene, report))
+                + [f"{path}: {n}" for n in notes] + unused_texture_warnings(path, scene, report))
     return scene, vertices, faces, warnings
 
 

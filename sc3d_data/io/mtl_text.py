@@ -43,6 +43,21 @@ def read_obj_text(path: Path) -> str:
     return decode_obj_text(Path(path).read_bytes())
 
 
+def _moves_texture(value: str) -> bool:
+    """Whether a map statement's options offset (``-o u v w``, not all 0) or scale (``-s u v w``,
+    not all 1) its texture."""
+    tokens, moves = value.split(), False
+    for i, token in enumerate(tokens):
+        if token.lower() in ("-o", "-s"):
+            numbers = []
+            for t in tokens[i + 1:i + 4]:
+                if not _OPTION_VALUE.match(t) or t in ("on", "off"):
+                    break
+                numbers.append(float(t))
+            moves = moves or any(n != (0.0 if token.lower() == "-o" else 1.0) for n in numbers)
+    return moves
+
+
 def map_file_name(value: str) -> str:
     """The file name of an MTL map statement's value, without its options:
     ``"-s 1 1 1 -clamp on tex.png"`` -> ``"tex.png"``, ``'"my tex.png"'`` -> ``"my tex.png"``;
@@ -63,11 +78,14 @@ def map_file_name(value: str) -> str:
 class MtlMaterials:
     """What one material file defines: ``names`` of its materials (in order), ``textures``
     ``[(material, map_Kd file name)]``, ``ambient_only`` ``[(material, map_Ka file name)]`` of
-    the materials whose only texture is ``map_Ka``, which is not drawn."""
+    the materials whose only texture is ``map_Ka``, which is not drawn, and ``moved``
+    ``[(material, map_Kd file name)]`` of textures offset or scaled by ``-o``/``-s``, which the
+    loader does not apply."""
 
     names: list[str] = field(default_factory=list)
     textures: list[tuple[str, str]] = field(default_factory=list)
     ambient_only: list[tuple[str, str]] = field(default_factory=list)
+    moved: list[tuple[str, str]] = field(default_factory=list)
 
 
 def mtl_materials(text: str) -> MtlMaterials:
@@ -84,6 +102,8 @@ def mtl_materials(text: str) -> MtlMaterials:
             found.names.append(current)
         elif key == "map_kd":
             found.textures.append((current, map_file_name(value)))
+            if _moves_texture(value):
+                found.moved.append(found.textures[-1])
         elif key == "map_ka":
             ambient.setdefault(current, map_file_name(value))
     drawn = {material for material, _ in found.textures}
