@@ -498,3 +498,29 @@ def test_what_is_drawn_unlike_the_file_says_is_warned_of(tmp_path):
                       "the images and masks"),
         ("offset", "material mat of m.mtl offsets or scales its texture t.png (map_Kd -o/-s), which the loader does "
                    "not apply; drawn unmoved")]
+
+
+def test_texture_coordinates_without_a_material_draw_the_default_grey(tmp_path):
+    """An OBJ with ``vt`` but no material of its own got trimesh's placeholder (a 2 x 2 grey image
+    under diffuse 0.4) and rendered darker than the same file without ``vt`` (51 against 114);
+    the placeholder also passed for a drawn texture, so an OBJ naming a textured material but
+    using none (no ``usemtl``) rendered untextured without the warning. Reference: the file
+    without ``vt`` (the renderer's grey for meshes without material)."""
+    meshes = tmp_path / "m" / "c"
+    _textured_obj(meshes / "with_vt", b"")
+    obj = (meshes / "with_vt" / "m.obj").read_text()
+    (meshes / "with_vt" / "m.obj").write_text(obj.replace("mtllib m.mtl\n", "").replace("usemtl mat\n", ""))
+    (meshes / "no_vt").mkdir(parents=True)
+    (meshes / "no_vt" / "m.obj").write_text("\n".join(
+        line.split("/")[0] if not line.startswith("f") else " ".join(c.split("/")[0] for c in line.split())
+        for line in obj.splitlines() if not line.startswith(("vt", "mtllib", "usemtl"))) + "\n")
+    _textured_obj(meshes / "no_usemtl", b"newmtl mat\nKd 1 1 1\nmap_Kd t.png\n")
+    obj = meshes / "no_usemtl" / "m.obj"
+    obj.write_text(obj.read_text().replace("usemtl mat\n", ""))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    objects = {name[1].split("/")[0]: obj for name, obj in objects_by_id(out).items()}
+    np.testing.assert_array_equal(objects["with_vt"]["images"], objects["no_vt"]["images"])
+    assert [(Path(w["source"]).parent.name, w["warning"].split(": ", 1)[1]) for w in index_of(out)["warnings"]] == [
+        ("no_usemtl", "its materials name the texture(s) t.png, but no face is drawn with them (faces without texture "
+                      "coordinates `vt`?); rendered with material colours")]

@@ -92,13 +92,15 @@ class MaterialReport:
     """What the materials of one mesh file name. ``problems``: textures inside the root that are missing or do
     not decode; ``warnings``: ``.mtl`` files that are missing; ``outside``: one line per file outside the root
     (never opened); ``reported``: resolved paths of all of these; ``textures``: the file names of the textures
-    inside the root that exist and decode."""
+    inside the root that exist and decode; ``undefined``: the materials an OBJ uses that its material files
+    do not define (warned about)."""
 
     textures: list[str] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     outside: list[str] = field(default_factory=list)
     reported: set[str] = field(default_factory=set)
+    undefined: list[str] = field(default_factory=list)
 
 
 def mtllib_names(path: Path, text: str | None = None) -> list[str]:
@@ -152,6 +154,7 @@ def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None =
                             for m, name in materials.moved]
     undefined = [] if defined is None else list(dict.fromkeys(
         m for m in statement_values(text, "usemtl") if m not in defined))
+    report.undefined = undefined
     if undefined:
         report.warnings.append(f"usemtl names {', '.join(printable(m) for m in undefined)}, which its material "
                                "files do not define; those faces are drawn with the default material")

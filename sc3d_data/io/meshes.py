@@ -259,14 +259,16 @@ def unused_texture_warnings(path: Path, scene, report) -> list[str]:
     ``scene`` is drawn with one (it needs a texture image and coordinates: faces without ``vt``
     are drawn in the material's colour): such an object would otherwise render untextured
     without a word."""
-    if Path(path).suffix.lower() != ".obj" or report.problems:
+    from sc3d_data.io.loader_visuals import is_placeholder
+
+    if Path(path).suffix.lower() != ".obj" or report.problems or report.undefined:  # undefined: warned of as such
         return []
     named = sorted(set(report.textures))
     for geometry in scene.geometry.values():
         visual = getattr(geometry, "visual", None)
         material = getattr(visual, "material", None)
         if getattr(visual, "kind", None) == "texture" and getattr(visual, "uv", None) is not None \
-                and getattr(material, "image", None) is not None:
+                and getattr(material, "image", None) is not None and not is_placeholder(material):
             return []
     return [f"{path}: its materials name the texture(s) {', '.join(named)}, but no face is drawn with them (faces "
             "without texture coordinates `vt`?); rendered with material colours"] if named else []

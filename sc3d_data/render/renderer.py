@@ -212,6 +212,8 @@ def mesh_parts(scene, to_canonical: np.ndarray):
     and the model matrix's translation is the part's place in the canonical frame, near 0."""
     import trimesh
 
+    from sc3d_data.io.loader_visuals import is_placeholder
+
     for node in scene.graph.nodes_geometry:
         transform, name = scene.graph[node]
         m = scene.geometry[name]
@@ -229,7 +231,7 @@ def mesh_parts(scene, to_canonical: np.ndarray):
                 raise ValueError(f"{name!r} has {len(vis.face_colors):,} face colours for {len(faces):,} triangles")
             pos, colors, base = pos[faces].reshape(-1, 3), np.repeat(vis.face_colors, 3, axis=0), np.ones(4)
             faces = np.arange(len(pos)).reshape(-1, 3)
-        elif vis.kind == "texture":
+        elif vis.kind == "texture" and not is_placeholder(vis.material):  # the file's material, not trimesh's
             mat = vis.material
             if isinstance(mat, trimesh.visual.material.PBRMaterial):
                 base, image = _color_factor(mat.baseColorFactor), mat.baseColorTexture
