@@ -42,7 +42,9 @@ def test_vertex_colours_of_a_glTF_primitive_with_a_material_are_drawn(tmp_path):
     vertex colours: a white material with red ``COLOR_0`` (floats, or normalised bytes with
     alpha) must draw the same pixels, and a blue material with red ``COLOR_0`` must draw black
     (red x blue = 0). Before, trimesh's loader kept the material and the colours were dropped:
-    white and blue cubes, exit 0."""
+    white and blue cubes, exit 0. And unsigned-short colours without a material (Blender's
+    exporter writes them so) were cast to bytes, not scaled: 32768 (0.5) became 0; now they
+    draw as the float colours they mean, in a .gltf and in a GLB."""
     folder = tmp_path / "m" / "box"
     folder.mkdir(parents=True)
     red, white, blue = np.float32([1, 0, 0]), [1.0, 1.0, 1.0, 1.0], [0.0, 0.0, 1.0, 1.0]
@@ -53,6 +55,10 @@ def test_vertex_colours_of_a_glTF_primitive_with_a_material_are_drawn(tmp_path):
                    {"pbrMetallicRoughness": {"baseColorFactor": white, "metallicFactor": 0}})
     _coloured_cube(folder / "blue_float.gltf", red, 5126,
                    {"pbrMetallicRoughness": {"baseColorFactor": blue, "metallicFactor": 0}})
+    # unsigned shorts without a material, as Blender writes vertex paint: trimesh cast them to bytes (wrapped)
+    _coloured_cube(folder / "orange_shorts.gltf", np.uint16([65535, 32768, 0, 65535]), 5123, None)  # 0.5: Blender 4
+    _coloured_cube(folder / "orange_float.gltf", np.float32([1, 128 / 255, 0]), 5126, None)  # 32768 / 257 -> 128
+    _as_glb(json.loads((folder / "orange_shorts.gltf").read_text()), folder / "orange_shorts_glb.glb")
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
     assert index_of(out)["failures"] == []
@@ -60,6 +66,8 @@ def test_vertex_colours_of_a_glTF_primitive_with_a_material_are_drawn(tmp_path):
     plain = objects["plain"]
     pixels = plain["images"][plain["masks"] > 0].astype(int)
     assert (pixels[:, 0] > 100).all() and (pixels[:, 1:] < 10).all()  # the reference is red
+    for name in ("orange_shorts", "orange_shorts_glb"):
+        np.testing.assert_array_equal(objects[name]["images"], objects["orange_float"]["images"], err_msg=name)
     for name in ("white_float", "white_bytes"):
         np.testing.assert_array_equal(objects[name]["masks"], plain["masks"])
         np.testing.assert_array_equal(objects[name]["images"], plain["images"], err_msg=name)
@@ -433,7 +441,7 @@ def _as_glb(doc: dict, path: Path) -> None:
 
     doc = copy.deepcopy(doc)
     buf = base64.b64decode(doc["buffers"][0].pop("uri").split(",", 1)[1])
-    for image in doc["images"]:
+    for image in doc.get("images", []):
         head, data = image.pop("uri").split(",", 1)
         buf += b"\0" * (-len(buf) % 4)
         doc["bufferViews"].append({"buffer": 0, "byteOffset": len(buf), "byteLength": len(base64.b64decode(data))})

@@ -48,7 +48,8 @@ class MeshError(ValueError):
 
 
 def load_scene(path: Path, resolver=None, text: bytes | None = None):
-    """Parse ``path`` (or ``text``, its content to load instead: ``io.obj_loader_text``) into a
+    """Parse ``path`` (or ``text``, its content to load instead: ``io.obj_loader_text``,
+    ``io.gltf_loader_doc``) into a
     ``trimesh.Scene`` (no validation), reading the files it names through ``resolver``
     (``io.texture_resolver.make_resolver``; None: trimesh's own, rooted at the mesh's folder).
     Raises ``MeshError`` when the file does not parse."""
@@ -60,7 +61,8 @@ def load_scene(path: Path, resolver=None, text: bytes | None = None):
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise MeshError(f"{path}: unsupported mesh format {path.suffix!r} (use one of {', '.join(MESH_SUFFIXES)})")
     try:
-        source = dict(file_obj=str(path)) if text is None else dict(file_obj=io.BytesIO(text), file_type="obj")
+        source = dict(file_obj=str(path)) if text is None else dict(file_obj=io.BytesIO(text),
+                                                                     file_type=path.suffix.lower().lstrip("."))
         scene = trimesh.load(**source, force="scene", process=False, resolver=resolver)
     except (UnicodeDecodeError, ModuleNotFoundError) as e:  # text formats: bytes that no charset decodes
         raise MeshError(f"{path}: cannot decode the file as text (not UTF-8 and no other encoding "
@@ -211,6 +213,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     bad input (see module doc)."""
     from sc3d_data.io.gltf_check import judge_gltf
     from sc3d_data.io.gltf_features import apply_texture_transforms, feature_warnings, read_spec_gloss_as_matte
+    from sc3d_data.io.gltf_loader_doc import loader_gltf_bytes
     from sc3d_data.io.materials import material_report
     from sc3d_data.io.obj_loader_text import loader_obj_bytes
     from sc3d_data.io.texture_resolver import loader_misses, make_resolver
@@ -231,7 +234,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     if report.problems and bad_texture == "fail":
         raise MeshError(f"{path}: {'; '.join(report.problems)} (use --bad-texture fallback to render with "
                         "material colours)")
-    text = None
+    text = None if gltf_doc is None else loader_gltf_bytes(path, gltf_doc)  # vertex colours stored as shorts
     if path.suffix.lower() == ".obj":
         check_obj_indices(path)
         text = loader_obj_bytes(path)  # relative indices as the format counts them; a non-UTF-8 file as Latin-1

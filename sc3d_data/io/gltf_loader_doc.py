@@ -1,0 +1,55 @@
+"""The glTF/GLB document the loader is given where the file as written would be read wrong.
+
+trimesh's glTF loader (5.x) turns the ``COLOR_0`` of a primitive without a material into vertex
+colours by casting its numbers to bytes, never scaling normalized ones: unsigned shorts wrap
+(65535 -> 255, but 32768, i.e. 0.5, -> 0), as Blender's exporter has written vertex colours since
+2.91 (colours that came from bytes, k x 257, happen to wrap right; float colours do not). With a
+material it keeps them as stored, and the renderer scales them
+(``render.renderer.material_vertex_colors``). :func:`loader_gltf_bytes` gives such primitives a
+white matte material in a copy of the document.
+"""
+from __future__ import annotations
+
+import copy
+import json
+import struct
+from pathlib import Path
+
+from sc3d_data.io.gltf_check import read_gltf
+
+__all__ = ["loader_gltf_bytes"]
+
+
+def _ushort_colours_alone(doc: dict) -> list[dict]:
+    """The primitives of ``doc`` without a material whose ``COLOR_0`` is stored as unsigned shorts
+    (Blender's exporter since 2.91 writes them so)."""
+    accessors = doc.get("accessors", [])
+    return [p for mesh in doc.get("meshes", []) for p in mesh.get("primitives", [])
+            if "material" not in p and isinstance(a := p.get("attributes", {}).get("COLOR_0"), int)
+            and 0 <= a < len(accessors) and accessors[a].get("componentType") == 5123]
+
+
+def loader_gltf_bytes(path: Path, doc: dict) -> bytes | None:
+    """The glTF/GLB to give the loader in place of ``path`` (JSON ``doc``), or None for the file as
+    it is. trimesh turns the vertex colours of a primitive without a material into bytes by
+    casting, not scaling, so unsigned shorts wrap (65535 -> 255, 32768 -> 0: Blender's vertex
+    paint in wrong colours); with a material it keeps them as stored, and the renderer scales
+    them (``render.renderer.material_vertex_colors``). Such primitives get a white matte
+    material (white x colour: the colours as they are); the binary chunk is kept as it is."""
+    if not _ushort_colours_alone(doc):
+        return None
+    doc = copy.deepcopy(doc)
+    doc.setdefault("materials", []).append({"name": "sc3d: white under vertex colours",
+                                            "pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1], "metallicFactor": 0}})
+    for prim in _ushort_colours_alone(doc):
+        prim["material"] = len(doc["materials"]) - 1
+    text = json.dumps(doc).encode()
+    if Path(path).suffix.lower() != ".glb":
+        return text
+    text += b" " * (-len(text) % 4)
+    binary = read_gltf(path, binary=True)[1]
+    body = struct.pack("<I4s", len(text), b"JSON") + text
+    if binary is not None:
+        binary += b"\0" * (-len(binary) % 4)
+        body += struct.pack("<I4s", len(binary), b"BIN\0") + binary
+    return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
