@@ -9,6 +9,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from sc3d_cli.data import main as data_main
 from conftest import objects_by_id, run_cli
@@ -131,11 +132,16 @@ def test_a_material_used_but_not_defined_or_textured_by_map_Ka_alone_is_warned_o
     _textured_obj(meshes / "both", b"newmtl mat\nKd 1 1 1\nmap_Ka t.png\nmap_Kd t.png\n")
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
-    warnings = {Path(w["source"]).parent.name: w["warning"] for w in index_of(out)["warnings"]}
+    warnings = {}
+    for w in index_of(out)["warnings"]:
+        warnings.setdefault(Path(w["source"]).parent.name, []).append(w["warning"].split(": ", 1)[1])
     assert set(warnings) == {"undefined", "ambient"}
-    assert "usemtl names other, which its material files do not define" in warnings["undefined"]
-    assert "material mat of m.mtl gives its texture t.png as map_Ka (ambient), which is not drawn" \
-        in warnings["ambient"]
+    assert warnings["undefined"] == [  # the cause, and what it costs (the texture t.png is drawn on no face)
+        "usemtl names other, which its material files do not define; those faces are drawn with the default material",
+        "its materials name the texture(s) t.png, but no face is drawn with them (faces without texture coordinates "
+        "`vt`?); rendered with material colours"]
+    assert warnings["ambient"] == ["material mat of m.mtl gives its texture t.png as map_Ka (ambient), which is not "
+                                   "drawn (only map_Kd is); rendered in its colour"]
     assert _looks(out) == {"undefined": "grey", "ambient": "grey", "both": "red"}
 
 
@@ -337,6 +343,16 @@ def test_a_texture_without_a_colour_factor_is_drawn_as_it_is_and_one_value_colou
         np.testing.assert_array_equal(objects[name]["images"], objects[reference]["images"], err_msg=name)
     assert _looks(out)["kd_white"] == "red"
 
+    # the review: with --bad-texture fallback, such a material whose texture is missing is drawn in the colour the
+    # file gives (none: the loader's default), as the same material without the map_Kd line, not white
+    fallback = tmp_path / "fallback"
+    _textured_obj(fallback / "c" / "missing", b"newmtl mat\nmap_Kd gone.png\n")
+    _textured_obj(fallback / "c" / "plain", b"newmtl mat\n")
+    out = tmp_path / "out_fallback"
+    run_cli(data_main, ["render", "--meshes", fallback, "--out", out, "--bad-texture", "fallback", *FAST])
+    objects = {name[1].split("/")[0]: obj for name, obj in objects_by_id(out).items()}
+    np.testing.assert_array_equal(objects["missing"]["images"], objects["plain"]["images"])
+
 
 def _two_boxes_obj(relative: bool) -> str:
     """Two unit boxes at x = -2 and x = +2, written object by object (``o``, 8 ``v``, 12 faces),
@@ -372,7 +388,10 @@ def test_relative_obj_indices_count_back_from_the_vertices_read_so_far(tmp_path)
     from sc3d_data.io.obj_loader_text import absolute_indices
 
     assert absolute_indices("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf -3/-1 -2/-1 -1/-1 # c\n") == \
-        "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/1 3/1 # c\n"
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/1 3/1\n"  # a comment after a face: the loader cannot parse it
+    assert absolute_indices("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 \\\n-1\n") == "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
+    with pytest.raises(ValueError, match="line 2 .*index -2 counts back past the first v statement"):
+        absolute_indices("v 0 0 0\nf -2 -1 -1\n")
 
 
 def test_a_latin1_obj_and_mtl_keep_their_material(tmp_path):
@@ -419,6 +438,12 @@ def test_a_ktx2_texture_with_a_png_fallback_draws_the_png(tmp_path):
     broken["textures"] = [{"source": 1}]  # the KTX2 as the texture the loader reads
     (folder / "broken.gltf").write_text(json.dumps(broken))
     _as_glb(doc, folder / "fallback_glb.glb")  # the images in the BIN chunk, as gltfpack writes them
+    # an image no texture draws still has where it lies judged (the loader asks for it): outside --meshes, a
+    # warning as before this change, not a failure (the review found it failed)
+    unused = json.loads((folder / "png.gltf").read_text())
+    unused["images"].append({"uri": "../../outside.png"})
+    (folder / "unused_outside.gltf").write_text(json.dumps(unused))
+    (tmp_path / "outside.png").write_bytes(b"not read")
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
     reasons = {Path(f["source"]).stem: f["reason"].split(": ", 1)[1] for f in index_of(out)["failures"]}
@@ -427,8 +452,11 @@ def test_a_ktx2_texture_with_a_png_fallback_draws_the_png(tmp_path):
                     "decode; not read",
         "broken": "texture image 1 unreadable (not an image format Pillow reads) (use --bad-texture fallback to "
                   "render with material colours)"}
+    assert [(Path(w["source"]).stem, w["warning"].split(": ", 2)[2]) for w in index_of(out)["warnings"]] == [
+        ("unused_outside", "not read; rendered without it (--outside-textures)")]
     objects = {name[1]: obj for name, obj in objects_by_id(out).items()}
     np.testing.assert_array_equal(objects["fallback"]["images"], objects["png"]["images"])
+    np.testing.assert_array_equal(objects["unused_outside"]["images"], objects["png"]["images"])
     np.testing.assert_array_equal(objects["fallback_glb"]["images"], objects["png"]["images"])
 
 
@@ -532,3 +560,20 @@ def test_texture_coordinates_without_a_material_draw_the_default_grey(tmp_path):
     assert [(Path(w["source"]).parent.name, w["warning"].split(": ", 1)[1]) for w in index_of(out)["warnings"]] == [
         ("no_usemtl", "its materials name the texture(s) t.png, but no face is drawn with them (faces without texture "
                       "coordinates `vt`?); rendered with material colours")]
+
+
+def test_a_utf16_obj_still_loads(tmp_path):
+    """Reading non-UTF-8 OBJs as Latin-1 (above) must not take UTF-16 files from the loader's own
+    decoding: the review found a UTF-16 cube read as "no triangles". Reference: the cube's 12
+    triangles, as from its UTF-8 twin."""
+    import trimesh
+
+    from sc3d_data.io.meshes import load_mesh_triangles
+
+    box = trimesh.creation.box()
+    text = "".join("v %g %g %g\n" % tuple(v) for v in box.vertices) + "".join("f %d %d %d\n" % tuple(f + 1) for f in box.faces)
+    (tmp_path / "utf16.obj").write_bytes(text.encode("utf-16"))  # with its byte-order mark
+    (tmp_path / "utf8.obj").write_text(text)
+    for name in ("utf16.obj", "utf8.obj"):
+        vertices, faces = load_mesh_triangles(tmp_path / name)
+        assert len(faces) == 12, name

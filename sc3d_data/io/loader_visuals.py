@@ -8,12 +8,16 @@ placeholder material (``trimesh.visual.material.empty_material``: a 2 x 2 image 
 without material, pyrender's 0.3), and it passed for a texture drawn. :func:`is_placeholder`
 tells it apart, so the renderer draws it as no material and a named texture drawn on no face is
 still warned about.
+
+A texture the file gives no colour to multiply with (a PLY's ``comment TextureFile``; an MTL
+material with ``map_Kd`` and no ``Kd``) gets trimesh's default diffuse, 0.4, and was drawn at 40%,
+unlike every viewer: :func:`texture_as_is` gives its material a white diffuse colour.
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["is_placeholder"]
+__all__ = ["is_placeholder", "texture_as_is"]
 
 #: the pixel of trimesh's placeholder image (``trimesh.visual.material.color_image``'s default)
 PLACEHOLDER_PIXEL = (100, 100, 100, 255)
@@ -29,3 +33,13 @@ def is_placeholder(material) -> bool:
         return False
     pixels = np.asarray(image.convert("RGBA")).reshape(-1, 4)
     return bool((pixels == PLACEHOLDER_PIXEL).all())
+
+
+def texture_as_is(geometry) -> None:
+    """``geometry``'s texture drawn as it is (module doc): where its visual draws a texture of the
+    file, the material's diffuse colour white."""
+    visual = getattr(geometry, "visual", None)
+    material = getattr(visual, "material", None)
+    if getattr(visual, "kind", None) == "texture" and getattr(material, "image", None) is not None \
+            and hasattr(material, "diffuse") and not is_placeholder(material):
+        material.diffuse = [255, 255, 255, 255]

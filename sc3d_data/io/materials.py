@@ -37,6 +37,8 @@ from sc3d_data.io.obj_statements import statement_values
 __all__ = ["SHAPENET_V2_MESH", "MaterialReport", "dataset_folder", "material_report", "mtllib_names",
            "named_files", "real_file", "texture_root"]
 
+#: the end of the name of a glTF image that no texture draws (``_gltf_refs``): where it lies is judged, not its content
+UNDRAWN = " (drawn by no texture)"
 #: ShapeNetCore v2's mesh inside a model folder
 SHAPENET_V2_MESH = ("models", "model_normalized.obj")
 
@@ -92,15 +94,15 @@ class MaterialReport:
     """What the materials of one mesh file name. ``problems``: textures inside the root that are missing or do
     not decode; ``warnings``: ``.mtl`` files that are missing; ``outside``: one line per file outside the root
     (never opened); ``reported``: resolved paths of all of these; ``textures``: the file names of the textures
-    inside the root that exist and decode; ``undefined``: the materials an OBJ uses that its material files
-    do not define (warned about)."""
+    inside the root that exist and decode; ``texture_only``: an OBJ's materials with a ``map_Kd`` texture
+    and no ``Kd`` (``io.mtl_text``)."""
 
     textures: list[str] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     outside: list[str] = field(default_factory=list)
     reported: set[str] = field(default_factory=set)
-    undefined: list[str] = field(default_factory=list)
+    texture_only: set[str] = field(default_factory=set)
 
 
 def mtllib_names(path: Path, text: str | None = None) -> list[str]:
@@ -144,6 +146,7 @@ def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None =
             continue
         materials = mtl_materials(read_obj_text(mtl))
         defined = (defined or set()) | set(materials.names)
+        report.texture_only |= set(materials.texture_only)
         refs += [(f"{printable(name)} (from {printable(mtl.name)})", _texture_file(mtl.parent, name, root))
                  for _, name in materials.textures]
         report.warnings += [f"material {printable(m)} of {printable(mtl.name)} gives its texture {printable(name)} as "
@@ -154,7 +157,6 @@ def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None =
                             for m, name in materials.moved]
     undefined = [] if defined is None else list(dict.fromkeys(
         m for m in statement_values(text, "usemtl") if m not in defined))
-    report.undefined = undefined
     if undefined:
         report.warnings.append(f"usemtl names {', '.join(printable(m) for m in undefined)}, which its material "
                                "files do not define; those faces are drawn with the default material")
@@ -173,18 +175,22 @@ def _gltf_refs(path: Path, doc: dict, binary: bytes | None, embedded_too: bool =
                ) -> tuple[list[tuple[str, Path]], list[tuple[str, bytes]]]:
     """``(external images [(name, path)], embedded images [(name, bytes)])`` of GLTF/GLB ``path``
     (its JSON ``doc`` and binary chunk, ``read_gltf``; the embedded images only with
-    ``embedded_too``: in data URIs, and in a GLB's ``binary``):
-    the images its textures have the loader read (``source``, or ``EXT_texture_webp``'s), not
-    those only another extension names (``KHR_texture_basisu``'s KTX2 beside a PNG fallback)."""
+    ``embedded_too``: in data URIs, and in a GLB's ``binary``). Every external image, which the
+    loader asks for whether drawn or not (so where it lies is judged for each); of the embedded
+    ones the images its textures draw (``source``, or ``EXT_texture_webp``'s), not those only
+    another extension names (``KHR_texture_basisu``'s KTX2 beside a PNG fallback), which would not
+    decode. The names of the external images no texture draws end in ``(drawn by no texture)``."""
     external, embedded = [], []
     read = {t.get("extensions", {}).get("EXT_texture_webp", {}).get("source", t.get("source"))
             for t in doc.get("textures", []) if isinstance(t, dict)}
     for i, image in enumerate(doc.get("images", [])):
+        if "uri" in image and not image["uri"].startswith("data:"):
+            external.append((f"image {i} ({image['uri']})" + ("" if i in read else UNDRAWN),
+                             gltf_uri_path(path.parent, image["uri"])))
+            continue
         if i not in read:
             continue
-        if "uri" in image and not image["uri"].startswith("data:"):
-            external.append((f"image {i} ({image['uri']})", gltf_uri_path(path.parent, image["uri"])))
-        elif "bufferView" in image and binary is not None:
+        if "bufferView" in image and binary is not None:
             view = doc["bufferViews"][image["bufferView"]]
             start = view.get("byteOffset", 0)
             embedded.append((f"texture image {i}", binary[start:start + view["byteLength"]]))
@@ -260,7 +266,7 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn")
         report.reported.add(str(ref.resolve()))
         if not ref.is_file():
             report.problems.append(f"texture {name} not found")
-        elif (p := _image_problem(ref)) is not None:
+        elif not name.endswith(UNDRAWN) and (p := _image_problem(ref)) is not None:
             report.problems.append(f"texture {name} unreadable ({p})")
         else:
             report.textures.append(printable(ref.name))

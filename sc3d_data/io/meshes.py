@@ -191,7 +191,8 @@ def match_ply_face_colors(scene, path: Path) -> None:
     """One face colour per triangle in each PLY geometry of ``scene`` whose quads or polygons the
     loader split into triangles, and its texture drawn as it is (``io.ply_colors``); ``MeshError``
     where the colours cannot be matched."""
-    from sc3d_data.io.ply_colors import per_triangle_face_colors, texture_as_is
+    from sc3d_data.io.loader_visuals import texture_as_is
+    from sc3d_data.io.ply_colors import per_triangle_face_colors
 
     for geometry in scene.geometry.values():
         if hasattr(geometry, "faces") and (refusal := per_triangle_face_colors(geometry, str(path))):
@@ -214,6 +215,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     from sc3d_data.io.gltf_check import judge_gltf
     from sc3d_data.io.gltf_features import apply_texture_transforms, feature_warnings, read_spec_gloss_as_matte
     from sc3d_data.io.gltf_loader_doc import loader_gltf_bytes
+    from sc3d_data.io.loader_visuals import texture_as_is
     from sc3d_data.io.materials import material_report
     from sc3d_data.io.obj_loader_text import loader_obj_bytes
     from sc3d_data.io.texture_resolver import loader_misses, make_resolver
@@ -237,7 +239,10 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     text = None if gltf_doc is None else loader_gltf_bytes(path, gltf_doc)  # vertex colours stored as shorts
     if path.suffix.lower() == ".obj":
         check_obj_indices(path)
-        text = loader_obj_bytes(path)  # relative indices as the format counts them; a non-UTF-8 file as Latin-1
+        try:
+            text = loader_obj_bytes(path)  # relative indices as the format counts them; a non-UTF-8 file as Latin-1
+        except ValueError as e:
+            raise MeshError(f"{path}: {e}; not read") from e
     resolver = make_resolver(path, root)
     read_spec_gloss_as_matte()
     scene = load_scene(path, resolver, text)
@@ -246,6 +251,10 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
         raise MeshError(f"{path}: {'; '.join(missed)} (use --bad-texture fallback to render with material colours)")
     if path.suffix.lower() == ".ply":
         match_ply_face_colors(scene, path)
+    elif report.texture_only:  # an OBJ's materials with map_Kd and no Kd: their textures drawn as they are
+        for geometry in scene.geometry.values():
+            if getattr(getattr(getattr(geometry, "visual", None), "material", None), "name", None) in report.texture_only:
+                texture_as_is(geometry)
     elif gltf_doc is not None:
         apply_texture_transforms(scene, gltf_doc)
     vertices, faces = scene_triangles(scene, str(path))
@@ -264,7 +273,7 @@ def unused_texture_warnings(path: Path, scene, report) -> list[str]:
     without a word."""
     from sc3d_data.io.loader_visuals import is_placeholder
 
-    if Path(path).suffix.lower() != ".obj" or report.problems or report.undefined:  # undefined: warned of as such
+    if Path(path).suffix.lower() != ".obj" or report.problems:
         return []
     named = sorted(set(report.textures))
     for geometry in scene.geometry.values():

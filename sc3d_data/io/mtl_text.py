@@ -14,9 +14,9 @@ Conventions:
   ``newmtl`` joined by one space); only its ``map_Kd`` texture is drawn (trimesh reads no other
   map), so a material whose only texture is ``map_Ka`` is noted (``ambient_only``).
 - **What the loader reads** (:func:`loader_mtl_text`): a colour of one value (``Kd 0.8``) is that
-  value three times, as the format says (trimesh dropped the material: default grey), and a
-  material with a ``map_Kd`` texture but no ``Kd`` gets ``Kd 1 1 1``: its texture is drawn as it
-  is, as Blender and MeshLab show it (trimesh's default diffuse, 0.4, drew it at 40%).
+  value three times, as the format says (trimesh dropped the material: default grey). A material
+  with a ``map_Kd`` texture but no ``Kd`` is noted (``texture_only``): its texture is drawn as it
+  is once loaded (``io.loader_visuals.texture_as_is``), as Blender and MeshLab show it.
 """
 from __future__ import annotations
 
@@ -80,18 +80,19 @@ class MtlMaterials:
     ``[(material, map_Kd file name)]``, ``ambient_only`` ``[(material, map_Ka file name)]`` of
     the materials whose only texture is ``map_Ka``, which is not drawn, and ``moved``
     ``[(material, map_Kd file name)]`` of textures offset or scaled by ``-o``/``-s``, which the
-    loader does not apply."""
+    loader does not apply, and ``texture_only``: the materials with a ``map_Kd`` and no ``Kd``."""
 
     names: list[str] = field(default_factory=list)
     textures: list[tuple[str, str]] = field(default_factory=list)
     ambient_only: list[tuple[str, str]] = field(default_factory=list)
     moved: list[tuple[str, str]] = field(default_factory=list)
+    texture_only: list[str] = field(default_factory=list)
 
 
 def mtl_materials(text: str) -> MtlMaterials:
     """The materials of material-file ``text`` (module doc). Statements are matched without
     regard to case (``map_kd``, ``NEWMTL``), as trimesh reads them."""
-    found, ambient, current = MtlMaterials(), {}, None
+    found, ambient, current, coloured = MtlMaterials(), {}, None, set()
     for line in text.splitlines():
         words = line.split(maxsplit=1)
         if len(words) < 2:
@@ -106,30 +107,21 @@ def mtl_materials(text: str) -> MtlMaterials:
                 found.moved.append(found.textures[-1])
         elif key == "map_ka":
             ambient.setdefault(current, map_file_name(value))
+        elif key == "kd":
+            coloured.add(current)
     drawn = {material for material, _ in found.textures}
     found.ambient_only = [(m, name) for m, name in ambient.items() if m not in drawn]
+    found.texture_only = [m for m in dict.fromkeys(m for m, _ in found.textures) if m not in coloured]
     return found
 
 
 def loader_mtl_text(text: str) -> str:
-    """Material-file ``text`` as the loader is given it (module doc): one-value colours spread
-    to three, ``Kd 1 1 1`` added to a textured material without ``Kd``; lines joined by ``\\n``."""
-    out: list[str] = []
-    block, has_kd, has_map = None, False, False  # where the current material's newmtl line is in out
-
-    def close_block() -> None:
-        if block is not None and has_map and not has_kd:
-            out.insert(block + 1, "Kd 1 1 1")
-
+    """Material-file ``text`` as the loader is given it (module doc): colours of one value spread
+    to three; lines joined by ``\\n``."""
+    out = []
     for line in text.splitlines():
         words = line.split()
-        key = words[0].lower() if words else ""
-        if key == "newmtl":
-            close_block()
-            block, has_kd, has_map = len(out), False, False
-        elif key in ("kd", "ka", "ks") and len(words) == 2 and _OPTION_VALUE.match(words[1]):
+        if len(words) == 2 and words[0].lower() in ("kd", "ka", "ks") and _OPTION_VALUE.match(words[1]):
             line = " ".join([words[0]] + [words[1]] * 3)
-        has_kd, has_map = has_kd or key == "kd", has_map or key == "map_kd"
         out.append(line)
-    close_block()
     return "\n".join(out) + "\n"

@@ -12,7 +12,8 @@ vertices. And it decodes a file that is not UTF-8 by a guess of its character se
 :func:`loader_obj_bytes` returns the text to load instead of the file where either applies: the
 relative indices of faces that come before later vertices (``v``, ``vt`` or ``vn``) rewritten as
 the absolute ones they mean, and the text of a file that is not UTF-8 read as Latin-1 (each byte
-one character, as its material files), given to the loader as UTF-8. Otherwise None: the loader
+one character, as its material files; a UTF-16 or UTF-32 file, with a byte-order mark or NUL bytes,
+is left to the loader's own decoding), given to the loader as UTF-8. Otherwise None: the loader
 reads the file (the common case costs a few ``bytes.find`` calls).
 """
 from __future__ import annotations
@@ -37,24 +38,30 @@ def _later_vertices(data: bytes) -> bool:
 
 def absolute_indices(text: str) -> str:
     """OBJ ``text`` with every negative index of its face statements replaced by the absolute
-    index it means (counted back from the ``v``/``vt``/``vn`` statements read before the face)."""
+    index it means (counted back from the ``v``/``vt``/``vn`` statements read before the face),
+    lines continued by ``\\`` joined first (as the loader joins them). ``ValueError`` naming the
+    line for an index that is no number, or that counts back past the first vertex."""
     counts = dict.fromkeys(_VERTEX_KEYS, 0)
     out = []
-    for line in text.split("\n"):
-        words = line.split()
-        key = words[0] if words else ""
+    for number, line in enumerate(text.replace("\\\n", "").split("\n"), 1):
+        parts = line.split(None, 1)
+        key = parts[0] if parts else ""
         if key in counts:
             counts[key] += 1
         elif key == "f" and "-" in line:
+            body = line.partition("#")[0]
             corners = []
-            for corner in words[1:]:
-                if corner.startswith("#"):
-                    corners.append(" ".join(words[words.index(corner):]))
-                    break
-                parts = corner.split("/")
-                corners.append("/".join(str(counts[k] + int(p) + 1) if p.startswith("-") else p
-                                        for k, p in zip(_VERTEX_KEYS, parts)))
-            line = "f " + " ".join(corners)
+            for corner in body.split()[1:]:
+                indices = []
+                for k, p in zip(_VERTEX_KEYS, corner.split("/")):
+                    if p.startswith("-"):
+                        if not p[1:].isdigit() or counts[k] + int(p) < 0:
+                            raise ValueError(f"line {number} ({line.strip()[:60]!r}): index {p} counts back past the "
+                                             f"first {k} statement or is no number")
+                        p = str(counts[k] + int(p) + 1)
+                    indices.append(p)
+                corners.append("/".join(indices))
+            line = "f " + " ".join(corners)  # without its comment, which the loader cannot parse there
         out.append(line)
     return "\n".join(out)
 
@@ -66,6 +73,8 @@ def loader_obj_bytes(path: Path) -> bytes | None:
     try:
         text, rewrite = data.decode("utf-8"), False
     except UnicodeDecodeError:
+        if data[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\0" in data[:4096]:  # UTF-16/32: the loader's own decoding
+            return None
         text, rewrite = data.decode("latin-1"), True
     if _later_vertices(b"\n" + data) and _RELATIVE_FACE.search(data):
         text, rewrite = absolute_indices(text), True

@@ -1,5 +1,4 @@
-"""Per-face colours of a PLY whose faces are not all triangles, one colour per triangle; and a
-PLY's texture drawn as it is (:func:`texture_as_is`).
+"""Per-face colours of a PLY whose faces are not all triangles, one colour per triangle.
 
 trimesh's PLY loader (``trimesh.exchange.ply``, 5.x) splits quads and polygons into triangles
 (``trimesh.geometry.triangulate_quads``) but keeps the file's face colours as they are: one
@@ -19,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["face_sources", "per_triangle_face_colors", "texture_as_is"]
+__all__ = ["face_sources", "per_triangle_face_colors"]
 
 
 def _face_lists(raw: dict) -> list[np.ndarray] | None:
@@ -71,14 +70,3 @@ def per_triangle_face_colors(geometry, source: str) -> str | None:
                 "one this version of sc3d matches to the faces (another trimesh?); not read")
     geometry.visual.face_colors = np.asarray(colors)[origin]
     return None
-
-
-def texture_as_is(geometry) -> None:
-    """A PLY's texture (``comment TextureFile``, MeshLab's and OpenMVS's) has no colour to multiply
-    it with: the loader's material for it gets a white diffuse colour, so it is drawn as it is
-    (trimesh's default, 0.4, drew it at 40%, unlike every viewer)."""
-    visual = getattr(geometry, "visual", None)
-    material = getattr(visual, "material", None)
-    if getattr(visual, "kind", None) == "texture" and getattr(material, "image", None) is not None \
-            and hasattr(material, "diffuse"):
-        material.diffuse = [255, 255, 255, 255]
