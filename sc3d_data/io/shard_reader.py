@@ -33,10 +33,10 @@ from sc3d_data.io.shards import (OBJECT_ARRAYS, SCHEMA_VERSION, STRING_FIELDS, O
 class ShardSummary:
     """One shard file as the index and its string fields describe it. ``num_objects``,
     ``num_views``, ``image_size`` from ``images [N, V, S, S, 3]``; ``voxel_resolution`` G of
-    ``voxels [N, G, G, G]`` or None without voxels; ``K [3, 3]`` (pixels) and ``distance``
-    (world units) of view 0 of object 0 (all views of a dataset share K, and those ``render``
-    makes the distance); ``distances [N * V]``: every view's distance (an ``import-r2n2``
-    dataset keeps 3D-R2N2's, which vary by view)."""
+    ``voxels [N, G, G, G]`` or None without voxels; ``K [3, 3]`` (pixels) of view 0 of object 0
+    (all views of a dataset share it); ``distances [N * V]``: every view's camera distance (world
+    units; one value for ``render``'s shards, an ``import-r2n2`` dataset keeps 3D-R2N2's, which vary
+    by view)."""
 
     path: Path
     model_id: list[str]
@@ -47,8 +47,7 @@ class ShardSummary:
     image_size: int
     voxel_resolution: int | None
     K: np.ndarray
-    distance: float
-    distances: np.ndarray | None = None
+    distances: np.ndarray
 
 
 class ShardReader:
@@ -83,8 +82,7 @@ class ShardReader:
                                          f"{listed[path.name]} in it; see `sc3d-data info --verify {self.shard_dir}`")
                     out.append(ShardSummary(path, ids, cats, splits, int(n), int(v), int(s),
                                             int(f["voxels"].shape[1]) if "voxels" in f else None,
-                                            f["K"][0, 0], float(f["distance"][0, 0]),
-                                            np.asarray(f["distance"][()], np.float64).ravel()))
+                                            f["K"][0, 0], np.asarray(f["distance"][()], np.float64).ravel()))
                 except (OSError, KeyError, RuntimeError) as e:  # truncated / corrupted shard
                     raise ShardError(f"{path}: broken shard ({io_reason(e)}); see `sc3d-data info --verify "
                                      f"{self.shard_dir}`") from e
