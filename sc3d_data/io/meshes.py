@@ -77,15 +77,16 @@ def _is_any(values: np.ndarray, chars: bytes) -> np.ndarray:
     return np.logical_or.reduce([values == c for c in chars])
 
 
-def check_obj_indices(path: Path) -> None:
+def check_obj_indices(path: Path, data: bytes | None = None) -> None:
     """Raise ``MeshError`` naming ``path`` and the line when an OBJ face names index 0.
 
     OBJ indices count from 1 (negative ones count back from the last vertex read); some
     exporters write 0-based indices, which trimesh reads without complaint as wrong triangles
     (0 becomes the last vertex). Such a file is refused, not rendered wrong. Vectorised (a
     70 MB OBJ in a fraction of its parse time): every token ``0`` between separators is a
-    candidate, kept when its line is an ``f`` statement and it comes before any ``#``."""
-    text = b"\n" + Path(path).read_bytes() + b"\n"  # padded: every candidate has a byte each side
+    candidate, kept when its line is an ``f`` statement and it comes before any ``#``. ``data``: the
+    file's bytes, when already read."""
+    text = b"\n" + (Path(path).read_bytes() if data is None else data) + b"\n"  # padded: a byte each side
     b = np.frombuffer(text, dtype=np.uint8)
     zeros = np.flatnonzero(b == ord("0"))
     zeros = zeros[_is_any(b[zeros - 1], b" \t/") & _is_any(b[zeros + 1], b" \t/\r\n")]
@@ -238,9 +239,10 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
                         "material colours)")
     text = None if gltf_doc is None else loader_gltf_bytes(path, gltf_doc)  # vertex colours stored as shorts
     if path.suffix.lower() == ".obj":
-        check_obj_indices(path)
+        data = path.read_bytes()
+        check_obj_indices(path, data)
         try:
-            text = loader_obj_bytes(path)  # relative indices as the format counts them; a non-UTF-8 file as Latin-1
+            text = loader_obj_bytes(data)  # relative indices as the format counts them; a non-UTF-8 file as Latin-1
         except ValueError as e:
             raise MeshError(f"{path}: {e}; not read") from e
     resolver = make_resolver(path, root)

@@ -24,7 +24,8 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["MtlMaterials", "decode_obj_text", "loader_mtl_text", "map_file_name", "mtl_materials", "read_obj_text"]
+__all__ = ["MtlMaterials", "decode_obj_text", "loader_mtl_text", "loader_reading", "map_file_name", "mtl_materials",
+           "read_obj_text"]
 
 #: numbers and switches that follow an option of an MTL map statement (``-s 1 1 1``, ``-clamp on``)
 _OPTION_VALUE = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^(on|off)$")
@@ -36,6 +37,17 @@ def decode_obj_text(data: bytes) -> str:
     """``data`` (an OBJ's or material file's bytes) as text (module doc): UTF-8 without its
     mark, other bytes as lone surrogates."""
     return data.removeprefix(b"\xef\xbb\xbf").decode("utf-8", errors="surrogateescape")
+
+
+def loader_reading(data: bytes) -> tuple[str, bool]:
+    """``(text, utf8)``: an OBJ's or material file's bytes as the loader is given them, UTF-8
+    where they are (``utf8`` True), else their Latin-1 reading (each byte one character, so that
+    an OBJ and its material files agree on names, and a name keeps the bytes it was written in:
+    ``io.texture_resolver``)."""
+    try:
+        return data.decode("utf-8"), True
+    except UnicodeDecodeError:
+        return data.decode("latin-1"), False
 
 
 def read_obj_text(path: Path) -> str:

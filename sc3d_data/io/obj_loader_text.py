@@ -19,7 +19,8 @@ reads the file (the common case costs a few ``bytes.find`` calls).
 from __future__ import annotations
 
 import re
-from pathlib import Path
+
+from sc3d_data.io.mtl_text import loader_reading
 
 __all__ = ["absolute_indices", "loader_obj_bytes"]
 
@@ -31,7 +32,8 @@ _VERTEX_KEYS = ("v", "vt", "vn")
 
 def _later_vertices(data: bytes) -> bool:
     """Whether a vertex statement comes after the first face statement of OBJ ``data``."""
-    first_face = min((i for i in (data.find(b"\nf "), data.find(b"\nf\t")) if i != -1), default=-1)
+    first_face = 0 if data.startswith((b"f ", b"f\t")) else \
+        min((i for i in (data.find(b"\nf "), data.find(b"\nf\t")) if i != -1), default=-1)
     return first_face != -1 and any(data.find(b"\n" + k + sep, first_face) != -1
                                     for k in (b"v", b"vt", b"vn") for sep in (b" ", b"\t"))
 
@@ -66,16 +68,15 @@ def absolute_indices(text: str) -> str:
     return "\n".join(out)
 
 
-def loader_obj_bytes(path: Path) -> bytes | None:
-    """The text to give the loader in place of OBJ ``path`` (module doc), UTF-8; None to load the
-    file as it is."""
-    data = Path(path).read_bytes()
-    try:
-        text, rewrite = data.decode("utf-8"), False
-    except UnicodeDecodeError:
-        if data[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\0" in data[:4096]:  # UTF-16/32: the loader's own decoding
-            return None
-        text, rewrite = data.decode("latin-1"), True
-    if _later_vertices(b"\n" + data) and _RELATIVE_FACE.search(data):
-        text, rewrite = absolute_indices(text), True
-    return text.encode("utf-8") if rewrite else None
+def loader_obj_bytes(data: bytes) -> bytes | None:
+    """The text to give the loader in place of OBJ bytes ``data`` (module doc), UTF-8; None to load
+    the file as it is (an ASCII file without relative indices is not decoded)."""
+    relative = _later_vertices(data) and _RELATIVE_FACE.search(data) is not None
+    if not relative and data.isascii():
+        return None
+    if data[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\0" in data[:4096]:  # UTF-16/32: the loader's own decoding
+        return None
+    text, utf8 = loader_reading(data)  # io.mtl_text: UTF-8, else Latin-1 as the material files
+    if not relative and utf8:
+        return None
+    return (absolute_indices(text) if relative else text).encode("utf-8")

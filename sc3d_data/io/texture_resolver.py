@@ -18,7 +18,7 @@ import urllib.parse
 from pathlib import Path
 
 from sc3d_data.io.materials import MaterialReport, mtllib_names, real_file, texture_root
-from sc3d_data.io.mtl_text import loader_mtl_text, map_file_name, read_obj_text
+from sc3d_data.io.mtl_text import loader_mtl_text, loader_reading, map_file_name, read_obj_text
 from sc3d_data.io.names import printable
 
 __all__ = ["loader_misses", "make_resolver"]
@@ -37,12 +37,7 @@ def _served_material(data: bytes) -> bytes:
     """A material file's bytes as served to trimesh: without a UTF-8 mark (Notepad's, which would
     hide its first ``newmtl``), and when not UTF-8, the UTF-8 text of its Latin-1 reading; its
     colours as ``io.mtl_text.loader_mtl_text`` gives them."""
-    data = data.removeprefix(b"\xef\xbb\xbf")
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError:
-        text = data.decode("latin-1")
-    return loader_mtl_text(text).encode("utf-8")
+    return loader_mtl_text(loader_reading(data.removeprefix(b"\xef\xbb\xbf"))[0]).encode("utf-8")
 
 
 def make_resolver(path: Path, root: Path | None):
