@@ -63,10 +63,9 @@ def test_vertex_colours_of_a_glTF_primitive_with_a_material_are_drawn(tmp_path):
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
     assert index_of(out)["failures"] == []
-    objects = {name[1]: obj for name, obj in objects_by_id(out).items()}
+    objects = _objects(out)
     plain = objects["plain"]
-    pixels = plain["images"][plain["masks"] > 0].astype(int)
-    assert (pixels[:, 0] > 100).all() and (pixels[:, 1:] < 10).all()  # the reference is red
+    assert _looks(out)["plain"] == "red"  # the reference
     for name in ("orange_shorts", "orange_shorts_glb"):
         np.testing.assert_array_equal(objects[name]["images"], objects["orange_float"]["images"], err_msg=name)
     for name in ("white_float", "white_bytes"):
@@ -94,13 +93,19 @@ def _textured_obj(folder: Path, mtl: bytes, usemtl: str = "mat", texture: bytes 
     Image.new("RGB", (8, 8), (255, 0, 0)).save(os.fsdecode(os.fsencode(folder) + b"/" + texture), format="PNG")
 
 
+def _objects(out: Path) -> dict[str, dict]:
+    """``{model: its arrays}`` of every object of dataset ``out``, named by the first part of its
+    model id (the folder of a mesh ``c/NAME/m.obj``, or the stem of ``box/NAME.gltf``)."""
+    return {name[1].split("/")[0]: obj for name, obj in objects_by_id(out).items()}
+
+
 def _looks(out: Path) -> dict[str, str]:
     """``{model: "red" | "grey"}`` of every object of dataset ``out``: red where every masked pixel
     is red (the texture drawn), grey where every one is grey (material colour)."""
     looks = {}
-    for name, obj in objects_by_id(out).items():
+    for name, obj in _objects(out).items():
         px = obj["images"][obj["masks"] > 0].astype(int)
-        looks[name[1].split("/")[0]] = "red" if ((px[:, 0] > 100) & (px[:, 1:] < 10).all(1)).all() else \
+        looks[name] = "red" if ((px[:, 0] > 100) & (px[:, 1:] < 10).all(1)).all() else \
             "grey" if (np.ptp(px, axis=1) < 3).all() else "mixed"
     return looks
 
@@ -304,10 +309,9 @@ def test_a_specular_glossiness_material_draws_its_diffuse_texture(tmp_path):
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
     assert index_of(out)["failures"] == []
-    objects = {name[1]: obj for name, obj in objects_by_id(out).items()}
+    objects = _objects(out)
     reference = objects["metal_rough"]
-    pixels = reference["images"][reference["masks"] > 0].astype(int)
-    assert (pixels[:, 0] > 100).all() and (pixels[:, 1:] < 10).all()
+    assert _looks(out)["metal_rough"] == "red"
     np.testing.assert_array_equal(objects["gloss"]["images"], reference["images"])
     assert (objects["gloss_blue"]["images"][objects["gloss_blue"]["masks"] > 0] < 10).all()
 
@@ -338,7 +342,7 @@ def test_a_texture_without_a_colour_factor_is_drawn_as_it_is_and_one_value_colou
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
     assert index_of(out)["failures"] == []
-    objects = {name[1].split("/")[0]: obj for name, obj in objects_by_id(out).items()}
+    objects = _objects(out)
     for name, reference in (("no_kd", "kd_white"), ("ply", "kd_white"), ("kd_one", "kd_three")):
         np.testing.assert_array_equal(objects[name]["images"], objects[reference]["images"], err_msg=name)
     assert _looks(out)["kd_white"] == "red"
@@ -350,7 +354,7 @@ def test_a_texture_without_a_colour_factor_is_drawn_as_it_is_and_one_value_colou
     _textured_obj(fallback / "c" / "plain", b"newmtl mat\n")
     out = tmp_path / "out_fallback"
     run_cli(data_main, ["render", "--meshes", fallback, "--out", out, "--bad-texture", "fallback", *FAST])
-    objects = {name[1].split("/")[0]: obj for name, obj in objects_by_id(out).items()}
+    objects = _objects(out)
     np.testing.assert_array_equal(objects["missing"]["images"], objects["plain"]["images"])
 
 
@@ -381,7 +385,7 @@ def test_relative_obj_indices_count_back_from_the_vertices_read_so_far(tmp_path)
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, "--voxelize", *FAST])
     assert index_of(out)["failures"] == []
-    objects = {name[1]: obj for name, obj in objects_by_id(out).items()}
+    objects = _objects(out)
     for array in ("images", "masks", "voxels"):
         np.testing.assert_array_equal(objects["relative"][array], objects["absolute"][array], err_msg=array)
 
@@ -454,7 +458,7 @@ def test_a_ktx2_texture_with_a_png_fallback_draws_the_png(tmp_path):
                   "render with material colours)"}
     assert [(Path(w["source"]).stem, w["warning"].split(": ", 2)[2]) for w in index_of(out)["warnings"]] == [
         ("unused_outside", "not read; rendered without it (--outside-textures)")]
-    objects = {name[1]: obj for name, obj in objects_by_id(out).items()}
+    objects = _objects(out)
     np.testing.assert_array_equal(objects["fallback"]["images"], objects["png"]["images"])
     np.testing.assert_array_equal(objects["unused_outside"]["images"], objects["png"]["images"])
     np.testing.assert_array_equal(objects["fallback_glb"]["images"], objects["png"]["images"])
@@ -555,7 +559,7 @@ def test_texture_coordinates_without_a_material_draw_the_default_grey(tmp_path):
     obj.write_text(obj.read_text().replace("usemtl mat\n", ""))
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
-    objects = {name[1].split("/")[0]: obj for name, obj in objects_by_id(out).items()}
+    objects = _objects(out)
     np.testing.assert_array_equal(objects["with_vt"]["images"], objects["no_vt"]["images"])
     assert [(Path(w["source"]).parent.name, w["warning"].split(": ", 1)[1]) for w in index_of(out)["warnings"]] == [
         ("no_usemtl", "its materials name the texture(s) t.png, but no face is drawn with them (faces without texture "
