@@ -35,11 +35,14 @@ def is_placeholder(material) -> bool:
     return bool((pixels == PLACEHOLDER_PIXEL).all())
 
 
-def texture_as_is(geometry) -> None:
+def texture_as_is(geometry, materials: set[str] | None = None) -> None:
     """``geometry``'s texture drawn as it is (module doc): where its visual draws a texture of the
-    file, the material's diffuse colour white."""
+    file (and its material is one of ``materials``, by name, where given), the material's diffuse
+    colour white."""
     visual = getattr(geometry, "visual", None)
     material = getattr(visual, "material", None)
+    if materials is not None and getattr(material, "name", None) not in materials:
+        return
     if getattr(visual, "kind", None) == "texture" and getattr(material, "image", None) is not None \
             and hasattr(material, "diffuse") and not is_placeholder(material):
         material.diffuse = [255, 255, 255, 255]

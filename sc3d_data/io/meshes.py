@@ -255,8 +255,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
         match_ply_face_colors(scene, path)
     elif report.texture_only:  # an OBJ's materials with map_Kd and no Kd: their textures drawn as they are
         for geometry in scene.geometry.values():
-            if getattr(getattr(getattr(geometry, "visual", None), "material", None), "name", None) in report.texture_only:
-                texture_as_is(geometry)
+            texture_as_is(geometry, report.texture_only)
     elif gltf_doc is not None:
         apply_texture_transforms(scene, gltf_doc)
     vertices, faces = scene_triangles(scene, str(path))
