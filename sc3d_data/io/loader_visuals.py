@@ -12,12 +12,21 @@ still warned about.
 A texture the file gives no colour to multiply with (a PLY's ``comment TextureFile``; an MTL
 material with ``map_Kd`` and no ``Kd``) gets trimesh's default diffuse, 0.4, and was drawn at 40%,
 unlike every viewer: :func:`texture_as_is` gives its material a white diffuse colour.
+
+An OBJ's vertex colours (``v x y z r g b``, as Blender's and MeshLab's exporters write them) on
+faces that also name a material were dropped: trimesh's OBJ loader parses them, then builds the
+geometry with the material's visual only, and the object was drawn in the material's colour
+without a word. The OBJ format defines no rule for both; sc3d draws them as glTF does a material
+with ``COLOR_0`` (material colour x texture x vertex colour, ``render.renderer.material_vertex_colors``),
+so a white material shows the vertex colours as they are. Where the only material is trimesh's
+placeholder (``vt`` and no ``.mtl``), the vertex colours are drawn as in a file without ``vt``.
+:func:`keep_obj_vertex_colours` makes this process's OBJ loader do so.
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["is_placeholder", "texture_as_is"]
+__all__ = ["is_placeholder", "keep_obj_vertex_colours", "texture_as_is"]
 
 #: the pixel of trimesh's placeholder image (``trimesh.visual.material.color_image``'s default)
 PLACEHOLDER_PIXEL = (100, 100, 100, 255)
@@ -46,3 +55,38 @@ def texture_as_is(geometry, materials: set[str] | None = None) -> None:
     if getattr(visual, "kind", None) == "texture" and getattr(material, "image", None) is not None \
             and hasattr(material, "diffuse") and not is_placeholder(material):
         material.diffuse = [255, 255, 255, 255]
+
+
+def keep_obj_vertex_colours() -> None:
+    """Make this process's OBJ loader (trimesh's ``mesh_loaders["obj"]``) keep vertex colours
+    beside a material (module doc); idempotent, before loading."""
+    from trimesh.exchange import load
+
+    loader = load.mesh_loaders.get("obj")
+    if loader is None or getattr(loader, "keeps_vertex_colours", False):
+        return
+
+    def load_obj(*args, **kwargs):
+        loaded = loader(*args, **kwargs)
+        for mesh in loaded.get("geometry", {}).values():
+            _colours_beside_material(mesh)
+        return loaded
+
+    load_obj.keeps_vertex_colours = True
+    load.mesh_loaders["obj"] = load_obj
+
+
+def _colours_beside_material(mesh: dict) -> None:
+    """One geometry of trimesh's OBJ loader (its ``Trimesh`` keyword arguments): vertex colours
+    parsed beside a visual go into the visual's ``vertex_attributes["color"]`` (uint8 RGBA, read
+    as trimesh reads vertex colours without a material); beside the placeholder material, the
+    visual is dropped so the geometry is coloured by them."""
+    from trimesh.visual.color import to_rgba
+
+    colours, visual = mesh.get("vertex_colors"), mesh.get("visual")
+    if colours is None or visual is None or len(colours) != len(mesh.get("vertices", ())):
+        return
+    if is_placeholder(getattr(visual, "material", None)):
+        mesh["visual"] = None
+    else:
+        visual.vertex_attributes["color"] = to_rgba(colours)

@@ -216,7 +216,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     from sc3d_data.io.gltf_check import judge_gltf
     from sc3d_data.io.gltf_features import apply_texture_transforms, feature_warnings, read_spec_gloss_as_matte
     from sc3d_data.io.gltf_loader_doc import loader_gltf_bytes
-    from sc3d_data.io.loader_visuals import texture_as_is
+    from sc3d_data.io.loader_visuals import keep_obj_vertex_colours, texture_as_is
     from sc3d_data.io.materials import material_report
     from sc3d_data.io.obj_loader_text import loader_obj_bytes
     from sc3d_data.io.texture_resolver import loader_misses, make_resolver
@@ -247,6 +247,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
             raise MeshError(f"{path}: {e}; not read") from e
     resolver = make_resolver(path, root)
     read_spec_gloss_as_matte()
+    keep_obj_vertex_colours()
     scene = load_scene(path, resolver, text)
     missed = loader_misses(resolver, report)
     if missed and bad_texture == "fail":

@@ -13,8 +13,14 @@ vertices. And it decodes a file that is not UTF-8 by a guess of its character se
 relative indices of faces that come before later vertices (``v``, ``vt`` or ``vn``) rewritten as
 the absolute ones they mean, and the text of a file that is not UTF-8 read as Latin-1 (each byte
 one character, as its material files; a UTF-16 or UTF-32 file, with a byte-order mark or NUL bytes,
-is left to the loader's own decoding), given to the loader as UTF-8. Otherwise None: the loader
-reads the file (the common case costs a few ``bytes.find`` calls).
+is left to the loader's own decoding), given to the loader as UTF-8. Two more things the loader
+misreads are written as it can read them: a UTF-8 byte-order mark (which Windows editors put
+first) is left out, since the loader took it for part of the first statement (a first ``v`` lost,
+and every face index after it one off: "cannot parse"); and a comment after the data of a
+vertex or element statement (``f 1 2 3 # back``, ``v 0 0 1 # tip``), which the loader cannot
+parse, is cut off (comments after names, ``usemtl``, ``mtllib``, ``o``, ``g``, are left: a
+``#`` may be part of a name). Otherwise None: the loader reads the file (the common case costs a
+few ``bytes.find`` calls).
 """
 from __future__ import annotations
 
@@ -22,12 +28,16 @@ import re
 
 from sc3d_data.io.mtl_text import loader_reading
 
-__all__ = ["absolute_indices", "loader_obj_bytes"]
+__all__ = ["absolute_indices", "loader_obj_bytes", "without_number_comments"]
 
 #: a face statement holding a negative index (``f 1 -2``, ``f 1/-1 ...``)
 _RELATIVE_FACE = re.compile(rb"(?m)^[ \t]*f[ \t][^\n#]*?(?<=[ \t/])-\d")
 #: vertex statements whose counts relative indices refer to
 _VERTEX_KEYS = ("v", "vt", "vn")
+#: statements that hold numbers only, after which a ``#`` can only start a comment
+_NUMBER_KEYS = frozenset({"v", "vt", "vn", "vp", "f", "l", "p"})
+_NUMBER_KEYS_BYTES = frozenset(k.encode() for k in _NUMBER_KEYS)
+UTF8_BOM = b"\xef\xbb\xbf"
 
 
 def _later_vertices(data: bytes) -> bool:
@@ -68,15 +78,43 @@ def absolute_indices(text: str) -> str:
     return "\n".join(out)
 
 
+def _comment_after_numbers(data: bytes) -> bool:
+    """Whether a ``#`` of OBJ ``data`` comes after the data of a statement of numbers (one
+    ``bytes.find`` per comment line)."""
+    start = 0
+    while (i := data.find(b"#", start)) != -1:
+        words = data[data.rfind(b"\n", 0, i) + 1:i].split(None, 1)
+        if words and words[0] in _NUMBER_KEYS_BYTES:
+            return True
+        if (start := data.find(b"\n", i) + 1) == 0:
+            return False
+    return False
+
+
+def without_number_comments(text: str) -> str:
+    """OBJ ``text`` with the comment cut off each statement of numbers that has one (module doc)."""
+    lines = text.split("\n")
+    for n, line in enumerate(lines):
+        if "#" in line and (words := line.split(None, 1)) and words[0] in _NUMBER_KEYS:
+            lines[n] = line.partition("#")[0].rstrip()
+    return "\n".join(lines)
+
+
 def loader_obj_bytes(data: bytes) -> bytes | None:
     """The text to give the loader in place of OBJ bytes ``data`` (module doc), UTF-8; None to load
-    the file as it is (an ASCII file without relative indices is not decoded)."""
+    the file as it is (an ASCII file without relative indices or comments after numbers is not
+    decoded)."""
+    bom = data.startswith(UTF8_BOM)
+    data = data[len(UTF8_BOM):] if bom else data
     relative = _later_vertices(data) and _RELATIVE_FACE.search(data) is not None
-    if not relative and data.isascii():
-        return None
+    comments = _comment_after_numbers(data)
+    as_is = data if bom else None  # the file's bytes, or the file itself
+    if not (relative or comments) and data.isascii():
+        return as_is
     if data[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\0" in data[:4096]:  # UTF-16/32: the loader's own decoding
         return None
     text, utf8 = loader_reading(data)  # io.mtl_text: UTF-8, else Latin-1 as the material files
-    if not relative and utf8:
-        return None
+    if not (relative or comments) and utf8:
+        return as_is
+    text = without_number_comments(text) if comments else text
     return (absolute_indices(text) if relative else text).encode("utf-8")

@@ -1,0 +1,106 @@
+"""Data-half defects of the twenty-first round (items of the left-alone list and the twenty-first
+attack), each with the real loader, renderer and command; expected values come from hand-built
+reference files that draw the same thing without the feature under test, never from the code
+under test."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from sc3d_cli.data import main as data_main
+from conftest import run_cli
+from test_faults import FAST, index_of
+from test_faults_round19_data import _objects
+
+
+def _vertex_coloured_obj(folder: Path, colour: tuple[float, float, float], mtl: str | None = None,
+                         uv: bool = False, texture: tuple[int, int, int] | None = None) -> None:
+    """A unit cube ``folder/m.obj`` whose every ``v`` line carries the vertex colour ``colour``
+    (``v x y z r g b``, floats 0-1); with ``mtl`` (the text of ``m.mtl``, defining ``mat``) its
+    faces use ``mat``; with ``uv`` they carry texture coordinates; ``texture``: an 8 x 8 PNG
+    ``t.png`` of that colour beside it."""
+    import trimesh
+    from PIL import Image
+
+    folder.mkdir(parents=True)
+    box = trimesh.creation.box()
+    lines = ["mtllib m.mtl"] if mtl is not None else []
+    lines += ["v %f %f %f %g %g %g" % (*p, *colour) for p in box.vertices]
+    if uv:
+        lines += ["vt %f %f" % tuple(p[:2] + 0.5) for p in box.vertices]
+    lines += ["usemtl mat"] if mtl is not None else []
+    corner = "%d/%d" if uv else "%d"
+    lines += ["f " + " ".join(corner % ((i,) * corner.count("%d")) for i in face) for face in box.faces + 1]
+    (folder / "m.obj").write_text("\n".join(lines) + "\n")
+    if mtl is not None:
+        (folder / "m.mtl").write_text(mtl)
+    if texture is not None:
+        Image.new("RGB", (8, 8), texture).save(folder / "t.png")
+
+
+def test_obj_vertex_colours_beside_a_material_are_drawn(tmp_path):
+    """Blender's and MeshLab's OBJ exporters write vertex colours as ``v x y z r g b``; trimesh's
+    loader dropped them where the faces also use a material, and the object was drawn in the
+    material's colour (a white cube for red vertices, exit 0). sc3d draws material colour x
+    texture x vertex colour, as glTF defines for ``COLOR_0`` (the decision in
+    ``io.loader_visuals``). References: the same cube with the vertex colours and no material
+    (trimesh's plain vertex colours), and with ``vt`` but no ``.mtl`` (trimesh's placeholder
+    material, which must not hide them either). A white material (and a white texture) must draw
+    the reference's pixels; a blue material on red vertices black (red x blue = 0)."""
+    meshes = tmp_path / "m" / "c"
+    red, green = (1, 0, 0), (0, 1, 0)
+    _vertex_coloured_obj(meshes / "red_plain", red)
+    _vertex_coloured_obj(meshes / "red_white_material", red, "newmtl mat\nKd 1 1 1\n")
+    _vertex_coloured_obj(meshes / "red_vt_no_material", red, uv=True)
+    _vertex_coloured_obj(meshes / "red_blue_material", red, "newmtl mat\nKd 0 0 1\n")
+    _vertex_coloured_obj(meshes / "green_plain", green)
+    _vertex_coloured_obj(meshes / "green_white_texture", green, "newmtl mat\nKd 1 1 1\nmap_Kd t.png\n", uv=True,
+                         texture=(255, 255, 255))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    assert index_of(out)["failures"] == [] and index_of(out)["warnings"] == []
+    objects = _objects(out)
+    red_px = objects["red_plain"]["images"][objects["red_plain"]["masks"] > 0].astype(int)
+    assert (red_px[:, 0] > 100).all() and (red_px[:, 1:] < 10).all()  # the reference is red
+    for name, reference in (("red_white_material", "red_plain"), ("red_vt_no_material", "red_plain"),
+                            ("green_white_texture", "green_plain")):
+        np.testing.assert_array_equal(objects[name]["masks"], objects[reference]["masks"], err_msg=name)
+        np.testing.assert_array_equal(objects[name]["images"], objects[reference]["images"], err_msg=name)
+    blue_red = objects["red_blue_material"]
+    assert (blue_red["images"][blue_red["masks"] > 0] < 10).all()
+
+
+def test_an_obj_with_a_byte_order_mark_or_comments_after_numbers_draws_as_without(tmp_path):
+    """Two ways real OBJ files are written that the loader misread: a UTF-8 byte-order mark first
+    (Windows editors; the loader took it for part of the first ``v``, lost that vertex and
+    failed "cannot parse"), and comments after the numbers of a statement (``f 1 2 3 4 # top``,
+    ``v 0 0 1 # tip``; "cannot parse"). Both must draw the pixels of the same file without them
+    (the reference: a red cube with its material); a ``#`` in a material name is kept."""
+    import trimesh
+
+    box = trimesh.creation.box()
+    vertices = ["v %f %f %f" % tuple(p) for p in box.vertices]
+    faces = ["f %d %d %d" % tuple(f) for f in box.faces + 1]
+    files = {
+        "plain": ["mtllib m.mtl", *vertices, "usemtl red#1", *faces],
+        "bom": ["mtllib m.mtl", *vertices, "usemtl red#1", *faces],
+        "bom_before_v": [*vertices, "mtllib m.mtl", "usemtl red#1", *faces],
+        "comments": ["# exported", "mtllib m.mtl", vertices[0] + " # first corner", *vertices[1:],
+                     "usemtl red#1", *(f + f"  #face {i}" for i, f in enumerate(faces)), "# end"],
+    }
+    for name, lines in files.items():
+        folder = tmp_path / "m" / "c" / name
+        folder.mkdir(parents=True)
+        text = ("\n".join(lines) + "\n").encode()
+        (folder / "m.obj").write_bytes(b"\xef\xbb\xbf" + text if name.startswith("bom") else text)
+        (folder / "m.mtl").write_text("newmtl red#1\nKd 1 0 0\n")
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    assert index_of(out)["failures"] == [] and index_of(out)["warnings"] == []
+    objects = _objects(out)
+    plain = objects["plain"]["images"][objects["plain"]["masks"] > 0].astype(int)
+    assert (plain[:, 0] > 100).all() and (plain[:, 1:] < 10).all()  # the reference is red: its material read
+    for name in ("bom", "bom_before_v", "comments"):
+        np.testing.assert_array_equal(objects[name]["masks"], objects["plain"]["masks"], err_msg=name)
+        np.testing.assert_array_equal(objects[name]["images"], objects["plain"]["images"], err_msg=name)
