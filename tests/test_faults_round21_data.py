@@ -104,3 +104,60 @@ def test_an_obj_with_a_byte_order_mark_or_comments_after_numbers_draws_as_withou
     for name in ("bom", "bom_before_v", "comments"):
         np.testing.assert_array_equal(objects[name]["masks"], objects["plain"]["masks"], err_msg=name)
         np.testing.assert_array_equal(objects[name]["images"], objects["plain"]["images"], err_msg=name)
+
+
+def test_gltf_nodes_that_name_a_camera_draw_their_mesh_and_children(tmp_path):
+    """glTF allows a node with both a ``camera`` and a ``mesh``, and children under a camera's
+    node; trimesh's loader took the first camera node for the scene's camera and skipped the rest
+    of it: its mesh was not drawn (another object, exit 0) and a child failed the file ("No path
+    from world->2!"). Reference: the same cube under the same node scale with no camera."""
+    from test_gltf_accessors import _edit_gltf
+
+    camera = [{"type": "perspective", "perspective": {"yfov": 0.8, "znear": 0.01}}]
+    folder = tmp_path / "m" / "box"
+    folder.mkdir(parents=True)
+    _edit_gltf(folder / "plain.gltf", lambda d: d["nodes"][0].update(scale=[2, 1, 1]))
+    _edit_gltf(folder / "camera_and_mesh.gltf",
+               lambda d: (d["nodes"][0].update(scale=[2, 1, 1], camera=0), d.update(cameras=camera)))
+    _edit_gltf(folder / "camera_parent.gltf", lambda d: d.update(
+        nodes=[{"camera": 0, "scale": [2, 1, 1], "children": [1]}, {"mesh": 0}], cameras=camera))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    assert index_of(out)["failures"] == []
+    objects = _objects(out)
+    for name in ("camera_and_mesh", "camera_parent"):
+        np.testing.assert_array_equal(objects[name]["masks"], objects["plain"]["masks"], err_msg=name)
+        np.testing.assert_array_equal(objects[name]["images"], objects["plain"]["images"], err_msg=name)
+
+
+def test_gltf_instancing_unknown_required_extensions_and_sparse_colours_are_refused(tmp_path):
+    """What the loader would draw as another object, exit 0, is refused in one line naming it: a
+    node drawing its mesh through ``EXT_mesh_gpu_instancing`` (the loader draws one copy where
+    the file draws one per instance), an extension in ``extensionsRequired`` the loader does not
+    know (the glTF spec: a loader must not load such a file), and a sparse ``COLOR_0`` (the
+    loader read its base values: black). Controls: required extensions the loader reads or the
+    matte renderer may leave out render."""
+    from test_gltf_accessors import _edit_gltf
+
+    def sparse_colours(doc):
+        doc["accessors"].append({"bufferView": 0, "componentType": 5126, "count": 8, "type": "VEC3", "sparse": {
+            "count": 1, "indices": {"bufferView": 1, "componentType": 5125}, "values": {"bufferView": 0}}})
+        doc["meshes"][0]["primitives"][0]["attributes"]["COLOR_0"] = len(doc["accessors"]) - 1
+
+    folder = tmp_path / "m" / "box"
+    folder.mkdir(parents=True)
+    _edit_gltf(folder / "instanced.gltf", lambda d: d["nodes"][0].update(
+        extensions={"EXT_mesh_gpu_instancing": {"attributes": {"TRANSLATION": 0}}}))  # 8 VEC3: 8 instances
+    _edit_gltf(folder / "requires_lod.gltf", lambda d: d.update(extensionsRequired=["MSFT_lod"]))
+    _edit_gltf(folder / "sparse_colours.gltf", sparse_colours)
+    _edit_gltf(folder / "requires_known.gltf",
+               lambda d: d.update(extensionsRequired=["KHR_materials_unlit", "KHR_mesh_quantization"]))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    reasons = {Path(f["source"]).stem: f["reason"].split(": ", 1)[1] for f in index_of(out)["failures"]}
+    assert reasons == {
+        "instanced": "node 0 draws mesh 0 8 times through EXT_mesh_gpu_instancing, which the loader does not apply: "
+                     "it would draw it once; not read",
+        "requires_lod": "it requires MSFT_lod, an extension the loader does not read; not read",
+        "sparse_colours": "accessor 2 (COLOR_0 of mesh 0) is sparse, which the loader does not apply; not read"}
+    assert set(_objects(out)) == {"requires_known"}

@@ -17,7 +17,10 @@ file is refused in one line whatever ``--bad-texture`` says (the loader would dr
 the wrong place, and which of its parts to draw plain cannot be told from what it loaded):
 
 * an extension in ``extensionsRequired`` that the loader cannot decode (:data:`UNDECODED`; Draco
-  only where ``DracoPy`` is missing): the file itself says it cannot be read without it;
+  only where ``DracoPy`` is missing), or does not know (not in :data:`READ_OR_MOOT`): the file
+  itself says it cannot be read without it;
+* a node drawing its mesh through ``EXT_mesh_gpu_instancing``, required or not: the loader draws
+  one copy at the node, where the file draws one per instance (:func:`instancing_problems`);
 * a primitive of a drawn mesh (the meshes ``sc3d_data.io.gltf_check`` judges) whose POSITION is
   stored as normalized integers, or whose ``TEXCOORD_0`` is stored as integers (normalized or
   not: the loader's flip of v wraps in an unsigned type) while its material has a base colour
@@ -47,7 +50,8 @@ import importlib.util
 
 import numpy as np
 
-__all__ = ["UNDECODED", "apply_texture_transforms", "feature_problems", "feature_warnings", "read_spec_gloss_as_matte",
+__all__ = ["READ_OR_MOOT", "UNDECODED", "apply_texture_transforms", "feature_problems", "feature_warnings", "instancing_problems",
+           "read_spec_gloss_as_matte",
            "transform_matrix"]
 
 #: required extensions the loader cannot decode: ``{name: what it is}``
@@ -55,6 +59,35 @@ UNDECODED = {"KHR_draco_mesh_compression": "Draco mesh compression",
              "EXT_meshopt_compression": "meshoptimizer compression",
              "KHR_meshopt_compression": "meshoptimizer compression",
              "KHR_texture_basisu": "KTX2 / Basis Universal textures"}
+
+
+#: extensions a file may require that the loader reads, or that change nothing the renderer draws
+#: (its matte shading of the albedo leaves lights and other material looks out anyway); with
+#: :data:`UNDECODED` and every ``KHR_materials_*``, the rest are refused where required
+READ_OR_MOOT = frozenset({"KHR_mesh_quantization", "KHR_texture_transform", "EXT_texture_webp", "KHR_lights_punctual",
+                          "KHR_materials_variants", "KHR_xmp_json_ld", "KHR_animation_pointer"})
+
+
+def _unknown(name: str) -> bool:
+    """Whether required extension ``name`` is one the loader neither reads nor may leave out."""
+    return not (name in READ_OR_MOOT or name in UNDECODED or name.startswith("KHR_materials_")
+                or name == "EXT_mesh_gpu_instancing")  # judged where a node uses it: instancing_problems
+
+
+def instancing_problems(doc: dict, drawn: set[int]) -> list[str]:
+    """The nodes of ``doc`` that draw a mesh of ``drawn`` through ``EXT_mesh_gpu_instancing``
+    (Blender's and gltfpack's instances): the loader draws the mesh once, at the node, where the
+    file draws it once per instance (``count`` of its attribute accessors)."""
+    accessors, problems = doc.get("accessors", []), []
+    for i, node in enumerate(doc.get("nodes", [])):
+        instancing = node.get("extensions", {}).get("EXT_mesh_gpu_instancing")
+        if isinstance(instancing, dict) and node.get("mesh") in drawn:
+            counts = {accessors[a].get("count") for a in instancing.get("attributes", {}).values()
+                      if isinstance(a, int) and 0 <= a < len(accessors)}
+            many = f" {counts.pop()} times" if len(counts) == 1 else ""
+            problems.append(f"node {i} draws mesh {node['mesh']}{many} through EXT_mesh_gpu_instancing, which the "
+                            "loader does not apply: it would draw it once")
+    return problems
 
 
 def _undecoded(name: str) -> bool:
@@ -205,9 +238,11 @@ def feature_problems(doc: dict, drawn: set[int]) -> list[str]:
     required extensions first, then the attributes stored as integers that it misreads
     (:func:`integer_attribute_problems`), then the textures of the materials of the drawn meshes
     ``drawn`` (mesh indices), each material once."""
+    required = [name for name in doc.get("extensionsRequired", []) if isinstance(name, str)]
     problems = [f"it requires {name} ({UNDECODED[name]}), which the loader cannot decode"
-                for name in doc.get("extensionsRequired", []) if isinstance(name, str) and _undecoded(name)]
-    problems += integer_attribute_problems(doc, drawn) + morph_problems(doc, drawn)
+                for name in required if _undecoded(name)]
+    problems += [f"it requires {name}, an extension the loader does not read" for name in required if _unknown(name)]
+    problems += instancing_problems(doc, drawn) + integer_attribute_problems(doc, drawn) + morph_problems(doc, drawn)
     materials, seen = doc.get("materials", []), set()
     for m in sorted(drawn):
         for prim in doc["meshes"][m].get("primitives", []):

@@ -7,6 +7,11 @@ colours by casting its numbers to bytes, never scaling normalized ones: unsigned
 material it keeps them as stored, and the renderer scales them
 (``render.renderer.material_vertex_colors``). :func:`loader_gltf_bytes` gives such primitives a
 white matte material in a copy of the document.
+
+It also takes the first node with a ``camera`` for the scene's camera and skips the rest of that
+node: a mesh on the same node was not drawn (glTF allows both on one node), and a child of it
+failed the file ("No path from world->2!"). The copy's nodes name no camera (sc3d renders at its
+own cameras), so such nodes are read as any other.
 """
 from __future__ import annotations
 
@@ -29,20 +34,29 @@ def _ushort_colours_alone(doc: dict) -> list[dict]:
             and 0 <= a < len(accessors) and accessors[a].get("componentType") == 5123]
 
 
+def _camera_nodes(doc: dict) -> list[dict]:
+    """The nodes of ``doc`` that name a camera."""
+    return [node for node in doc.get("nodes", []) if isinstance(node, dict) and "camera" in node]
+
+
 def loader_gltf_bytes(path: Path, doc: dict) -> bytes | None:
     """The glTF/GLB to give the loader in place of ``path`` (JSON ``doc``), or None for the file as
     it is. trimesh turns the vertex colours of a primitive without a material into bytes by
     casting, not scaling, so unsigned shorts wrap (65535 -> 255, 32768 -> 0: Blender's vertex
     paint in wrong colours); with a material it keeps them as stored, and the renderer scales
     them (``render.renderer.material_vertex_colors``). Such primitives get a white matte
-    material (white x colour: the colours as they are); the binary chunk is kept as it is."""
-    if not _ushort_colours_alone(doc):
+    material (white x colour: the colours as they are), and nodes lose their ``camera`` (module
+    doc); the binary chunk is kept as it is."""
+    if not (_ushort_colours_alone(doc) or _camera_nodes(doc)):
         return None
     doc = copy.deepcopy(doc)
-    doc.setdefault("materials", []).append({"name": "sc3d: white under vertex colours",
-                                            "pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1], "metallicFactor": 0}})
-    for prim in _ushort_colours_alone(doc):
-        prim["material"] = len(doc["materials"]) - 1
+    if _ushort_colours_alone(doc):
+        doc.setdefault("materials", []).append({"name": "sc3d: white under vertex colours", "pbrMetallicRoughness":
+                                                {"baseColorFactor": [1, 1, 1, 1], "metallicFactor": 0}})
+        for prim in _ushort_colours_alone(doc):
+            prim["material"] = len(doc["materials"]) - 1
+    for node in _camera_nodes(doc):
+        del node["camera"]
     text = json.dumps(doc).encode()
     if Path(path).suffix.lower() != ".glb":
         return text
