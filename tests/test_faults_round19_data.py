@@ -519,7 +519,7 @@ def test_what_is_drawn_unlike_the_file_says_is_warned_of(tmp_path):
     """Two things the renderer does not do, each now a warning naming the material where they
     rendered without a word: a glTF material with ``alphaMode`` MASK (a cut-out, drawn opaque) and
     an MTL texture moved by ``map_Kd -o``/``-s`` (drawn unmoved). Controls: OPAQUE, and ``-s 1 1 1
-    -clamp on`` (no move), get none."""
+    -bm 0.5`` (no move; ``-clamp on`` is warned of since: tests/test_faults_round21_data.py), get none."""
     from test_gltf_features import _half_red_half_green_cube
 
     folder = tmp_path / "m" / "box"
@@ -528,7 +528,7 @@ def test_what_is_drawn_unlike_the_file_says_is_warned_of(tmp_path):
         _half_red_half_green_cube(folder / f"{mode.lower()}.gltf", {"alphaMode": mode, "pbrMetallicRoughness": {
             "baseColorTexture": {"index": 0}, "metallicFactor": 0}})
     _textured_obj(folder / "offset", b"newmtl mat\nKd 1 1 1\nmap_Kd -o 0.5 0 0 t.png\n")
-    _textured_obj(folder / "unmoved", b"newmtl mat\nKd 1 1 1\nmap_Kd -s 1 1 1 -clamp on t.png\n")
+    _textured_obj(folder / "unmoved", b"newmtl mat\nKd 1 1 1\nmap_Kd -s 1 1 1 -bm 0.5 t.png\n")
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
     warnings = sorted((Path(w["source"]).name if w["source"].endswith(".gltf") else Path(w["source"]).parent.name,

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from sc3d_cli.data import main as data_main
-from conftest import run_cli
+from conftest import objects_by_id, run_cli
 from test_faults import FAST, index_of
 from test_faults_round19_data import _objects
 
@@ -161,3 +161,71 @@ def test_gltf_instancing_unknown_required_extensions_and_sparse_colours_are_refu
         "requires_lod": "it requires MSFT_lod, an extension the loader does not read; not read",
         "sparse_colours": "accessor 2 (COLOR_0 of mesh 0) is sparse, which the loader does not apply; not read"}
     assert set(_objects(out)) == {"requires_known"}
+
+
+def _prism_off(hexagons_as_triangles: bool, header: str = "OFF") -> str:
+    """A hexagonal prism as OFF text: two hexagons and six quad sides, or (``hexagons_as_triangles``)
+    each hexagon written by hand as the four triangles of its fan from corner 0."""
+    import math
+
+    ring = [(math.cos(k * math.pi / 3), math.sin(k * math.pi / 3)) for k in range(6)]
+    vertices = [f"{x:.6f} {y:.6f} {z}" for z in (0, 1) for x, y in ring]
+    bottom, top = list(range(5, -1, -1)), list(range(6, 12))
+    caps = [[h[0], h[i], h[i + 1]] for h in (bottom, top) for i in range(1, 5)] if hexagons_as_triangles \
+        else [bottom, top]
+    sides = [[k, (k + 1) % 6, (k + 1) % 6 + 6, k + 6] for k in range(6)]
+    faces = [f"{len(f)} " + " ".join(map(str, f)) + (" 255 0 0" if len(f) == 6 else "") for f in caps + sides]
+    return "\n".join([header, "# a prism", f"{len(vertices)} {len(faces)} 0", *vertices, *faces]) + "\n"
+
+
+def test_ply_diffuse_colours_off_polygons_and_clamped_mtl_textures(tmp_path):
+    """Three more files as tools write them. A PLY whose vertex colours are named
+    ``diffuse_red/green/blue`` (the Stanford tools' examples) was drawn grey, exit 0: it must draw
+    the pixels of the same file with ``red/green/blue``. An OFF with hexagons beside quads (a
+    prism; CAD exports) failed "cannot parse" (trimesh's OFF loader): it must draw the pixels of
+    the same prism whose hexagons are written as triangles by hand, also after a header with the
+    counts on its line and in ``COFF``. A ``map_Kd -clamp on`` texture, which the renderer repeats,
+    is warned of, naming the material."""
+    import trimesh
+
+    box = trimesh.creation.box()
+    colours = [(25, 50, 80), (230, 200, 180), (25, 200, 80), (230, 50, 180)] * 2
+
+    def ply(prefix: str) -> str:
+        head = ["ply", "format ascii 1.0", "element vertex 8", *(f"property float {a}" for a in "xyz"),
+                *(f"property uchar {prefix}{c}" for c in ("red", "green", "blue")), "element face 12",
+                "property list uchar int vertex_indices", "end_header"]
+        return "\n".join(head + ["%f %f %f %d %d %d" % (*p, *c) for p, c in zip(box.vertices, colours)]
+                         + ["3 %d %d %d" % tuple(f) for f in box.faces]) + "\n"
+
+    meshes = tmp_path / "m" / "c"
+    meshes.mkdir(parents=True)
+    (meshes / "plain_colours.ply").write_text(ply(""))
+    (meshes / "diffuse_colours.ply").write_text(ply("diffuse_"))
+    (meshes / "prism_triangles.off").write_text(_prism_off(True))
+    (meshes / "prism_hexagons.off").write_text(_prism_off(False))
+    (meshes / "prism_coff_counts_on_header.off").write_text(
+        _prism_off(False, "COFF").replace("COFF\n# a prism\n", "COFF ", 1))
+    _textured_clamp = meshes / "clamped"
+    _textured_clamp.mkdir()
+    (_textured_clamp / "m.obj").write_text("mtllib m.mtl\n" + "\n".join("v %f %f %f" % tuple(p) for p in box.vertices)
+                                           + "\n" + "\n".join("vt %f %f" % tuple(p[:2] + 0.5) for p in box.vertices)
+                                           + "\nusemtl wood\n" + "\n".join("f %d/%d %d/%d %d/%d" % (a, a, b, b, c, c)
+                                                                           for a, b, c in box.faces + 1) + "\n")
+    (_textured_clamp / "m.mtl").write_text("newmtl wood\nKd 1 1 1\nmap_Kd -clamp on t.png\n")
+    from PIL import Image
+    Image.new("RGB", (8, 8), (200, 120, 40)).save(_textured_clamp / "t.png")
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    assert index_of(out)["failures"] == []
+    assert [w["warning"].split(": ", 1)[1] for w in index_of(out)["warnings"]] == [
+        "material wood of m.mtl clamps its texture t.png (map_Kd -clamp on), which the loader does not apply; drawn "
+        "repeated where its texture coordinates leave [0, 1]"]
+    objects = {Path(name[1]).name if "/" not in name[1] else name[1].split("/")[0]: obj
+               for name, obj in objects_by_id(out).items()}
+    grey = objects["plain_colours"]["images"][objects["plain_colours"]["masks"] > 0]
+    assert np.ptp(grey.astype(int), axis=1).max() > 50  # the reference is coloured, not grey
+    for name, reference in (("diffuse_colours", "plain_colours"), ("prism_hexagons", "prism_triangles"),
+                            ("prism_coff_counts_on_header", "prism_triangles")):
+        np.testing.assert_array_equal(objects[name]["masks"], objects[reference]["masks"], err_msg=name)
+        np.testing.assert_array_equal(objects[name]["images"], objects[reference]["images"], err_msg=name)

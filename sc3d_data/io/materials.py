@@ -155,6 +155,9 @@ def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None =
         report.warnings += [f"material {printable(m)} of {printable(mtl.name)} offsets or scales its texture "
                             f"{printable(name)} (map_Kd -o/-s), which the loader does not apply; drawn unmoved"
                             for m, name in materials.moved]
+        report.warnings += [f"material {printable(m)} of {printable(mtl.name)} clamps its texture {printable(name)} "
+                            "(map_Kd -clamp on), which the loader does not apply; drawn repeated where its texture "
+                            "coordinates leave [0, 1]" for m, name in materials.clamped]
     undefined = [] if defined is None else list(dict.fromkeys(
         m for m in statement_values(text, "usemtl") if m not in defined))
     if undefined:

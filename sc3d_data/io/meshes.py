@@ -219,6 +219,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     from sc3d_data.io.loader_visuals import keep_obj_vertex_colours, texture_as_is
     from sc3d_data.io.materials import material_report
     from sc3d_data.io.obj_loader_text import loader_obj_bytes
+    from sc3d_data.io.off_polygons import loader_off_bytes
+    from sc3d_data.io.ply_header import loader_ply_bytes
     from sc3d_data.io.texture_resolver import loader_misses, make_resolver
 
     path = Path(path)
@@ -237,7 +239,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     if report.problems and bad_texture == "fail":
         raise MeshError(f"{path}: {'; '.join(report.problems)} (use --bad-texture fallback to render with "
                         "material colours)")
-    text = None if gltf_doc is None else loader_gltf_bytes(path, gltf_doc)  # vertex colours stored as shorts
+    text = None if gltf_doc is None else loader_gltf_bytes(path, gltf_doc)  # the text the loader reads right:
+    text = {".ply": loader_ply_bytes, ".off": loader_off_bytes}.get(path.suffix.lower(), lambda _: text)(path)
     if path.suffix.lower() == ".obj":
         data = path.read_bytes()
         check_obj_indices(path, data)

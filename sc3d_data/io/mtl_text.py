@@ -70,6 +70,12 @@ def _moves_texture(value: str) -> bool:
     return moves
 
 
+def _clamps_texture(value: str) -> bool:
+    """Whether a map statement's options clamp its texture (``-clamp on``)."""
+    tokens = [t.lower() for t in value.split()]
+    return any(t == "-clamp" and tokens[i + 1:i + 2] == ["on"] for i, t in enumerate(tokens))
+
+
 def map_file_name(value: str) -> str:
     """The file name of an MTL map statement's value, without its options:
     ``"-s 1 1 1 -clamp on tex.png"`` -> ``"tex.png"``, ``'"my tex.png"'`` -> ``"my tex.png"``;
@@ -90,14 +96,16 @@ def map_file_name(value: str) -> str:
 class MtlMaterials:
     """What one material file defines: ``names`` of its materials (in order), ``textures``
     ``[(material, map_Kd file name)]``, ``ambient_only`` ``[(material, map_Ka file name)]`` of
-    the materials whose only texture is ``map_Ka``, which is not drawn, and ``moved``
-    ``[(material, map_Kd file name)]`` of textures offset or scaled by ``-o``/``-s``, which the
-    loader does not apply, and ``texture_only``: the materials with a ``map_Kd`` and no ``Kd``."""
+    the materials whose only texture is ``map_Ka``, which is not drawn, ``moved``
+    ``[(material, map_Kd file name)]`` of textures offset or scaled by ``-o``/``-s`` and
+    ``clamped`` of those clamped by ``-clamp on``, which the loader does not apply (the renderer
+    repeats every texture), and ``texture_only``: the materials with a ``map_Kd`` and no ``Kd``."""
 
     names: list[str] = field(default_factory=list)
     textures: list[tuple[str, str]] = field(default_factory=list)
     ambient_only: list[tuple[str, str]] = field(default_factory=list)
     moved: list[tuple[str, str]] = field(default_factory=list)
+    clamped: list[tuple[str, str]] = field(default_factory=list)
     texture_only: list[str] = field(default_factory=list)
 
 
@@ -117,6 +125,8 @@ def mtl_materials(text: str) -> MtlMaterials:
             found.textures.append((current, map_file_name(value)))
             if _moves_texture(value):
                 found.moved.append(found.textures[-1])
+            if _clamps_texture(value):
+                found.clamped.append(found.textures[-1])
         elif key == "map_ka":
             ambient.setdefault(current, map_file_name(value))
         elif key == "kd":
