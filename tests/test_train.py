@@ -315,6 +315,40 @@ def test_nan_loss_stops_with_step_and_checkpoint(sample_shards, tmp_path):
     assert sorted(p.name for p in (out / "checkpoints").glob("step_*.pt")) == ["step_000002.pt"]
 
 
+def _torchrun_fit(*args) -> str:
+    """stdout of ``sc3d-train fit`` under torchrun with 2 CPU ranks (gloo; ``--device cpu`` also on a
+    GPU machine: on one with a single GPU the default ``auto`` would give rank 1 a ``cuda:1`` that
+    does not exist), batch 4, the tiny network, ``args`` after; asserts exit 0 within 300 s."""
+    import os
+    import subprocess
+    import sys
+
+    script = Path(sys.executable).parent / "sc3d-train"  # the installed console script
+    if not script.is_file():
+        pytest.skip(f"{script} not installed")
+    # --standalone: torchrun binds a free port itself (picking one here and handing it over
+    # raced with other processes taking it in between)
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+           str(script), "fit", "--device", "cpu", "--batch-size", "4", *TINY, *map(str, args)]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env,
+                       cwd=Path(__file__).resolve().parents[1])
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
+    return r.stdout
+
+
+def test_ddp_validation_between_logs_and_checkpoints_does_not_hang(sample_shards, tmp_path):
+    """Only rank 0 validates, but every rank must join the loss check made before a validation
+    (a collective): with ``--val-every 3`` against logs and checkpoints every 4 steps, rank 0
+    alone called it at step 3, the other rank went on into the next step's gradient all-reduce,
+    and the run hung (found by a review; the default intervals, 10 and 100, line up). The run
+    must end (the timeout of 300 s fails it) with its validation of step 3 written."""
+    out = tmp_path / "run"
+    _torchrun_fit("--shards", sample_shards, "--out", out, "--steps", 4, "--log-every", 4,
+                  "--checkpoint-every", 4, "--val-every", 3)
+    assert [int(r["step"]) for r in read_csv(out / "validation.csv")] == [3, 4]
+
+
 def test_ddp_two_cpu_ranks_supervised_then_semi_keep_the_same_weights(sample_shards, tmp_path):
     """torchrun with 2 processes (gloo on the CPU, ``--device cpu`` also on a GPU machine: on one
     with a single GPU the default ``auto`` would give rank 1 a ``cuda:1`` that does not exist)
@@ -326,25 +360,8 @@ def test_ddp_two_cpu_ranks_supervised_then_semi_keep_the_same_weights(sample_sha
     RNG states and the mixed phase's data position. (Exact resume under DDP was checked by hand:
     2 steps + --resume to 4 logs the losses of 4 steps at once; one launch here keeps the suite's
     time budget.)"""
-    import os
-    import subprocess
-    import sys
-
-    script = Path(sys.executable).parent / "sc3d-train"  # the installed console script
-    if not script.is_file():
-        pytest.skip(f"{script} not installed")
-
     def torchrun(*args):
-        # --standalone: torchrun binds a free port itself (picking one here and handing it over
-        # raced with other processes taking it in between)
-        cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
-               str(script), "fit", "--device", "cpu",
-               "--batch-size", "4", *TINY, "--checkpoint-every", "2", *map(str, args)]
-        env = {**os.environ, "OMP_NUM_THREADS": "1"}
-        r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env,
-                           cwd=Path(__file__).resolve().parents[1])
-        assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
-        return r.stdout
+        return _torchrun_fit("--checkpoint-every", "2", *args)
 
     whole = tmp_path / "whole"
     out = torchrun("--shards", sample_shards, "--out", whole, "--steps", 4,

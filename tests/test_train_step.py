@@ -87,6 +87,36 @@ def test_compiled_run_resumes_exactly_and_follows_the_eager_run(sample_shards, t
             assert float(ra[key]) == pytest.approx(float(re[key]), rel=1e-5, abs=1e-6), (ra["step"], key)
 
 
+def test_a_compiled_step_that_fails_on_its_second_call_falls_back_to_eager(sample_shards, capsys):
+    """CUDA graphs are recorded on a compiled step's second call, and the mixed phase of ``semi``
+    compiles its own graph when it starts: a failure there was raised (the run stopped), since
+    only the very first compiled call was guarded. Injected here (the compiled function raises
+    on its second call, as a graph that cannot be recorded does), the step must say so once and
+    go on eagerly from the same state: after three steps its weights equal those of the eager
+    step within 1e-5 (aot_eager reorders sums) and it no longer compiles."""
+    states = {}
+    for how in ("off", "on"):
+        t, step_fn, batches = make_step(sample_shards, "supervised", how)
+        if how == "on":
+            compiled, calls = step_fn.compiled, []
+
+            def fails_second(batch):
+                calls.append(1)
+                if len(calls) == 2:
+                    raise RuntimeError("graph could not be recorded (injected)")
+                return compiled(batch)
+
+            step_fn.compiled = fails_second
+        for _ in range(3):
+            step_fn({p: next(it) for p, it in batches.items()})
+        states[how] = t.model.state_dict()
+    assert step_fn.compiled is None and len(calls) == 2
+    said = capsys.readouterr().out
+    assert said.count("training eagerly") == 1 and "graph could not be recorded (injected)" in said, said
+    for k, v in states["off"].items():
+        torch.testing.assert_close(states["on"][k], v, rtol=1e-5, atol=1e-5, msg=k)
+
+
 def test_loss_window_names_the_first_bad_step():
     """Steps 7..11 recorded without a read-back; the check finds step 9, the first non-finite
     one, and empties the window."""

@@ -113,17 +113,26 @@ def run_checkpoint(path: Path, pick: str = "best", pick_given: bool = False) -> 
     return path
 
 
-def rng_state() -> dict:
-    """This process's RNG states (torch CPU, CUDA when present, numpy, python)."""
-    return {"torch": torch.get_rng_state(),
-            "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
+def rng_state(device: torch.device | None = None) -> dict:
+    """This process's RNG states: torch's CPU generator, the CUDA generator of ``device`` (the
+    training device, where it is a CUDA device; not every visible GPU's, which a machine with
+    fewer GPUs could not restore), numpy's and python's."""
+    cuda = device is not None and device.type == "cuda"
+    return {"torch": torch.get_rng_state(), "cuda": torch.cuda.get_rng_state(device) if cuda else None,
             "numpy": np.random.get_state(), "python": random.getstate()}
 
 
-def set_rng_state(state: dict) -> None:
+def set_rng_state(state: dict, device: torch.device | None = None) -> None:
+    """Restore :func:`rng_state`'s ``state``; its CUDA state to ``device``'s generator, where it is
+    a CUDA device (a checkpoint written before the state was per device holds one per visible GPU:
+    ``device``'s is taken, where it has one)."""
     torch.set_rng_state(state["torch"])
-    if state.get("cuda") is not None and torch.cuda.is_available():
-        torch.cuda.set_rng_state_all(state["cuda"])
+    cuda = state.get("cuda")
+    if isinstance(cuda, (list, tuple)):
+        index = (device.index or 0) if device is not None else 0
+        cuda = cuda[index] if index < len(cuda) else None
+    if cuda is not None and device is not None and device.type == "cuda":
+        torch.cuda.set_rng_state(cuda, device)
     np.random.set_state(state["numpy"])
     random.setstate(state["python"])
 

@@ -23,10 +23,13 @@ Random numbers
     the order of the eager step, so the compiled and the eager step see the same numbers and a
     run may switch ``compile`` on ``--resume``.
 When compiling fails
-    The first compiled step runs forward and backward only after the model's buffers
-    (BatchNorm statistics) are copied; if it raises (no C++ compiler, no triton, an op inductor
-    cannot lower), the buffers are put back, one line says why, and the run continues eagerly
-    from the same state. An error that the eager step raises too is raised from there.
+    The first compiled steps of each kind of batch (the supervised phase's, then the mixed
+    phase's, which compiles its own graph when it starts; :data:`PROVEN_AFTER` of each, since
+    CUDA graphs are recorded on the second call, not the first) run forward and backward only
+    after the model's buffers (BatchNorm statistics) are copied; if one raises (no C++ compiler,
+    no triton, an op inductor cannot lower, a graph that cannot be recorded), the buffers are put
+    back, one line says why, and the run continues eagerly from the same state. An error that the
+    eager step raises too is raised from there.
 """
 from __future__ import annotations
 
@@ -40,6 +43,18 @@ from sc3d_train.loop.phase_step import backward, optimizer_step, step_losses
 
 #: the order in which the passes of a step draw their noise (the eager step's order)
 PASS_ORDER = ("supervised", "unsupervised")
+
+
+#: compiled steps of one kind of batch that run guarded (module doc): the first compiles, the
+#: second records the CUDA graph
+PROVEN_AFTER = 2
+
+
+def batch_kind(batches: dict) -> tuple:
+    """What makes the compiled step compile anew (``dynamic=False``): the parts of ``batches``
+    (``{part: {name: tensor}}``) with their tensors' names and shapes."""
+    return tuple((part, name, tuple(v.shape)) for part, batch in sorted(batches.items())
+                 for name, v in sorted(batch.items()))
 
 
 @dataclass(frozen=True)
@@ -93,7 +108,7 @@ class TrainStep:
         self.compiled = None
         if plan.enabled:
             self.compiled = torch.compile(self.losses, mode=plan.mode, backend=plan.backend, dynamic=False)
-        self.proven = False  # the compiled step has run forward and backward once
+        self.proven: dict[tuple, int] = {}  # kind of batch -> compiled steps that ran forward and backward
 
     def losses(self, batches: dict) -> dict:
         """The step's losses (eager; the function that is compiled)."""
@@ -107,8 +122,9 @@ class TrainStep:
         draw_noise(batches, self.cfg.model.shape_dim)
         self.train_model.train()
         self.optimizer.zero_grad(set_to_none=True)
-        if self.compiled is not None and not self.proven:
-            losses = self._first_compiled(batches)
+        kind = batch_kind(batches)
+        if self.compiled is not None and self.proven.get(kind, 0) < PROVEN_AFTER:
+            losses = self._first_compiled(batches, kind)
         else:
             losses = self._forward(batches)
             backward(losses["total"], self.scaler)
@@ -122,7 +138,7 @@ class TrainStep:
             torch.compiler.cudagraph_mark_step_begin()
         return self.compiled(batches)
 
-    def _first_compiled(self, batches: dict) -> dict:
+    def _first_compiled(self, batches: dict, kind: tuple) -> dict:
         """Forward and backward through the compiled step; on failure, the buffers restored,
         one line, and the eager step from the same state."""
         buffers = {k: v.detach().clone() for k, v in self.model.named_buffers()}
@@ -141,5 +157,5 @@ class TrainStep:
             losses = self.losses(batches)
             backward(losses["total"], self.scaler)
             return losses
-        self.proven = True
+        self.proven[kind] = self.proven.get(kind, 0) + 1
         return losses

@@ -60,7 +60,7 @@ from sc3d_train.loop.batch_floor import check_batch_parts
 from sc3d_train.loop.schedule import data_position, lr_at, phase_at, step_samples
 from sc3d_train.loop.streams import labeled_dataset, phase_loaders, run_datasets, write_labeled_objects
 from sc3d_train.loop.train_step import TrainStep, compile_plan
-from sc3d_train.loop.validation import Validator, final_validation_owed
+from sc3d_train.loop.validation import Validator, final_validation_owed, validation_due
 from sc3d_train.paper.pose import PoseGrid
 from sc3d_train.paper.pose_search import dataset_pose_targets
 
@@ -145,7 +145,7 @@ def restore(t: Training) -> tuple[int, Path]:
     expected = data_position(cfg, step, t.local_batch)
     if ckpt["data_position"] != expected:
         raise CheckpointError(f"{ckpt_file}: data position {ckpt['data_position']} != {expected}")
-    set_rng_state(states[t.dist.rank])
+    set_rng_state(states[t.dist.rank], t.device)
     return step, ckpt_file
 
 
@@ -161,7 +161,7 @@ def wrap_ddp(t: Training) -> None:
 def save(t: Training, step_done: int) -> Path | None:
     """Checkpoint after ``step_done`` steps (every rank's RNG; rank 0 writes it) once the ranks agree."""
     check_same_weights(t.model, t.dist, step_done)
-    states = all_gather(rng_state(), t.dist)
+    states = all_gather(rng_state(t.device), t.dist)
     if not t.dist.is_main:
         return None
     path = save_checkpoint(t.run_dir, {
@@ -250,7 +250,8 @@ def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --
             boundary = cfg.mode == "semi" and done == cfg.pretrain_steps
             save_now = done % cfg.checkpoint_every == 0 or done == cfg.steps or boundary
             validate_now = validator is not None and validator.due(done)
-            if log_now or save_now or validate_now:  # the loop's only host syncs; best.pt never of NaN weights
+            if log_now or save_now or validation_due(cfg, done):  # the loop's only host syncs (every rank: a
+                # collective); best.pt never of NaN weights
                 check_finite(window, t.dist, cfg, last_good)
             if log_now:
                 if t.device.type == "cuda":

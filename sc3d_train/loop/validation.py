@@ -163,6 +163,13 @@ def resumed_rows(path: Path, start_step: int) -> list[dict]:
     return rows
 
 
+def validation_due(cfg: RunConfig, done: int) -> bool:
+    """Whether run ``cfg`` validates after ``done`` steps (where it has a validation split), the same
+    on every rank: the ranks that do not validate must still join the loss check made before it
+    (``trainer``), or their next collective meets another one and the run hangs."""
+    return bool(cfg.val_every) and (done % cfg.val_every == 0 or done == cfg.steps)
+
+
 class Validator:
     """Validation of one run on rank 0 (module doc). ``due(done)`` says when, ``run`` does it."""
 
@@ -213,7 +220,7 @@ class Validator:
 
     def due(self, done: int) -> bool:
         """Whether to validate after ``done`` steps."""
-        return done % self.cfg.val_every == 0 or done == self.cfg.steps
+        return validation_due(self.cfg, done)
 
     def owed(self, start_step: int) -> bool:
         """Whether the step a run resumes from was due a validation that it lacks: the run was
