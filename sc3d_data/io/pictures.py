@@ -10,11 +10,12 @@ from pathlib import Path
 from sc3d_data.io.shards import atomic_write_bytes
 
 
-def write_figure(fig, path: Path, dpi: int) -> None:
+def write_figure(fig, path: Path, dpi: int, metadata: dict | None = None) -> None:
     """Matplotlib figure ``fig`` to ``path`` at ``dpi`` (PNG unless the extension names another
-    format matplotlib writes: ``.pdf``, ``.svg``, ``.jpg`` ...)."""
+    format matplotlib writes: ``.pdf``, ``.svg``, ``.jpg`` ...), with ``metadata`` (``savefig``'s:
+    a PNG's text chunks, which PIL reads back as ``Image.info``)."""
     buf = io.BytesIO()
-    fig.savefig(buf, dpi=dpi, format=Path(path).suffix[1:].lower() or "png")
+    fig.savefig(buf, dpi=dpi, format=Path(path).suffix[1:].lower() or "png", metadata=metadata)
     atomic_write_bytes(Path(path), buf.getvalue())
 
 

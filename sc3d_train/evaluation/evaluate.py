@@ -40,8 +40,10 @@ from sc3d_train.loop.checkpoint_model import load_model
 from sc3d_train.settings.command_config import EvalConfig
 from sc3d_train.settings.config import MAX_BATCH_SIZE, batch_size_too_large
 from sc3d_train.data.dataset import ShardDataset
-from sc3d_train.evaluation.evaluated_data import (evaluated_data_digest, replaced_provenance, run_objects,
+from sc3d_train.evaluation.evaluated_data import (evaluated_data_digest, run_objects,
                                                   selection_objects_among, training_objects_among, untrained_categories)
+from sc3d_train.evaluation.evaluation_files import (EVALUATION_PICTURE, check_default_folder_free,
+                                                    check_outputs_replaceable, check_split_name)
 from sc3d_train.paper.metrics import MASK_THRESHOLD, VOXEL_THRESHOLDS, predict_dataset, summarize
 
 TABLE_COLUMNS = (("images", "n", "{:d}"), ("voxel_iou_0.4", "IoU@.4", "{:.3f}"),
@@ -128,7 +130,7 @@ def plot_examples(examples: list[dict], path: Path, per_row: int = 2) -> None:
         axes[r, c0].set_ylabel(example_label(ex), fontsize=5)
         axes[r, c0 + 4].set_xlabel(example_figures(ex), fontsize=5)
     fig.tight_layout()
-    write_figure(fig, path, dpi=90)
+    write_figure(fig, path, dpi=90, metadata={"Description": EVALUATION_PICTURE})
     plt.close(fig)
 
 
@@ -157,6 +159,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
         raise ValueError(f"{name} (--{name.replace('_', '-')}) must be >= {least}, got {value}")
     if batch_size > MAX_BATCH_SIZE:
         raise ValueError(batch_size_too_large(batch_size))
+    check_split_name(split)
     dev = resolve_device(device)
     checkpoint = run_checkpoint(checkpoint, pick)
     model, cfg, ckpt = load_model(checkpoint, dev)
@@ -165,6 +168,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
         out = default_output_dir(checkpoint, f"eval_{split}")
         check_default_folder_free(out, checkpoint, shards, pose_from)
     out = Path(out)
+    check_outputs_replaceable(out)
     with exclusive_lock(out, "sc3d-train eval", create=True):  # one evaluation writes here at a time
         dataset = ShardDataset(shards, split, subset="all", mask_size=cfg.model.mask_size,
                                require_voxels=True, image_size=cfg.model.image_size)
@@ -196,18 +200,6 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
         result["table"] = format_table(summary)
         result["out"] = str(out)
         return result
-
-
-def check_default_folder_free(out: Path, checkpoint: Path, shards: Path, pose_from: str) -> None:
-    """``ValueError`` when the default output folder ``out`` (``RUN_DIR/eval_SPLIT``) holds the
-    evaluation of another checkpoint file, other shards or another ``--pose``, which this one would
-    replace without a word (``eval --checkpoint RUN`` then ``eval --checkpoint RUN/checkpoints/
-    step_000500.pt``). Evaluating the same checkpoint file again (after training went on) replaces
-    its own evaluation; an explicit ``--out`` is the user's choice and is not judged."""
-    given = {"checkpoint": checkpoint, "shards": shards, "pose_from": pose_from}
-    if changed := replaced_provenance(Path(out) / "metrics.json", given):
-        raise ValueError(f"{out}: holds the evaluation of {changed[0]}, which this one ({changed[1]}) would replace; "
-                         "give --out for this one (or remove that folder)")
 
 
 def require_finite_weights(checkpoint: Path, model: torch.nn.Module) -> None:

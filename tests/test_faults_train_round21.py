@@ -1,0 +1,55 @@
+"""Training-half defects of the twenty-first attack round, with the real trainer and evaluator on
+the sample shards; expected outcomes are files left as they were and one-line refusals, checked
+by reading the files back."""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from sc3d_cli.train import main as train_main
+from conftest import one_error, run_cli
+
+
+def test_eval_out_replaces_no_file_of_someone_else(trained_run, sample_shards, tmp_path):
+    """``eval --out DIR`` replaced ``DIR/metrics.json`` and ``DIR/predictions.png`` whatever they
+    were (another experiment's results, a picture; ``--examples 0`` just deleted it), exit 0.
+    Now a ``metrics.json`` that eval did not write, or a ``predictions.png`` without an
+    evaluation's ``metrics.json`` beside it that eval did not draw, is refused in one line and left
+    as it was; an earlier evaluation in the folder is replaced, also one cut short before its
+    ``metrics.json`` (the controls)."""
+    args = ["eval", "--checkpoint", trained_run, "--shards", sample_shards, "--examples", 0, "--device", "cpu"]
+    foreign = tmp_path / "foreign_metrics"
+    foreign.mkdir()
+    (foreign / "metrics.json").write_text('{"my": "results of another experiment"}')
+    picture = tmp_path / "foreign_picture"
+    picture.mkdir()
+    (picture / "predictions.png").write_bytes(b"my picture")
+    for folder, name in ((foreign, "metrics.json"), (picture, "predictions.png")):
+        before = (folder / name).read_bytes()
+        error = one_error(run_cli(train_main, [*args, "--out", folder], expect_exit=1).output)
+        assert f"--out {folder}: {name} exists and is not" in error and "choose another --out" in error, error
+        assert (folder / name).read_bytes() == before and sorted(p.name for p in folder.iterdir()) == [name]
+    ours = tmp_path / "ours"
+    run_cli(train_main, [*args, "--out", ours])
+    first = json.loads((ours / "metrics.json").read_text())
+    run_cli(train_main, [*args, "--out", ours])  # its own evaluation: replaced
+    assert json.loads((ours / "metrics.json").read_text())["checkpoint"] == first["checkpoint"]
+    cut = tmp_path / "cut_short"  # an evaluation stopped between its picture and metrics.json (claims redoes it)
+    run_cli(train_main, [*args[:-4], "--examples", 1, "--device", "cpu", "--out", cut])
+    (cut / "metrics.json").unlink()
+    run_cli(train_main, [*args[:-4], "--examples", 1, "--device", "cpu", "--out", cut])
+    assert (cut / "metrics.json").is_file() and (cut / "predictions.png").is_file()
+
+
+def test_eval_split_that_is_a_path_is_refused_before_any_folder_is_made(trained_run, sample_shards, tmp_path):
+    """``eval --split ../../x`` named the default output folder ``RUN/eval_../../x``, made it (a
+    folder outside the run) and then failed on a lock file path. A split is a name: refused in
+    one line, nothing made."""
+    split = f"../../../escape_{tmp_path.name}"
+    made = Path(os.path.abspath(trained_run / f"eval_{split}"))  # the folder it made: beside the run's folder
+    result = run_cli(train_main, ["eval", "--checkpoint", trained_run, "--shards", sample_shards, "--split", split,
+                                  "--device", "cpu"], expect_exit=1)
+    assert one_error(result.output) == (f"Error: --split {split!r}: a split is a name in the shards (train, val, "
+                                        "test), not a path")
+    assert made.parent == trained_run.parent and not made.exists()
