@@ -229,3 +229,66 @@ def test_ply_diffuse_colours_off_polygons_and_clamped_mtl_textures(tmp_path):
                             ("prism_coff_counts_on_header", "prism_triangles")):
         np.testing.assert_array_equal(objects[name]["masks"], objects[reference]["masks"], err_msg=name)
         np.testing.assert_array_equal(objects[name]["images"], objects[reference]["images"], err_msg=name)
+
+
+def test_large_palette_and_one_bit_textures_are_drawn(tmp_path):
+    """A texture over 1024 px is box-filtered down before upload, and PIL's ``reduce`` refuses
+    palette and 1-bit images (PNG optimisers write them: glTF's CesiumMilkTruck has a 2048 px
+    palette texture), so such an object failed with "image has wrong mode". Reference: the same
+    2048 px texture saved as RGB; both must draw its pixels (the palette holds the colour exactly,
+    and the 1-bit texture is white, drawn as a white RGB texture)."""
+    from PIL import Image
+
+    def textured(name: str, image) -> None:
+        _vertex_coloured_obj(tmp_path / "m" / "c" / name, (1, 1, 1), "newmtl mat\nKd 1 1 1\nmap_Kd t.png\n", uv=True)
+        obj = tmp_path / "m" / "c" / name / "m.obj"  # the same cube without its vertex colours
+        obj.write_text("\n".join(" ".join(line.split()[:4]) if line.startswith("v ") else line
+                                 for line in obj.read_text().splitlines()) + "\n")
+        image.save(tmp_path / "m" / "c" / name / "t.png")
+
+    red = Image.new("RGB", (2048, 2048), (200, 30, 30))
+    textured("red_rgb", red)
+    textured("red_palette", red.convert("P", palette=Image.ADAPTIVE, colors=16))
+    textured("white_rgb", Image.new("RGB", (2048, 2048), (255, 255, 255)))
+    textured("white_one_bit", Image.new("1", (2048, 2048), 1))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    assert index_of(out)["failures"] == []
+    objects = _objects(out)
+    assert Image.open(tmp_path / "m" / "c" / "red_palette" / "t.png").mode == "P"
+    for name, reference in (("red_palette", "red_rgb"), ("white_one_bit", "white_rgb")):
+        np.testing.assert_array_equal(objects[name]["images"], objects[reference]["images"], err_msg=name)
+    red_px = objects["red_rgb"]["images"][objects["red_rgb"]["masks"] > 0].astype(int)
+    assert (red_px[:, 0] > red_px[:, 1] + 50).all()  # the reference draws its red texture
+
+
+def test_a_missing_ply_texture_fails_in_one_line_without_the_loaders_traceback(tmp_path):
+    """A PLY naming its texture in ``comment TextureFile`` (MeshLab) that is missing fails the
+    object in one line naming it; trimesh's logger also printed a traceback naming neither the
+    mesh nor sc3d ("unable to load image!" ... "FileNotFoundError"), from every worker. The
+    command runs in its own process, so its workers' output is what it prints (a forkserver
+    started by another test would keep that test's streams)."""
+    import subprocess
+    import sys
+
+    import trimesh
+
+    box = trimesh.creation.box()
+    head = ["ply", "format ascii 1.0", "comment TextureFile gone.png", "element vertex 8",
+            *(f"property float {a}" for a in ("x", "y", "z", "texture_u", "texture_v")),
+            "element face 12", "property list uchar int vertex_indices", "end_header"]
+    folder = tmp_path / "m" / "c"
+    folder.mkdir(parents=True)
+    (folder / "box.ply").write_text("\n".join(head + ["%f %f %f 0.5 0.5" % tuple(p) for p in box.vertices]
+                                              + ["3 %d %d %d" % tuple(f) for f in box.faces]) + "\n")
+    (folder / "plain.obj").write_text(box.export(file_type="obj"))
+    out = tmp_path / "out"
+    script = Path(sys.executable).parent / "sc3d-data"  # the installed console script
+    printed = subprocess.run([str(script), "render", "--meshes", str(tmp_path / "m"), "--out", str(out), *FAST],
+                             capture_output=True, text=True, timeout=300)
+    assert printed.returncode == 0, printed.stdout + printed.stderr
+    [failure] = index_of(out)["failures"]
+    assert failure["reason"].startswith(f"{folder / 'box.ply'}: gone.png named by the mesh or its materials was not "
+                                        "loaded (not found)"), failure
+    said = printed.stdout + printed.stderr
+    assert "Traceback" not in said and "unable to load image" not in said, said

@@ -57,10 +57,10 @@ def test_f1_obj_faces_counting_from_0_are_refused_naming_the_line(tmp_path):
 def test_f1_indices_that_are_not_zero_pass_the_check(tmp_path, line):
     """Tokens that contain a 0 but are not index 0 (10, a comment, a texture coordinate, a line
     statement) are not refused by the check."""
-    from sc3d_data.io.meshes import check_obj_indices
+    from sc3d_data.io.obj_loader_text import check_obj_indices
 
     (p := tmp_path / "x.obj").write_text(_vertex_lines() + line + "\n")
-    check_obj_indices(p)
+    check_obj_indices(p.read_bytes())
 
 
 # ----------------------------------------------------------------------------- F2

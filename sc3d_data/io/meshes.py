@@ -10,7 +10,7 @@ a regular file (FIFO, device, a symlink to one: never opened), a file over ``max
 (checked before parsing), a file that does not parse, no triangles, NaN/inf vertices, zero
 surface area, more than ``max_faces`` triangles, coordinates beyond float32 range (the renderer
 draws in float32), a file whose text cannot be decoded, an OBJ face that names index 0 (OBJ
-counts from 1; trimesh would silently read 0 as the last vertex), a glTF/GLB that draws a
+counts from 1; trimesh would silently read 0 as the last vertex: ``io.obj_loader_text``), a glTF/GLB that draws a
 TRIANGLE_FAN primitive (which trimesh skips) or a sparse POSITION/indices accessor (which trimesh
 does not apply; both judged from the JSON by ``sc3d_data.io.gltf_check``), or (``bad_texture="fail"``, the default)
 a texture that is named but cannot be read, decoded or loaded. Warnings (recorded in the index,
@@ -57,48 +57,22 @@ def load_scene(path: Path, resolver=None, text: bytes | None = None):
 
     import trimesh
 
+    from sc3d_data.io.texture_resolver import quiet_loader
+
     path = Path(path)
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise MeshError(f"{path}: unsupported mesh format {path.suffix!r} (use one of {', '.join(MESH_SUFFIXES)})")
     try:
         source = dict(file_obj=str(path)) if text is None else dict(file_obj=io.BytesIO(text),
                                                                      file_type=path.suffix.lower().lstrip("."))
-        scene = trimesh.load(**source, force="scene", process=False, resolver=resolver)
+        with quiet_loader():  # what its logger says of the files it asks for, one line naming the mesh says
+            scene = trimesh.load(**source, force="scene", process=False, resolver=resolver)
     except (UnicodeDecodeError, ModuleNotFoundError) as e:  # text formats: bytes that no charset decodes
         raise MeshError(f"{path}: cannot decode the file as text (not UTF-8 and no other encoding "
                         f"detected; {type(e).__name__}: {e})") from e
     except Exception as e:  # trimesh raises many kinds of errors on garbage
         raise MeshError(f"{path}: cannot parse mesh file ({type(e).__name__}: {e})") from e
     return scene
-
-
-def _is_any(values: np.ndarray, chars: bytes) -> np.ndarray:
-    """``values [n] uint8`` -> ``[n] bool``: which are one of the bytes ``chars``."""
-    return np.logical_or.reduce([values == c for c in chars])
-
-
-def check_obj_indices(path: Path, data: bytes | None = None) -> None:
-    """Raise ``MeshError`` naming ``path`` and the line when an OBJ face names index 0.
-
-    OBJ indices count from 1 (negative ones count back from the last vertex read); some
-    exporters write 0-based indices, which trimesh reads without complaint as wrong triangles
-    (0 becomes the last vertex). Such a file is refused, not rendered wrong. Vectorised (a
-    70 MB OBJ in a fraction of its parse time): every token ``0`` between separators is a
-    candidate, kept when its line is an ``f`` statement and it comes before any ``#``. ``data``: the
-    file's bytes, when already read."""
-    text = b"\n" + (Path(path).read_bytes() if data is None else data) + b"\n"  # padded: a byte each side
-    b = np.frombuffer(text, dtype=np.uint8)
-    zeros = np.flatnonzero(b == ord("0"))
-    zeros = zeros[_is_any(b[zeros - 1], b" \t/") & _is_any(b[zeros + 1], b" \t/\r\n")]
-    newlines = np.flatnonzero(b == ord("\n"))
-    line_no = np.searchsorted(newlines, zeros)  # newlines before each candidate = its line number
-    starts = newlines[line_no - 1] + 1
-    maybe_face = (b[starts] == ord("f")) | _is_any(b[starts], b" \t")  # the exact test below
-    for pos, start, number in zip(zeros[maybe_face], starts[maybe_face], line_no[maybe_face]):
-        line = text[start:text.index(b"\n", pos)].strip()
-        if line[:2] in (b"f ", b"f\t") and b"#" not in text[start:pos]:
-            raise MeshError(f"{path}: line {number} ({line[:60].decode('utf-8', 'replace')!r}) names index 0, but "
-                            "OBJ indices count from 1 (an exporter that writes 0-based indices?); not read")
 
 
 def scene_triangles(scene, source: str = "mesh") -> tuple[np.ndarray, np.ndarray]:
@@ -218,7 +192,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     from sc3d_data.io.gltf_loader_doc import loader_gltf_bytes
     from sc3d_data.io.loader_visuals import keep_obj_vertex_colours, texture_as_is
     from sc3d_data.io.materials import material_report
-    from sc3d_data.io.obj_loader_text import loader_obj_bytes
+    from sc3d_data.io.obj_loader_text import check_obj_indices, loader_obj_bytes
     from sc3d_data.io.off_polygons import loader_off_bytes
     from sc3d_data.io.ply_header import loader_ply_bytes
     from sc3d_data.io.texture_resolver import loader_misses, make_resolver
@@ -243,8 +217,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     text = {".ply": loader_ply_bytes, ".off": loader_off_bytes}.get(path.suffix.lower(), lambda _: text)(path)
     if path.suffix.lower() == ".obj":
         data = path.read_bytes()
-        check_obj_indices(path, data)
         try:
+            check_obj_indices(data)
             text = loader_obj_bytes(data)  # relative indices as the format counts them; a non-UTF-8 file as Latin-1
         except ValueError as e:
             raise MeshError(f"{path}: {e}; not read") from e

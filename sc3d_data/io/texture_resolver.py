@@ -12,16 +12,33 @@ is a ``str`` with lone surrogates).
 """
 from __future__ import annotations
 
+import logging
 import os
 import re
 import urllib.parse
+from contextlib import contextmanager
 from pathlib import Path
 
 from sc3d_data.io.materials import MaterialReport, mtllib_names, real_file, texture_root
 from sc3d_data.io.mtl_text import loader_mtl_text, loader_reading, map_file_name, read_obj_text
 from sc3d_data.io.names import printable
 
-__all__ = ["loader_misses", "make_resolver"]
+__all__ = ["loader_misses", "make_resolver", "quiet_loader"]
+
+
+@contextmanager
+def quiet_loader():
+    """trimesh's log lines not printed while it loads: a file the resolver cannot serve is
+    reported by :func:`loader_misses` in one line naming the mesh, where trimesh's own logger
+    printed a traceback naming neither (a PLY's missing ``comment TextureFile``), interleaved
+    between workers."""
+    logger = logging.getLogger("trimesh")  # its modules log as trimesh.util, ...: their level is this one's
+    was = logger.level
+    logger.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        logger.setLevel(was)
 
 
 def _as_written(name: str) -> str | None:

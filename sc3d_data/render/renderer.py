@@ -251,6 +251,10 @@ def mesh_parts(scene, to_canonical: np.ndarray):
                None if uv is None else np.ascontiguousarray(uv, np.float32), base, image)
 
 
+#: modes of texture images that PIL's ``Image.reduce`` box-filters as they are
+REDUCIBLE_MODES = ("L", "LA", "RGB", "RGBA")
+
+
 def eight_bit(image):
     """``image`` (a PIL texture) with 8 bits per channel. 16-bit grey PNGs open as mode
     ``I;16`` (``I`` in older Pillow), whose values run 0-65535; PIL's ``convert`` clips them at
@@ -383,7 +387,9 @@ class MeshRenderer:
         image = eight_bit(image)
         factor = math.ceil(max(image.size) / max(MAX_TEXTURE_SIZE, 8 * self.S))
         if factor > 1:  # box filter, as the first mipmap levels would be: saves memory and upload time
-            image = image.reduce(factor)
+            # PIL's reduce refuses palette and 1-bit images (PNG optimisers' output, e.g. the 2048 px
+            # texture of glTF's CesiumMilkTruck: "image has wrong mode"): those are converted first
+            image = (image if image.mode in REDUCIBLE_MODES else image.convert("RGBA")).reduce(factor)
         # RGBA, not RGB: llvmpipe stores 4 bytes per texel either way, and converts RGB on upload
         # and in mipmap generation (5x / 1.6x slower); the shader reads .rgb, alpha is unused
         img = np.asarray(image.convert("RGBA"), dtype=np.uint8)[::-1]  # row 0 = v 0 (bottom)
