@@ -41,7 +41,8 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
     """Train the self-consistency model on the shards' training split."""
     from sc3d_train.loop.checkpoint import CheckpointError
     from sc3d_train.data.dataset import DataError
-    from sc3d_train.loop.resolve import check_mode_options, given_paths, pose_grid_warning, resolve_config
+    from sc3d_train.loop.config_file import file_settings
+    from sc3d_train.loop.resolve import check_mode_options, pose_grid_warning, resolve_config
     from sc3d_train.loop.schedule import no_semi_phase_warning
     from sc3d_train.loop.runtime import check_device_name
     from sc3d_train.loop.loss_window import TrainingDiverged
@@ -73,7 +74,7 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
     from sc3d_data.io.outlock import LockError, exclusive_lock
 
     try:
-        run_dir = out if out is not None else RunConfig.load(config_file, given_paths(options)).out
+        run_dir = out if out is not None else file_settings(config_file, options).get("out")
         # one writer per run folder (rank 0 writes for all ranks), from the "already holds a run"
         # check to the last checkpoint, so config.yaml and checkpoints belong to one run
         lock = exclusive_lock(run_dir, "sc3d-train fit", create=True) if main_rank and run_dir else nullcontext()

@@ -53,3 +53,29 @@ def test_eval_split_that_is_a_path_is_refused_before_any_folder_is_made(trained_
     assert one_error(result.output) == (f"Error: --split {split!r}: a split is a name in the shards (train, val, "
                                         "test), not a path")
     assert made.parent == trained_run.parent and not made.exists()
+
+
+def test_a_config_file_is_checked_with_the_options_that_override_it(sample_shards, tmp_path):
+    """Later wins (docs/config.md): a ``--config`` file's settings with the options that override
+    them. The file was checked alone first, so a file of ``split: val`` with ``--val-every 0``
+    (what its own error advised) or ``--val-split train``, one of ``val_split: train`` with
+    ``--split val``, and one of ``mode: semi, pretrain_steps: 2500`` with ``--steps 3000`` were
+    refused, though the same settings as options were accepted. Each must resolve to what the
+    options say; the file alone is still refused, naming it."""
+    import pytest
+
+    from sc3d_train.loop.resolve import resolve_config
+
+    cases = [("split: val\n", {"val_every": 0}), ("split: val\n", {"val_split": "train"}),
+             ("val_split: train\n", {"split": "val"}), ("mode: semi\npretrain_steps: 2500\n", {"steps": 3000})]
+    for n, (text, options) in enumerate(cases):
+        config = tmp_path / f"c{n}.yaml"
+        config.write_text(text)
+        cfg = resolve_config({"shards": str(sample_shards), "out": str(tmp_path / f"run{n}"), **options},
+                             {"tiny": True}, config_file=config)
+        assert all(getattr(cfg, k) == v for k, v in options.items()), (text, options)
+        if "pretrain_steps" in text:
+            assert cfg.mode == "semi" and cfg.pretrain_steps == 2500
+        with pytest.raises(ValueError, match=str(config)):  # the file alone: its settings contradict each other
+            resolve_config({"shards": str(sample_shards), "out": str(tmp_path / f"alone{n}")}, {"tiny": True},
+                           config_file=config)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sc3d_train.loop.config_file import MODE_ONLY_OPTIONS, file_settings
 from sc3d_train.loop.run_folder import check_no_foreign_files, check_no_linked_files, check_path_names
 from sc3d_train.settings.config import RESUMABLE_FIELDS, TINY_MODEL, RunConfig
 from sc3d_train.settings.config_io import defaults_of, load_yaml
@@ -17,7 +18,8 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     ``claims``); ``model_options``: :class:`~sc3d_train.settings.config.ModelConfig` fields set likewise,
     plus ``tiny`` (bool): the :data:`~sc3d_train.settings.config.TINY_MODEL` preset.
 
-    New run, later wins: the dataclass defaults, ``config_file`` (a run's ``config.yaml``), the tiny preset,
+    New run, later wins: the dataclass defaults, ``config_file`` (a run's ``config.yaml``;
+    ``loop.config_file.file_settings``), the tiny preset,
     ``model_options`` and ``options``; then the facts of the shards (:func:`shard_facts`). ``resume``: the run's
     saved config, where ``options`` may change only :data:`~sc3d_train.settings.config.RESUMABLE_FIELDS` and
     ``model_options`` nothing."""
@@ -29,15 +31,7 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     options = absolute_paths(options)
     if resume:
         return _resumed(options, model_options, tiny)
-    plain = {}
-    if config_file is not None:
-        plain = RunConfig.load(config_file, given_paths(options)).to_dict()
-        if defaulted_pretraining(load_yaml(config_file).get("pretrain_steps"), plain, options):
-            plain["pretrain_steps"] = None  # loading set it from the file's steps: [steps // 2] of this run's instead
-        # --semi / --labeled-only switch the file's mode: the settings only its mode reads go back to defaults
-        if (mode := options.get("mode", plain["mode"])) != plain["mode"]:
-            plain.update({k: v for k, v in defaults_of(RunConfig).items()
-                          if plain["mode"] in MODE_ONLY_OPTIONS.get(k, ()) and mode not in MODE_ONLY_OPTIONS[k]})
+    plain = file_settings(config_file, options) if config_file is not None else {}
     plain.update(options)
     if plain.get("out") is None or plain.get("shards") is None:
         raise ValueError("a new run needs --shards and --out (or a --config file that names them)")
@@ -68,28 +62,11 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     return RunConfig.from_dict(plain)
 
 
-def defaulted_pretraining(in_file, loaded: dict, options: dict) -> bool:
-    """Whether a ``--config`` file's ``pretrain_steps`` (``in_file``; ``loaded``: the file's
-    settings as loaded) is the default's value that should follow this run's ``--steps``
-    (``options``): left out of the file, or, with another ``--steps`` given, half the file's
-    steps, which a run's own ``config.yaml`` records for a default (docs/config.md)."""
-    if in_file is None:
-        return True
-    new_steps = options.get("steps")
-    return new_steps is not None and new_steps != loaded["steps"] and in_file == loaded["steps"] // 2
-
-
 def absolute_paths(settings: dict) -> dict:
     """``settings`` with ``shards`` and ``decoded_cache`` absolute, a relative one read from the
     current folder (given as an option or in a ``--config`` file), so that the run's
     ``config.yaml`` resumes from anywhere."""
     return {**settings, **{k: str(Path(settings[k]).resolve()) for k in ("shards", "decoded_cache") if settings.get(k)}}
-
-
-def given_paths(options: dict) -> dict:
-    """``shards`` and ``out`` of ``options`` where given: with ``--config`` they replace the
-    file's, or stand in for them where a hand-written file leaves them out."""
-    return {k: options[k] for k in ("shards", "out") if options.get(k) is not None}
 
 
 def shard_facts(shards: Path, split: str, val_split: str) -> dict:
@@ -245,12 +222,6 @@ def saved_config(out: Path) -> RunConfig:
         cfg.save(saved_path)
         print(f"note: {saved_path} {problem}; the run's config is read from {ckpt_file} and written back")
     return cfg
-
-
-#: options that only some modes read, and those modes
-MODE_ONLY_OPTIONS = {"labeled_fraction": ("semi", "labeled-only"), "pretrain_steps": ("semi",),
-                     "semi_lr": ("semi",), "semi_labeled_share": ("semi",),
-                     "semi_batch_size": ("semi",)}
 
 
 def check_mode_options(cfg: RunConfig, given: dict, config_file: Path | None = None) -> None:

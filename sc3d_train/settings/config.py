@@ -307,7 +307,7 @@ class RunConfig(_Plain):
             if self.pretrain_steps is None:
                 self.pretrain_steps = self.steps // 2
             if not 0 <= self.pretrain_steps <= self.steps:
-                raise ValueError(f"pretrain steps {self.pretrain_steps} not in [0, steps={self.steps}]")
+                raise ValueError(f"pretrain_steps (--pretrain-steps) {self.pretrain_steps} not in [0, steps={self.steps}]")
 
     def save(self, path: Path) -> None:
         """Write the config as YAML (atomically)."""

@@ -1,0 +1,56 @@
+"""A ``fit --config FILE``'s settings as a new run takes them, with the options given beside it
+(later wins, docs/config.md): the file is loaded (each setting checked, an error naming the file
+and the key) with the options it is checked against already in place, its default-looking
+pretraining made this run's default, and the settings only its mode reads reset where
+``--semi``/``--labeled-only`` switch the mode."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from sc3d_train.settings.config import RunConfig
+from sc3d_train.settings.config_io import defaults_of, load_yaml
+
+#: options that only some modes read, and those modes
+MODE_ONLY_OPTIONS = {"labeled_fraction": ("semi", "labeled-only"), "pretrain_steps": ("semi",),
+                     "semi_lr": ("semi",), "semi_labeled_share": ("semi",),
+                     "semi_batch_size": ("semi",)}
+#: settings a ``--config`` file's own are checked against (``RunConfig``'s checks across settings)
+CHECKED_ACROSS = ("split", "val_split", "val_every", "steps", "pretrain_steps")
+
+
+def given_paths(options: dict) -> dict:
+    """What of ``options`` replaces a ``--config`` file's settings as it is loaded: ``shards`` and
+    ``out`` where given (they stand in where a hand-written file leaves them out), and the
+    settings its others are checked against (:data:`CHECKED_ACROSS`: a file's ``split: val`` with
+    ``--val-every 0``, its ``pretrain_steps: 2500`` with ``--steps 3000``, were refused as if the
+    option had not been given)."""
+    return {k: options[k] for k in ("shards", "out", *CHECKED_ACROSS) if options.get(k) is not None}
+
+
+def defaulted_pretraining(in_file, file_steps: int, options: dict) -> bool:
+    """Whether a ``--config`` file's ``pretrain_steps`` (``in_file``; ``file_steps``: the file's
+    ``steps``) is the default's value that should follow this run's ``--steps`` (``options``):
+    left out of the file, or, with another ``--steps`` given, half the file's steps, which a run's
+    own ``config.yaml`` records for a default (docs/config.md)."""
+    if in_file is None:
+        return True
+    new_steps = options.get("steps")
+    return new_steps is not None and new_steps != file_steps and in_file == file_steps // 2
+
+
+def file_settings(config_file: Path, options: dict) -> dict:
+    """The settings of ``config_file`` (plain data, as ``RunConfig.to_dict``) a new run with
+    ``options`` starts from (module doc); ``ConfigError`` naming the file and the key for a
+    setting that is not valid, or that contradicts another with the options in place."""
+    in_file, given = load_yaml(config_file), given_paths(options)
+    if defaulted := defaulted_pretraining(in_file.get("pretrain_steps"),
+                                          in_file.get("steps", defaults_of(RunConfig)["steps"]), options):
+        given.setdefault("pretrain_steps", None)  # checked as this run's default, [steps // 2]
+    plain = RunConfig.load(config_file, given).to_dict()
+    if defaulted:
+        plain["pretrain_steps"] = None  # loading set it from the file's steps: [steps // 2] of this run's instead
+    # --semi / --labeled-only switch the file's mode: the settings only its mode reads go back to defaults
+    if (mode := options.get("mode", plain["mode"])) != plain["mode"]:
+        plain.update({k: v for k, v in defaults_of(RunConfig).items()
+                      if plain["mode"] in MODE_ONLY_OPTIONS.get(k, ()) and mode not in MODE_ONLY_OPTIONS[k]})
+    return plain
