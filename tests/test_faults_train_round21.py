@@ -79,3 +79,36 @@ def test_a_config_file_is_checked_with_the_options_that_override_it(sample_shard
         with pytest.raises(ValueError, match=str(config)):  # the file alone: its settings contradict each other
             resolve_config({"shards": str(sample_shards), "out": str(tmp_path / f"alone{n}")}, {"tiny": True},
                            config_file=config)
+
+
+def test_a_resumed_run_with_a_damaged_log_cell_finishes(trained_run, tmp_path):
+    """A log cell that is no number (a hand-edited ``validation.csv``, an empty ``samples_per_s``
+    in ``metrics.csv``) stopped a resumed run with "could not convert string to float: 'oops'",
+    naming no file: at its start (the resumed step's validation row, re-sent to TensorBoard), or
+    after training every step, while drawing ``curves.png`` (exit 1). The run must finish (exit 0)
+    with its curves drawn, the damaged points left out."""
+    import csv
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(trained_run, run)
+    steps = _last_step(run)
+    for name, key, value in (("validation.csv", "val_iou", "oops"), ("metrics.csv", "samples_per_s", "")):
+        with open(run / name, newline="") as f:
+            rows = list(csv.DictReader(f))
+        rows[0][key] = rows[-1][key] = value  # an earlier row and the resumed step's
+        with open(run / name, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+    (run / "curves.png").unlink()
+    run_cli(train_main, ["fit", "--out", run, "--resume", "--steps", steps + 2, "--no-progress"])
+    assert (run / "curves.png").stat().st_size > 0
+
+
+def _last_step(run) -> int:
+    """The step of ``run``'s ``last.pt``, from its ``metrics.csv``'s last row (0-based step + 1)."""
+    import csv
+
+    with open(run / "metrics.csv", newline="") as f:
+        return int(list(csv.DictReader(f))[-1]["step"]) + 1

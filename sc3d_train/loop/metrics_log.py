@@ -30,6 +30,15 @@ def complete_rows(path: Path) -> list[dict]:
             if None not in r and None not in r.values() and str(r.get("step")).isdigit()]
 
 
+def cell_number(row: dict, key: str) -> float:
+    """The number in ``row[key]`` of a CSV log, NaN where the cell is empty, missing or no number
+    (a hand-edited or damaged file: its curves are drawn without that point, not refused)."""
+    try:
+        return float(row.get(key))
+    except (TypeError, ValueError):
+        return math.nan
+
+
 def write_csv_atomic(path: Path, fields: list[str] | None, rows: list[dict]) -> None:
     """``path`` rewritten whole as CSV (header ``fields``, then ``rows``; empty without fields),
     through a temporary file renamed over it (``io.shards.atomic_write_bytes``): a kill while a
@@ -172,34 +181,30 @@ def plot_curves(csv_path: Path, png_path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    with open(csv_path, newline="") as f:
-        rows = list(csv.DictReader(f))
+    rows = complete_rows(csv_path)  # rows whose step is a number; their other cells: cell_number
     if not rows:
         return
     val_path = Path(csv_path).with_name("validation.csv")
-    val = []
-    if val_path.is_file():
-        with open(val_path, newline="") as f:
-            val = list(csv.DictReader(f))
+    val = complete_rows(val_path) if val_path.is_file() else []
     steps = [int(r["step"]) for r in rows]
     fig, axes = plt.subplots(1, 3 if val else 2, figsize=(16 if val else 11, 4))
     ax, ax2 = axes[0], axes[1]
     for key in ("total", "l3d", "l2d", "lsc", "kl", "pose", "u_lsc", "u_pose"):
         if any(r.get(key) not in ("", None) for r in rows):
-            vals = [float(r[key]) if r.get(key) not in ("", None) else math.nan for r in rows]
+            vals = [cell_number(r, key) for r in rows]
             if any(v > 0 for v in vals if not math.isnan(v)):
                 ax.plot(steps, vals, label=key)
     ax.set_yscale("log")
     ax.set_xlabel("step")
     ax.set_title("training losses")
     ax.legend(fontsize=8)
-    ax2.plot(steps, [float(r["samples_per_s"]) for r in rows])
+    ax2.plot(steps, [cell_number(r, "samples_per_s") for r in rows])
     ax2.set_xlabel("step")
     ax2.set_title("samples/s")
     if val:
         ax3, vsteps = axes[2], [int(r["step"]) for r in val]
         for key, label in (("val_iou", "IoU@0.4"), ("val_rot_acc30", "rotation within 30 deg")):
-            ax3.plot(vsteps, [float(r[key]) for r in val], marker="o", label=label)
+            ax3.plot(vsteps, [cell_number(r, key) for r in val], marker="o", label=label)
         best = [int(r["step"]) for r in val if r["best"] == "1"]
         if best:
             ax3.axvline(best[-1], color="gray", linestyle=":", label=f"best.pt (step {best[-1]})")

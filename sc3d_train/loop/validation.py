@@ -65,7 +65,7 @@ import numpy as np
 import torch
 
 from sc3d_train.loop.checkpoint import best_path, load_checkpoint, save_best
-from sc3d_train.loop.metrics_log import complete_rows, write_csv_atomic
+from sc3d_train.loop.metrics_log import cell_number, complete_rows, write_csv_atomic
 from sc3d_train.loop.schedule import phase_at
 from sc3d_train.settings.command_config import DEFAULT_POSE_SOURCE
 from sc3d_train.settings.config import RunConfig
@@ -182,7 +182,7 @@ class Validator:
         self.validated = {int(r["step"]) for r in rows}  # the steps validated before this run
         for r in rows:  # TensorBoard's resume purge (from start_step on) took the resumed step's own row
             if int(r["step"]) >= start_step > 0:
-                self._to_tb({k: float(r[k]) for k in FIELDS[1:5]}, int(r["step"]))
+                self._to_tb({k: cell_number(r, k) for k in FIELDS[1:5]}, int(r["step"]))
         self.best = None
         #: whether this split is large enough to pick best.pt (module doc: too few objects)
         self.selects = dataset.num_objects >= cfg.val_min_objects
