@@ -136,20 +136,24 @@ def test_gltf_instancing_unknown_required_extensions_and_sparse_colours_are_refu
     the file draws one per instance), an extension in ``extensionsRequired`` the loader does not
     know (the glTF spec: a loader must not load such a file), and a sparse ``COLOR_0`` (the
     loader read its base values: black). Controls: required extensions the loader reads or the
-    matte renderer may leave out render."""
+    matte renderer may leave out, and a sparse ``TEXCOORD_0`` of an untextured primitive (it
+    places nothing), render."""
     from test_gltf_accessors import _edit_gltf
 
-    def sparse_colours(doc):
-        doc["accessors"].append({"bufferView": 0, "componentType": 5126, "count": 8, "type": "VEC3", "sparse": {
-            "count": 1, "indices": {"bufferView": 1, "componentType": 5125}, "values": {"bufferView": 0}}})
-        doc["meshes"][0]["primitives"][0]["attributes"]["COLOR_0"] = len(doc["accessors"]) - 1
+    def sparse(attribute: str, kind: str):
+        def edit(doc):
+            doc["accessors"].append({"bufferView": 0, "componentType": 5126, "count": 8, "type": kind, "sparse": {
+                "count": 1, "indices": {"bufferView": 1, "componentType": 5125}, "values": {"bufferView": 0}}})
+            doc["meshes"][0]["primitives"][0]["attributes"][attribute] = len(doc["accessors"]) - 1
+        return edit
 
     folder = tmp_path / "m" / "box"
     folder.mkdir(parents=True)
     _edit_gltf(folder / "instanced.gltf", lambda d: d["nodes"][0].update(
         extensions={"EXT_mesh_gpu_instancing": {"attributes": {"TRANSLATION": 0}}}))  # 8 VEC3: 8 instances
     _edit_gltf(folder / "requires_lod.gltf", lambda d: d.update(extensionsRequired=["MSFT_lod"]))
-    _edit_gltf(folder / "sparse_colours.gltf", sparse_colours)
+    _edit_gltf(folder / "sparse_colours.gltf", sparse("COLOR_0", "VEC3"))
+    _edit_gltf(folder / "sparse_uv_untextured.gltf", sparse("TEXCOORD_0", "VEC2"))  # places nothing: drawn
     _edit_gltf(folder / "requires_known.gltf",
                lambda d: d.update(extensionsRequired=["KHR_materials_unlit", "KHR_mesh_quantization"]))
     out = tmp_path / "out"
@@ -160,7 +164,7 @@ def test_gltf_instancing_unknown_required_extensions_and_sparse_colours_are_refu
                      "it would draw it once; not read",
         "requires_lod": "it requires MSFT_lod, an extension the loader does not read; not read",
         "sparse_colours": "accessor 2 (COLOR_0 of mesh 0) is sparse, which the loader does not apply; not read"}
-    assert set(_objects(out)) == {"requires_known"}
+    assert set(_objects(out)) == {"requires_known", "sparse_uv_untextured"}
 
 
 def _prism_off(hexagons_as_triangles: bool, header: str = "OFF") -> str:

@@ -112,3 +112,20 @@ def _last_step(run) -> int:
 
     with open(run / "metrics.csv", newline="") as f:
         return int(list(csv.DictReader(f))[-1]["step"]) + 1
+
+
+def test_a_semi_config_file_with_other_steps_or_another_mode_trains(sample_shards, tmp_path):
+    """Two uses of a semi run's own ``config.yaml`` (``steps: 5000, pretrain_steps: 2500``, the
+    default half) that the check of a file with its options must not refuse: ``fit --config
+    FILE --steps 2`` with the run folder named by the file (no ``--out``: the command reads it
+    from the file), whose pretraining follows the new steps (1, docs/config.md), and, with
+    ``pretrain_steps: 2400`` (chosen, not the default), ``--labeled-only --steps 2``, whose mode
+    does not read the file's pretraining (it was checked against the 2 steps, and refused)."""
+    for n, (pretrain, extra) in enumerate(((2500, []), (2400, ["--labeled-only"]))):
+        config = tmp_path / f"semi{n}.yaml"
+        config.write_text(f"shards: {sample_shards}\nout: {tmp_path / f'run{n}'}\nmode: semi\nsteps: 5000\n"
+                          f"pretrain_steps: {pretrain}\nval_every: 0\n")
+        run_cli(train_main, ["fit", "--config", config, "--steps", 2, *extra, "--tiny", "--base-channels", 4,
+                             "--batch-size", 4, "--no-progress"])
+        saved = (tmp_path / f"run{n}" / "config.yaml").read_text()
+        assert "steps: 2\n" in saved and ("pretrain_steps: 1\n" in saved if not extra else "labeled-only" in saved)

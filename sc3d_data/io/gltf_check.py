@@ -11,7 +11,8 @@ never the binary data; an external buffer file is only stat'ed).
 Modes and sparse accessors are judged where the loader draws them: the meshes of the nodes
 reachable from the scene it uses (``scene``, else the first; every mesh without scenes), their
 surface primitives' ``indices`` and the accessors of the attributes the renderer draws with
-(POSITION, ``TEXCOORD_0``, ``COLOR_0``: a sparse one drew the texture at (0, 0), the colours black).
+(POSITION, ``COLOR_0``, and ``TEXCOORD_0`` where the material has a base colour texture: a sparse
+one drew the texture at (0, 0), the colours black).
 Points and lines (modes 0-3) carry no surface and are not drawn, which is right: left alone.
 A file that is no glTF document (JSON that does not parse, or is not an object; a GLB without its
 header) is refused in one line saying so. A data layout the loader cannot read (a buffer without
@@ -31,7 +32,7 @@ import struct
 from pathlib import Path
 
 from sc3d_data.io.gltf_accessors import layout_problems
-from sc3d_data.io.gltf_features import feature_problems
+from sc3d_data.io.gltf_features import feature_problems, textured
 
 __all__ = ["GLTF_SUFFIXES", "SKIPPED_SURFACE_MODES", "gltf_refusal", "judge_gltf", "read_gltf"]
 
@@ -39,7 +40,7 @@ GLTF_SUFFIXES = (".gltf", ".glb")
 #: primitive modes that draw a surface but which the loader skips: ``{mode: name}``
 SKIPPED_SURFACE_MODES = {6: "TRIANGLE_FAN"}
 #: the attributes whose ``sparse`` accessors are judged: those the renderer draws with (normals are
-#: not: shading uses face normals)
+#: not: shading uses face normals; ``TEXCOORD_0`` where the primitive is textured)
 SPARSE_JUDGED = ("POSITION", "TEXCOORD_0", "COLOR_0")
 #: primitive modes the loader reads as triangles (the default mode is TRIANGLES)
 TRIANGLE_MODES = (4, 5)
@@ -101,7 +102,8 @@ def gltf_problems(doc: dict) -> list[str]:
             if mode not in TRIANGLE_MODES:
                 continue  # points and lines: no surface, not drawn
             attributes = prim.get("attributes", {})
-            used = [("indices", prim.get("indices"))] + [(role, attributes.get(role)) for role in SPARSE_JUDGED]
+            used = [("indices", prim.get("indices"))] + [(role, attributes.get(role)) for role in SPARSE_JUDGED
+                                                         if role != "TEXCOORD_0" or textured(doc, prim)]
             for role, a in used:
                 if a is not None and a not in sparse_seen and "sparse" in accessors[a]:
                     sparse_seen.add(a)

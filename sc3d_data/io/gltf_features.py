@@ -51,7 +51,7 @@ import importlib.util
 import numpy as np
 
 __all__ = ["READ_OR_MOOT", "UNDECODED", "apply_texture_transforms", "feature_problems", "feature_warnings", "instancing_problems",
-           "read_spec_gloss_as_matte",
+           "read_spec_gloss_as_matte", "textured",
            "transform_matrix"]
 
 #: required extensions the loader cannot decode: ``{name: what it is}``
@@ -183,23 +183,30 @@ def _base_textures(material: dict) -> list[tuple[str, dict]]:
 INTEGER_TYPES = {5120: "byte", 5121: "unsigned byte", 5122: "short", 5123: "unsigned short", 5125: "unsigned int"}
 
 
+def textured(doc: dict, prim: dict) -> bool:
+    """Whether glTF primitive ``prim`` of ``doc`` is drawn with a texture: its material has a base
+    colour texture (the loader maps it with ``TEXCOORD_0``; an untextured primitive's texture
+    coordinates place nothing)."""
+    materials, i = doc.get("materials", []), prim.get("material")
+    return isinstance(i, int) and 0 <= i < len(materials) and bool(_base_textures(materials[i]))
+
+
 def integer_attribute_problems(doc: dict, drawn: set[int]) -> list[str]:
     """The attributes of the primitives of the drawn meshes ``drawn`` that the loader reads as
     other numbers than the file means and uses (module doc), each accessor once: a POSITION
     stored as normalized integers, a ``TEXCOORD_0`` stored as integers where the primitive's
     material has a base colour texture (the loader reads no other set, and places nothing else
     with it)."""
-    accessors, materials, problems, seen = doc.get("accessors", []), doc.get("materials", []), [], set()
+    accessors, problems, seen = doc.get("accessors", []), [], set()
     for m in sorted(drawn):
         for prim in doc["meshes"][m].get("primitives", []):
-            i = prim.get("material")
-            textured = isinstance(i, int) and 0 <= i < len(materials) and bool(_base_textures(materials[i]))
+            with_texture = textured(doc, prim)
             for role, a in prim.get("attributes", {}).items():
                 if not isinstance(a, int) or a in seen or not 0 <= a < len(accessors):
                     continue
                 kind = INTEGER_TYPES.get(accessors[a].get("componentType"))
                 normalized = accessors[a].get("normalized") is True
-                if kind and ((role == "TEXCOORD_0" and textured) or (role == "POSITION" and normalized)):
+                if kind and ((role == "TEXCOORD_0" and with_texture) or (role == "POSITION" and normalized)):
                     seen.add(a)
                     problems.append(f"accessor {a} ({role} of mesh {m}) holds {'normalized ' * normalized}{kind} "
                                     "integers (quantized glTF), which the loader reads unscaled")

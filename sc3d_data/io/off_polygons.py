@@ -17,8 +17,10 @@ from pathlib import Path
 
 __all__ = ["loader_off_bytes"]
 
-#: a line that starts with a whole number of five or more: a candidate polygon's face line
-_POLYGON = re.compile(rb"(?m)^[ \t]*(?:[5-9]|[1-9]\d+)[ \t]")
+#: a line that starts with a whole number of five or more and five more whole numbers: a candidate
+#: polygon's face line (the counts line has two more; a vertex line of whole numbers with a colour
+#: may match too, and only costs the full reading)
+_POLYGON = re.compile(rb"(?m)^[ \t]*(?:[5-9]|[1-9]\d+)(?:[ \t]+\d+){5}(?![\d.eE])")
 #: the header keyword (``OFF``, ``COFF``, ``NOFF``, ``STOFF``...) and what follows it on its line
 _HEADER = re.compile(r"^([A-Z]*OFF)\s*(.*)$")
 

@@ -5,7 +5,7 @@ trimesh's PLY loader (``trimesh.exchange.ply``, 5.x) reads colours from the prop
 exporters that followed them, name them ``diffuse_red``, ``diffuse_green``, ``diffuse_blue``: such
 an object was drawn in the default grey, exit 0. :func:`loader_ply_bytes` gives the loader the file
 with those properties renamed in its header (the header is text; the data after ``end_header``,
-text or binary, is kept byte for byte), where the element has no property of the plain name.
+text or binary, is kept byte for byte), where the header has no property of the plain names.
 """
 from __future__ import annotations
 

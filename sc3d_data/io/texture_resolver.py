@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 import os
 import re
+import threading
 import urllib.parse
 from contextlib import contextmanager
 from pathlib import Path
@@ -26,19 +27,31 @@ from sc3d_data.io.names import printable
 __all__ = ["loader_misses", "make_resolver", "quiet_loader"]
 
 
+#: how many loads are running quietly in this process, and the trimesh logger's level before the first
+_quiet = {"loads": 0, "level": logging.NOTSET}
+_quiet_lock = threading.Lock()
+
+
 @contextmanager
 def quiet_loader():
     """trimesh's log lines not printed while it loads: a file the resolver cannot serve is
     reported by :func:`loader_misses` in one line naming the mesh, where trimesh's own logger
     printed a traceback naming neither (a PLY's missing ``comment TextureFile``), interleaved
-    between workers."""
-    logger = logging.getLogger("trimesh")  # its modules log as trimesh.util, ...: their level is this one's
-    was = logger.level
-    logger.setLevel(logging.CRITICAL + 1)
+    between workers. Its modules log as ``trimesh.util``, ...: their level is the ``trimesh``
+    logger's, raised while any thread of this process loads, restored after the last."""
+    logger = logging.getLogger("trimesh")
+    with _quiet_lock:
+        if _quiet["loads"] == 0:
+            _quiet["level"] = logger.level
+            logger.setLevel(logging.CRITICAL + 1)
+        _quiet["loads"] += 1
     try:
         yield
     finally:
-        logger.setLevel(was)
+        with _quiet_lock:
+            _quiet["loads"] -= 1
+            if _quiet["loads"] == 0:
+                logger.setLevel(_quiet["level"])
 
 
 def _as_written(name: str) -> str | None:

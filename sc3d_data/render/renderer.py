@@ -251,8 +251,8 @@ def mesh_parts(scene, to_canonical: np.ndarray):
                None if uv is None else np.ascontiguousarray(uv, np.float32), base, image)
 
 
-#: modes of texture images that PIL's ``Image.reduce`` box-filters as they are
-REDUCIBLE_MODES = ("L", "LA", "RGB", "RGBA")
+#: modes of texture images that PIL's ``Image.reduce`` refuses (palette, 1-bit)
+UNREDUCIBLE_MODES = ("P", "PA", "1")
 
 
 def eight_bit(image):
@@ -389,7 +389,7 @@ class MeshRenderer:
         if factor > 1:  # box filter, as the first mipmap levels would be: saves memory and upload time
             # PIL's reduce refuses palette and 1-bit images (PNG optimisers' output, e.g. the 2048 px
             # texture of glTF's CesiumMilkTruck: "image has wrong mode"): those are converted first
-            image = (image if image.mode in REDUCIBLE_MODES else image.convert("RGBA")).reduce(factor)
+            image = (image.convert("RGBA") if image.mode in UNREDUCIBLE_MODES else image).reduce(factor)
         # RGBA, not RGB: llvmpipe stores 4 bytes per texel either way, and converts RGB on upload
         # and in mipmap generation (5x / 1.6x slower); the shader reads .rgb, alpha is unused
         img = np.asarray(image.convert("RGBA"), dtype=np.uint8)[::-1]  # row 0 = v 0 (bottom)

@@ -42,15 +42,13 @@ def file_settings(config_file: Path, options: dict) -> dict:
     """The settings of ``config_file`` (plain data, as ``RunConfig.to_dict``) a new run with
     ``options`` starts from (module doc); ``ConfigError`` naming the file and the key for a
     setting that is not valid, or that contradicts another with the options in place."""
-    in_file, given = load_yaml(config_file), given_paths(options)
-    if defaulted := defaulted_pretraining(in_file.get("pretrain_steps"),
-                                          in_file.get("steps", defaults_of(RunConfig)["steps"]), options):
-        given.setdefault("pretrain_steps", None)  # checked as this run's default, [steps // 2]
-    plain = RunConfig.load(config_file, given).to_dict()
-    if defaulted:
-        plain["pretrain_steps"] = None  # loading set it from the file's steps: [steps // 2] of this run's instead
+    in_file, given, defaults = load_yaml(config_file), given_paths(options), defaults_of(RunConfig)
     # --semi / --labeled-only switch the file's mode: the settings only its mode reads go back to defaults
-    if (mode := options.get("mode", plain["mode"])) != plain["mode"]:
-        plain.update({k: v for k, v in defaults_of(RunConfig).items()
-                      if plain["mode"] in MODE_ONLY_OPTIONS.get(k, ()) and mode not in MODE_ONLY_OPTIONS[k]})
+    file_mode = in_file.get("mode", defaults["mode"])
+    mode = options.get("mode", file_mode)
+    reset = [k for k, modes in MODE_ONLY_OPTIONS.items() if file_mode in modes and mode not in modes]
+    if defaulted_pretraining(in_file.get("pretrain_steps"), in_file.get("steps", defaults["steps"]), options):
+        reset.append("pretrain_steps")  # [steps // 2] of this run's steps, not the file's
+    plain = RunConfig.load(config_file, {**given, "mode": mode}, without=tuple(reset)).to_dict()
+    plain.update({k: defaults[k] for k in reset})
     return plain

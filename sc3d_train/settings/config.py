@@ -317,12 +317,13 @@ class RunConfig(_Plain):
         atomic_write_bytes(Path(path), dump_yaml(self.to_dict(), header).encode())
 
     @classmethod
-    def load(cls, path: Path, paths: dict | None = None) -> "RunConfig":
+    def load(cls, path: Path, paths: dict | None = None, without: tuple = ()) -> "RunConfig":
         """The config in YAML (or, from earlier versions, JSON) file ``path``; ``ConfigError``
-        naming the file and the key when it is not a valid one. ``paths``: ``shards`` / ``out``
-        given elsewhere (``fit --shards/--out``), which replace the file's or stand in for them."""
+        naming the file and the key when it is not a valid one. ``paths``: settings given elsewhere
+        (``fit --shards/--out``, ``loop.config_file``), which replace the file's or stand in for
+        them; ``without``: settings of the file left at their defaults."""
         try:
-            return cls.from_dict({**load_yaml(path), **(paths or {})})
+            return cls.from_dict({**{k: v for k, v in load_yaml(path).items() if k not in without}, **(paths or {})})
         except ConfigError as e:
             if str(e).startswith(f"{path}:"):
                 raise
