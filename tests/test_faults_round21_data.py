@@ -296,3 +296,29 @@ def test_a_missing_ply_texture_fails_in_one_line_without_the_loaders_traceback(t
                                         "loaded (not found)"), failure
     said = printed.stdout + printed.stderr
     assert "Traceback" not in said and "unable to load image" not in said, said
+
+
+def test_merge_of_parts_planned_from_two_states_of_the_collection_names_the_cause(tmp_path):
+    """Part 0/2 rendered from 2 categories, a third added, then part 1/2: ``merge`` said "split
+    differs" (the split's record counts the plan's objects), pointing at a setting the user did not
+    change. It must name the plans' object counts and the way out (rerun the earlier part, which
+    plans again), after which the merge holds every object."""
+    import shutil
+
+    from conftest import SAMPLE_MESHES, one_error
+
+    meshes = tmp_path / "m"
+    for category in ("airplane", "car"):
+        shutil.copytree(Path(SAMPLE_MESHES) / category, meshes / category)
+    render = ["render", "--meshes", meshes, "--views", 4, "--image-size", 32, "--workers", 1, "--no-progress"]
+    run_cli(data_main, [*render, "--out", tmp_path / "p0", "--part", "0/2"])
+    shutil.copytree(Path(SAMPLE_MESHES) / "table", meshes / "table")
+    run_cli(data_main, [*render, "--out", tmp_path / "p1", "--part", "1/2"])
+    total = sum(1 for p in meshes.rglob("*") if p.is_file() and p.suffix in (".glb", ".obj", ".ply", ".off", ".stl"))
+    before = total - sum(1 for p in (meshes / "table").rglob("*") if p.suffix in (".glb", ".obj", ".ply", ".off", ".stl"))
+    error = one_error(run_cli(data_main, ["merge", tmp_path / "merged", tmp_path / "p0", tmp_path / "p1"],
+                              expect_exit=1).output)
+    assert f"planned from {total} objects, {tmp_path / 'p0'} from {before}: the meshes changed" in error, error
+    run_cli(data_main, [*render, "--out", tmp_path / "p0", "--part", "0/2"])  # plans again
+    run_cli(data_main, ["merge", tmp_path / "merged", tmp_path / "p0", tmp_path / "p1"])
+    assert len(index_of(tmp_path / "merged")["objects"]) == total

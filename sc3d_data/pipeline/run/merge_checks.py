@@ -69,6 +69,11 @@ def check_parts(dirs: list[Path], defaults_of: Callable[[dict], dict] = lambda s
                 if k not in VOXEL_SETTINGS + ("split_file",)]  # the grids they hold and the split, below
         if diff:
             raise MergeError(f"{d}: made with other settings than {d0} ({', '.join(diff)} differ); refused")
+        totals = (p.get("planned_total"), first["part"].get("planned_total"))
+        if p["count"] == n and totals[0] != totals[1]:  # the split's record counts the plan's objects: named first
+            raise MergeError(f"{d}: part {p['index']}/{n} planned from {totals[0]} objects, {d0} from {totals[1]}: "
+                             "the meshes changed between their runs? rerun the earlier parts (they resume and "
+                             "plan again), then merge; refused")
         if split_record_meaning(index.get("split")) != split_record_meaning(first.get("split")):
             raise MergeError(f"{d}: split differs from {d0}; refused")
         grids, grids0 = held_voxel_resolution(index), held_voxel_resolution(first)
