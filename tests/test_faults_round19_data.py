@@ -99,6 +99,11 @@ def _objects(out: Path) -> dict[str, dict]:
     return {name[1].split("/")[0]: obj for name, obj in objects_by_id(out).items()}
 
 
+def _reasons(out: Path) -> dict[str, str]:
+    """``{stem of the mesh file: its failure's reason without the path}`` of dataset ``out``."""
+    return {Path(f["source"]).stem: f["reason"].split(": ", 1)[1] for f in index_of(out)["failures"]}
+
+
 def _looks(out: Path) -> dict[str, str]:
     """``{model: "red" | "grey"}`` of every object of dataset ``out``: red where every masked pixel
     is red (the texture drawn), grey where every one is grey (material colour)."""
@@ -450,8 +455,7 @@ def test_a_ktx2_texture_with_a_png_fallback_draws_the_png(tmp_path):
     (tmp_path / "outside.png").write_bytes(b"not read")
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
-    reasons = {Path(f["source"]).stem: f["reason"].split(": ", 1)[1] for f in index_of(out)["failures"]}
-    assert reasons == {
+    assert _reasons(out) == {
         "required": "it requires KHR_texture_basisu (KTX2 / Basis Universal textures), which the loader cannot "
                     "decode; not read",
         "broken": "texture image 1 unreadable (not an image format Pillow reads) (use --bad-texture fallback to "

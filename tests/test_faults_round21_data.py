@@ -11,7 +11,7 @@ import numpy as np
 from sc3d_cli.data import main as data_main
 from conftest import objects_by_id, run_cli
 from test_faults import FAST, index_of
-from test_faults_round19_data import _objects
+from test_faults_round19_data import _objects, _reasons
 
 
 def _vertex_coloured_obj(folder: Path, colour: tuple[float, float, float], mtl: str | None = None,
@@ -158,8 +158,7 @@ def test_gltf_instancing_unknown_required_extensions_and_sparse_colours_are_refu
                lambda d: d.update(extensionsRequired=["KHR_materials_unlit", "KHR_mesh_quantization"]))
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
-    reasons = {Path(f["source"]).stem: f["reason"].split(": ", 1)[1] for f in index_of(out)["failures"]}
-    assert reasons == {
+    assert _reasons(out) == {
         "instanced": "node 0 draws mesh 0 8 times through EXT_mesh_gpu_instancing, which the loader does not apply: "
                      "it would draw it once; not read",
         "requires_lod": "it requires MSFT_lod, an extension the loader does not read; not read",

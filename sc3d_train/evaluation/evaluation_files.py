@@ -9,6 +9,7 @@ import os
 from pathlib import Path
 
 from sc3d_train.evaluation.evaluated_data import replaced_provenance
+from sc3d_train.evaluation.prediction_files import listed_files
 
 #: keys every ``metrics.json`` that ``eval`` wrote holds
 EVALUATION_KEYS = ("checkpoint", "shards", "split")
@@ -57,18 +58,6 @@ def _drawn_by_eval(path: Path) -> bool:
         return False
 
 
-def _listed_by_a_prediction(out: Path, name: str) -> bool:
-    """Whether a ``predict`` record of folder ``out`` (``NAME.json`` of the image ``NAME``) lists
-    the file ``name`` as its own: ``predictions.png`` is also the picture of an image named
-    ``predictions``."""
-    try:
-        record = json.loads((Path(out) / (Path(name).stem + ".json")).read_text())
-    except (OSError, ValueError):
-        return False
-    files = record.get("files") if isinstance(record, dict) else None
-    return isinstance(files, dict) and any(isinstance(v, str) and Path(v).name == name for v in files.values())
-
-
 def check_outputs_replaceable(out: Path) -> None:
     """``ValueError`` naming ``--out`` and the file when ``out/metrics.json`` or
     ``out/predictions.png`` exists and is not of an earlier evaluation. The folder holds one where
@@ -83,7 +72,7 @@ def check_outputs_replaceable(out: Path) -> None:
     if (os.path.islink(metrics) or metrics.is_file()) and not ours:
         raise ValueError(f"--out {out}: metrics.json exists and is not an evaluation's (sc3d-train eval writes "
                          f"{', '.join(EVALUATION_KEYS)} in it), which this evaluation would replace; choose another --out")
-    predicted = has_picture and _listed_by_a_prediction(out, picture.name)
+    predicted = has_picture and picture.name in listed_files(Path(out) / "predictions.json")  # an image's picture
     if has_picture and (predicted or not ours):
         whose = "a prediction's picture" if predicted else "not of an earlier evaluation (not drawn by eval)"
         raise ValueError(f"--out {out}: predictions.png exists and is {whose}, which this evaluation would replace; "

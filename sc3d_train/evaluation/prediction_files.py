@@ -36,6 +36,18 @@ def check_inputs_kept(images: list[Path], outputs: list[dict], out: Path) -> Non
                                  f"the input image {inputs[os.path.realpath(path)]}; choose another --out")
 
 
+def listed_files(record: Path) -> set[str]:
+    """The names of the files that the prediction record ``record`` (a ``NAME.json`` that
+    ``predict`` wrote, in its output folder) lists as its own; empty where it is none."""
+    try:
+        info = json.loads(Path(record).read_text())
+    except (OSError, ValueError):
+        return set()
+    if not (isinstance(info, dict) and "checkpoint" in info and isinstance(info.get("files"), dict)):
+        return set()
+    return {Path(v).name for v in info["files"].values() if isinstance(v, str)}  # all in its folder
+
+
 def check_outputs_replaceable(outputs: list[dict], out: Path) -> None:
     """``ImageError`` naming ``--out`` and the file when a file of ``outputs`` (:func:`output_files`)
     exists and is not of an earlier prediction: one that the prediction's ``NAME.json`` beside it
@@ -46,13 +58,7 @@ def check_outputs_replaceable(outputs: list[dict], out: Path) -> None:
         existing = [p for p in files.values() if os.path.lexists(p)]
         if not existing:
             continue
-        listed = set()
-        try:
-            info = json.loads(Path(files["json"]).read_text())
-            if isinstance(info, dict) and "checkpoint" in info and isinstance(info.get("files"), dict):
-                listed = {Path(v).name for v in info["files"].values() if isinstance(v, str)}  # all in ``out``
-        except (OSError, ValueError):
-            pass
+        listed = listed_files(files["json"])
         for path in existing:
             if path.name not in listed:
                 raise ImageError(f"--out {out}: {path.name} exists and is not a file of an earlier prediction "

@@ -122,8 +122,8 @@ class TrainStep:
         draw_noise(batches, self.cfg.model.shape_dim)
         self.train_model.train()
         self.optimizer.zero_grad(set_to_none=True)
-        kind = batch_kind(batches)
-        if self.compiled is not None and self.proven.get(kind, 0) < PROVEN_AFTER:
+        kind = batch_kind(batches) if self.compiled is not None else None  # eager: nothing to guard
+        if kind is not None and self.proven.get(kind, 0) < PROVEN_AFTER:
             losses = self._first_compiled(batches, kind)
         else:
             losses = self._forward(batches)

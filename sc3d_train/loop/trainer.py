@@ -249,9 +249,10 @@ def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --
             log_now = done % cfg.log_every == 0 or done == cfg.steps
             boundary = cfg.mode == "semi" and done == cfg.pretrain_steps
             save_now = done % cfg.checkpoint_every == 0 or done == cfg.steps or boundary
-            validate_now = validator is not None and validator.due(done)
-            if log_now or save_now or validation_due(cfg, done):  # the loop's only host syncs (every rank: a
-                # collective); best.pt never of NaN weights
+            validation_now = validation_due(cfg, done)  # on every rank (rank 0 alone validates)
+            validate_now = validator is not None and validation_now
+            if log_now or save_now or validation_now:  # the loop's only host syncs (every rank: a collective);
+                # best.pt never of NaN weights
                 check_finite(window, t.dist, cfg, last_good)
             if log_now:
                 if t.device.type == "cuda":
