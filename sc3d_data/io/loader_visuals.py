@@ -21,15 +21,24 @@ with ``COLOR_0`` (material colour x texture x vertex colour, ``render.renderer.m
 so a white material shows the vertex colours as they are. Where the only material is trimesh's
 placeholder (``vt`` and no ``.mtl``), the vertex colours are drawn as in a file without ``vt``.
 :func:`keep_obj_vertex_colours` makes this process's OBJ loader do so.
+
+An OBJ vertex colour that is not a number (``v x y z nan nan nan``, as trimesh's deliberately
+malformed ``models/nancolor.obj``) was cast to 0 by the loader: that corner and the faces around
+it drawn black, exit 0. Such a file is refused (``NotFiniteColours``, one line naming the
+count), as vertices with NaN coordinates are (``io.meshes.validate_triangles``).
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["is_placeholder", "keep_obj_vertex_colours", "texture_as_is"]
+__all__ = ["NotFiniteColours", "is_placeholder", "keep_obj_vertex_colours", "texture_as_is"]
 
 #: the pixel of trimesh's placeholder image (``trimesh.visual.material.color_image``'s default)
 PLACEHOLDER_PIXEL = (100, 100, 100, 255)
+
+
+class NotFiniteColours(ValueError):
+    """An OBJ whose vertex colours hold NaN or inf (module doc)."""
 
 
 def is_placeholder(material) -> bool:
@@ -69,11 +78,23 @@ def keep_obj_vertex_colours() -> None:
     def load_obj(*args, **kwargs):
         loaded = loader(*args, **kwargs)
         for mesh in loaded.get("geometry", {}).values():
+            _check_colours_finite(mesh.get("vertex_colors"))
             _colours_beside_material(mesh)
         return loaded
 
     load_obj.keeps_vertex_colours = True
     load.mesh_loaders["obj"] = load_obj
+
+
+def _check_colours_finite(colours) -> None:
+    """``NotFiniteColours`` where the vertex colours trimesh's OBJ loader parsed (floats [n,3|4]
+    or None) hold NaN or inf."""
+    if colours is None:
+        return
+    colours = np.asarray(colours)
+    if colours.dtype.kind == "f" and not (finite := np.isfinite(colours).all(axis=-1)).all():
+        raise NotFiniteColours(f"{int((~finite).sum())} vertex colours are not numbers (NaN/inf), "
+                               "which would be drawn black")
 
 
 def _colours_beside_material(mesh: dict) -> None:

@@ -57,6 +57,7 @@ def load_scene(path: Path, resolver=None, text: bytes | None = None):
 
     import trimesh
 
+    from sc3d_data.io.loader_visuals import NotFiniteColours
     from sc3d_data.io.texture_resolver import quiet_loader
 
     path = Path(path)
@@ -70,6 +71,8 @@ def load_scene(path: Path, resolver=None, text: bytes | None = None):
     except (UnicodeDecodeError, ModuleNotFoundError) as e:  # text formats: bytes that no charset decodes
         raise MeshError(f"{path}: cannot decode the file as text (not UTF-8 and no other encoding "
                         f"detected; {type(e).__name__}: {e})") from e
+    except NotFiniteColours as e:  # parsed, and refused by sc3d's wrapper of the loader
+        raise MeshError(f"{path}: {e}") from e
     except Exception as e:  # trimesh raises many kinds of errors on garbage
         raise MeshError(f"{path}: cannot parse mesh file ({type(e).__name__}: {e})") from e
     return scene
