@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from sc3d_data.io.names import printable
+
 
 @click.command("check")
 @click.argument("shards_arg", required=False, metavar="SHARDS", type=click.Path(exists=True, file_okay=False))
@@ -57,7 +59,7 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
         raise click.ClickException(f"{shards}: no objects to check")
     click.echo(report.text(worst))
     if not load_index(Path(shards)).get("complete"):  # the verdict covers only what the shards hold
-        click.echo(f"note: {shards} is incomplete (the command that writes it stopped before its end; rerun it to "
+        click.echo(f"note: {printable(shards)} is incomplete (the command that writes it stopped before its end; rerun it to "
                    "finish): the verdict is on the objects written so far", err=True)
     try:
         png_path = write_worst_png(Path(shards), report, png, n=min(worst, 8))
@@ -71,7 +73,7 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
     except ValueError as e:  # matplotlib: a format it cannot write
         raise click.ClickException(f"--png {png}: {one_line(e)}")
     if png_path is not None:
-        click.echo(f"worst views: {png_path}")
+        click.echo(f"worst views: {printable(png_path)}")
     if json_out:
         try:
             Path(json_out).write_text(json.dumps(

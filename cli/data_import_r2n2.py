@@ -64,7 +64,7 @@ def import_r2n2(renderings, voxels, out, image_size, background, categories, spl
     summary = run_scaled(config, slurm, run, import_on_slurm)
     for f in summary["failures"]:
         click.echo(f"failed: {printable(f['source'])}: {printable(f['reason'])}", err=True)
-    click.echo(f"imported {summary['done']} of {summary['planned']} models into {summary['out']} "
+    click.echo(f"imported {summary['done']} of {summary['planned']} models into {printable(summary['out'])} "
                f"({summary['resumed']} already there, {summary['failed']} failed, {summary['skipped']} skipped; "
                f"{summary['seconds']:.1f} s); details in index.json")
     if (note := part_from_slurm_note(part)) is not None:

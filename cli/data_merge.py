@@ -5,6 +5,8 @@ from pathlib import Path
 
 import click
 
+from sc3d_data.io.names import printable
+
 from sc3d_cli.folder_path import FolderPath
 
 
@@ -26,6 +28,6 @@ def merge(out, parts, copy, overwrite):
         s = merge_parts(out, list(parts), copy=copy, overwrite=overwrite, defaults_of=recorded_defaults)
     except (ValueError, RuntimeError, OSError) as e:
         raise click.ClickException(one_line(e))
-    click.echo(f"merged {s.parts} parts into {s.out}: {s.objects} objects in {s.shards} shards "
+    click.echo(f"merged {s.parts} parts into {printable(s.out)}: {s.objects} objects in {s.shards} shards "
                f"({s.linked} linked, {s.copied} copied, {s.kept} already there), {s.failed} failures; "
-               f"{s.seconds:.1f} s; index: {Path(s.out) / 'index.json'}")
+               f"{s.seconds:.1f} s; index: {printable(Path(s.out) / 'index.json')}")

@@ -5,6 +5,8 @@ from pathlib import Path
 
 import click
 
+from sc3d_data.io.names import printable
+
 
 @click.command()
 @click.argument("shard_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
@@ -37,4 +39,4 @@ def preview(shard_dir: Path, out: Path, max_objects: int, views: int, scale: int
         raise click.ClickException(f"--out {out}: {one_line(e)}")
     for note in notes:
         click.echo(f"warning: {note}", err=True)
-    click.echo(f"wrote {out} ({sheet.shape[1]}x{sheet.shape[0]})")
+    click.echo(f"wrote {printable(out)} ({sheet.shape[1]}x{sheet.shape[0]})")

@@ -100,7 +100,7 @@ def render(elevations, background, part, slurm, **options):
     config = RenderConfig(elevations=_floats(elevations), background=_rgb(background), part=part,
                           split_file=_split_files(options.pop("split_file")), **options)
     s = run_render(config, slurm)
-    from sc3d_data.io.names import printable
+    from sc3d_data.io.names import printable, shell_word
 
     for note in s["notes"]:
         click.echo(f"warning: {printable(note)}", err=True)
@@ -108,17 +108,17 @@ def render(elevations, background, part, slurm, **options):
     where = f"part {s['part']}, " if s.get("part", "0/1") != "0/1" else ""
     warned = f", {s['warned']} with warnings" if s.get("warned") else ""
     click.echo(f"{where}done {s['done']}, resumed {s['resumed']}{retried}, skipped {s['skipped']}, failed {s['failed']}"
-               f"{warned} in {s['seconds']:.1f} s ({_rate(s)}backend {s['backend']}); index: {Path(s['out']) / 'index.json'}")
+               f"{warned} in {s['seconds']:.1f} s ({_rate(s)}backend {s['backend']}); index: {printable(Path(s['out']) / 'index.json')}")
     listed = " and ".join(w for w, n in (("failures", s["failed"]), ("warnings", s.get("warned"))) if n)
     if listed:
-        click.echo(f"{listed} are listed with reasons by `sc3d-data info {s['out']}`")
+        click.echo(f"{listed} are listed with reasons by `sc3d-data info {shell_word(s['out'])}`")
     if (note := part_from_slurm_note(part)) is not None:
         click.echo(note)
     if s["failed"] and not s["done"] and not s["resumed"]:
         raise click.ClickException(f"no object was rendered: all {s['failed']} failed{_first_reason(s['out'])}")
     if s["skipped"] and not (s["done"] or s["resumed"] or s["failed"]) and s.get("part", "0/1") == "0/1":
         raise click.ClickException(f"no object was rendered: all {s['skipped']} were skipped"
-                                   f"{_first_reason(s['out'], 'skipped')}; `sc3d-data info {s['out']}` lists them")
+                                   f"{_first_reason(s['out'], 'skipped')}; `sc3d-data info {shell_word(s['out'])}` lists them")
 
 
 def _rate(s: dict) -> str:

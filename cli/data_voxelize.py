@@ -7,6 +7,7 @@ import sys
 import click
 
 from sc3d_cli.folder_path import FolderPath
+from sc3d_data.io.names import printable, shell_word
 from sc3d_cli.scale_options import axis_value, check_executor_options, executor_options, part_from_slurm_note, part_option, run_scaled, timeout_option
 
 
@@ -75,14 +76,14 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
                                 scale["timeout_s"])
             if not s.shards_done and not s.shards_skipped and load_index(shards).get("failures"):  # not an empty part
                 raise click.ClickException(f"{shards}: holds no shard, so nothing was voxelized (no object was rendered "
-                                           f"into it: `sc3d-data info {shards}` lists why)")
+                                           f"into it: `sc3d-data info {shell_word(shards)}` lists why)")
             click.echo(f"voxelized {s.objects - s.failed} objects in {s.shards_done} shards ({s.shards_skipped} shards "
                        f"already done), {s.failed} failed, {s.seconds:.1f} s")
             if s.failed and s.failed == s.objects and not s.reused:
                 grids = (f"earlier grid kept for {s.kept}, the others' are empty" if s.kept
                          else "their grids are empty")
                 raise click.ClickException(f"no object was voxelized: all {s.failed} failed ({grids}; "
-                                           f"reasons: `sc3d-data info {shards}`)")
+                                           f"reasons: `sc3d-data info {shell_word(shards)}`)")
         else:
             config = VoxelMeshesConfig(meshes=meshes, out=out, resolution=resolution, normalize=normalize, up=up,
                                        front=front, workers=workers, overwrite=overwrite, progress=progress,
@@ -90,7 +91,7 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
             s = run_scaled(config, slurm, lambda c: voxelize_meshes(c).as_dict(), voxelize_on_slurm)
             stale = "".join(f", {s[k]} of them again: {why}" for k, why in (
                 ("stale", "their mesh is newer"), ("remade", "made by another mesh or with other settings")) if s.get(k))
-            click.echo(f"wrote {s['done']} .binvox files to {out}{stale} ({s['resumed']} already there), "
+            click.echo(f"wrote {s['done']} .binvox files to {printable(out)}{stale} ({s['resumed']} already there), "
                        f"{s['failed']} failed, {s['seconds']:.1f} s")
             if (note := part_from_slurm_note(part)) is not None:
                 click.echo(note)

@@ -11,6 +11,8 @@ Conventions
 - Text that reaches a terminal or a log goes through :func:`printable`: control characters
   (newline, escape, ...) and undecodable bytes are written as backslash escapes (``\\n``,
   ``\\x1b``, ``\\xff``), so a name cannot move the cursor, clear the screen or split a line.
+- A path inside a command that a message suggests goes through :func:`shell_word`, so the
+  command can be pasted into a shell as it is printed (a space, a quote, a newline).
 
 Example::
 
@@ -21,7 +23,7 @@ from __future__ import annotations
 
 import unicodedata
 
-__all__ = ["not_utf8", "printable", "split_not_utf8"]
+__all__ = ["not_utf8", "printable", "shell_word", "split_not_utf8"]
 
 _NAMED = {"\n": "\\n", "\r": "\\r", "\t": "\\t"}
 _CONTROL = ("Cc", "Cf", "Cs", "Zl", "Zp")
@@ -60,6 +62,36 @@ def printable(text, keep_newlines: bool = False) -> str:
         return text
     return "".join(_escape(ch, keep_newlines) if unicodedata.category(ch) in _CONTROL else ch
                    for ch in text)
+
+
+def shell_word(text) -> str:
+    """``str(text)`` as one word that a POSIX shell reads back as it is, for a command printed to be
+    pasted: unchanged where it needs no quoting, ``shlex.quote``'s single quotes where every
+    character is printable, else bash's ANSI-C quoting ``$'...'`` with :func:`printable`'s escapes
+    (an undecodable byte as ``\\xff``, which bash turns back into that byte).
+
+    >>> shell_word("my data/out"), shell_word("a\\nb")
+    ("'my data/out'", "$'a\\\\nb'")
+    """
+    import shlex
+
+    text = str(text)
+    if text.isprintable():
+        return shlex.quote(text)
+    return "$'" + "".join(_shell_escape(ch) for ch in text) + "'"
+
+
+def _shell_escape(ch: str) -> str:
+    """One character inside bash's ``$'...'``: quotes and backslashes escaped, control characters
+    as :func:`printable` writes them, except a character from U+0080 to U+00FF as ``\\u00XX``
+    (bash's ``\\xXX`` is a byte, which only an undecodable byte is)."""
+    if ch in "\\'":
+        return "\\" + ch
+    if unicodedata.category(ch) not in _CONTROL:
+        return ch
+    if 0x80 <= ord(ch) < 0x100:
+        return f"\\u{ord(ch):04x}"
+    return _escape(ch, False)
 
 
 def split_not_utf8(items: list, path_of, root, verb: str = "not rendered") -> tuple[list, list[dict]]:

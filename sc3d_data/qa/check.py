@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from sc3d_data.geometry.projection import project_voxels_views
-from sc3d_data.io.names import printable
+from sc3d_data.io.names import printable, shell_word
 from sc3d_data.io.pictures import write_figure
 from sc3d_data.io.shard_reader import ShardReader, iter_objects, verify_shards
 from sc3d_data.io.shards import ShardError, shard_path
@@ -220,7 +220,7 @@ def check_shards(shard_dir: Path, min_iou: float = DEFAULT_MIN_IOU,
         it = progress_bar(it, unit="obj", desc="check")
     for obj in it:
         if "voxels" not in obj:
-            raise ValueError(f"{shard_dir}/{obj['shard']}: no voxels (run `sc3d-data voxelize {shard_dir}` first)")
+            raise ValueError(f"{shard_dir}/{obj['shard']}: no voxels (run `sc3d-data voxelize {shell_word(shard_dir)}` first)")
         behind: list[int] = []
         iou, cov, near = view_scores(obj["voxels"], obj["masks"], obj["K"], obj["R"], obj["t"], behind)
         report.objects.append(ObjectScore(obj["category"], obj["model_id"], obj["shard"], obj["row"], iou, cov,

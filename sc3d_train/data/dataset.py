@@ -28,6 +28,7 @@ from torch.utils.data import Dataset
 
 from sc3d_data.geometry.camera import scale_intrinsics
 from sc3d_data.io.shard_reader import ShardReader
+from sc3d_data.io.names import shell_word
 from sc3d_data.io.shards import ShardError
 from sc3d_train.data.batch_format import compact_tensors, expand_batch, sc_masks_bool
 from sc3d_train.settings.config import MASK_SIZE
@@ -116,7 +117,7 @@ def require_one_voxel_resolution(shard_dir: Path, info: dict) -> None:
     if len(found) > 1:
         sizes = ", ".join(f"{g}^3 in {name}" for g, name in sorted(found.items()))
         raise DataError(f"{shard_dir}: shards disagree on voxel resolution ({sizes}; a voxelize at another "
-                        f"--resolution cut short?): run `sc3d-data voxelize {shard_dir} --resolution G` with the one G "
+                        f"--resolution cut short?): run `sc3d-data voxelize {shell_word(shard_dir)} --resolution G` with the one G "
                         "to train on (it redoes the shards of the other size)")
 
 
@@ -218,7 +219,7 @@ class ShardDataset(Dataset):
             require_one_voxel_resolution(shard_dir, info)
         if require_voxels and info["files_without_voxels"]:
             raise DataError(f"{info['files_without_voxels'][0]}: shard has no 'voxels' dataset; "
-                            f"run `sc3d-data voxelize {shard_dir}` first")
+                            f"run `sc3d-data voxelize {shell_word(shard_dir)}` first")
         if image_size is not None and image_size != info["image_size"]:
             raise DataError(f"{shard_dir}: images are {info['image_size']}x{info['image_size']} but "
                             f"the model expects {image_size}x{image_size}")

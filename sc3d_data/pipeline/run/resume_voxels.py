@@ -5,6 +5,8 @@ shard that cannot hold grids like the rest's is written without them, the record
 the user told (:func:`voxels_after_rewrite`)."""
 from __future__ import annotations
 
+from sc3d_data.io.names import shell_word
+
 
 def uniform_arrays(records: list) -> list[str]:
     """Leave out of every record of ``records`` the arrays that not all of them have with one
@@ -42,7 +44,7 @@ def voxels_after_rewrite(index, name: str, records: list, notes: list[str]) -> l
     if promised is not None and records and shapes != {(promised,) * 3}:
         index.extra.pop("voxels")
         notes.append(f"{index.out / name}: written without the {promised}^3 voxels that `sc3d-data voxelize` had "
-                     f"given its objects; run `sc3d-data voxelize {index.out} --resolution {promised}` again")
+                     f"given its objects; run `sc3d-data voxelize {shell_word(index.out)} --resolution {promised}` again")
     row = {(r.category, r.model_id): i for i, r in enumerate(records)}
     return [f if f.get("stage") != "voxelize" or f.get("shard") != name
             else dict(f, row=row.get((f.get("category"), f.get("model_id")), f.get("row")))
