@@ -16,7 +16,8 @@ Input images must have the training image size (no silent resizing: the camera i
 the framing of the training renders would no longer hold). Modes: RGB is used as is; RGBA, LA,
 L and P are converted to RGBA and alpha-composited onto the training data's background colour
 (stored in the checkpoint), so a transparent PNG looks like the renders; other modes (CMYK,
-16-bit, float, 1-bit) are refused. An EXIF orientation tag (a camera's JPEG) is applied, so the
+16-bit grey, float, 1-bit) are refused. A 16-bit RGB(A) PNG is read by PIL as 8-bit RGB(A)
+(its high bytes), which is the image as viewers show it. An EXIF orientation tag (a camera's JPEG) is applied, so the
 image is used as viewers show it; an animated image (several frames) is refused.
 
 A checkpoint whose weights are not finite (a diverged run, a damaged file), or whose prediction of
@@ -81,8 +82,8 @@ def load_image(path: Path, image_size: int, background: list[int]) -> np.ndarray
 
 def voxel_mesh(probabilities: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
     """Marching cubes of ``probabilities [G,G,G]`` ([x,y,z]) at ``threshold``: ``(vertices [V,3]``
-    in the canonical frame, ``faces [F,3])``. The grid is zero-padded so the surface is closed;
-    voxel centres sit at ``-0.5 + (i + 0.5)/G`` (SPEC). Empty arrays when nothing is occupied."""
+    in the canonical frame, within the grid's cube [-0.5, 0.5]^3, ``faces [F,3])``. The grid is
+    zero-padded so the surface is closed; voxel centres sit at ``-0.5 + (i + 0.5)/G`` (SPEC). Empty arrays when nothing is occupied."""
     from skimage.measure import marching_cubes
 
     from sc3d_data.geometry.voxel_grid import voxel_centres
@@ -98,6 +99,10 @@ def voxel_mesh(probabilities: np.ndarray, threshold: float) -> tuple[np.ndarray,
         level = float(np.nextafter(np.float32(level), np.float32(0.0)))
     verts, faces, _, _ = marching_cubes(padded, level=level)
     verts = voxel_centres(verts - 1, G)  # undo the padding: vertex coordinates are voxel indices
+    # a level below half the probability of a voxel on the grid's border puts the surface between
+    # its centre and the padding's, outside the grid (at threshold 0 on the padding itself, half a
+    # voxel out): the surface ends at the grid's faces, as its voxels do
+    np.clip(verts, -0.5, 0.5, out=verts)
     # skimage's faces wind inwards for a solid of high values (negative signed volume): flip
     return verts, faces[:, ::-1].copy()
 
