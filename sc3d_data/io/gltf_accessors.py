@@ -18,7 +18,9 @@ accessor naming no bufferView of the file, with a ``count`` that is not a whole 
 unknown ``componentType`` or ``type``, or elements reaching beyond its bufferView (accessor
 ``byteOffset`` + ``count`` elements, at the view's ``byteStride`` when it has one); a primitive
 naming no accessor of the file, or without POSITION where the loader reads it. An accessor
-without ``bufferView`` is legal (it reads as zeros, which the loader does) and left alone.
+without ``bufferView`` is legal (it reads as zeros, which the loader does) and left alone, except
+as a primitive's POSITION: all its points at the origin, nothing to draw, and the loader stopped
+with ``UnboundLocalError`` (a Draco-compressed file's accessors have none: its own refusal says why).
 """
 from __future__ import annotations
 
@@ -125,6 +127,7 @@ def _view_problems(doc: dict, ends: list, problems: list[str]) -> None:
 
 def _accessor_problems(doc: dict, uses: dict[int, str], problems: list[str]) -> None:
     views = doc.get("bufferViews", [])
+    draco = "KHR_draco_mesh_compression" in doc.get("extensionsUsed", [])  # its accessors' data is compressed
     for i, a in enumerate(doc.get("accessors", [])):
         what = f"accessor {i}" + (f" ({uses[i]})" if i in uses else "")
         count, ctype, kind, offset = a.get("count"), a.get("componentType"), a.get("type"), a.get("byteOffset", 0)
@@ -141,6 +144,8 @@ def _accessor_problems(doc: dict, uses: dict[int, str], problems: list[str]) -> 
         v = a.get("bufferView")
         if "bufferView" in a and not _names(v, len(views)):
             found.append(f"{what} names bufferView {json.dumps(v)}, but the file has {len(views)}")
+        if "bufferView" not in a and uses.get(i, "").startswith("POSITION ") and not draco:  # the loader stopped
+            found.append(f"{what} has no bufferView, so its positions are all zeros (nothing to draw)")
         problems.extend(found)
         if found or "bufferView" not in a or not _whole(length := views[v].get("byteLength")):
             continue  # judged no further, or no bytes read (zeros), or the view's own problem

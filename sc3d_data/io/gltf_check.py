@@ -56,6 +56,9 @@ def read_gltf(path: Path, binary: bool = False) -> tuple[dict, bytes | None]:
         return json.loads(path.read_bytes()), None
     with open(path, "rb") as f:
         header = f.read(20)
+        if len(header) >= 8 and header[:4] == _GLB_MAGIC and struct.unpack_from("<I", header, 4)[0] == 1:
+            raise ValueError(f"{path}: a binary glTF of version 1 (glTF 1.0's KHR_binary_glTF): sc3d reads glTF 2.0 "
+                             "(convert the file, e.g. with Blender or gltf-pipeline)")
         if len(header) < 20 or header[:4] != _GLB_MAGIC or header[16:20] != _JSON_CHUNK:
             raise ValueError(f"{path}: not a GLB file (no glTF header and JSON chunk)")
         json_len = struct.unpack_from("<I", header, 12)[0]
@@ -140,6 +143,10 @@ def judge_gltf(path: Path, shown: int = 3) -> tuple[dict | None, str | None]:
     if not isinstance(doc, dict):
         return None, (f"{path}: not a glTF document: its JSON is {type(doc).__name__} {json.dumps(doc)[:20]}, "
                       "not an object; not read")
+    version = doc.get("asset", {}).get("version") if isinstance(doc.get("asset"), dict) else None
+    if isinstance(version, str) and not version.startswith("2."):
+        return None, (f"{path}: a glTF {version} document: sc3d reads glTF 2.0 (convert the file, e.g. "
+                      "with Blender or gltf-pipeline); not read")
     problems = []  # each judge alone: what one cannot follow (a node that is no object) hides nothing of the other
     for judge, args in ((layout_problems, (path, doc)), (gltf_problems, (doc,)),
                         (lambda d: feature_problems(d, _drawn_meshes(d)), (doc,))):

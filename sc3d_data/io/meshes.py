@@ -198,6 +198,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     from sc3d_data.io.obj_loader_text import check_obj_indices, loader_obj_bytes
     from sc3d_data.io.off_polygons import loader_off_bytes
     from sc3d_data.io.ply_header import loader_ply_bytes
+    from sc3d_data.io.ply_strips import strips_as_faces
+    from sc3d_data.io.stl_check import loader_stl_bytes
     from sc3d_data.io.texture_resolver import loader_misses, make_resolver
 
     path = Path(path)
@@ -217,7 +219,11 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
         raise MeshError(f"{path}: {'; '.join(report.problems)} (use --bad-texture fallback to render with "
                         "material colours)")
     text = None if gltf_doc is None else loader_gltf_bytes(path, gltf_doc)  # the text the loader reads right:
-    text = {".ply": loader_ply_bytes, ".off": loader_off_bytes}.get(path.suffix.lower(), lambda _: text)(path)
+    try:
+        text = {".ply": loader_ply_bytes, ".off": loader_off_bytes,
+                ".stl": loader_stl_bytes}.get(path.suffix.lower(), lambda _: text)(path)
+    except ValueError as e:  # io.stl_check: a triangle count that cannot be trusted
+        raise MeshError(f"{path}: {e}; not read") from e
     if path.suffix.lower() == ".obj":
         data = path.read_bytes()
         try:
@@ -233,6 +239,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     if missed and bad_texture == "fail":
         raise MeshError(f"{path}: {'; '.join(missed)} (use --bad-texture fallback to render with material colours)")
     if path.suffix.lower() == ".ply":
+        strips_as_faces(scene)
         match_ply_face_colors(scene, path)
     elif report.texture_only:  # an OBJ's materials with map_Kd and no Kd: their textures drawn as they are
         for geometry in scene.geometry.values():
