@@ -33,6 +33,8 @@ def predict(ctx, checkpoint, images, out, pose_from, device, threshold, pick):
         from sc3d_data.io.shards import one_line
 
         raise click.ClickException(one_line(e)) from e
+    from sc3d_data.io.names import printable
+
     for r in results:
-        click.echo(f"{r['image']}: azimuth {r['azimuth_deg']:.1f} deg, elevation {r['elevation_deg']:.1f} deg, "
-                   f"{r['occupied_voxels']} voxels -> {Path(r['files']['json']).with_suffix('.*')}")
+        click.echo(f"{printable(r['image'])}: azimuth {r['azimuth_deg']:.1f} deg, elevation {r['elevation_deg']:.1f} deg, "
+                   f"{r['occupied_voxels']} voxels -> {printable(Path(r['files']['json']).with_suffix('.*'))}")

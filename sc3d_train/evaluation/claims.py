@@ -252,7 +252,7 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path,
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     per_seed, timings = {}, {}
-    names = list(runs or p.runs)
+    names = list(dict.fromkeys(runs or p.runs))  # a run named twice is one run
     finished = [n for n in p.runs if n not in names and all(  # a rerun with --runs keeps the study's other runs
         evaluated_on(eval_folder(run_folder(out, n, s), pick) / "metrics.json", eval_shards, eval_split, data_digest)
         for s in seed_values)]

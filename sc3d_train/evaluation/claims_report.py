@@ -192,12 +192,16 @@ def plot_report(results: dict, path: Path) -> None:
 
 def write_report(results: dict, out: Path, stem: str = "claims", **meta) -> str:
     """``STEM.md`` (:func:`format_report`), ``STEM.json`` (``meta``; per run the means, ``std``,
-    ``seeds`` and ``per_seed`` blocks; ``claims``: :func:`check_claims`) and ``STEM.png``."""
+    ``seeds`` and ``per_seed`` blocks; ``claims``: :func:`check_claims`) and ``STEM.png``, each
+    written whole or not at all; a link at one of those names is replaced, not written through."""
+    from sc3d_data.io.shards import atomic_write_bytes
+
     text = format_report(results)
-    (Path(out) / f"{stem}.md").write_text(text)
+    # written whole or not at all, replacing a link at the name, never writing through it
+    atomic_write_bytes(Path(out) / f"{stem}.md", text.encode())
     keys = ("per_category", "mean", "overall", "std", "seeds", "per_seed", "left_out")
     slim = {k: {key: v[key] for key in keys if key in v} for k, v in results.items()}
-    (Path(out) / f"{stem}.json").write_text(json.dumps({"meta": meta, "results": slim, "claims": check_claims(results)},
-                                                       indent=1, default=str))
+    atomic_write_bytes(Path(out) / f"{stem}.json", json.dumps(
+        {"meta": meta, "results": slim, "claims": check_claims(results)}, indent=1, default=str).encode())
     plot_report(results, Path(out) / f"{stem}.png")
     return text

@@ -17,7 +17,8 @@ the framing of the training renders would no longer hold). Modes: RGB is used as
 L and P are converted to RGBA and alpha-composited onto the training data's background colour
 (stored in the checkpoint), so a transparent PNG looks like the renders; other modes (CMYK,
 16-bit grey, float, 1-bit) are refused. A 16-bit RGB(A) PNG is read by PIL as 8-bit RGB(A)
-(its high bytes), which is the image as viewers show it. An EXIF orientation tag (a camera's JPEG) is applied, so the
+(its high bytes), which is the image as viewers show it. A JPEG that holds further images after
+its own (MPO: a camera's preview or depth image) is read as its first image, which viewers show. An EXIF orientation tag (a camera's JPEG) is applied, so the
 image is used as viewers show it; an animated image (several frames) is refused.
 
 A checkpoint whose weights are not finite (a diverged run, a damaged file), or whose prediction of
@@ -62,7 +63,8 @@ def load_image(path: Path, image_size: int, background: list[int]) -> np.ndarray
     if img.size != (image_size, image_size):  # before decoding: an oversized image is never decoded
         raise ImageError(f"{printable(path)}: image is {img.size[0]}x{img.size[1]}, the model expects "
                          f"{image_size}x{image_size} (crop/resize it like the training renders)")
-    frames = getattr(img, "n_frames", 1)
+    frames = getattr(img, "n_frames", 1) if img.format != "MPO" else 1  # MPO: a JPEG and its preview or depth
+    # image, the first of them the photo that viewers show (PIL reads it unless told to seek)
     if frames > 1:  # which frame is the view is not ours to guess
         raise ImageError(f"{printable(path)}: an animated image of {frames} frames; give one frame as a still image")
     try:
@@ -71,7 +73,7 @@ def load_image(path: Path, image_size: int, background: list[int]) -> np.ndarray
     except Exception as e:  # noqa: BLE001 - truncated or corrupt pixel data, a broken EXIF block
         raise ImageError(f"{printable(path)}: cannot read image ({type(e).__name__}: {e})") from e
     if img.mode not in ACCEPTED_MODES:
-        raise ImageError(f"{path}: image mode {img.mode!r} not supported (use one of {ACCEPTED_MODES})")
+        raise ImageError(f"{printable(path)}: image mode {img.mode!r} not supported (use one of {ACCEPTED_MODES})")
     if img.mode == "RGB":
         return np.asarray(img, dtype=np.float32) / 255.0
     rgba = np.asarray(img.convert("RGBA"), dtype=np.float32) / 255.0

@@ -209,6 +209,11 @@ def load_checkpoint(path: Path, map_location="cpu") -> dict:
         raise CheckpointError(f"{path}: refused: the file holds Python objects outside the checkpoint "
                               f"allow-list (not written by this sc3d-train, or crafted); not loaded ({first})") from e
     except Exception as e:  # noqa: BLE001 - any other failure means "not ours" or truncated
+        import zipfile
+
+        if not zipfile.is_zipfile(path):  # a zip archive ends with its directory: a cut-short file has none
+            raise CheckpointError(f"{path}: a checkpoint cut short or damaged (its zip archive has no end: a write or "
+                                  "copy that did not finish?); not loaded") from e
         raise CheckpointError(f"{path}: not a readable checkpoint ({type(e).__name__}: "
                               f"{' '.join(str(e).split())[:200]})") from e
     if not isinstance(ckpt, dict) or "model" not in ckpt or "config" not in ckpt:
