@@ -6,7 +6,8 @@ log line, and an accessor's ``sparse`` substitution is never applied (the base v
 are read). Either way the object would render and voxelize as other geometry than the file's,
 with no warning. :func:`gltf_refusal` says why to refuse such a file before it is loaded, judging
 from the JSON alone (for a GLB only its JSON chunk and its BIN chunk's 8-byte header are read,
-never the binary data; an external buffer file is only stat'ed).
+never the binary data; an external buffer file is only stat'ed), except where the drawn scene has
+skinned nodes, whose skins are computed to judge them (below).
 
 Modes and sparse accessors are judged where the loader draws them: the meshes of the nodes
 reachable from the scene it uses (``scene``, else the first; every mesh without scenes), their
@@ -22,8 +23,9 @@ accessor, as the loader reads every one) is refused in one line naming the buffe
 or accessor and its use. Extensions the loader cannot decode that the file requires (Draco,
 meshopt), and base colour textures of drawn meshes read through another ``texCoord`` than 0 or
 moved by ``KHR_texture_transform``, which the loader ignores, are refused the same way
-(:mod:`sc3d_data.io.gltf_features`). A document malformed otherwise (its scenes, nodes,
-materials) is left for the loader.
+(:mod:`sc3d_data.io.gltf_features`), and so are skinned nodes of the drawn scene whose skin
+cannot be applied (:mod:`sc3d_data.io.gltf_skins`, which reads their accessors' data). A
+document malformed otherwise (its scenes, nodes, materials) is left for the loader.
 """
 from __future__ import annotations
 
@@ -33,8 +35,9 @@ from pathlib import Path
 
 from sc3d_data.io.gltf_accessors import layout_problems
 from sc3d_data.io.gltf_features import feature_problems, textured
+from sc3d_data.io.gltf_skins import skin_problems, skinned_nodes
 
-__all__ = ["GLTF_SUFFIXES", "SKIPPED_SURFACE_MODES", "gltf_refusal", "judge_gltf", "read_gltf"]
+__all__ = ["GLTF_SUFFIXES", "SKIPPED_SURFACE_MODES", "drawn_nodes", "gltf_refusal", "judge_gltf", "read_gltf"]
 
 GLTF_SUFFIXES = (".gltf", ".glb")
 #: primitive modes that draw a surface but which the loader skips: ``{mode: name}``
@@ -71,23 +74,30 @@ def read_gltf(path: Path, binary: bool = False) -> tuple[dict, bytes | None]:
         return doc, f.read(struct.unpack_from("<I", chunk, 0)[0])
 
 
-def _drawn_meshes(doc: dict) -> set[int]:
-    """Indices of the meshes of the nodes reachable from the scene the loader draws (``scene``,
-    else scene 0; every mesh when the document has no ``scenes``)."""
+def drawn_nodes(doc: dict) -> list[int]:
+    """Indices of the nodes reachable from the scene the loader draws (``scene``, else scene 0),
+    in the order they are found; none when the document has no ``scenes``."""
     nodes, scenes = doc.get("nodes", []), doc.get("scenes")
-    if not scenes:  # the loader then draws every mesh
-        return set(range(len(doc.get("meshes", []))))
-    queue, seen, meshes = list(scenes[doc.get("scene", 0)].get("nodes", [])), set(), set()
+    if not scenes:
+        return []
+    queue, seen, found = list(scenes[doc.get("scene", 0)].get("nodes", [])), set(), []
     while queue:
         i = queue.pop()
         if i in seen:
             continue
         seen.add(i)
-        node = nodes[i]
-        if "mesh" in node:
-            meshes.add(node["mesh"])
-        queue.extend(node.get("children", []))
-    return meshes
+        found.append(i)
+        queue.extend(nodes[i].get("children", []))
+    return found
+
+
+def _drawn_meshes(doc: dict) -> set[int]:
+    """Indices of the meshes of the nodes reachable from the scene the loader draws (``scene``,
+    else scene 0; every mesh when the document has no ``scenes``)."""
+    if not doc.get("scenes"):  # the loader then draws every mesh
+        return set(range(len(doc.get("meshes", []))))
+    nodes = doc.get("nodes", [])
+    return {nodes[i]["mesh"] for i in drawn_nodes(doc) if "mesh" in nodes[i]}
 
 
 def gltf_problems(doc: dict) -> list[str]:
@@ -112,6 +122,15 @@ def gltf_problems(doc: dict) -> list[str]:
                     sparse_seen.add(a)
                     problems.append(f"accessor {a} ({role} of mesh {m}) is sparse, which the loader does not apply")
     return problems
+
+
+def _skin_problems(path: Path, doc: dict) -> list[str]:
+    """The skinned nodes of the drawn scene whose skin cannot be applied (``gltf_skins``); a
+    GLB's BIN chunk is read only where there are skinned nodes."""
+    nodes = drawn_nodes(doc)
+    if not skinned_nodes(doc, nodes):
+        return []
+    return skin_problems(path, doc, read_gltf(path, binary=True)[1], nodes)
 
 
 def gltf_refusal(path: Path, shown: int = 3) -> str | None:
@@ -149,7 +168,7 @@ def judge_gltf(path: Path, shown: int = 3) -> tuple[dict | None, str | None]:
                       "with Blender or gltf-pipeline); not read")
     problems = []  # each judge alone: what one cannot follow (a node that is no object) hides nothing of the other
     for judge, args in ((layout_problems, (path, doc)), (gltf_problems, (doc,)),
-                        (lambda d: feature_problems(d, _drawn_meshes(d)), (doc,))):
+                        (lambda d: feature_problems(d, _drawn_meshes(d)), (doc,)), (_skin_problems, (path, doc))):
         try:
             problems += judge(*args)
         except (KeyError, IndexError, TypeError, AttributeError, ValueError, RecursionError, OSError,

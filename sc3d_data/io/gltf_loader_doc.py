@@ -12,6 +12,9 @@ It also takes the first node with a ``camera`` for the scene's camera and skips 
 node: a mesh on the same node was not drawn (glTF allows both on one node), and a child of it
 failed the file ("No path from world->2!"). The copy's nodes name no camera (sc3d renders at its
 own cameras), so such nodes are read as any other.
+
+Skinned nodes of the drawn scene are posed by their joints in the copy (``sc3d_data.io.gltf_skins``:
+the loader drew them in their bind pose, with the node's own transform, which glTF ignores).
 """
 from __future__ import annotations
 
@@ -20,7 +23,8 @@ import json
 import struct
 from pathlib import Path
 
-from sc3d_data.io.gltf_check import read_gltf
+from sc3d_data.io.gltf_check import drawn_nodes, read_gltf
+from sc3d_data.io.gltf_skins import apply_skins, skinned_nodes
 
 __all__ = ["loader_gltf_bytes"]
 
@@ -45,11 +49,19 @@ def loader_gltf_bytes(path: Path, doc: dict) -> bytes | None:
     casting, not scaling, so unsigned shorts wrap (65535 -> 255, 32768 -> 0: Blender's vertex
     paint in wrong colours); with a material it keeps them as stored, and the renderer scales
     them (``render.renderer.material_vertex_colors``). Such primitives get a white matte
-    material (white x colour: the colours as they are), and nodes lose their ``camera`` (module
-    doc); the binary chunk is kept as it is."""
-    if not (_ushort_colours_alone(doc) or _camera_nodes(doc)):
+    material (white x colour: the colours as they are), nodes lose their ``camera``, and skinned
+    nodes are posed (module doc); the binary chunk is kept as it is."""
+    try:
+        nodes = drawn_nodes(doc)
+    except (KeyError, IndexError, TypeError, AttributeError, RecursionError):
+        nodes = []  # a malformed scene: the loader reports it
+    skinned = skinned_nodes(doc, nodes)
+    if not (_ushort_colours_alone(doc) or _camera_nodes(doc) or skinned):
         return None
     doc = copy.deepcopy(doc)
+    binary = read_gltf(path, binary=True)[1] if Path(path).suffix.lower() == ".glb" else None
+    if skinned:
+        apply_skins(path, doc, binary, nodes)
     if _ushort_colours_alone(doc):
         doc.setdefault("materials", []).append({"name": "sc3d: white under vertex colours", "pbrMetallicRoughness":
                                                 {"baseColorFactor": [1, 1, 1, 1], "metallicFactor": 0}})
@@ -61,7 +73,6 @@ def loader_gltf_bytes(path: Path, doc: dict) -> bytes | None:
     if Path(path).suffix.lower() != ".glb":
         return text
     text += b" " * (-len(text) % 4)
-    binary = read_gltf(path, binary=True)[1]
     body = struct.pack("<I4s", len(text), b"JSON") + text
     if binary is not None:
         binary += b"\0" * (-len(binary) % 4)
