@@ -3,6 +3,7 @@ twenty-fourth attack), each with the real loader, renderer and command; expected
 from hand-built files and from bash itself, never from the code under test."""
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -110,11 +111,12 @@ def test_gltf_1_documents_and_positions_without_data_are_refused_in_one_line_tha
     (.gltf) or "not a GLB file" (a binary glTF 1.0, whose header says version 1); a POSITION
     accessor without a bufferView (36 files of the glTF validator's tests) failed with trimesh's
     "UnboundLocalError". Each is refused in one line naming the cause; the same cube as glTF 2.0
-    with its data renders (the control)."""
+    with its data renders (the control), also with ``asset.version`` "2"."""
     import struct
 
     meshes = tmp_path / "m" / "c"
     _cube_gltf(meshes / "v2.gltf")
+    _cube_gltf(meshes / "v2_short.gltf", version="2")  # trimesh and three.js read it (a review found it refused)
     _cube_gltf(meshes / "v1.gltf", version="1.0")
     _cube_gltf(meshes / "zeros.gltf", position_view=False)
     body = b'{"asset": {"version": "1.0"}}'
@@ -122,7 +124,7 @@ def test_gltf_1_documents_and_positions_without_data_are_refused_in_one_line_tha
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
     index = index_of(out)
-    assert [o["model_id"] for o in index["objects"]] == ["v2"]
+    assert sorted(o["model_id"] for o in index["objects"]) == ["v2", "v2_short"]
     reasons = {f["model_id"]: f["reason"] for f in index["failures"]}
     assert reasons["v1"] == f"{meshes / 'v1.gltf'}: a glTF 1.0 document: sc3d reads glTF 2.0 (convert the file, " \
                             "e.g. with Blender or gltf-pipeline); not read"
@@ -135,13 +137,19 @@ def test_a_gltf_texture_with_no_texcoord_0_to_place_it_is_warned_of(tmp_path):
     """assimp's ``texcoord_crash.gltf``: a material with a base colour texture on a primitive
     without ``TEXCOORD_0`` was drawn in the material's colour without a word (the OBJ analogue,
     faces without ``vt``, is warned of). Now warned of, naming the primitive; the same cube with
-    its TEXCOORD_0 draws the red texture without a warning (the control)."""
+    its TEXCOORD_0 draws the red texture without a warning (the control), and so does one whose
+    document holds an untextured primitive in a mesh no node draws."""
     material = {"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}, "baseColorFactor": [0.2, 0.2, 1, 1]}}
     meshes = tmp_path / "m" / "c"
     _cube_gltf(meshes / "placed.gltf", material=material, texcoord=True)
     _cube_gltf(meshes / "unplaced.gltf", material=material)
+    _cube_gltf(meshes / "unplaced_undrawn.gltf", material=material, texcoord=True)
+    undrawn = json.loads((meshes / "unplaced_undrawn.gltf").read_text())  # a second mesh no node draws
+    undrawn["meshes"].append({"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]})
+    (meshes / "unplaced_undrawn.gltf").write_text(json.dumps(undrawn))
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    assert index_of(out)["failures"] == []
     assert [w["warning"] for w in index_of(out)["warnings"]] == [
         f"{meshes / 'unplaced.gltf'}: mesh 0 primitive 0 has no TEXCOORD_0 to place its material's texture, so it is "
         "drawn in the material's colour without it"]
@@ -172,20 +180,29 @@ def _cube_stl(path, count: int | None = None, ascii_end: str | None = "endsolid 
 def test_stl_files_whose_triangle_count_cannot_be_trusted(tmp_path):
     """STLs that failed "empty mesh (no triangles)", naming neither cause: a binary STL whose header
     count is 0 (writers that stream triangles) is read by its size, as assimp and numpy-stl do,
-    and draws the pixels of the same file with its count (the reference); one whose count says
-    more than it holds (cut short) and an ASCII STL without its closing ``endsolid`` (cut short)
-    are refused in one line saying so. The ASCII cube with its end (control) draws as the binary."""
+    and draws the pixels of the same file with its count (the reference), as does one padded
+    with two bytes after its counted triangles; one whose count says more than it holds (cut
+    short) and an ASCII STL without its closing ``endsolid`` (cut short) are refused in one line
+    saying so. The ASCII cube with its end (control) draws as the binary, and so do the ASCII
+    variants the first version of the check refused (upper-case keywords, a byte-order mark, a
+    Latin-1 name, NUL and ^Z after ``endsolid``)."""
     meshes = tmp_path / "m" / "c"
     _cube_stl(meshes / "counted.stl", count=12)
     _cube_stl(meshes / "count_zero.stl", count=0)
     _cube_stl(meshes / "count_100.stl", count=100)
     _cube_stl(meshes / "ascii.stl")
     _cube_stl(meshes / "ascii_cut.stl", ascii_end="")
+    text = (meshes / "ascii.stl").read_bytes()  # ASCII STLs as other tools write them (read before; kept so)
+    variants = {"upper": text.upper(), "bom": b"\xef\xbb\xbf" + text, "nul_after_end": text + b"\0\x1a",
+                "latin1_name": text.replace(b" cube\n", " W\xfcrfel\n".encode("latin-1"))}
+    for name, data in variants.items():
+        (meshes / f"ascii_{name}.stl").write_bytes(data)
+    (meshes / "padded.stl").write_bytes((meshes / "counted.stl").read_bytes() + b"\0\0")
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
     objects = _objects(out)
-    assert sorted(objects) == ["ascii", "count_zero", "counted"]
-    for name in ("count_zero", "ascii"):
+    assert sorted(objects) == sorted(["ascii", "count_zero", "counted", "padded"] + [f"ascii_{n}" for n in variants])
+    for name in ["count_zero", "ascii", "padded"] + [f"ascii_{n}" for n in variants]:
         np.testing.assert_array_equal(objects[name]["images"], objects["counted"]["images"], err_msg=name)
     reasons = {f["model_id"]: f["reason"] for f in index_of(out)["failures"]}
     assert reasons["count_100"] == f"{meshes / 'count_100.stl'}: a binary STL whose header says 100 triangles while " \

@@ -144,7 +144,8 @@ def _accessor_problems(doc: dict, uses: dict[int, str], problems: list[str]) -> 
         v = a.get("bufferView")
         if "bufferView" in a and not _names(v, len(views)):
             found.append(f"{what} names bufferView {json.dumps(v)}, but the file has {len(views)}")
-        if "bufferView" not in a and uses.get(i, "").startswith("POSITION ") and not draco:  # the loader stopped
+        if "bufferView" not in a and uses.get(i, "").startswith("POSITION ") and not draco \
+                and "sparse" not in a:  # the loader stopped
             found.append(f"{what} has no bufferView, so its positions are all zeros (nothing to draw)")
         problems.extend(found)
         if found or "bufferView" not in a or not _whole(length := views[v].get("byteLength")):

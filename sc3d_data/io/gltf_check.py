@@ -37,7 +37,8 @@ from sc3d_data.io.gltf_accessors import layout_problems
 from sc3d_data.io.gltf_features import feature_problems, textured
 from sc3d_data.io.gltf_skins import skin_problems, skinned_nodes
 
-__all__ = ["GLTF_SUFFIXES", "SKIPPED_SURFACE_MODES", "drawn_nodes", "gltf_refusal", "judge_gltf", "read_gltf"]
+__all__ = ["GLTF_SUFFIXES", "SKIPPED_SURFACE_MODES", "drawn_meshes", "drawn_nodes", "gltf_refusal", "judge_gltf",
+           "read_gltf"]
 
 GLTF_SUFFIXES = (".gltf", ".glb")
 #: primitive modes that draw a surface but which the loader skips: ``{mode: name}``
@@ -91,13 +92,19 @@ def drawn_nodes(doc: dict) -> list[int]:
     return found
 
 
-def _drawn_meshes(doc: dict) -> set[int]:
+def drawn_meshes(doc: dict, safe: bool = False) -> set[int]:
     """Indices of the meshes of the nodes reachable from the scene the loader draws (``scene``,
-    else scene 0; every mesh when the document has no ``scenes``)."""
+    else scene 0; every mesh when the document has no ``scenes``); ``safe``: none where the
+    document's scenes or nodes cannot be followed (else the error is raised)."""
     if not doc.get("scenes"):  # the loader then draws every mesh
         return set(range(len(doc.get("meshes", []))))
     nodes = doc.get("nodes", [])
-    return {nodes[i]["mesh"] for i in drawn_nodes(doc) if "mesh" in nodes[i]}
+    try:
+        return {nodes[i]["mesh"] for i in drawn_nodes(doc) if "mesh" in nodes[i]}
+    except (KeyError, IndexError, TypeError, AttributeError, RecursionError):
+        if safe:
+            return set()
+        raise
 
 
 def gltf_problems(doc: dict) -> list[str]:
@@ -105,7 +112,7 @@ def gltf_problems(doc: dict) -> list[str]:
     (module doc), one phrase each, in file order."""
     problems, sparse_seen = [], set()
     accessors = doc.get("accessors", [])
-    for m in sorted(_drawn_meshes(doc)):
+    for m in sorted(drawn_meshes(doc)):
         for k, prim in enumerate(doc["meshes"][m].get("primitives", [])):
             mode = prim.get("mode", 4)
             if mode in SKIPPED_SURFACE_MODES:
@@ -124,13 +131,13 @@ def gltf_problems(doc: dict) -> list[str]:
     return problems
 
 
-def _skin_problems(path: Path, doc: dict) -> list[str]:
-    """The skinned nodes of the drawn scene whose skin cannot be applied (``gltf_skins``); a
-    GLB's BIN chunk is read only where there are skinned nodes."""
+def _skin_problems(path: Path, doc: dict, resolver=None) -> list[str]:
+    """The skinned nodes of the drawn scene whose skin cannot be applied (``gltf_skins``; buffer
+    files read through ``resolver``); a GLB's BIN chunk is read only where there are skinned nodes."""
     nodes = drawn_nodes(doc)
     if not skinned_nodes(doc, nodes):
         return []
-    return skin_problems(path, doc, read_gltf(path, binary=True)[1], nodes)
+    return skin_problems(path, doc, read_gltf(path, binary=True)[1], nodes, resolver)
 
 
 def gltf_refusal(path: Path, shown: int = 3) -> str | None:
@@ -142,10 +149,12 @@ def gltf_refusal(path: Path, shown: int = 3) -> str | None:
     return judge_gltf(path, shown)[1]
 
 
-def judge_gltf(path: Path, shown: int = 3) -> tuple[dict | None, str | None]:
+def judge_gltf(path: Path, shown: int = 3, resolver=None) -> tuple[dict | None, str | None]:
     """``(document, refusal)`` of ``path``: its JSON document (None for another format, or a
     file that could not be read as one) and :func:`gltf_refusal`'s line, so that the loader
-    reads the document once for the refusal and for what it applies after loading."""
+    reads the document once for the refusal and for what it applies after loading; ``resolver``
+    (``io.texture_resolver.make_resolver``) reads the buffer files skins are computed from, as
+    the loader reads them (None: beside ``path`` only)."""
     path = Path(path)
     if path.suffix.lower() not in GLTF_SUFFIXES:
         return None, None
@@ -163,12 +172,12 @@ def judge_gltf(path: Path, shown: int = 3) -> tuple[dict | None, str | None]:
         return None, (f"{path}: not a glTF document: its JSON is {type(doc).__name__} {json.dumps(doc)[:20]}, "
                       "not an object; not read")
     version = doc.get("asset", {}).get("version") if isinstance(doc.get("asset"), dict) else None
-    if isinstance(version, str) and not version.startswith("2."):
+    if isinstance(version, str) and version.split(".")[0].strip() not in ("2", ""):  # "2", "2.0", "2.1" are read
         return None, (f"{path}: a glTF {version} document: sc3d reads glTF 2.0 (convert the file, e.g. "
                       "with Blender or gltf-pipeline); not read")
     problems = []  # each judge alone: what one cannot follow (a node that is no object) hides nothing of the other
     for judge, args in ((layout_problems, (path, doc)), (gltf_problems, (doc,)),
-                        (lambda d: feature_problems(d, _drawn_meshes(d)), (doc,)), (_skin_problems, (path, doc))):
+                        (lambda d: feature_problems(d, drawn_meshes(d)), (doc,)), (_skin_problems, (path, doc, resolver))):
         try:
             problems += judge(*args)
         except (KeyError, IndexError, TypeError, AttributeError, ValueError, RecursionError, OSError,

@@ -43,14 +43,15 @@ def _camera_nodes(doc: dict) -> list[dict]:
     return [node for node in doc.get("nodes", []) if isinstance(node, dict) and "camera" in node]
 
 
-def loader_gltf_bytes(path: Path, doc: dict) -> bytes | None:
+def loader_gltf_bytes(path: Path, doc: dict, resolver=None) -> bytes | None:
     """The glTF/GLB to give the loader in place of ``path`` (JSON ``doc``), or None for the file as
     it is. trimesh turns the vertex colours of a primitive without a material into bytes by
     casting, not scaling, so unsigned shorts wrap (65535 -> 255, 32768 -> 0: Blender's vertex
     paint in wrong colours); with a material it keeps them as stored, and the renderer scales
     them (``render.renderer.material_vertex_colors``). Such primitives get a white matte
     material (white x colour: the colours as they are), nodes lose their ``camera``, and skinned
-    nodes are posed (module doc); the binary chunk is kept as it is."""
+    nodes are posed (module doc; their buffer files read through ``resolver``, as the loader reads
+    them); the binary chunk is kept as it is."""
     try:
         nodes = drawn_nodes(doc)
     except (KeyError, IndexError, TypeError, AttributeError, RecursionError):
@@ -61,7 +62,7 @@ def loader_gltf_bytes(path: Path, doc: dict) -> bytes | None:
     doc = copy.deepcopy(doc)
     binary = read_gltf(path, binary=True)[1] if Path(path).suffix.lower() == ".glb" else None
     if skinned:
-        apply_skins(path, doc, binary, nodes)
+        apply_skins(path, doc, binary, nodes, resolver)
     if _ushort_colours_alone(doc):
         doc.setdefault("materials", []).append({"name": "sc3d: white under vertex colours", "pbrMetallicRoughness":
                                                 {"baseColorFactor": [1, 1, 1, 1], "metallicFactor": 0}})

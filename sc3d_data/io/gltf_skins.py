@@ -16,13 +16,16 @@ reads in a .gltf and a .glb alike), drawn by a new root node of the scene with n
 skinned node keeps its transform and children but loses ``mesh`` and ``skin`` (its children stay
 where they were; the original mesh is left as it is for any other node that draws it unskinned).
 The copy has no NORMAL or TANGENT (bind-pose ones; shading uses face normals). Weights are
-divided by their sum per vertex, as viewers do; a joint index out of range is judged only where
-its weight is not 0 (it moves nothing otherwise).
+divided by their sum per vertex, as viewers do, and a vertex with none (all 0, common in exported
+characters) is bound to its first joint, as three.js binds it; joint indices stored as floats or
+unsigned ints (some exporters' types) are read where they are whole numbers; a joint index out of
+range is judged only where its weight is not 0 (it moves nothing otherwise). A buffer file is read
+as the loader reads it (``resolver``: inside the dataset folder).
 
 Where a skin cannot be applied (``JOINTS_n`` without ``WEIGHTS_n`` or none at all, a sparse
 accessor among these, a component type or element type glTF does not allow for them, a joint
-index out of range, a vertex whose weights sum to 0, a buffer that cannot be read inside the
-mesh's folder) :func:`skin_problems` names it, one phrase per node, and the file is refused
+index out of range, weights that are not finite or sum below 0, a buffer that cannot be read
+inside the dataset folder) :func:`skin_problems` names it, one phrase per node, and the file is refused
 (``sc3d_data.io.gltf_check``). Primitives that are not triangles (points, lines) are not drawn and
 are left as they are. A POSITION that is sparse is refused by ``gltf_check`` already.
 """
@@ -30,22 +33,18 @@ from __future__ import annotations
 
 import base64
 import copy
-import os
-import stat
 import struct
-import urllib.parse
 from pathlib import Path
 
 import numpy as np
 
-from sc3d_data.io.gltf_accessors import COMPONENT_BYTES, TYPE_COMPONENTS
+from sc3d_data.io.gltf_buffers import AccessorError, Buffers, read_accessor
 
 __all__ = ["apply_skins", "skin_problems", "skinned_nodes"]
 
-#: numpy types of glTF's component types (little-endian)
-_DTYPES = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
 #: glTF's allowed ``(componentType, normalized)`` for JOINTS_n and WEIGHTS_n
-_JOINT_TYPES = {(5121, False), (5123, False)}
+_JOINT_TYPES = {(5121, False), (5123, False), (5125, False), (5126, False)}  # + what exporters write: whole
+# numbers as unsigned ints or floats
 _WEIGHT_TYPES = {(5126, False), (5121, True), (5123, True)}
 _TRIANGLE_MODES = (4, 5)
 _CHUNK = 1 << 16  # vertices posed at once: [chunk, K, 4, 4] float64 matrices
@@ -112,66 +111,7 @@ def world_matrices(doc: dict) -> list[np.ndarray]:
     return world
 
 
-class _Buffers:
-    """The bytes of ``doc``'s buffers, read once each when first asked: a GLB's buffer 0 without
-    ``uri`` is ``binary`` (its BIN chunk), a base64 data URI is decoded, another uri names a file
-    beside ``path`` that must lie inside its folder (nothing else is opened)."""
-
-    def __init__(self, path: Path, doc: dict, binary: bytes | None):
-        self.path, self.doc, self.binary, self.read = Path(path), doc, binary, {}
-
-    def __getitem__(self, i: int) -> bytes:
-        if i not in self.read:
-            uri = self.doc["buffers"][i].get("uri")
-            if uri is None and i == 0 and self.binary is not None:
-                self.read[i] = self.binary
-            elif isinstance(uri, str) and "base64," in uri:
-                self.read[i] = base64.b64decode(uri.split("base64,", 1)[1])
-            elif isinstance(uri, str):
-                self.read[i] = self._file(uri, i)
-            else:
-                raise SkinError(f"buffer {i} has no data")
-        return self.read[i]
-
-    def _file(self, uri: str, i: int) -> bytes:
-        folder = Path(os.path.realpath(self.path)).parent
-        for name in dict.fromkeys((uri.strip(), urllib.parse.unquote(uri.strip()))):
-            file = (folder / name).resolve()
-            try:
-                if file.is_relative_to(folder) and stat.S_ISREG(os.stat(file).st_mode):
-                    return file.read_bytes()
-            except OSError:
-                continue
-        raise SkinError(f"buffer {i}'s file {uri} cannot be read inside the mesh's folder")
-
-
-def read_accessor(doc: dict, buffers: _Buffers, a: int, what: str) -> np.ndarray:
-    """``[count, components]`` of accessor ``a`` (``what`` names its use): float64 where it holds
-    floats or ``normalized`` integers (scaled to [0, 1] or [-1, 1]), int64 otherwise; zeros
-    without a bufferView (glTF). Honours the view's ``byteOffset``/``byteStride`` and the
-    accessor's ``byteOffset``. Raises ``SkinError`` for a sparse accessor."""
-    acc = doc["accessors"][a]
-    if "sparse" in acc:
-        raise SkinError(f"accessor {a} ({what}) is sparse")
-    ctype, n, count = acc["componentType"], TYPE_COMPONENTS[acc["type"]], acc["count"]
-    dtype = np.dtype(_DTYPES[ctype])
-    if "bufferView" not in acc:
-        raw = np.zeros((count, n), dtype)
-    else:
-        view = doc["bufferViews"][acc["bufferView"]]
-        start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
-        data = memoryview(buffers[view["buffer"]])[start:view.get("byteOffset", 0) + view["byteLength"]]
-        stride = view.get("byteStride") or COMPONENT_BYTES[ctype] * n
-        raw = np.ndarray((count, n), dtype, buffer=data, strides=(stride, dtype.itemsize)) if count else \
-            np.zeros((0, n), dtype)
-    if ctype == 5126:
-        return raw.astype(np.float64)
-    if acc.get("normalized") is True:
-        return np.maximum(raw.astype(np.float64) / np.iinfo(dtype).max, -1.0)
-    return raw.astype(np.int64)
-
-
-def joint_matrices(doc: dict, buffers: _Buffers, s: int, world: list[np.ndarray]) -> np.ndarray:
+def joint_matrices(doc: dict, buffers: Buffers, s: int, world: list[np.ndarray]) -> np.ndarray:
     """``[joints, 4, 4]`` float64: ``W(joint_i) @ IBM_i`` of skin ``s`` (scene frame <- bind frame)."""
     skin = doc["skins"][s]
     joints = skin.get("joints")
@@ -196,7 +136,7 @@ def _more(bad: np.ndarray) -> str:
     return f" (and {bad.size - 1:,} more)" if bad.size > 1 else ""
 
 
-def skin_primitive(doc: dict, buffers: _Buffers, prim: dict, joints: np.ndarray, where: str) -> np.ndarray:
+def skin_primitive(doc: dict, buffers: Buffers, prim: dict, joints: np.ndarray, where: str) -> np.ndarray:
     """``[vertices, 3]`` float64: the POSITION of primitive ``prim`` (``where`` names it) posed by
     the joint matrices ``joints [J, 4, 4]``, in the scene's frame; weights divided by their sum."""
     attributes = prim.get("attributes", {})
@@ -217,17 +157,23 @@ def skin_primitive(doc: dict, buffers: _Buffers, prim: dict, joints: np.ndarray,
                 raise SkinError(f"accessor {a} ({role} of {where}) is {acc.get('type')} of "
                                 f"{'normalized ' * norm}componentType {c}, which glTF does not allow for {role[:-2]}")
             values = read_accessor(doc, buffers, a, role)
+            if role[0] == "J" and c == 5126:
+                if not (np.isfinite(values).all() and (values == np.round(values)).all() and (values >= 0).all()):
+                    raise SkinError(f"accessor {a} ({role} of {where}) holds floats that are no joint indices")
+                values = values.astype(np.int64)
             if len(values) != len(positions):
                 raise SkinError(f"accessor {a} ({role} of {where}) has {len(values)} elements for "
                                 f"{len(positions)} vertices")
             (indices if role[0] == "J" else weights).append(values)
     idx, w = np.concatenate(indices, axis=1), np.concatenate(weights, axis=1)
+    total = w.sum(axis=1)
+    if (bad := np.flatnonzero(~np.isfinite(total) | (total < 0))).size:
+        raise SkinError(f"{where} vertex {bad[0]}{_more(bad)} has weights summing to {total[bad[0]]}")
+    unweighted = total == 0  # bound wholly to its first joint, as three.js binds it
+    w[unweighted, 0], total[unweighted] = 1.0, 1.0
     if (bad := np.flatnonzero(((idx >= len(joints)) & (w != 0)).any(axis=1))).size:
         raise SkinError(f"{where} vertex {bad[0]}{_more(bad)} names joint {idx[bad[0]].max()}, "
                         f"but the skin has {len(joints)}")
-    total = w.sum(axis=1)
-    if (bad := np.flatnonzero(~(np.isfinite(total) & (total > 0)))).size:
-        raise SkinError(f"{where} vertex {bad[0]}{_more(bad)} has weights summing to {total[bad[0]]}")
     w, idx = w / total[:, None], np.where(w != 0, idx, 0)
     out = np.empty((len(positions), 3))
     hom = np.concatenate([positions, np.ones((len(positions), 1))], axis=1)
@@ -237,10 +183,10 @@ def skin_primitive(doc: dict, buffers: _Buffers, prim: dict, joints: np.ndarray,
     return out
 
 
-def _pose(path: Path, doc: dict, binary: bytes | None, drawn_nodes: list[int]) -> tuple[list[str], dict]:
+def _pose(path: Path, doc: dict, binary: bytes | None, drawn_nodes: list[int], resolver) -> tuple[list[str], dict]:
     """``(problems, {node: {primitive: posed positions [n, 3] float64}})`` of the skinned nodes of
     ``drawn_nodes``; a node whose skin cannot be applied has a problem and no entry."""
-    nodes, buffers, problems, posed, world = doc.get("nodes", []), _Buffers(path, doc, binary), [], {}, None
+    nodes, buffers, problems, posed, world = doc.get("nodes", []), Buffers(path, doc, binary, resolver), [], {}, None
     for i in skinned_nodes(doc, drawn_nodes):
         m, s = nodes[i]["mesh"], nodes[i]["skin"]
         try:
@@ -249,25 +195,25 @@ def _pose(path: Path, doc: dict, binary: bytes | None, drawn_nodes: list[int]) -
             posed[i] = {k: skin_primitive(doc, buffers, prim, joints, f"mesh {m} primitive {k}")
                         for k, prim in enumerate(doc["meshes"][m].get("primitives", []))
                         if prim.get("mode", 4) in _TRIANGLE_MODES and "POSITION" in prim.get("attributes", {})}
-        except SkinError as e:
+        except (SkinError, AccessorError) as e:
             problems.append(f"node {i}'s skin {s} cannot be applied: {e}")
         except (KeyError, IndexError, TypeError, ValueError, AttributeError, OSError, struct.error) as e:
             problems.append(f"node {i}'s skin {s} cannot be applied: it cannot be read ({type(e).__name__}: {e})")
     return problems, posed
 
 
-def skin_problems(path: Path, doc: dict, binary: bytes | None, drawn_nodes: list[int]) -> list[str]:
+def skin_problems(path: Path, doc: dict, binary: bytes | None, drawn_nodes: list[int], resolver=None) -> list[str]:
     """Why the skins of the skinned nodes of ``drawn_nodes`` cannot be applied (module doc), one
     phrase per node; ``binary`` is a GLB's BIN chunk (else None)."""
-    return _pose(path, doc, binary, drawn_nodes)[0]
+    return _pose(path, doc, binary, drawn_nodes, resolver)[0]
 
 
-def apply_skins(path: Path, doc: dict, binary: bytes | None, drawn_nodes: list[int]) -> None:
+def apply_skins(path: Path, doc: dict, binary: bytes | None, drawn_nodes: list[int], resolver=None) -> None:
     """Pose the skinned nodes of ``drawn_nodes`` in ``doc`` (a copy the loader reads; changed in
     place): each gets a copy of its mesh with posed world-space POSITIONs, drawn by a new root
     node of the drawn scene with no transform; the node loses ``mesh`` and ``skin`` (module
     doc). Nodes whose skin cannot be applied (:func:`skin_problems`) are left as they are."""
-    _, posed = _pose(path, doc, binary, drawn_nodes)
+    _, posed = _pose(path, doc, binary, drawn_nodes, resolver)
     if not posed:
         return
     blob, views = bytearray(), doc.setdefault("bufferViews", [])

@@ -190,7 +190,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     ``bad_texture="fallback"``, missing ``.mtl`` files, material files outside the folder
     ``root``, never read: refused when ``outside_textures="refuse"``). Raises ``MeshError`` on
     bad input (see module doc)."""
-    from sc3d_data.io.gltf_check import judge_gltf
+    from sc3d_data.io.gltf_check import drawn_meshes, judge_gltf
     from sc3d_data.io.gltf_features import apply_texture_transforms, feature_warnings, read_spec_gloss_as_matte
     from sc3d_data.io.gltf_loader_doc import loader_gltf_bytes
     from sc3d_data.io.loader_visuals import keep_obj_vertex_colours, texture_as_is
@@ -208,7 +208,9 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     if outside_textures not in OUTSIDE_TEXTURES:
         raise ValueError(f"outside_textures must be one of {OUTSIDE_TEXTURES}, not {outside_textures!r}")
     check_mesh_file(path, max_file_bytes)
-    gltf_doc, refusal = judge_gltf(path)  # glTF/GLB only: not a glTF document, or unread geometry
+    # glTF/GLB only: not a glTF document, or unread geometry; skins' buffer files read as the loader reads files
+    skin_files = make_resolver(path, root) if path.suffix.lower() in (".gltf", ".glb") else None
+    gltf_doc, refusal = judge_gltf(path, resolver=skin_files)
     if refusal is not None:
         raise MeshError(refusal)
     try:
@@ -218,7 +220,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     if report.problems and bad_texture == "fail":
         raise MeshError(f"{path}: {'; '.join(report.problems)} (use --bad-texture fallback to render with "
                         "material colours)")
-    text = None if gltf_doc is None else loader_gltf_bytes(path, gltf_doc)  # the text the loader reads right:
+    text = None if gltf_doc is None else loader_gltf_bytes(path, gltf_doc, skin_files)  # the text the loader reads right:
     try:
         text = {".ply": loader_ply_bytes, ".off": loader_off_bytes,
                 ".stl": loader_stl_bytes}.get(path.suffix.lower(), lambda _: text)(path)
@@ -248,7 +250,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
         apply_texture_transforms(scene, gltf_doc)
     vertices, faces = scene_triangles(scene, str(path))
     faces = validate_triangles(vertices, faces, str(path), max_faces)
-    notes = report.warnings + report.outside + (feature_warnings(gltf_doc) if gltf_doc is not None else [])
+    notes = report.warnings + report.outside + (feature_warnings(gltf_doc, drawn_meshes(gltf_doc, safe=True))
+                                                if gltf_doc is not None else [])
     warnings = ([f"{path}: {p}; rendered with material colours" for p in report.problems + missed]
                 + [f"{path}: {n}" for n in notes] + unused_texture_warnings(path, scene, report))
     return scene, vertices, faces, warnings

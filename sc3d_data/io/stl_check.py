@@ -9,11 +9,14 @@ the file's size (binary) or its last bytes (ASCII), as assimp, admesh and numpy-
 - a binary STL whose header count is 0 while its body holds whole 50-byte triangles (writers
   that stream triangles and never go back to fill in the count) is read by its size: the loader
   is given a copy with the count filled in;
+- a binary STL whose triangles are all there as counted, followed by fewer bytes than a triangle
+  (padding), is read without them;
 - a binary STL whose header count differs otherwise from what its size holds (a file cut short,
   or data after the triangles) is refused in one line giving both numbers: reading either would
   draw a part of the object or something that is not part of it;
-- an ASCII STL (``solid`` first) that does not end with an ``endsolid`` line is refused as cut
-  short: its last facets may be missing.
+- an ASCII STL (``solid``, in any case, after a byte-order mark, with a ``facet`` in its first
+  KiB) that does not end with an ``endsolid`` line (then only whitespace, NUL or ^Z padding) is
+  refused as cut short: its last facets may be missing.
 """
 from __future__ import annotations
 
@@ -25,8 +28,13 @@ from pathlib import Path
 __all__ = ["loader_stl_bytes"]
 
 _HEADER, _TRIANGLE = 84, 50
-#: the end of an ASCII STL: an ``endsolid`` line (with or without a name), then only whitespace
-_ASCII_END = re.compile(rb"(^|\n)\s*endsolid\b[^\n]*\s*$")
+#: the end of an ASCII STL: an ``endsolid`` line (any case, with or without a name), then only
+#: whitespace, NUL or ^Z padding
+_ASCII_END = re.compile(rb"(^|\n)[ \t]*endsolid\b[^\n]*[\s\0\x1a]*$", re.IGNORECASE)
+#: an ASCII STL's first statements: ``solid`` (any case, after a byte-order mark and whitespace),
+#: and a ``facet`` within its first KiB (a binary header that starts with "solid", as some CAD
+#: tools write it, is followed by binary numbers)
+_ASCII_START = re.compile(rb"^(\xef\xbb\xbf)?\s*solid\b.*?\bfacet\b", re.IGNORECASE | re.DOTALL)
 
 
 def loader_stl_bytes(path: Path) -> bytes | None:
@@ -35,13 +43,13 @@ def loader_stl_bytes(path: Path) -> bytes | None:
     cannot be trusted is refused."""
     size = os.path.getsize(path)
     with open(path, "rb") as f:
-        head = f.read(_HEADER)
+        head = f.read(1024)
         if len(head) < _HEADER:
             return None  # too short for a binary header: the loader reports it
         count = struct.unpack_from("<I", head, 80)[0]
         if size == _HEADER + _TRIANGLE * count:
             return None  # a binary STL as the loader reads it
-        if head.lstrip().startswith(b"solid") and _looks_ascii(head):
+        if _ASCII_START.match(head):
             f.seek(max(0, size - 4096))
             if not _ASCII_END.search(f.read()):
                 raise ValueError("an ASCII STL that does not end with an `endsolid` line: cut short? (its last "
@@ -51,12 +59,8 @@ def loader_stl_bytes(path: Path) -> bytes | None:
     if count == 0 and held and not extra:
         data = Path(path).read_bytes()
         return data[:80] + struct.pack("<I", held) + data[_HEADER:]
+    if count and count == held:  # whole triangles as counted, then a few bytes of padding
+        return Path(path).read_bytes()[:_HEADER + _TRIANGLE * count]
     whole = f"{held:,} triangles" + (f" and {extra} bytes more" if extra else "")
     raise ValueError(f"a binary STL whose header says {count:,} triangles while its size ({size:,} bytes) holds "
                      f"{whole}: cut short, or data after its triangles?")
-
-
-def _looks_ascii(head: bytes) -> bool:
-    """Whether the first bytes of an STL are text (an ASCII STL), not a binary header that happens
-    to start with ``solid`` (some CAD tools write binary STLs so)."""
-    return all(b in b"\t\n\r" or 32 <= b < 127 for b in head)
