@@ -520,10 +520,11 @@ def test_a_mesh_with_weighted_morph_targets_is_refused(tmp_path):
 
 
 def test_what_is_drawn_unlike_the_file_says_is_warned_of(tmp_path):
-    """Two things the renderer does not do, each now a warning naming the material where they
-    rendered without a word: a glTF material with ``alphaMode`` MASK (a cut-out, drawn opaque) and
-    an MTL texture moved by ``map_Kd -o``/``-s`` (drawn unmoved). Controls: OPAQUE, and ``-s 1 1 1
-    -bm 0.5`` (no move; ``-clamp on`` is warned of since: tests/test_faults_round21_data.py), get none."""
+    """What the renderer does not do is a warning naming the material where it rendered without
+    a word: an MTL texture moved by ``map_Kd -o``/``-s`` (drawn unmoved). Controls: ``-s 1 1 1
+    -bm 0.5`` (no move; ``-clamp on`` is warned of since: tests/test_faults_round21_data.py), and
+    glTF materials with ``alphaMode`` MASK (warned of as drawn opaque until cut-outs were drawn:
+    tests/test_gltf_alpha_mask.py) and OPAQUE, get none."""
     from test_gltf_features import _half_red_half_green_cube
 
     folder = tmp_path / "m" / "box"
@@ -538,8 +539,6 @@ def test_what_is_drawn_unlike_the_file_says_is_warned_of(tmp_path):
     warnings = sorted((Path(w["source"]).name if w["source"].endswith(".gltf") else Path(w["source"]).parent.name,
                        w["warning"].split(": ", 1)[1]) for w in index_of(out)["warnings"])
     assert warnings == [
-        ("mask.gltf", "material 0 has alphaMode MASK (a cut-out), which is drawn opaque: its cut-out texels are in "
-                      "the images and masks"),
         ("offset", "material mat of m.mtl offsets or scales its texture t.png (map_Kd -o/-s), which the loader does "
                    "not apply; drawn unmoved")]
 

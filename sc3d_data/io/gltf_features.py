@@ -231,19 +231,13 @@ def morph_problems(doc: dict, drawn: set[int]) -> list[str]:
 
 def feature_warnings(doc: dict, drawn: set[int]) -> list[str]:
     """What of glTF document ``doc`` is drawn other than the file means, though close enough to
-    render with a warning: materials of its meshes with ``alphaMode`` MASK (cut-outs: leaves,
-    fences), which the renderer draws opaque (its images and masks show the cut-out texels), and
-    triangle primitives of the drawn meshes ``drawn`` (mesh indices) with a base colour texture but
-    no ``TEXCOORD_0`` to place it (drawn in the material's colour, as an OBJ's faces without ``vt``)."""
-    materials = doc.get("materials", [])
-    used = sorted({p.get("material") for mesh in doc.get("meshes", []) for p in mesh.get("primitives", [])
-                   if isinstance(p.get("material"), int) and 0 <= p["material"] < len(materials)})
-    untextured = [f"mesh {m} primitive {k} has no TEXCOORD_0 to place its material's texture, so it is drawn in the "
-                  "material's colour without it" for m in sorted(drawn)
-                  for k, p in enumerate(doc["meshes"][m].get("primitives", []))
-                  if p.get("mode", 4) in (4, 5) and textured(doc, p) and "TEXCOORD_0" not in p.get("attributes", {})]
-    return [f"material {i} has alphaMode MASK (a cut-out), which is drawn opaque: its cut-out texels are in the "
-            "images and masks" for i in used if materials[i].get("alphaMode") == "MASK"] + untextured
+    render with a warning: triangle primitives of the drawn meshes ``drawn`` (mesh indices) with
+    a base colour texture but no ``TEXCOORD_0`` to place it (drawn in the material's colour, as
+    an OBJ's faces without ``vt``)."""
+    return [f"mesh {m} primitive {k} has no TEXCOORD_0 to place its material's texture, so it is drawn in the "
+            "material's colour without it" for m in sorted(drawn)
+            for k, p in enumerate(doc["meshes"][m].get("primitives", []))
+            if p.get("mode", 4) in (4, 5) and textured(doc, p) and "TEXCOORD_0" not in p.get("attributes", {})]
 
 
 def feature_problems(doc: dict, drawn: set[int]) -> list[str]:

@@ -21,7 +21,10 @@ reads them from trimesh; no material or texture -> grey 0.3. Emission is ignored
 shading with a headlight: ``colour = base x (ambient + intensity x |n.l| / pi)`` then gamma 1/2.2 (pyrender's metallic-roughness shader without the specular term and without
 metallic darkening), with flat per-pixel face normals (screen-space derivatives) and
 two-sided lighting (most real meshes have inconsistent winding; culling is off). Objects are
-opaque. No multisampling: the mask (alpha written by every fragment) and the RGB agree exactly,
+opaque, except cut-outs: a part whose glTF material has ``alphaMode`` MASK (leaves, fences, hair
+cards) draws only the fragments whose alpha (colour factor x texture x vertex colour alpha) is at
+least its ``alphaCutoff`` (default 0.5), as glTF 2.0 says; the others are in neither image nor
+mask. ``alphaMode`` BLEND is drawn opaque. No multisampling: the mask (alpha written by every fragment) and the RGB agree exactly,
 and background pixels hold exactly the background colour.
 
 Cameras: the shards store OpenCV ``K, R, t`` (world->camera, x right, y down, z forward);
@@ -41,6 +44,7 @@ import ctypes
 import math
 import os
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -86,7 +90,8 @@ def gl_projection(K: np.ndarray, size: int, znear: float, zfar: float) -> np.nda
 #: without vertex colours or without a texture gets a program without that varying: every
 #: varying costs llvmpipe per-triangle set-up work (~10% of the draw call), and a constant
 #: white colour or an unused uv changes no pixel.
-_VARIANT_DEFINES = {"color": "#define HAS_COLOR\n", "texture": "#define HAS_TEXTURE\n"}
+_VARIANT_DEFINES = {"color": "#define HAS_COLOR\n", "texture": "#define HAS_TEXTURE\n",
+                    "cutoff": "#define HAS_CUTOFF\n"}
 
 _VERTEX = """
 layout(location = 0) in vec3 position;
@@ -138,6 +143,9 @@ uniform sampler2D base_texture;
 uniform vec4 base_color;
 uniform float ambient;
 uniform float diffuse;
+#ifdef HAS_CUTOFF
+uniform float alpha_cutoff;
+#endif
 out vec4 frag_color;
 vec3 srgb_to_linear(vec3 c) {
     return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), step(vec3(0.04045), c));
@@ -145,7 +153,18 @@ vec3 srgb_to_linear(vec3 c) {
 void main() {
     vec3 base = base_color.rgb;
 #ifdef HAS_TEXTURE
-    base *= srgb_to_linear(texture(base_texture, v_uv).rgb);
+    vec4 texel = texture(base_texture, v_uv);
+    base *= srgb_to_linear(texel.rgb);
+#endif
+#ifdef HAS_CUTOFF  // glTF alphaMode MASK: alpha = factor x texture x vertex colour
+    float alpha = base_color.a;
+#ifdef HAS_TEXTURE
+    alpha *= texel.a;
+#endif
+#ifdef HAS_COLOR
+    alpha *= v_color.a;
+#endif
+    if (alpha < alpha_cutoff) discard;
 #endif
     vec3 n = normalize(cross(dFdx(v_position), dFdy(v_position)));
     vec3 c = base * (ambient + diffuse * abs(n.z));
@@ -199,17 +218,35 @@ def material_vertex_colors(visual, n: int) -> np.ndarray | None:
     return colors if colors.shape[1] == 4 else np.concatenate([colors, np.full((n, 1), 255, np.uint8)], 1)
 
 
-def mesh_parts(scene, to_canonical: np.ndarray):
-    """``(model [4,4], positions [N,3] f32, faces [M,3] u32, colors [N,4] u8 or None,
-    uv [N,2] f32 or None, base_color [4], texture image or None)`` per geometry of a
-    ``trimesh.Scene``, with pyrender's reading of trimesh visuals; ``uv`` and the texture image
-    are both given or both None.
+class MeshPart(NamedTuple):
+    """One geometry of a scene, ready to draw (:func:`mesh_parts`).
 
-    ``positions`` are the part's source-frame vertices less the centre of their bounding box
-    (subtracted in float64), and ``model`` maps them to the canonical frame (``to_canonical @
-    node transform @ translate(centre)``): a mesh far from its origin (georeferenced or CAD
-    coordinates, 1e6 units away) keeps its shape in float32, which has 24 bits of mantissa,
-    and the model matrix's translation is the part's place in the canonical frame, near 0."""
+    ``positions [N,3]`` float32 are the part's source-frame vertices less the centre of their
+    bounding box (subtracted in float64), and ``model [4,4]`` maps them to the canonical frame
+    (``to_canonical @ node transform @ translate(centre)``): a mesh far from its origin
+    (georeferenced or CAD coordinates, 1e6 units away) keeps its shape in float32, which has 24
+    bits of mantissa, and the model matrix's translation is the part's place in the canonical
+    frame, near 0. ``faces [M,3]`` uint32; ``colors [N,4]`` uint8 RGBA or None; ``uv [N,2]``
+    float32 and ``image`` (a PIL texture) both given or both None; ``base_color [4]`` RGBA 0-1;
+    ``alpha_cutoff``: the material's ``alphaCutoff`` when its ``alphaMode`` is MASK, else None."""
+
+    model: np.ndarray
+    positions: np.ndarray
+    faces: np.ndarray
+    colors: np.ndarray | None
+    uv: np.ndarray | None
+    base_color: np.ndarray
+    image: object
+    alpha_cutoff: float | None
+
+
+#: glTF 2.0's default ``alphaCutoff`` of an ``alphaMode`` MASK material
+DEFAULT_ALPHA_CUTOFF = 0.5
+
+
+def mesh_parts(scene, to_canonical: np.ndarray):
+    """A :class:`MeshPart` per geometry of a ``trimesh.Scene``, with pyrender's reading of
+    trimesh visuals (``to_canonical [4,4]``: source -> canonical frame)."""
     import trimesh
 
     from sc3d_data.io.loader_visuals import is_placeholder
@@ -221,7 +258,7 @@ def mesh_parts(scene, to_canonical: np.ndarray):
             continue
         model = np.asarray(to_canonical, dtype=np.float64) @ transform
         pos, faces = m.vertices, m.faces
-        colors = uv = image = None
+        colors = uv = image = cutoff = None
         base = np.array(DEFAULT_GREY)
         vis = m.visual
         if vis.defined and vis.kind == "vertex":
@@ -235,6 +272,8 @@ def mesh_parts(scene, to_canonical: np.ndarray):
             mat = vis.material
             if isinstance(mat, trimesh.visual.material.PBRMaterial):
                 base, image = _color_factor(mat.baseColorFactor), mat.baseColorTexture
+                if mat.alphaMode == "MASK":
+                    cutoff = DEFAULT_ALPHA_CUTOFF if mat.alphaCutoff is None else float(mat.alphaCutoff)
             elif isinstance(mat, trimesh.visual.material.SimpleMaterial):
                 base, image = _color_factor(mat.diffuse), mat.image
             if image is not None and vis.uv is not None and len(vis.uv) == len(pos):
@@ -246,9 +285,9 @@ def mesh_parts(scene, to_canonical: np.ndarray):
         centre = (pos.min(axis=0) + pos.max(axis=0)) / 2
         shift = np.eye(4)
         shift[:3, 3] = centre
-        yield (model @ shift, np.ascontiguousarray(pos - centre, np.float32), np.ascontiguousarray(faces, np.uint32),
-               None if colors is None else np.ascontiguousarray(colors, np.uint8),
-               None if uv is None else np.ascontiguousarray(uv, np.float32), base, image)
+        yield MeshPart(model @ shift, np.ascontiguousarray(pos - centre, np.float32),
+                       np.ascontiguousarray(faces, np.uint32), None if colors is None else np.ascontiguousarray(colors, np.uint8),
+                       None if uv is None else np.ascontiguousarray(uv, np.float32), base, image, cutoff)
 
 
 #: modes of texture images that PIL's ``Image.reduce`` refuses (palette, 1-bit)
@@ -347,22 +386,23 @@ class MeshRenderer:
         # positions, colours, uv, indices of all parts of the object being drawn (_upload)
         self.buffers = list(GL.glGenBuffers(4))
 
-    def _program(self, color: bool, texture: bool) -> dict:
+    def _program(self, color: bool, texture: bool, cutoff: bool) -> dict:
         """Use (compile on first use) the program variant with the optional ``color`` and
-        ``texture`` varyings (``_VARIANT_DEFINES``); its uniform locations, views up to date."""
+        ``texture`` varyings and the alpha ``cutoff`` test (``_VARIANT_DEFINES``); its uniform
+        locations, views up to date."""
         GL = self.gl
-        key = (color, texture)
+        key = (color, texture, cutoff)
         if key not in self.programs:
             from OpenGL.GL import shaders
 
-            head = ("#version 330 core\n" + (_VARIANT_DEFINES["color"] if color else "")
-                    + (_VARIANT_DEFINES["texture"] if texture else ""))
+            head = "#version 330 core\n" + "".join(
+                _VARIANT_DEFINES[name] for name, on in (("color", color), ("texture", texture), ("cutoff", cutoff)) if on)
             program = shaders.compileProgram(
                 shaders.compileShader(head + _VERTEX.replace("NVIEWS", str(self.V)), GL.GL_VERTEX_SHADER),
                 shaders.compileShader(head + _FRAGMENT, GL.GL_FRAGMENT_SHADER), validate=False)
             GL.glUseProgram(program)
             loc = {n: GL.glGetUniformLocation(program, n) for n in
-                   ("model", "view", "proj", "grid", "base_color", "base_texture", "ambient", "diffuse")}
+                   ("model", "view", "proj", "grid", "base_color", "base_texture", "ambient", "diffuse", "alpha_cutoff")}
             GL.glUniformMatrix4fv(loc["proj"], 1, GL.GL_TRUE, self.proj.astype(np.float32))
             GL.glUniform2f(loc["grid"], self.cols, self.rows)
             if texture:
@@ -391,7 +431,7 @@ class MeshRenderer:
             # texture of glTF's CesiumMilkTruck: "image has wrong mode"): those are converted first
             image = (image.convert("RGBA") if image.mode in UNREDUCIBLE_MODES else image).reduce(factor)
         # RGBA, not RGB: llvmpipe stores 4 bytes per texel either way, and converts RGB on upload
-        # and in mipmap generation (5x / 1.6x slower); the shader reads .rgb, alpha is unused
+        # and in mipmap generation (5x / 1.6x slower); alpha is read only by cut-outs (alphaMode MASK)
         img = np.asarray(image.convert("RGBA"), dtype=np.uint8)[::-1]  # row 0 = v 0 (bottom)
         tex = GL.glGenTextures(1)
         GL.glActiveTexture(GL.GL_TEXTURE0)
@@ -412,9 +452,9 @@ class MeshRenderer:
         GL = self.gl
         arrays: list[list[np.ndarray]] = [[], [], [], []]
         offsets, at = [], [0, 0, 0, 0]
-        for _, pos, faces, colors, uv, _, _ in parts:
+        for part in parts:
             offsets.append(tuple(at))
-            for k, data in enumerate((pos, colors, uv, faces)):
+            for k, data in enumerate((part.positions, part.colors, part.uv, part.faces)):
                 if data is not None:
                     arrays[k].append(data)
                     at[k] += data.nbytes
@@ -425,13 +465,13 @@ class MeshRenderer:
                 GL.glBufferData(target, data.nbytes, data, GL.GL_STREAM_DRAW)
         return offsets
 
-    def _draw_part(self, model, pos, faces, colors, uv, base, image, offsets: tuple, textures: dict) -> None:
+    def _draw_part(self, model, pos, faces, colors, uv, base, image, cutoff, offsets: tuple, textures: dict) -> None:
         """Draw one part (``mesh_parts``) from its data at ``offsets`` in the buffers (``_upload``).
         ``textures`` maps ``id(image)`` to ``(image, texture)`` for the textures this object has
         made so far: parts that share one image (a GLB's material used by many meshes) upload it once."""
         GL = self.gl
         has_tex = image is not None  # then uv too (mesh_parts)
-        loc = self._program(colors is not None, has_tex)
+        loc = self._program(colors is not None, has_tex, cutoff is not None)
         for attr, data, size, dtype, norm in ((0, pos, 3, GL.GL_FLOAT, False),
                                               (1, colors, 4, GL.GL_UNSIGNED_BYTE, True),
                                               (2, uv, 2, GL.GL_FLOAT, False)):
@@ -447,6 +487,8 @@ class MeshRenderer:
             GL.glActiveTexture(GL.GL_TEXTURE0)
             GL.glBindTexture(GL.GL_TEXTURE_2D, textures[id(image)][1])
         GL.glUniform4f(loc["base_color"], *[float(x) for x in base])
+        if cutoff is not None:
+            GL.glUniform1f(loc["alpha_cutoff"], cutoff)
         GL.glUniformMatrix4fv(loc["model"], 1, GL.GL_TRUE, model.astype(np.float32))
         GL.glDrawElementsInstanced(GL.GL_TRIANGLES, faces.size, GL.GL_UNSIGNED_INT, ctypes.c_void_p(offsets[3]),
                                    self.V)
