@@ -519,30 +519,6 @@ def test_a_mesh_with_weighted_morph_targets_is_refused(tmp_path):
     assert [name[1] for name in objects_by_id(out)] == ["unweighted"]
 
 
-def test_what_is_drawn_unlike_the_file_says_is_warned_of(tmp_path):
-    """What the renderer does not do is a warning naming the material where it rendered without
-    a word: an MTL texture moved by ``map_Kd -o``/``-s`` (drawn unmoved). Controls: ``-s 1 1 1
-    -bm 0.5`` (no move; ``-clamp on`` is warned of since: tests/test_faults_round21_data.py), and
-    glTF materials with ``alphaMode`` MASK (warned of as drawn opaque until cut-outs were drawn:
-    tests/test_gltf_alpha_mask.py) and OPAQUE, get none."""
-    from test_gltf_features import _half_red_half_green_cube
-
-    folder = tmp_path / "m" / "box"
-    folder.mkdir(parents=True)
-    for mode in ("MASK", "OPAQUE"):
-        _half_red_half_green_cube(folder / f"{mode.lower()}.gltf", {"alphaMode": mode, "pbrMetallicRoughness": {
-            "baseColorTexture": {"index": 0}, "metallicFactor": 0}})
-    _textured_obj(folder / "offset", b"newmtl mat\nKd 1 1 1\nmap_Kd -o 0.5 0 0 t.png\n")
-    _textured_obj(folder / "unmoved", b"newmtl mat\nKd 1 1 1\nmap_Kd -s 1 1 1 -bm 0.5 t.png\n")
-    out = tmp_path / "out"
-    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
-    warnings = sorted((Path(w["source"]).name if w["source"].endswith(".gltf") else Path(w["source"]).parent.name,
-                       w["warning"].split(": ", 1)[1]) for w in index_of(out)["warnings"])
-    assert warnings == [
-        ("offset", "material mat of m.mtl offsets or scales its texture t.png (map_Kd -o/-s), which the loader does "
-                   "not apply; drawn unmoved")]
-
-
 def test_texture_coordinates_without_a_material_draw_the_default_grey(tmp_path):
     """An OBJ with ``vt`` but no material of its own got trimesh's placeholder (a 2 x 2 grey image
     under diffuse 0.4) and rendered darker than the same file without ``vt`` (51 against 114);

@@ -13,6 +13,10 @@ A texture the file gives no colour to multiply with (a PLY's ``comment TextureFi
 material with ``map_Kd`` and no ``Kd``) gets trimesh's default diffuse, 0.4, and was drawn at 40%,
 unlike every viewer: :func:`texture_as_is` gives its material a white diffuse colour.
 
+An OBJ material's ``map_Kd`` moved by ``-o``/``-s`` (offset, scale) was drawn unmoved (trimesh
+reads neither option): :func:`move_texture` applies the move (``io.mtl_text.TextureMove``) to the
+texture coordinates of the material's faces.
+
 An OBJ's vertex colours (``v x y z r g b``, as Blender's and MeshLab's exporters write them) on
 faces that also name a material were dropped: trimesh's OBJ loader parses them, then builds the
 geometry with the material's visual only, and the object was drawn in the material's colour
@@ -31,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["NotFiniteColours", "is_placeholder", "keep_obj_vertex_colours", "texture_as_is"]
+__all__ = ["NotFiniteColours", "is_placeholder", "keep_obj_vertex_colours", "move_texture", "texture_as_is"]
 
 #: the pixel of trimesh's placeholder image (``trimesh.visual.material.color_image``'s default)
 PLACEHOLDER_PIXEL = (100, 100, 100, 255)
@@ -64,6 +68,17 @@ def texture_as_is(geometry, materials: set[str] | None = None) -> None:
     if getattr(visual, "kind", None) == "texture" and getattr(material, "image", None) is not None \
             and hasattr(material, "diffuse") and not is_placeholder(material):
         material.diffuse = [255, 255, 255, 255]
+
+
+def move_texture(geometry, moves: dict) -> None:
+    """Where ``geometry``'s visual draws a texture of a material (by name) of ``moves``
+    (``{material: io.mtl_text.TextureMove}``), its texture coordinates ``uv [n,2]`` become
+    ``scale * uv + offset``: the texture is read where the file's options move it."""
+    visual = getattr(geometry, "visual", None)
+    move = moves.get(getattr(getattr(visual, "material", None), "name", None))
+    if move is None or getattr(visual, "kind", None) != "texture" or getattr(visual, "uv", None) is None:
+        return
+    visual.uv = np.asarray(visual.uv, dtype=np.float64) * move.scale + move.offset
 
 
 def keep_obj_vertex_colours() -> None:

@@ -31,7 +31,7 @@ from pathlib import Path
 
 from sc3d_data.io.gltf_check import read_gltf
 from sc3d_data.io.names import printable
-from sc3d_data.io.mtl_text import mtl_materials, read_obj_text
+from sc3d_data.io.mtl_text import TextureMove, mtl_materials, read_obj_text
 from sc3d_data.io.obj_statements import statement_values
 
 __all__ = ["SHAPENET_V2_MESH", "MaterialReport", "dataset_folder", "material_report", "mtllib_names",
@@ -95,7 +95,8 @@ class MaterialReport:
     not decode; ``warnings``: ``.mtl`` files that are missing; ``outside``: one line per file outside the root
     (never opened); ``reported``: resolved paths of all of these; ``textures``: the file names of the textures
     inside the root that exist and decode; ``texture_only``: an OBJ's materials with a ``map_Kd`` texture
-    and no ``Kd`` (``io.mtl_text``)."""
+    and no ``Kd``; ``texture_moves``: ``{material: TextureMove}`` of an OBJ's ``map_Kd`` textures
+    moved by ``-o``/``-s`` (``io.mtl_text``)."""
 
     textures: list[str] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
@@ -103,6 +104,7 @@ class MaterialReport:
     outside: list[str] = field(default_factory=list)
     reported: set[str] = field(default_factory=set)
     texture_only: set[str] = field(default_factory=set)
+    texture_moves: dict[str, TextureMove] = field(default_factory=dict)
 
 
 def mtllib_names(path: Path, text: str | None = None) -> list[str]:
@@ -152,9 +154,7 @@ def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None =
         report.warnings += [f"material {printable(m)} of {printable(mtl.name)} gives its texture {printable(name)} as "
                             "map_Ka (ambient), which is not drawn (only map_Kd is); rendered in its colour"
                             for m, name in materials.ambient_only]
-        report.warnings += [f"material {printable(m)} of {printable(mtl.name)} offsets or scales its texture "
-                            f"{printable(name)} (map_Kd -o/-s), which the loader does not apply; drawn unmoved"
-                            for m, name in materials.moved]
+        report.texture_moves.update(materials.moves)
         report.warnings += [f"material {printable(m)} of {printable(mtl.name)} clamps its texture {printable(name)} "
                             "(map_Kd -clamp on), which the loader does not apply; drawn repeated where its texture "
                             "coordinates leave [0, 1]" for m, name in materials.clamped]

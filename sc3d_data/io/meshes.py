@@ -193,7 +193,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     from sc3d_data.io.gltf_check import drawn_meshes, judge_gltf
     from sc3d_data.io.gltf_features import apply_texture_transforms, feature_warnings, read_spec_gloss_as_matte
     from sc3d_data.io.gltf_loader_doc import loader_gltf_bytes
-    from sc3d_data.io.loader_visuals import keep_obj_vertex_colours, texture_as_is
+    from sc3d_data.io.loader_visuals import keep_obj_vertex_colours, move_texture, texture_as_is
     from sc3d_data.io.materials import material_report
     from sc3d_data.io.obj_loader_text import check_obj_indices, loader_obj_bytes
     from sc3d_data.io.off_polygons import loader_off_bytes
@@ -243,9 +243,10 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     if path.suffix.lower() == ".ply":
         strips_as_faces(scene)
         match_ply_face_colors(scene, path)
-    elif report.texture_only:  # an OBJ's materials with map_Kd and no Kd: their textures drawn as they are
+    elif report.texture_only or report.texture_moves:  # an OBJ's materials' map_Kd without Kd, moved by -o/-s
         for geometry in scene.geometry.values():
             texture_as_is(geometry, report.texture_only)
+            move_texture(geometry, report.texture_moves)
     elif gltf_doc is not None:
         apply_texture_transforms(scene, gltf_doc)
     vertices, faces = scene_triangles(scene, str(path))

@@ -12,7 +12,9 @@ Conventions:
   ``/``.
 - **Materials** (:func:`mtl_materials`): a material is named as trimesh names it (the words after
   ``newmtl`` joined by one space); only its ``map_Kd`` texture is drawn (trimesh reads no other
-  map), so a material whose only texture is ``map_Ka`` is noted (``ambient_only``).
+  map), so a material whose only texture is ``map_Ka`` is noted (``ambient_only``). A ``map_Kd``
+  moved by ``-o``/``-s`` is noted with its move (:func:`texture_move`), which the loader applies
+  to the texture coordinates of the material's faces.
 - **What the loader reads** (:func:`loader_mtl_text`): a colour of one value (``Kd 0.8``) is that
   value three times, as the format says (trimesh dropped the material: default grey). A material
   with a ``map_Kd`` texture but no ``Kd`` is noted (``texture_only``): its texture is drawn as it
@@ -24,8 +26,8 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["MtlMaterials", "decode_obj_text", "loader_mtl_text", "loader_reading", "map_file_name", "mtl_materials",
-           "read_obj_text"]
+__all__ = ["MtlMaterials", "TextureMove", "decode_obj_text", "loader_mtl_text", "loader_reading", "map_file_name",
+           "mtl_materials", "read_obj_text", "texture_move"]
 
 #: numbers and switches that follow an option of an MTL map statement (``-s 1 1 1``, ``-clamp on``)
 _OPTION_VALUE = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^(on|off)$")
@@ -55,19 +57,31 @@ def read_obj_text(path: Path) -> str:
     return decode_obj_text(Path(path).read_bytes())
 
 
-def _moves_texture(value: str) -> bool:
-    """Whether a map statement's options offset (``-o u v w``, not all 0) or scale (``-s u v w``,
-    not all 1) its texture."""
-    tokens, moves = value.split(), False
-    for i, token in enumerate(tokens):
-        if token.lower() in ("-o", "-s"):
-            numbers = []
-            for t in tokens[i + 1:i + 4]:
+@dataclass(frozen=True)
+class TextureMove:
+    """How a map statement's ``-o u v w`` (``offset``) and ``-s u v w`` (``scale``) options move
+    its texture on the surface: a texture coordinate ``uv`` reads the texture at ``scale * uv +
+    offset`` (u and v; w, the depth of 3D textures, does not apply to images), as Blender's OBJ
+    importer (a Mapping node: Location, Scale) and three.js's ``MTLLoader`` (``offset``,
+    ``repeat``) apply them. Values left out are 0 for ``-o`` and 1 for ``-s`` (the format's
+    defaults)."""
+
+    offset: tuple[float, float] = (0.0, 0.0)
+    scale: tuple[float, float] = (1.0, 1.0)
+
+
+def texture_move(value: str) -> TextureMove | None:
+    """The :class:`TextureMove` of a map statement's ``value`` (options, then the file name), or
+    None where it does not move its texture (no ``-o``/``-s``, or ``-o 0 0 0``, ``-s 1 1 1``)."""
+    tokens, found = value.split(), {"-o": [0.0, 0.0], "-s": [1.0, 1.0]}
+    for i, token in enumerate(tokens[:-1]):  # the last word is the file name
+        if token.lower() in found:
+            for k, t in enumerate(tokens[i + 1:min(i + 3, len(tokens) - 1)]):
                 if not _OPTION_VALUE.match(t) or t in ("on", "off"):
                     break
-                numbers.append(float(t))
-            moves = moves or any(n != (0.0 if token.lower() == "-o" else 1.0) for n in numbers)
-    return moves
+                found[token.lower()][k] = float(t)
+    move = TextureMove(tuple(found["-o"]), tuple(found["-s"]))
+    return None if move == TextureMove() else move
 
 
 def _clamps_texture(value: str) -> bool:
@@ -96,15 +110,16 @@ def map_file_name(value: str) -> str:
 class MtlMaterials:
     """What one material file defines: ``names`` of its materials (in order), ``textures``
     ``[(material, map_Kd file name)]``, ``ambient_only`` ``[(material, map_Ka file name)]`` of
-    the materials whose only texture is ``map_Ka``, which is not drawn, ``moved``
-    ``[(material, map_Kd file name)]`` of textures offset or scaled by ``-o``/``-s`` and
-    ``clamped`` of those clamped by ``-clamp on``, which the loader does not apply (the renderer
-    repeats every texture), and ``texture_only``: the materials with a ``map_Kd`` and no ``Kd``."""
+    the materials whose only texture is ``map_Ka``, which is not drawn, ``moves`` ``{material:
+    TextureMove}`` of the ``map_Kd`` textures offset or scaled by ``-o``/``-s`` (applied by the
+    loader: ``io.loader_visuals.move_texture``), ``clamped`` ``[(material, map_Kd file name)]``
+    of those clamped by ``-clamp on``, which the loader does not apply (the renderer repeats every
+    texture), and ``texture_only``: the materials with a ``map_Kd`` and no ``Kd``."""
 
     names: list[str] = field(default_factory=list)
     textures: list[tuple[str, str]] = field(default_factory=list)
     ambient_only: list[tuple[str, str]] = field(default_factory=list)
-    moved: list[tuple[str, str]] = field(default_factory=list)
+    moves: dict[str, TextureMove] = field(default_factory=dict)
     clamped: list[tuple[str, str]] = field(default_factory=list)
     texture_only: list[str] = field(default_factory=list)
 
@@ -123,8 +138,10 @@ def mtl_materials(text: str) -> MtlMaterials:
             found.names.append(current)
         elif key == "map_kd":
             found.textures.append((current, map_file_name(value)))
-            if _moves_texture(value):
-                found.moved.append(found.textures[-1])
+            if (move := texture_move(value)) is not None:
+                found.moves[current] = move
+            else:  # a later map_Kd of the material replaces an earlier one, as in the loader
+                found.moves.pop(current, None)
             if _clamps_texture(value):
                 found.clamped.append(found.textures[-1])
         elif key == "map_ka":
