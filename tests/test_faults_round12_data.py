@@ -71,8 +71,9 @@ def _quantized_cube(path: Path, positions: str = "float", uv: str | None = None,
 
 
 def test_trimesh_reads_quantized_attributes_unscaled(tmp_path):
-    """Why the refusal below: the loader itself reads a normalized-short cube 32767 times too
-    large and normalized texture coordinates as raw integers; plain shorts it reads right."""
+    """Why quantized attributes are converted (tests/test_gltf_dequantize.py; they were refused):
+    the loader itself reads a normalized-short cube 32767 times too large and normalized texture
+    coordinates as raw integers; plain shorts it reads right."""
     import trimesh
 
     for positions, half in (("normalized", 16384), ("short", 1)):
@@ -82,32 +83,6 @@ def test_trimesh_reads_quantized_attributes_unscaled(tmp_path):
     _quantized_cube(tmp_path / "uv.glb", uv="normalized")
     uv = trimesh.load(tmp_path / "uv.glb", force="mesh").visual.uv
     assert uv[:, 0].max() > 1  # 16384, not 0.25
-
-
-def test_quantized_positions_and_texture_coordinates_are_refused_in_one_line(tmp_path):
-    """Normalized-short positions (KHR_mesh_quantization) and normalized unsigned-short texture
-    coordinates (core glTF) are refused in one line naming the accessor; the float cube, and one
-    of plain shorts (read right), render. Before: the first rendered a part 32767 times too
-    large, the second one flat colour, both with no failure."""
-    folder = tmp_path / "m" / "box"
-    folder.mkdir(parents=True)
-    _quantized_cube(folder / "plain.glb", uv="float")
-    _quantized_cube(folder / "shorts.glb", "short")
-    _quantized_cube(folder / "qpos.glb", "normalized")
-    _quantized_cube(folder / "quv.glb", uv="normalized")
-    out = tmp_path / "out"
-    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
-    reasons = {Path(f["source"]).name: f["reason"] for f in index_of(out)["failures"]}
-    assert reasons == {
-        "qpos.glb": f"{folder / 'qpos.glb'}: accessor 0 (POSITION of mesh 0) holds normalized short integers "
-                    "(quantized glTF), which the loader reads unscaled; not read",
-        "quv.glb": f"{folder / 'quv.glb'}: accessor 2 (TEXCOORD_0 of mesh 0) holds normalized unsigned short "
-                   "integers (quantized glTF), which the loader reads unscaled; not read"}
-    objects = objects_by_id(out)
-    assert sorted(objects) == [("box", "plain"), ("box", "shorts")]
-    plain = objects[("box", "plain")]
-    red, green = np.asarray(plain["images"])[np.asarray(plain["masks"]) > 0][:, :2].mean(0)
-    assert red > 2 * green  # the float texture coordinates map the red half
 
 
 def test_integer_texture_coordinates_the_loader_does_not_use_pass(tmp_path):

@@ -7,6 +7,10 @@ the dataset folder), else beside the document inside its folder; nothing else is
 accessor honours its bufferView's ``byteOffset`` and ``byteStride`` and its own ``byteOffset``;
 normalized integers are scaled to [0, 1] (unsigned) or [-1, 1] (signed); an accessor without a
 bufferView reads as zeros. A sparse accessor is refused (``AccessorError``), not applied.
+
+:class:`FloatBuffer` adds float32 data to a copy of a document (what sc3d computes for the loader:
+posed skins, dequantized attributes) in one new buffer, a base64 data URI, which the loader reads
+in a .gltf and a .glb alike.
 """
 from __future__ import annotations
 
@@ -20,7 +24,7 @@ import numpy as np
 
 from sc3d_data.io.gltf_accessors import COMPONENT_BYTES, TYPE_COMPONENTS
 
-__all__ = ["AccessorError", "Buffers", "read_accessor"]
+__all__ = ["AccessorError", "Buffers", "FloatBuffer", "read_accessor"]
 
 #: numpy types of glTF's component types (little-endian)
 _DTYPES = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
@@ -90,3 +94,43 @@ def read_accessor(doc: dict, buffers: Buffers, a: int, what: str) -> np.ndarray:
     if acc.get("normalized") is True:
         return np.maximum(raw.astype(np.float64) / np.iinfo(dtype).max, -1.0)
     return raw.astype(np.int64)
+
+
+class FloatBuffer:
+    """One new buffer of document ``doc`` (changed in place) holding float32 data, appended to
+    ``doc["buffers"]`` by :meth:`close` where data was added; make, fill and close one before the
+    next (its index is the buffer count when it is made)."""
+
+    def __init__(self, doc: dict):
+        self.doc, self.blob, self.index = doc, bytearray(), len(doc.setdefault("buffers", []))
+
+    def view(self, values: np.ndarray) -> tuple[int, np.ndarray]:
+        """``(bufferView index, data as stored)`` of ``values [count, components]`` stored as
+        little-endian float32 at the end of this buffer (4-byte aligned: float32 is)."""
+        data = np.ascontiguousarray(values, dtype="<f4")
+        views = self.doc.setdefault("bufferViews", [])
+        views.append({"buffer": self.index, "byteOffset": len(self.blob), "byteLength": data.nbytes})
+        self.blob += data.tobytes()
+        return len(views) - 1, data
+
+    def accessor(self, values: np.ndarray, kind: str) -> int:
+        """Index of a new accessor of ``values [count, components]`` (glTF ``type`` ``kind``,
+        e.g. ``"VEC3"``) stored as float32, with its ``min``/``max``."""
+        view, data = self.view(values)
+        accessors = self.doc.setdefault("accessors", [])
+        accessors.append({"bufferView": view, "componentType": 5126, "count": len(data), "type": kind,
+                          **_bounds(data)})
+        return len(accessors) - 1
+
+    def close(self) -> None:
+        """Append the buffer to the document, where data was added."""
+        if self.blob:
+            self.doc["buffers"].append({"byteLength": len(self.blob), "uri": "data:application/octet-stream;base64,"
+                                        + base64.b64encode(bytes(self.blob)).decode()})
+
+
+def _bounds(data: np.ndarray) -> dict:
+    """``{"min", "max"}`` per component of ``data [count, components]`` (zeros when empty)."""
+    n = data.shape[1]
+    return {"min": data.min(axis=0).tolist() if len(data) else [0] * n,
+            "max": data.max(axis=0).tolist() if len(data) else [0] * n}

@@ -35,6 +35,7 @@ from pathlib import Path
 
 from sc3d_data.io.gltf_accessors import layout_problems
 from sc3d_data.io.gltf_features import feature_problems, textured
+from sc3d_data.io.gltf_dequantize import dequantize_problems, quantized_accessors
 from sc3d_data.io.gltf_skins import skin_problems, skinned_nodes
 
 __all__ = ["GLTF_SUFFIXES", "SKIPPED_SURFACE_MODES", "drawn_meshes", "drawn_nodes", "gltf_refusal", "judge_gltf",
@@ -140,6 +141,14 @@ def _skin_problems(path: Path, doc: dict, resolver=None) -> list[str]:
     return skin_problems(path, doc, read_gltf(path, binary=True)[1], nodes, resolver)
 
 
+def _dequantize_problems(path: Path, doc: dict, resolver=None) -> list[str]:
+    """The quantized accessors the loader's copy would store as floats (``gltf_dequantize``) that
+    cannot be read; a GLB's BIN chunk is read only where there are such accessors."""
+    if not quantized_accessors(doc):
+        return []
+    return dequantize_problems(path, doc, read_gltf(path, binary=True)[1], resolver)
+
+
 def gltf_refusal(path: Path, shown: int = 3) -> str | None:
     """The one-line reason (naming ``path``; the first ``shown`` problems and how many more) to
     refuse glTF/GLB ``path`` because it is no glTF document (JSON that does not parse or is not an
@@ -177,7 +186,8 @@ def judge_gltf(path: Path, shown: int = 3, resolver=None) -> tuple[dict | None, 
                       "with Blender or gltf-pipeline); not read")
     problems = []  # each judge alone: what one cannot follow (a node that is no object) hides nothing of the other
     for judge, args in ((layout_problems, (path, doc)), (gltf_problems, (doc,)),
-                        (lambda d: feature_problems(d, drawn_meshes(d)), (doc,)), (_skin_problems, (path, doc, resolver))):
+                        (lambda d: feature_problems(d, drawn_meshes(d)), (doc,)), (_skin_problems, (path, doc, resolver)),
+                        (_dequantize_problems, (path, doc, resolver))):
         try:
             problems += judge(*args)
         except (KeyError, IndexError, TypeError, AttributeError, ValueError, RecursionError, OSError,

@@ -7,10 +7,8 @@ as "zero surface area", blaming the mesh), never decodes ``EXT_meshopt_compressi
 ``texCoord`` says, and ignores ``KHR_texture_transform`` (the offset, rotation and scale with
 which Blender tiles a fabric or gltfpack packs an atlas): the texture is drawn at the wrong place.
 It also reads every accessor's integers as they are stored, never applying ``normalized`` (an
-unsigned short 65535 means 1.0): texture coordinates stored as normalized integers (core glTF
-allows them; gltfpack and gltf-transform's quantize write them) come out thousands of times too
-large (then wrap, as the loader flips v in the integer type), and positions quantized by
-``KHR_mesh_quantization`` as normalized integers make their part 32767 times too large.
+unsigned short 65535 means 1.0); the document it is given holds such positions and texture
+coordinates as floats (``sc3d_data.io.gltf_dequantize``).
 
 :func:`feature_problems` names from the JSON alone what cannot be read as written, so that the
 file is refused in one line whatever ``--bad-texture`` says (the loader would draw a texture, at
@@ -21,12 +19,6 @@ the wrong place, and which of its parts to draw plain cannot be told from what i
   itself says it cannot be read without it;
 * a node drawing its mesh through ``EXT_mesh_gpu_instancing``, required or not: the loader draws
   one copy at the node, where the file draws one per instance (:func:`instancing_problems`);
-* a primitive of a drawn mesh (the meshes ``sc3d_data.io.gltf_check`` judges) whose POSITION is
-  stored as normalized integers, or whose ``TEXCOORD_0`` is stored as integers (normalized or
-  not: the loader's flip of v wraps in an unsigned type) while its material has a base colour
-  texture; integer positions that are not normalized (``KHR_mesh_quantization`` allows them too)
-  are read right, and integer coordinates the loader does not use (``TEXCOORD_1``, an untextured
-  material's) change nothing: both pass;
 * a primitive of a drawn mesh whose material's
   base colour texture (``pbrMetallicRoughness.baseColorTexture``, or the ``diffuseTexture`` of
   ``KHR_materials_pbrSpecularGlossiness``: the textures the renderer draws) reads another
@@ -179,38 +171,12 @@ def _base_textures(material: dict) -> list[tuple[str, dict]]:
     return found
 
 
-#: glTF's integer ``componentType`` values: ``{code: name}``
-INTEGER_TYPES = {5120: "byte", 5121: "unsigned byte", 5122: "short", 5123: "unsigned short", 5125: "unsigned int"}
-
-
 def textured(doc: dict, prim: dict) -> bool:
     """Whether glTF primitive ``prim`` of ``doc`` is drawn with a texture: its material has a base
     colour texture (the loader maps it with ``TEXCOORD_0``; an untextured primitive's texture
     coordinates place nothing)."""
     materials, i = doc.get("materials", []), prim.get("material")
     return isinstance(i, int) and 0 <= i < len(materials) and bool(_base_textures(materials[i]))
-
-
-def integer_attribute_problems(doc: dict, drawn: set[int]) -> list[str]:
-    """The attributes of the primitives of the drawn meshes ``drawn`` that the loader reads as
-    other numbers than the file means and uses (module doc), each accessor once: a POSITION
-    stored as normalized integers, a ``TEXCOORD_0`` stored as integers where the primitive's
-    material has a base colour texture (the loader reads no other set, and places nothing else
-    with it)."""
-    accessors, problems, seen = doc.get("accessors", []), [], set()
-    for m in sorted(drawn):
-        for prim in doc["meshes"][m].get("primitives", []):
-            with_texture = textured(doc, prim)
-            for role, a in prim.get("attributes", {}).items():
-                if not isinstance(a, int) or a in seen or not 0 <= a < len(accessors):
-                    continue
-                kind = INTEGER_TYPES.get(accessors[a].get("componentType"))
-                normalized = accessors[a].get("normalized") is True
-                if kind and ((role == "TEXCOORD_0" and with_texture) or (role == "POSITION" and normalized)):
-                    seen.add(a)
-                    problems.append(f"accessor {a} ({role} of mesh {m}) holds {'normalized ' * normalized}{kind} "
-                                    "integers (quantized glTF), which the loader reads unscaled")
-    return problems
 
 
 def morph_problems(doc: dict, drawn: set[int]) -> list[str]:
@@ -242,14 +208,14 @@ def feature_warnings(doc: dict, drawn: set[int]) -> list[str]:
 
 def feature_problems(doc: dict, drawn: set[int]) -> list[str]:
     """What of glTF document ``doc`` the loader would ignore (module doc), one phrase each:
-    required extensions first, then the attributes stored as integers that it misreads
-    (:func:`integer_attribute_problems`), then the textures of the materials of the drawn meshes
-    ``drawn`` (mesh indices), each material once."""
+    required extensions first, then the nodes drawn through instancing and the weighted morph
+    targets, then the textures of the materials of the drawn meshes ``drawn`` (mesh indices), each
+    material once."""
     required = [name for name in doc.get("extensionsRequired", []) if isinstance(name, str)]
     problems = [f"it requires {name} ({UNDECODED[name]}), which the loader cannot decode"
                 for name in required if _undecoded(name)]
     problems += [f"it requires {name}, an extension the loader does not read" for name in required if _unknown(name)]
-    problems += instancing_problems(doc, drawn) + integer_attribute_problems(doc, drawn) + morph_problems(doc, drawn)
+    problems += instancing_problems(doc, drawn) + morph_problems(doc, drawn)
     materials, seen = doc.get("materials", []), set()
     for m in sorted(drawn):
         for prim in doc["meshes"][m].get("primitives", []):

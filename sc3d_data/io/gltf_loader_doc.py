@@ -14,7 +14,9 @@ failed the file ("No path from world->2!"). The copy's nodes name no camera (sc3
 own cameras), so such nodes are read as any other.
 
 Skinned nodes of the drawn scene are posed by their joints in the copy (``sc3d_data.io.gltf_skins``:
-the loader drew them in their bind pose, with the node's own transform, which glTF ignores).
+the loader drew them in their bind pose, with the node's own transform, which glTF ignores), and
+quantized positions and texture coordinates are stored as the floats they mean
+(``sc3d_data.io.gltf_dequantize``: the loader read the integers unscaled).
 """
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ import struct
 from pathlib import Path
 
 from sc3d_data.io.gltf_check import drawn_nodes, read_gltf
+from sc3d_data.io.gltf_dequantize import dequantize, quantized_accessors
 from sc3d_data.io.gltf_skins import apply_skins, skinned_nodes
 
 __all__ = ["loader_gltf_bytes"]
@@ -49,20 +52,23 @@ def loader_gltf_bytes(path: Path, doc: dict, resolver=None) -> bytes | None:
     casting, not scaling, so unsigned shorts wrap (65535 -> 255, 32768 -> 0: Blender's vertex
     paint in wrong colours); with a material it keeps them as stored, and the renderer scales
     them (``render.renderer.material_vertex_colors``). Such primitives get a white matte
-    material (white x colour: the colours as they are), nodes lose their ``camera``, and skinned
-    nodes are posed (module doc; their buffer files read through ``resolver``, as the loader reads
-    them); the binary chunk is kept as it is."""
+    material (white x colour: the colours as they are), nodes lose their ``camera``, skinned
+    nodes are posed and quantized attributes stored as floats (module doc; buffer files read
+    through ``resolver``, as the loader reads them); the binary chunk is kept as it is."""
     try:
         nodes = drawn_nodes(doc)
     except (KeyError, IndexError, TypeError, AttributeError, RecursionError):
         nodes = []  # a malformed scene: the loader reports it
     skinned = skinned_nodes(doc, nodes)
-    if not (_ushort_colours_alone(doc) or _camera_nodes(doc) or skinned):
+    quantized = quantized_accessors(doc)
+    if not (_ushort_colours_alone(doc) or _camera_nodes(doc) or skinned or quantized):
         return None
     doc = copy.deepcopy(doc)
     binary = read_gltf(path, binary=True)[1] if Path(path).suffix.lower() == ".glb" else None
     if skinned:
         apply_skins(path, doc, binary, nodes, resolver)
+    if quantized:  # after the skins, which read the integers as they are stored
+        dequantize(path, doc, binary, resolver)
     if _ushort_colours_alone(doc):
         doc.setdefault("materials", []).append({"name": "sc3d: white under vertex colours", "pbrMetallicRoughness":
                                                 {"baseColorFactor": [1, 1, 1, 1], "metallicFactor": 0}})

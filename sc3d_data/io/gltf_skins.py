@@ -31,14 +31,13 @@ are left as they are. A POSITION that is sparse is refused by ``gltf_check`` alr
 """
 from __future__ import annotations
 
-import base64
 import copy
 import struct
 from pathlib import Path
 
 import numpy as np
 
-from sc3d_data.io.gltf_buffers import AccessorError, Buffers, read_accessor
+from sc3d_data.io.gltf_buffers import AccessorError, Buffers, FloatBuffer, read_accessor
 
 __all__ = ["apply_skins", "skin_problems", "skinned_nodes"]
 
@@ -216,21 +215,14 @@ def apply_skins(path: Path, doc: dict, binary: bytes | None, drawn_nodes: list[i
     _, posed = _pose(path, doc, binary, drawn_nodes, resolver)
     if not posed:
         return
-    blob, views = bytearray(), doc.setdefault("bufferViews", [])
-    accessors, b = doc.setdefault("accessors", []), len(doc.setdefault("buffers", []))
+    floats = FloatBuffer(doc)
     roots = doc["scenes"][doc.get("scene", 0)].setdefault("nodes", [])
     for i, prims in posed.items():
         node = doc["nodes"][i]
         mesh = copy.deepcopy(doc["meshes"][node["mesh"]])
         for k, positions in prims.items():
-            p = positions.astype(np.float32)
-            views.append({"buffer": b, "byteOffset": len(blob), "byteLength": p.nbytes})
-            accessors.append({"bufferView": len(views) - 1, "componentType": 5126, "count": len(p), "type": "VEC3",
-                              "min": p.min(axis=0).tolist() if len(p) else [0, 0, 0],
-                              "max": p.max(axis=0).tolist() if len(p) else [0, 0, 0]})
-            blob += p.astype("<f4").tobytes()
             attributes = mesh["primitives"][k]["attributes"]
-            attributes["POSITION"] = len(accessors) - 1
+            attributes["POSITION"] = floats.accessor(positions, "VEC3")
             attributes.pop("NORMAL", None)
             attributes.pop("TANGENT", None)
         doc["meshes"].append(mesh)
@@ -238,5 +230,4 @@ def apply_skins(path: Path, doc: dict, binary: bytes | None, drawn_nodes: list[i
                                                                else {})})
         roots.append(len(doc["nodes"]) - 1)
         del node["mesh"], node["skin"]
-    doc["buffers"].append({"byteLength": len(blob),
-                           "uri": "data:application/octet-stream;base64," + base64.b64encode(bytes(blob)).decode()})
+    floats.close()
