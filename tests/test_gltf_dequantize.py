@@ -83,3 +83,72 @@ def test_the_loader_itself_reads_the_two_part_file_unscaled(tmp_path):
     _two_parts(tmp_path / "q.glb", quantized=True)
     bounds = trimesh.load(tmp_path / "q.glb", force="mesh").bounds
     assert bounds[0][0] == -32767 and bounds[1][0] == 1.5
+
+
+def _gltfpack_style_cube(path: Path, quantized: bool) -> None:
+    """The unit cube with a texture of 256 rows of random colours, as gltfpack writes it
+    (``quantized``: POSITION as unsigned shorts 0 / 16383 dequantized by its node's scale and
+    translation, TEXCOORD_0 as plain unsigned shorts (1024, 2054) dequantized by a
+    ``KHR_texture_transform`` scale of 1 / 4095, NORMAL as normalized bytes) or as the floats
+    these mean, by hand (corners at +-0.5, every TEXCOORD_0 at (1024 / 4095, 2054 / 4095)). The
+    loader alone reads the shorts' v as 1 - 2054 wrapped in 16 bits, which the transform then
+    makes 0.0039 off: one row of this texture (rows of 1 / 256)."""
+    import base64
+    import io
+
+    from PIL import Image
+
+    png = io.BytesIO()
+    Image.fromarray(np.random.default_rng(3).integers(0, 256, (256, 2, 3)).astype(np.uint8)).save(png, format="PNG")
+    image = "data:image/png;base64," + base64.b64encode(png.getvalue()).decode()
+    v, idx = _cube()
+    if quantized:
+        q = np.rint((v + 0.5) * 16383).astype(np.uint16)
+        q = np.concatenate([q, np.zeros((len(v), 1), np.uint16)], axis=1)  # 4-byte aligned elements
+        positions, uv = q, np.tile(np.uint16([1024, 2054]), (len(v), 1))
+        normals = np.concatenate([np.rint(v / np.linalg.norm(v, axis=1, keepdims=True) * 127).astype(np.int8),
+                                  np.zeros((len(v), 1), np.int8)], axis=1)
+    else:
+        positions, uv, normals = v, np.tile(np.float32([1024 / 4095, 2054 / 4095]), (len(v), 1)), None
+    doc, buf = _gltf_doc([(v, idx, 4)])
+    prim = doc["meshes"][0]["primitives"][0]
+
+    def add(data: np.ndarray, role: str, kind: str, stride: int | None = None, **extra) -> None:
+        nonlocal buf
+        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(buf), "byteLength": data.nbytes,
+                                   **({"byteStride": stride} if stride else {})})
+        buf += data.tobytes() + b"\0" * (-data.nbytes % 4)
+        ctype = {np.float32: 5126, np.uint16: 5123, np.int8: 5120}[data.dtype.type]
+        doc["accessors"].append({"bufferView": len(doc["bufferViews"]) - 1, "componentType": ctype,
+                                 "count": len(data), "type": kind, **extra})
+        prim["attributes"][role] = len(doc["accessors"]) - 1
+
+    texture = {"index": 0}
+    if quantized:
+        add(positions, "POSITION", "VEC3", 8, min=[0, 0, 0], max=[16383] * 3)
+        add(normals, "NORMAL", "VEC3", 4, normalized=True)
+        doc["extensionsUsed"] = ["KHR_mesh_quantization", "KHR_texture_transform"]
+        doc["extensionsRequired"] = ["KHR_mesh_quantization"]
+        doc["nodes"][0].update(scale=[1 / 16383] * 3, translation=[-0.5] * 3)
+        texture["extensions"] = {"KHR_texture_transform": {"offset": [0, 0], "scale": [1 / 4095, 1 / 4095]}}
+    add(uv, "TEXCOORD_0", "VEC2")
+    prim["material"] = 0
+    doc.update(materials=[{"name": "packed", "pbrMetallicRoughness": {"baseColorTexture": texture,
+                                                                       "metallicFactor": 0}}],
+               textures=[{"source": 0}], images=[{"uri": image}], buffers=[{"byteLength": len(buf)}])
+    _write_glb_document(path, doc, buf)
+
+
+def test_a_cube_as_gltfpack_writes_it_draws_as_its_float_twin(tmp_path):
+    """gltfpack's layout (the Khronos sample assets' ``glTF-Quantized`` variants, e.g. Avocado):
+    positions dequantized by the node transform, texture coordinates by a texture transform."""
+    folder = tmp_path / "m" / "box"
+    folder.mkdir(parents=True)
+    _gltfpack_style_cube(folder / "float.glb", quantized=False)
+    _gltfpack_style_cube(folder / "packed.glb", quantized=True)
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, "--voxelize", *FAST])
+    assert index_of(out)["failures"] == []
+    objects = {key[1]: obj for key, obj in objects_by_id(out).items()}
+    for field in ("images", "masks", "voxels"):
+        np.testing.assert_array_equal(objects["packed"][field], objects["float"][field], err_msg=field)
