@@ -6,7 +6,7 @@
 #
 # DIR/whl: the wheels such a machine lacks (its image has torch, numba, h5py, scipy, click, tqdm,
 #   scikit-image, matplotlib, tensorboard, psutil, pyyaml; not trimesh, pyrender, PyOpenGL,
-#   pyglet, freetype-py, submitit), for CPython 3.12 on x86-64, at the versions of this checkout's
+#   pyglet, freetype-py, DracoPy, submitit), for CPython 3.12 on x86-64, at the versions of this checkout's
 #   .venv (the ones its tests pass with). Ray's wheel (79 MB) is left out: it alone is over the
 #   64 MiB that may travel with the tree, and the tests that need it skip without it.
 # DIR/gl: the GL loader packages (libglvnd's libEGL/libOpenGL and the Vulkan loader) for NVIDIA's
@@ -31,7 +31,7 @@ rm -rf "$KIT"; mkdir -p "$KIT/whl" "$KIT/gl"
 
 PY=python3; [ -x .venv/bin/python ] && PY=.venv/bin/python
 pins=()
-for name in trimesh pyrender PyOpenGL pyglet freetype-py submitit pytest-xdist execnet; do  # xdist: pyproject runs pytest -n 2
+for name in trimesh pyrender PyOpenGL pyglet freetype-py DracoPy submitit pytest-xdist execnet; do  # xdist: pyproject runs pytest -n 2
   v=$("$PY" -c "import importlib.metadata as m; print(m.version('$name'))" 2>/dev/null || true)
   pins+=("$name${v:+==$v}")
 done

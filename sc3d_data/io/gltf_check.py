@@ -7,7 +7,8 @@ are read). Either way the object would render and voxelize as other geometry tha
 with no warning. :func:`gltf_refusal` says why to refuse such a file before it is loaded, judging
 from the JSON alone (for a GLB only its JSON chunk and its BIN chunk's 8-byte header are read,
 never the binary data; an external buffer file is only stat'ed), except where the drawn scene has
-skinned nodes, whose skins are computed to judge them (below).
+skinned nodes, whose skins are computed to judge them, quantized attributes, which are read, or
+Draco-compressed primitives, which are decoded (below).
 
 Modes and sparse accessors are judged where the loader draws them: the meshes of the nodes
 reachable from the scene it uses (``scene``, else the first; every mesh without scenes), their
@@ -20,15 +21,18 @@ header) is refused in one line saying so. A data layout the loader cannot read (
 its data, a bufferView or accessor naming what the file lacks or reaching beyond it, an unknown
 component type; :mod:`sc3d_data.io.gltf_accessors`, which judges every buffer, bufferView and
 accessor, as the loader reads every one) is refused in one line naming the buffer, bufferView
-or accessor and its use. Extensions the loader cannot decode that the file requires (Draco,
-meshopt), and base colour textures of drawn meshes read through another ``texCoord`` than 0 or
+or accessor and its use. Extensions the loader cannot decode that the file requires (meshopt;
+Draco without ``DracoPy``), and base colour textures of drawn meshes read through another ``texCoord`` than 0 or
 moved by ``KHR_texture_transform``, which the loader ignores, are refused the same way
 (:mod:`sc3d_data.io.gltf_features`), and so are skinned nodes of the drawn scene whose skin
-cannot be applied (:mod:`sc3d_data.io.gltf_skins`, which reads their accessors' data). A
-document malformed otherwise (its scenes, nodes, materials) is left for the loader.
+cannot be applied (:mod:`sc3d_data.io.gltf_skins`, which reads their accessors' data), files
+whose quantized attributes cannot be read (:mod:`sc3d_data.io.gltf_dequantize`) and drawn Draco
+primitives whose data does not decode (:mod:`sc3d_data.io.gltf_draco`). A document malformed
+otherwise (its scenes, nodes, materials) is left for the loader.
 """
 from __future__ import annotations
 
+import importlib.util
 import json
 import struct
 from pathlib import Path
@@ -36,6 +40,7 @@ from pathlib import Path
 from sc3d_data.io.gltf_accessors import layout_problems
 from sc3d_data.io.gltf_features import feature_problems, textured
 from sc3d_data.io.gltf_dequantize import dequantize_problems, quantized_accessors
+from sc3d_data.io.gltf_draco import draco_primitives, draco_problems
 from sc3d_data.io.gltf_skins import skin_problems, skinned_nodes
 
 __all__ = ["GLTF_SUFFIXES", "SKIPPED_SURFACE_MODES", "drawn_meshes", "drawn_nodes", "gltf_refusal", "judge_gltf",
@@ -149,6 +154,16 @@ def _dequantize_problems(path: Path, doc: dict, resolver=None) -> list[str]:
     return dequantize_problems(path, doc, read_gltf(path, binary=True)[1], resolver)
 
 
+def _draco_problems(path: Path, doc: dict, resolver=None) -> list[str]:
+    """The Draco primitives of the drawn meshes whose data does not decode (``gltf_draco``; where
+    ``DracoPy`` is missing the file is refused by ``gltf_features`` already); a GLB's BIN chunk is
+    read only where there are such primitives."""
+    drawn = drawn_meshes(doc)
+    if not draco_primitives(doc, drawn) or importlib.util.find_spec("DracoPy") is None:
+        return []
+    return draco_problems(path, doc, read_gltf(path, binary=True)[1], drawn, resolver)
+
+
 def gltf_refusal(path: Path, shown: int = 3) -> str | None:
     """The one-line reason (naming ``path``; the first ``shown`` problems and how many more) to
     refuse glTF/GLB ``path`` because it is no glTF document (JSON that does not parse or is not an
@@ -187,7 +202,7 @@ def judge_gltf(path: Path, shown: int = 3, resolver=None) -> tuple[dict | None, 
     problems = []  # each judge alone: what one cannot follow (a node that is no object) hides nothing of the other
     for judge, args in ((layout_problems, (path, doc)), (gltf_problems, (doc,)),
                         (lambda d: feature_problems(d, drawn_meshes(d)), (doc,)), (_skin_problems, (path, doc, resolver)),
-                        (_dequantize_problems, (path, doc, resolver))):
+                        (_dequantize_problems, (path, doc, resolver)), (_draco_problems, (path, doc, resolver))):
         try:
             problems += judge(*args)
         except (KeyError, IndexError, TypeError, AttributeError, ValueError, RecursionError, OSError,
