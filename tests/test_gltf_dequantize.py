@@ -152,3 +152,17 @@ def test_a_cube_as_gltfpack_writes_it_draws_as_its_float_twin(tmp_path):
     objects = {key[1]: obj for key, obj in objects_by_id(out).items()}
     for field in ("images", "masks", "voxels"):
         np.testing.assert_array_equal(objects["packed"][field], objects["float"][field], err_msg=field)
+
+
+def test_the_attributes_of_a_draco_primitive_are_left_to_its_bitstream():
+    """A Draco primitive's accessors carry no data (its bitstream does, decoded by the loader):
+    one declared as normalized shorts is not converted (it would be read as zeros)."""
+    from sc3d_data.io.gltf_dequantize import quantized_accessors
+
+    prim = {"attributes": {"POSITION": 0, "TEXCOORD_0": 1}}
+    doc = {"accessors": [{"componentType": 5122, "normalized": True, "count": 8, "type": "VEC3"},
+                         {"componentType": 5123, "normalized": True, "count": 8, "type": "VEC2"}],
+           "meshes": [{"primitives": [prim]}]}
+    assert quantized_accessors(doc) == {0: "POSITION of mesh 0", 1: "TEXCOORD_0 of mesh 0"}
+    prim["extensions"] = {"KHR_draco_mesh_compression": {"bufferView": 0, "attributes": {"POSITION": 0}}}
+    assert quantized_accessors(doc) == {}

@@ -23,6 +23,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from sc3d_data.io.gltf_buffers import AccessorError, Buffers, FloatBuffer, read_accessor
+from sc3d_data.io.gltf_draco import DRACO
 
 __all__ = ["dequantize", "dequantize_problems", "quantized_accessors"]
 
@@ -31,12 +32,15 @@ _INTEGER_TYPES = (5120, 5121, 5122, 5123, 5125)
 
 def quantized_accessors(doc: dict) -> dict[int, str]:
     """``{accessor: its use}`` of the accessors of ``doc`` to convert (module doc): a primitive's
-    ``POSITION`` stored as normalized integers or ``TEXCOORD_0`` stored as integers, not sparse;
-    the use names the first primitive found (``"TEXCOORD_0 of mesh 2"``)."""
+    ``POSITION`` stored as normalized integers or ``TEXCOORD_0`` stored as integers, not sparse,
+    of a primitive that is not Draco-compressed; the use names the first primitive found
+    (``"TEXCOORD_0 of mesh 2"``)."""
     accessors, found = doc.get("accessors", []), {}
     for m, mesh in enumerate(doc.get("meshes", [])):
         for prim in mesh.get("primitives", []) if isinstance(mesh, dict) else []:
-            attributes = prim.get("attributes", {}) if isinstance(prim, dict) else {}
+            if not isinstance(prim, dict) or DRACO in (prim.get("extensions") or {}):
+                continue  # a Draco primitive's attributes come from its bitstream (io.gltf_draco)
+            attributes = prim.get("attributes", {})
             for role in ("POSITION", "TEXCOORD_0"):
                 a = attributes.get(role) if isinstance(attributes, dict) else None
                 if not isinstance(a, int) or not 0 <= a < len(accessors) or a in found:
