@@ -196,14 +196,23 @@ def morph_problems(doc: dict, drawn: set[int]) -> list[str]:
 
 
 def feature_warnings(doc: dict, drawn: set[int]) -> list[str]:
-    """What of glTF document ``doc`` is drawn other than the file means, though close enough to
-    render with a warning: triangle primitives of the drawn meshes ``drawn`` (mesh indices) with
-    a base colour texture but no ``TEXCOORD_0`` to place it (drawn in the material's colour, as
-    an OBJ's faces without ``vt``)."""
-    return [f"mesh {m} primitive {k} has no TEXCOORD_0 to place its material's texture, so it is drawn in the "
-            "material's colour without it" for m in sorted(drawn)
-            for k, p in enumerate(doc["meshes"][m].get("primitives", []))
-            if p.get("mode", 4) in (4, 5) and textured(doc, p) and "TEXCOORD_0" not in p.get("attributes", {})]
+    """What of glTF document ``doc`` is drawn other than the file means, or other than the voxels
+    hold, though close enough to render with a warning: materials of the drawn meshes ``drawn``
+    (mesh indices) with ``alphaMode`` MASK (cut-outs: leaves, fences), which the renderer cuts out
+    of the images and masks as glTF says while the voxels fill their whole triangles (``check``
+    may flag such an object), and triangle primitives of the drawn meshes with a base colour
+    texture but no ``TEXCOORD_0`` to place it (drawn in the material's colour, as an OBJ's faces
+    without ``vt``)."""
+    materials = doc.get("materials", [])
+    prims = [(m, k, p) for m in sorted(drawn) for k, p in enumerate(doc["meshes"][m].get("primitives", []))
+             if p.get("mode", 4) in (4, 5)]
+    cut = sorted({p["material"] for _, _, p in prims if isinstance(p.get("material"), int)
+                  and 0 <= p["material"] < len(materials) and materials[p["material"]].get("alphaMode") == "MASK"})
+    return [f"material {i} is a cut-out (alphaMode MASK): its cut-out texels are left out of the images and masks, "
+            "while its voxels fill its whole triangles" for i in cut] + [
+        f"mesh {m} primitive {k} has no TEXCOORD_0 to place its material's texture, so it is drawn in the "
+        "material's colour without it" for m, k, p in prims
+        if textured(doc, p) and "TEXCOORD_0" not in p.get("attributes", {})]
 
 
 def feature_problems(doc: dict, drawn: set[int]) -> list[str]:
