@@ -30,6 +30,8 @@ import stat
 import struct
 from pathlib import Path
 
+from sc3d_data.io.lfs_pointers import file_lfs_pointer
+
 __all__ = ["COMPONENT_BYTES", "TYPE_COMPONENTS", "layout_problems"]
 
 #: bytes of one component of each glTF ``componentType``
@@ -105,7 +107,9 @@ def _buffer_ends(path: Path, doc: dict, problems: list[str]) -> list[tuple[int, 
             size = _base64_bytes(uri.split("base64,", 1)[1])
             known.append((size, f"buffer {i}, whose data URI holds {size:,} bytes"))
         elif "base64," not in uri and (size := _file_bytes(path, uri)) is not None:
-            known.append((size, f"buffer {i}, whose file {uri} holds {size:,} bytes"))
+            pointer = file_lfs_pointer(Path(os.path.realpath(path)).parent / uri.strip())
+            known.append((size, f"buffer {i}, whose file {uri} holds {size:,} bytes"
+                                + (f" ({pointer})" if pointer else "")))
         ends.append(min(known) if known else None)
     return ends
 

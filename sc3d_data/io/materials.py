@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sc3d_data.io.gltf_check import read_gltf
+from sc3d_data.io.lfs_pointers import MAX_POINTER_BYTES, file_lfs_pointer, lfs_pointer
 from sc3d_data.io.names import printable
 from sc3d_data.io.mtl_text import TextureMove, mtl_materials, read_obj_text
 from sc3d_data.io.obj_statements import statement_values
@@ -78,6 +79,10 @@ def texture_root(path: Path, root: Path | None) -> Path:
 def _image_problem(data_or_path) -> str | None:
     from PIL import Image
 
+    data = bytes(data_or_path[:MAX_POINTER_BYTES]) if isinstance(data_or_path, (bytes, bytearray)) else None
+    pointer = lfs_pointer(data) if data is not None else file_lfs_pointer(data_or_path)
+    if pointer is not None:
+        return pointer
     try:
         src = io.BytesIO(data_or_path) if isinstance(data_or_path, (bytes, bytearray)) else data_or_path
         with Image.open(src) as im:

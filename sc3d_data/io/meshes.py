@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from sc3d_data.geometry.normalize import used_vertices
+from sc3d_data.io.lfs_pointers import file_lfs_pointer
 
 MESH_SUFFIXES = (".obj", ".glb", ".gltf", ".ply", ".off", ".stl")
 #: meshes with more triangles than this are rejected (so a 2-million-face mesh is skipped);
@@ -140,7 +141,8 @@ def validate_triangles(vertices: np.ndarray, faces: np.ndarray, source: str = "m
 # ----------------------------------------------------------------------------- the file itself
 def check_mesh_file(path: Path, max_file_bytes: int = DEFAULT_MAX_FILE_BYTES) -> None:
     """Raise ``MeshError`` naming ``path`` when it is not a regular file (a FIFO, a device, a
-    symlink to one: never opened) or is larger than ``max_file_bytes`` (checked before parsing)."""
+    symlink to one: never opened), is larger than ``max_file_bytes`` (checked before parsing) or
+    is a Git LFS pointer in place of the mesh (``io.lfs_pointers``)."""
     import stat
 
     try:
@@ -153,6 +155,8 @@ def check_mesh_file(path: Path, max_file_bytes: int = DEFAULT_MAX_FILE_BYTES) ->
     if max_file_bytes and st.st_size > max_file_bytes:
         raise MeshError(f"{path}: {st.st_size:,} bytes, over the limit of {max_file_bytes:,} per mesh file "
                         f"(--max-file-mib); not parsed")
+    if (pointer := file_lfs_pointer(path)) is not None:
+        raise MeshError(f"{path}: {pointer}; not read")
 
 
 def file_kind(mode: int) -> str:
