@@ -16,7 +16,9 @@ Conventions:
   moved by ``-o``/``-s`` is noted with its move (:func:`texture_move`), which the loader applies
   to the texture coordinates of the material's faces.
 - **What the loader reads** (:func:`loader_mtl_text`): a colour of one value (``Kd 0.8``) is that
-  value three times, as the format says (trimesh dropped the material: default grey). A material
+  value three times, as the format says (trimesh dropped the material: default grey). A comment
+  after a statement of numbers (``Kd 1.000 1.000 1.000  # white``, as PyTorch3D's tutorial cow
+  has it) is cut off: trimesh dropped that colour, so the texture was drawn at 40%. A material
   with a ``map_Kd`` texture but no ``Kd`` is noted (``texture_only``): its texture is drawn as it
   is once loaded (``io.loader_visuals.texture_as_is``), as Blender and MeshLab show it.
 """
@@ -154,12 +156,19 @@ def mtl_materials(text: str) -> MtlMaterials:
     return found
 
 
+#: statements of numbers only, after which a ``#`` can only start a comment (``Kd 1 1 1  # white``)
+_NUMBER_KEYS = frozenset({"kd", "ka", "ks", "ke", "ns", "ni", "d", "tr", "tf", "illum"})
+
+
 def loader_mtl_text(text: str) -> str:
-    """Material-file ``text`` as the loader is given it (module doc): colours of one value spread
-    to three; lines joined by ``\\n``."""
+    """Material-file ``text`` as the loader is given it (module doc): a comment after a statement
+    of numbers cut off, colours of one value spread to three; lines joined by ``\\n``."""
     out = []
     for line in text.splitlines():
         words = line.split()
+        if "#" in line and words and words[0].lower() in _NUMBER_KEYS:
+            line = line.partition("#")[0].rstrip()
+            words = line.split()
         if len(words) == 2 and words[0].lower() in ("kd", "ka", "ks") and _OPTION_VALUE.match(words[1]):
             line = " ".join([words[0]] + [words[1]] * 3)
         out.append(line)
