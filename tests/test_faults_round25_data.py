@@ -27,3 +27,80 @@ def test_a_colour_with_a_comment_after_its_numbers_is_read(tmp_path):
     np.testing.assert_array_equal(objects["grey_commented"]["images"], objects["grey"]["images"])
     seen = objects["plain"]["masks"] > 0  # the red texture under white is brighter than under grey 0.5
     assert objects["plain"]["images"][seen][:, 0].mean() > objects["grey"]["images"][seen][:, 0].mean() + 30
+
+
+# ----------------------------------------------------------------------------- PLY as exporters write it
+def _ply(path, fmt: str, faces, colours=True, header_end: bytes = b"\n") -> None:
+    """A pyramid (square base, apex) as PLY ``path`` with faces ``faces`` (lists of corners),
+    each face with an RGB colour when ``colours``, in ``fmt``: "ascii", "binary_little_endian" or
+    "binary_big_endian"; the header's lines end with ``header_end``."""
+    import struct
+
+    vertices = [(0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (1.0, 1.0, 0.0), (0.0, 1.0, 0.0), (0.5, 0.5, 0.8)]
+    palette = [(230, 30, 30), (30, 200, 30), (30, 30, 220), (220, 220, 30), (30, 210, 210), (200, 30, 200)]
+    header = ["ply", f"format {fmt} 1.0", "comment made by a test", "element vertex 5", "property float x",
+              "property float y", "property double z", f"element face {len(faces)}",
+              "property list uchar int vertex_indices"]
+    header += ["property uchar red", "property uchar green", "property uchar blue"] * colours + ["end_header"]
+    head = header_end.join(h.encode() for h in header) + header_end
+    if fmt == "ascii":
+        rows = [f"{x} {y} {z}" for x, y, z in vertices]
+        rows += [" ".join(map(str, [len(f), *f] + list(palette[i]) * colours)) for i, f in enumerate(faces)]
+        path.write_bytes(head + "\n".join(rows).encode() + b"\n")
+        return
+    o = "<" if fmt == "binary_little_endian" else ">"
+    body = b"".join(struct.pack(o + "ffd", *v) for v in vertices)
+    body += b"".join(struct.pack(f"{o}B{len(f)}i", len(f), *f) + (struct.pack("3B", *palette[i]) if colours else b"")
+                     for i, f in enumerate(faces))
+    path.write_bytes(head + body)
+
+
+PYRAMID = [[0, 3, 2, 1], [0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]]  # a quad beside triangles
+
+
+def test_a_binary_ply_of_triangles_and_quads_reads_as_its_ascii_twin(tmp_path):
+    """Blender's and Rhinoceros' binary PLY export write a mesh's faces as they are, triangles
+    beside quads: trimesh's binary reader takes every face to have the first face's corners and
+    failed "PLY is unexpected length!" (the draco project's Box.ply, exported by Rhinoceros 6,
+    whose header lines also end with CR alone: "cannot decode the file as text"). Reference: the
+    same file as ASCII PLY, which the loader reads as written."""
+    meshes = tmp_path / "m" / "c"
+    meshes.mkdir(parents=True)
+    _ply(meshes / "ascii.ply", "ascii", PYRAMID)
+    _ply(meshes / "little.ply", "binary_little_endian", PYRAMID)
+    _ply(meshes / "big.ply", "binary_big_endian", PYRAMID)
+    _ply(meshes / "little_cr.ply", "binary_little_endian", PYRAMID, header_end=b"\r")
+    _ply(meshes / "ascii_cr.ply", "ascii", PYRAMID, header_end=b"\r")
+    _ply(meshes / "grey_ascii.ply", "ascii", PYRAMID[::-1], colours=False)
+    _ply(meshes / "grey_little.ply", "binary_little_endian", PYRAMID[::-1], colours=False)
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, "--voxelize", *FAST])
+    assert index_of(out)["failures"] == [] and index_of(out)["warnings"] == []
+    objects = _objects(out)
+    for name, reference in (("little", "ascii"), ("big", "ascii"), ("little_cr", "ascii"), ("ascii_cr", "ascii"),
+                            ("grey_little", "grey_ascii")):
+        for field in ("images", "masks", "voxels"):
+            np.testing.assert_array_equal(objects[name][field], objects[reference][field], err_msg=f"{name} {field}")
+    seen = objects["ascii"]["masks"] > 0
+    assert len(np.unique(objects["ascii"]["images"][seen].reshape(-1, 3), axis=0)) > 4  # the faces' colours
+
+
+def test_a_binary_ply_cut_short_is_refused_in_one_line_and_uniform_lists_stay_binary(tmp_path):
+    from sc3d_data.io.ply_binary_lists import ascii_ply
+
+    _ply(tmp_path / "t.ply", "binary_little_endian", PYRAMID)
+    data = (tmp_path / "t.ply").read_bytes()
+    split = data.index(b"end_header\n") + len(b"end_header\n")
+    assert ascii_ply(data[:split], data[split:]).startswith(b"ply\nformat ascii 1.0\ncomment made by a test\n")
+    _ply(tmp_path / "tri.ply", "binary_little_endian", [[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
+    tri = (tmp_path / "tri.ply").read_bytes()
+    split_tri = tri.index(b"end_header\n") + len(b"end_header\n")
+    assert ascii_ply(tri[:split_tri], tri[split_tri:]) is None  # the loader's binary reading is right
+    meshes = tmp_path / "m" / "c"
+    meshes.mkdir(parents=True)
+    (meshes / "short.ply").write_bytes(data[:-10])
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST], expect_exit=1)
+    (failure,) = index_of(out)["failures"]
+    assert failure["reason"] == (f"{meshes / 'short.ply'}: its binary data ends before its 10 rows do "
+                                 f"({len(data) - split - 10:,} bytes); not read")

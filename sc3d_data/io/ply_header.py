@@ -6,11 +6,22 @@ exporters that followed them, name them ``diffuse_red``, ``diffuse_green``, ``di
 an object was drawn in the default grey, exit 0. :func:`loader_ply_bytes` gives the loader the file
 with those properties renamed in its header (the header is text; the data after ``end_header``,
 text or binary, is kept byte for byte), where the header has no property of the plain names.
+
+The loader also reads the header line by line up to LF: a header whose lines end with CR alone
+(Rhinoceros 6's PLY export) was read as one line and the file failed "cannot decode the file as
+text". Such a header is given LF line ends (and an ASCII file's data too; a binary file's data is
+kept byte for byte, after the one line end that closes the header).
+
+A binary file whose list properties vary in length from row to row (faces of 3 and 4 corners) is
+given to the loader as ASCII PLY (``io.ply_binary_lists``): its binary reader assumes one length.
 """
 from __future__ import annotations
 
+import mmap
 import re
 from pathlib import Path
+
+from sc3d_data.io.ply_binary_lists import ascii_ply
 
 __all__ = ["loader_ply_bytes"]
 
@@ -20,16 +31,47 @@ HEADER_BYTES = 1 << 16
 _DIFFUSE = re.compile(rb"(?m)^(property[ \t]+\w+[ \t]+)diffuse_(red|green|blue|alpha)[ \t]*\r?$")
 
 
+def _renamed(header: bytes) -> bytes | None:
+    """``header`` (up to ``end_header``) with its ``diffuse_`` colour properties renamed, or None
+    where it has none, or has the plain name beside them."""
+    if b"diffuse_" not in header or not _DIFFUSE.search(header) or any(
+            re.search(rb"(?m)^property[ \t]+\w+[ \t]+" + name + rb"[ \t]*\r?$", header)
+            for name in (b"red", b"green", b"blue")):
+        return None
+    return _DIFFUSE.sub(rb"\1\2", header)
+
+
 def loader_ply_bytes(path: Path) -> bytes | None:
-    """PLY ``path``'s bytes with its ``diffuse_``-prefixed colour properties renamed (module doc),
-    or None to load the file as it is (no such property, or the plain name beside it)."""
+    """PLY ``path``'s bytes with its ``diffuse_``-prefixed colour properties renamed and a header
+    of CR line ends given LF ones, a binary file whose lists vary in length as ASCII PLY (module
+    doc), or None to load the file as it is. ``ValueError`` where a binary file's data ends
+    before its rows do."""
     with open(path, "rb") as f:
         head = f.read(HEADER_BYTES)
     end = head.find(b"end_header")
-    if end == -1 or b"diffuse_" not in head[:end]:
+    if end == -1:
         return None
     header = head[:end]
-    if not _DIFFUSE.search(header) or any(re.search(rb"(?m)^property[ \t]+\w+[ \t]+" + name + rb"[ \t]*\r?$", header)
-                                          for name in (b"red", b"green", b"blue")):
+    cr_only = b"\r" in header and b"\n" not in header
+    if cr_only:
+        header = header.replace(b"\r", b"\n")  # the same length: the data after the header keeps its place
+    renamed = _renamed(header)
+    lists = re.search(rb"(?m)^format[ \t]+binary", header) is not None and b"property list" in header
+    if renamed is None and not cr_only and not lists:
         return None
-    return _DIFFUSE.sub(rb"\1\2", header) + Path(path).read_bytes()[end:]
+    if renamed is None and not cr_only:  # lists alone: judged on the file mapped, not read (most are fine)
+        line_end = head.find(b"\n", end)
+        if line_end == -1:
+            return None
+        with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data, \
+                memoryview(data) as view, view[line_end + 1:] as body:
+            return ascii_ply(head[:line_end + 1], body)
+    header, rest = renamed if renamed is not None else header, Path(path).read_bytes()[end:]
+    if cr_only:
+        ascii_data = re.search(rb"(?m)^format[ \t]+ascii\b", header) is not None
+        rest = rest.replace(b"\r", b"\n") if ascii_data else rest[:10] + rest[10:11].replace(b"\r", b"\n") + rest[11:]
+    if lists and (line_end := rest.find(b"\n")) != -1:
+        converted = ascii_ply(header + rest[:line_end + 1], memoryview(rest)[line_end + 1:])
+        if converted is not None:
+            return converted
+    return header + rest
