@@ -104,3 +104,32 @@ def test_a_binary_ply_cut_short_is_refused_in_one_line_and_uniform_lists_stay_bi
     (failure,) = index_of(out)["failures"]
     assert failure["reason"] == (f"{meshes / 'short.ply'}: its binary data ends before its 10 rows do "
                                  f"({len(data) - split - 10:,} bytes); not read")
+
+
+def test_binary_triangle_strips_of_different_lengths_draw_their_surface(tmp_path):
+    """The binary strips of a scan are rows of different lengths (``element tristrips`` with
+    several rows), which trimesh's binary reader failed the same way ("PLY is unexpected
+    length!", left alone by the last round). A square pyramid's five faces as two strips of 4
+    and 7 corners, against the same faces written as triangles."""
+    import struct
+
+    vertices = np.float32([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 0.5, 0.8]])
+    base = [0, 3, 1, 2]  # triangles (0 3 1), (3 1 2)
+    sides = [0, 1, 4, 2, 4, 3, 4, 0]  # (0 1 4), (1 4 2), (4 2 4) degenerate, (2 4 3), (4 3 4) degenerate, (3 4 0)
+    head = ("ply\nformat binary_little_endian 1.0\nelement vertex 5\nproperty float x\nproperty float y\n"
+            "property float z\nelement tristrips 2\nproperty list int int vertex_indices\nend_header\n").encode()
+    rows = b"".join(struct.pack(f"<i{len(s)}i", len(s), *s) for s in (base, sides))
+    meshes = tmp_path / "m" / "c"
+    meshes.mkdir(parents=True)
+    (meshes / "strips.ply").write_bytes(head + vertices.astype("<f4").tobytes() + rows)
+    triangles = [(0, 3, 1), (3, 1, 2), (0, 1, 4), (1, 4, 2), (2, 4, 3), (3, 4, 0)]
+    (meshes / "faces.ply").write_text(
+        "ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\nproperty float z\n"
+        "element face 6\nproperty list uchar int vertex_indices\nend_header\n"
+        + "".join("%r %r %r\n" % tuple(map(float, p)) for p in vertices) + "".join("3 %d %d %d\n" % t for t in triangles))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, "--voxelize", *FAST])
+    assert index_of(out)["failures"] == []
+    objects = _objects(out)
+    for field in ("masks", "voxels"):
+        np.testing.assert_array_equal(objects["strips"][field], objects["faces"][field], err_msg=field)
