@@ -133,3 +133,15 @@ def test_binary_triangle_strips_of_different_lengths_draw_their_surface(tmp_path
     objects = _objects(out)
     for field in ("masks", "voxels"):
         np.testing.assert_array_equal(objects["strips"][field], objects["faces"][field], err_msg=field)
+
+
+def test_a_missing_texture_that_several_materials_name_is_named_once(tmp_path):
+    """The draco project's ``mat_test.obj``: three materials name the missing ``black.png``, and
+    the failure said "texture black.png (from mat_test.mtl) not found" three times."""
+    _textured_obj(tmp_path / "m" / "c" / "three", b"newmtl mat\nmap_Kd gone.png\nnewmtl b\nmap_Kd gone.png\n"
+                                                   b"newmtl c\nmap_Kd gone.png\n")
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST], expect_exit=1)
+    (failure,) = index_of(out)["failures"]
+    assert failure["reason"].split(": ", 1)[1] == ("texture gone.png (from m.mtl) not found (use --bad-texture "
+                                                   "fallback to render with material colours)")

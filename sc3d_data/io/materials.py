@@ -270,7 +270,7 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn")
     if report.outside and outside == "refuse":
         raise ValueError("; ".join(report.outside))
     report.outside = [f"{o}: not read; rendered without it (--outside-textures)" for o in report.outside]
-    for name, ref in inside:
+    for name, ref in dict.fromkeys(inside):  # a texture several materials name: judged and named once
         report.reported.add(str(ref.resolve()))
         if not ref.is_file():
             report.problems.append(f"texture {name} not found")
