@@ -145,3 +145,31 @@ def test_a_missing_texture_that_several_materials_name_is_named_once(tmp_path):
     (failure,) = index_of(out)["failures"]
     assert failure["reason"].split(": ", 1)[1] == ("texture gone.png (from m.mtl) not found (use --bad-texture "
                                                    "fallback to render with material colours)")
+
+
+def test_a_gltf_without_scenes_draws_its_root_nodes(tmp_path):
+    """glTF-Blender-IO's ``00_no_scenes.gltf``: a document with nodes but no ``scenes`` (glTF
+    calls it a library) failed "empty mesh (no triangles)": trimesh reads its meshes and draws no
+    node, while the judge took every mesh as drawn. It now draws its root nodes, as Blender's
+    importer does. References: the same documents with a scene of those roots."""
+    import json
+
+    from test_gltf_accessors import CUBE
+    from test_gltf_primitives import _gltf_doc
+
+    doc, buf = _gltf_doc(CUBE)
+    doc["buffers"] = [{"byteLength": len(buf), "uri": "cube.bin"}]
+    # a second, offset copy of the cube below a parent node: transforms along the chain apply
+    doc["nodes"] = [{"mesh": 0}, {"translation": [2, 0, 0], "children": [2]}, {"mesh": 0, "scale": [1, 2, 1]}]
+    meshes = tmp_path / "m" / "c"
+    meshes.mkdir(parents=True)
+    (meshes / "cube.bin").write_bytes(buf)
+    (meshes / "scene.gltf").write_text(json.dumps({**doc, "scenes": [{"nodes": [0, 1]}], "scene": 0}))
+    (meshes / "no_scenes.gltf").write_text(json.dumps({k: v for k, v in doc.items() if k not in ("scenes", "scene")}))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, "--voxelize", *FAST])
+    assert index_of(out)["failures"] == []
+    objects = _objects(out)
+    for field in ("images", "masks", "voxels"):
+        np.testing.assert_array_equal(objects["no_scenes"][field], objects["scene"][field], err_msg=field)
+    assert objects["scene"]["voxels"].sum() < 0.5 * 32 ** 3  # two cubes apart, not one block

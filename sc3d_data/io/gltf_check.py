@@ -11,7 +11,7 @@ skinned nodes, whose skins are computed to judge them, quantized attributes, whi
 Draco-compressed primitives, which are decoded (below).
 
 Modes and sparse accessors are judged where the loader draws them: the meshes of the nodes
-reachable from the scene it uses (``scene``, else the first; every mesh without scenes), their
+reachable from the scene it uses (``scene``, else the first; the root nodes without scenes), their
 surface primitives' ``indices`` and the accessors of the attributes the renderer draws with
 (POSITION, ``COLOR_0``, and ``TEXCOORD_0`` where the material has a base colour texture: a sparse
 one drew the texture at (0, 0), the colours black).
@@ -81,13 +81,22 @@ def read_gltf(path: Path, binary: bool = False) -> tuple[dict, bytes | None]:
         return doc, f.read(struct.unpack_from("<I", chunk, 0)[0])
 
 
-def drawn_nodes(doc: dict) -> list[int]:
-    """Indices of the nodes reachable from the scene the loader draws (``scene``, else scene 0),
-    in the order they are found; none when the document has no ``scenes``."""
+def scene_roots(doc: dict) -> list[int]:
+    """The root nodes of the scene the loader draws: the nodes of ``scene`` (else scene 0); in a
+    document without ``scenes`` (glTF calls it a library), every node that is no node's child, as
+    Blender's importer draws it (``io.gltf_loader_doc`` gives the loader such a scene)."""
     nodes, scenes = doc.get("nodes", []), doc.get("scenes")
-    if not scenes:
-        return []
-    queue, seen, found = list(scenes[doc.get("scene", 0)].get("nodes", [])), set(), []
+    if scenes:
+        return list(scenes[doc.get("scene", 0)].get("nodes", []))
+    children = {c for node in nodes if isinstance(node, dict) for c in node.get("children", [])}
+    return [i for i in range(len(nodes)) if i not in children]
+
+
+def drawn_nodes(doc: dict) -> list[int]:
+    """Indices of the nodes reachable from the root nodes the loader draws (:func:`scene_roots`),
+    in the order they are found."""
+    nodes = doc.get("nodes", [])
+    queue, seen, found = scene_roots(doc), set(), []
     while queue:
         i = queue.pop()
         if i in seen:
@@ -99,11 +108,9 @@ def drawn_nodes(doc: dict) -> list[int]:
 
 
 def drawn_meshes(doc: dict, safe: bool = False) -> set[int]:
-    """Indices of the meshes of the nodes reachable from the scene the loader draws (``scene``,
-    else scene 0; every mesh when the document has no ``scenes``); ``safe``: none where the
-    document's scenes or nodes cannot be followed (else the error is raised)."""
-    if not doc.get("scenes"):  # the loader then draws every mesh
-        return set(range(len(doc.get("meshes", []))))
+    """Indices of the meshes of the nodes reachable from the root nodes the loader draws
+    (:func:`scene_roots`); ``safe``: none where the document's scenes or nodes cannot be followed
+    (else the error is raised)."""
     nodes = doc.get("nodes", [])
     try:
         return {nodes[i]["mesh"] for i in drawn_nodes(doc) if "mesh" in nodes[i]}

@@ -8,6 +8,10 @@ material it keeps them as stored, and the renderer scales them
 (``render.renderer.material_vertex_colors``). :func:`loader_gltf_bytes` gives such primitives a
 white matte material in a copy of the document.
 
+A document without ``scenes`` (glTF calls it a library and leaves drawing it to the viewer) was
+drawn empty: the loader reads its meshes but draws no node ("empty mesh (no triangles)"). The copy
+draws its root nodes (``gltf_check.scene_roots``), as Blender's importer does.
+
 It also takes the first node with a ``camera`` for the scene's camera and skips the rest of that
 node: a mesh on the same node was not drawn (glTF allows both on one node), and a child of it
 failed the file ("No path from world->2!"). The copy's nodes name no camera (sc3d renders at its
@@ -25,7 +29,7 @@ import json
 import struct
 from pathlib import Path
 
-from sc3d_data.io.gltf_check import drawn_nodes, read_gltf
+from sc3d_data.io.gltf_check import drawn_nodes, read_gltf, scene_roots
 from sc3d_data.io.gltf_dequantize import dequantize, quantized_accessors
 from sc3d_data.io.gltf_skins import apply_skins, skinned_nodes
 
@@ -61,9 +65,12 @@ def loader_gltf_bytes(path: Path, doc: dict, resolver=None) -> bytes | None:
         nodes = []  # a malformed scene: the loader reports it
     skinned = skinned_nodes(doc, nodes)
     quantized = quantized_accessors(doc)
-    if not (_ushort_colours_alone(doc) or _camera_nodes(doc) or skinned or quantized):
+    sceneless = not doc.get("scenes") and bool(doc.get("nodes"))
+    if not (_ushort_colours_alone(doc) or _camera_nodes(doc) or skinned or quantized or sceneless):
         return None
     doc = copy.deepcopy(doc)
+    if sceneless:  # the loader draws no node of a document without scenes: its root nodes, as Blender
+        doc.update(scenes=[{"nodes": scene_roots(doc)}], scene=0)
     binary = read_gltf(path, binary=True)[1] if Path(path).suffix.lower() == ".glb" else None
     if skinned:
         apply_skins(path, doc, binary, nodes, resolver)
