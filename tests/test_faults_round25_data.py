@@ -9,6 +9,23 @@ from conftest import run_cli
 from test_faults import FAST, index_of
 from test_faults_round19_data import _objects, _textured_obj
 
+FIELDS = ("images", "masks", "voxels")
+
+
+def _render(tmp_path, voxelize: bool = True) -> dict[str, dict]:
+    """Render ``tmp_path/m`` into ``tmp_path/out`` (``--voxelize`` where asked) and return its
+    objects by name (``_objects``), checking that none failed and none was warned about."""
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *(["--voxelize"] * voxelize), *FAST])
+    assert index_of(out)["failures"] == [] and index_of(out)["warnings"] == []
+    return _objects(out)
+
+
+def _assert_same(objects: dict, name: str, reference: str, fields=FIELDS) -> None:
+    """Object ``name``'s arrays ``fields`` equal those of ``reference``, element for element."""
+    for field in fields:
+        np.testing.assert_array_equal(objects[name][field], objects[reference][field], err_msg=f"{name} {field}")
+
 
 def test_a_colour_with_a_comment_after_its_numbers_is_read(tmp_path):
     """PyTorch3D's tutorial cow has ``Kd 1.000 1.000 1.000  # white`` in its ``.mtl``: trimesh
@@ -19,12 +36,9 @@ def test_a_colour_with_a_comment_after_its_numbers_is_read(tmp_path):
                      ("plain", b"Kd 1.000 1.000 1.000\nKs 0 0 0\nNs 10.0\n"),
                      ("grey_commented", b"Kd 0.5 # one value: grey\n"), ("grey", b"Kd 0.5 0.5 0.5\n")):
         _textured_obj(meshes / name, b"newmtl mat\nmap_Kd t.png\n" + kd)
-    out = tmp_path / "out"
-    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
-    assert index_of(out)["failures"] == [] and index_of(out)["warnings"] == []
-    objects = _objects(out)
-    np.testing.assert_array_equal(objects["commented"]["images"], objects["plain"]["images"])
-    np.testing.assert_array_equal(objects["grey_commented"]["images"], objects["grey"]["images"])
+    objects = _render(tmp_path, voxelize=False)
+    _assert_same(objects, "commented", "plain", ("images",))
+    _assert_same(objects, "grey_commented", "grey", ("images",))
     seen = objects["plain"]["masks"] > 0  # the red texture under white is brighter than under grey 0.5
     assert objects["plain"]["images"][seen][:, 0].mean() > objects["grey"]["images"][seen][:, 0].mean() + 30
 
@@ -73,14 +87,10 @@ def test_a_binary_ply_of_triangles_and_quads_reads_as_its_ascii_twin(tmp_path):
     _ply(meshes / "ascii_cr.ply", "ascii", PYRAMID, header_end=b"\r")
     _ply(meshes / "grey_ascii.ply", "ascii", PYRAMID[::-1], colours=False)
     _ply(meshes / "grey_little.ply", "binary_little_endian", PYRAMID[::-1], colours=False)
-    out = tmp_path / "out"
-    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, "--voxelize", *FAST])
-    assert index_of(out)["failures"] == [] and index_of(out)["warnings"] == []
-    objects = _objects(out)
+    objects = _render(tmp_path)
     for name, reference in (("little", "ascii"), ("big", "ascii"), ("little_cr", "ascii"), ("ascii_cr", "ascii"),
                             ("grey_little", "grey_ascii")):
-        for field in ("images", "masks", "voxels"):
-            np.testing.assert_array_equal(objects[name][field], objects[reference][field], err_msg=f"{name} {field}")
+        _assert_same(objects, name, reference)
     seen = objects["ascii"]["masks"] > 0
     assert len(np.unique(objects["ascii"]["images"][seen].reshape(-1, 3), axis=0)) > 4  # the faces' colours
 
@@ -127,12 +137,7 @@ def test_binary_triangle_strips_of_different_lengths_draw_their_surface(tmp_path
         "ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\nproperty float z\n"
         "element face 6\nproperty list uchar int vertex_indices\nend_header\n"
         + "".join("%r %r %r\n" % tuple(map(float, p)) for p in vertices) + "".join("3 %d %d %d\n" % t for t in triangles))
-    out = tmp_path / "out"
-    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, "--voxelize", *FAST])
-    assert index_of(out)["failures"] == []
-    objects = _objects(out)
-    for field in ("masks", "voxels"):
-        np.testing.assert_array_equal(objects["strips"][field], objects["faces"][field], err_msg=field)
+    _assert_same(_render(tmp_path), "strips", "faces", ("masks", "voxels"))
 
 
 def test_a_missing_texture_that_several_materials_name_is_named_once(tmp_path):
@@ -166,10 +171,6 @@ def test_a_gltf_without_scenes_draws_its_root_nodes(tmp_path):
     (meshes / "cube.bin").write_bytes(buf)
     (meshes / "scene.gltf").write_text(json.dumps({**doc, "scenes": [{"nodes": [0, 1]}], "scene": 0}))
     (meshes / "no_scenes.gltf").write_text(json.dumps({k: v for k, v in doc.items() if k not in ("scenes", "scene")}))
-    out = tmp_path / "out"
-    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, "--voxelize", *FAST])
-    assert index_of(out)["failures"] == []
-    objects = _objects(out)
-    for field in ("images", "masks", "voxels"):
-        np.testing.assert_array_equal(objects["no_scenes"][field], objects["scene"][field], err_msg=field)
+    objects = _render(tmp_path)
+    _assert_same(objects, "no_scenes", "scene")
     assert objects["scene"]["voxels"].sum() < 0.5 * 32 ** 3  # two cubes apart, not one block
