@@ -174,3 +174,18 @@ def test_a_gltf_without_scenes_draws_its_root_nodes(tmp_path):
     objects = _render(tmp_path)
     _assert_same(objects, "no_scenes", "scene")
     assert objects["scene"]["voxels"].sum() < 0.5 * 32 ** 3  # two cubes apart, not one block
+
+
+def test_a_folder_of_other_3d_formats_is_named_in_the_error(tmp_path):
+    """Kaolin's samples ship USDZ beside OBJ, many asset folders FBX: a folder of only such files
+    said "no mesh files found" and nothing of what it holds. The error now counts them and says
+    to convert them."""
+    meshes = tmp_path / "m" / "c"
+    meshes.mkdir(parents=True)
+    for name in ("a.fbx", "b.FBX", "c.usdz", "notes.txt", ".hidden.fbx"):
+        (meshes / name).write_bytes(b"not read")
+    result = run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", tmp_path / "out", *FAST], expect_exit=1)
+    assert result.output.strip().splitlines()[-1] == (
+        f"Error: --meshes {tmp_path / 'm'}: no mesh files found (looked for .obj, .glb, .gltf, .ply, .off, .stl); it "
+        "holds 3 files of 3D formats sc3d does not read (2 .fbx, 1 .usdz): convert them to glTF/GLB or OBJ, e.g. with "
+        "Blender or assimp")

@@ -228,9 +228,28 @@ def discover_meshes(root, categories=None, category_override=None
     return entries, problems
 
 
+#: file name ends of 3D formats sc3d does not read, named in :func:`no_meshes_found`'s error
+OTHER_3D_FORMATS = (".fbx", ".dae", ".3ds", ".blend", ".usd", ".usda", ".usdc", ".usdz", ".x3d", ".wrl", ".3mf",
+                    ".abc", ".max", ".ma", ".mb", ".c4d", ".lwo", ".drc", ".step", ".stp", ".iges", ".igs",
+                    ".skp", ".ifc", ".dxf", ".x", ".ase", ".ms3d", ".md2", ".md5mesh", ".b3d", ".ac", ".vtk")
+
+
 def no_meshes_found(root) -> ValueError:
-    """The error of a ``--meshes`` folder holding nothing named like a mesh (one line, exit 1)."""
-    return ValueError(f"--meshes {root}: no mesh files found (looked for {', '.join(MESH_EXTENSIONS)})")
+    """The error of a ``--meshes`` folder holding nothing named like a mesh (one line, exit 1);
+    where it holds files of 3D formats sc3d does not read (``.fbx``, ``.usdz``, ...), it names
+    them and says to convert them."""
+    found: dict[str, int] = {}
+    for _, dirs, files in os.walk(root, followlinks=False):
+        dirs[:] = [d for d in dirs if not d.startswith(".")]
+        for name in files:
+            if (suffix := os.path.splitext(name)[1].lower()) in OTHER_3D_FORMATS and not name.startswith("."):
+                found[suffix] = found.get(suffix, 0) + 1
+    others = ""
+    if found:
+        kinds = ", ".join(f"{n:,} {suffix}" for suffix, n in sorted(found.items(), key=lambda kv: (-kv[1], kv[0])))
+        others = (f"; it holds {sum(found.values()):,} files of 3D formats sc3d does not read ({kinds}): "
+                  "convert them to glTF/GLB or OBJ, e.g. with Blender or assimp")
+    return ValueError(f"--meshes {root}: no mesh files found (looked for {', '.join(MESH_EXTENSIONS)}){others}")
 
 
 def categories_of(entries: Iterable[MeshEntry]) -> list[str]:
