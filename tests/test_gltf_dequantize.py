@@ -166,3 +166,7 @@ def test_the_attributes_of_a_draco_primitive_are_left_to_its_bitstream():
     assert quantized_accessors(doc) == {0: "POSITION of mesh 0", 1: "TEXCOORD_0 of mesh 0"}
     prim["extensions"] = {"KHR_draco_mesh_compression": {"bufferView": 0, "attributes": {"POSITION": 0}}}
     assert quantized_accessors(doc) == {}
+    # malformed documents (the loader reports them) are no error here
+    for bad in ({"accessors": {}, "meshes": [{"primitives": [prim]}]}, {"meshes": {}}, {"meshes": [1, {"primitives": 3}]},
+                {"meshes": [{"primitives": [{"attributes": 5, "extensions": 7}]}]}):
+        assert quantized_accessors(bad) == {}

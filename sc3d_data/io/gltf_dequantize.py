@@ -35,10 +35,13 @@ def quantized_accessors(doc: dict) -> dict[int, str]:
     ``POSITION`` stored as normalized integers or ``TEXCOORD_0`` stored as integers, not sparse,
     of a primitive that is not Draco-compressed; the use names the first primitive found
     (``"TEXCOORD_0 of mesh 2"``)."""
-    accessors, found = doc.get("accessors", []), {}
-    for m, mesh in enumerate(doc.get("meshes", [])):
-        for prim in mesh.get("primitives", []) if isinstance(mesh, dict) else []:
-            if not isinstance(prim, dict) or DRACO in (prim.get("extensions") or {}):
+    accessors, meshes, found = doc.get("accessors", []), doc.get("meshes", []), {}
+    if not isinstance(accessors, list) or not isinstance(meshes, list):
+        return found  # a malformed document: the loader reports it
+    for m, mesh in enumerate(meshes):
+        prims = mesh.get("primitives", []) if isinstance(mesh, dict) else []
+        for prim in prims if isinstance(prims, list) else []:
+            if not isinstance(prim, dict) or (isinstance(prim.get("extensions"), dict) and DRACO in prim["extensions"]):
                 continue  # a Draco primitive's attributes come from its bitstream (io.gltf_draco)
             attributes = prim.get("attributes", {})
             for role in ("POSITION", "TEXCOORD_0"):
