@@ -189,3 +189,27 @@ def test_a_folder_of_other_3d_formats_is_named_in_the_error(tmp_path):
         f"Error: --meshes {tmp_path / 'm'}: no mesh files found (looked for .obj, .glb, .gltf, .ply, .off, .stl); it "
         "holds 3 files of 3D formats sc3d does not read (2 .fbx, 1 .usdz): convert them to glTF/GLB or OBJ, e.g. with "
         "Blender or assimp")
+
+
+def test_a_gltf_whose_meshes_no_node_draws_is_refused_saying_so(tmp_path):
+    """Meshes without nodes (a library), or a document whose ``scene`` names a scene without
+    them, failed "empty mesh (no triangles)": the line now says that no node draws them."""
+    import json
+
+    from test_gltf_accessors import CUBE
+    from test_gltf_primitives import _gltf_doc
+
+    doc, buf = _gltf_doc(CUBE)
+    doc["buffers"] = [{"byteLength": len(buf), "uri": "cube.bin"}]
+    meshes = tmp_path / "m" / "c"
+    meshes.mkdir(parents=True)
+    (meshes / "cube.bin").write_bytes(buf)
+    (meshes / "no_nodes.gltf").write_text(json.dumps({k: v for k, v in doc.items() if k not in ("nodes", "scenes",
+                                                                                              "scene")}))
+    (meshes / "other_scene.gltf").write_text(json.dumps({**doc, "scenes": [{"nodes": [0]}, {"nodes": []}], "scene": 1}))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST], expect_exit=1)
+    says = ("none of its 1 mesh(es) is drawn by a node of the scene it draws (glTF draws a mesh only through a node), "
+            "so there is nothing to render; not read")
+    assert sorted(f["reason"] for f in index_of(out)["failures"]) == [
+        f"{meshes / 'no_nodes.gltf'}: {says}", f"{meshes / 'other_scene.gltf'}: {says}"]

@@ -124,8 +124,11 @@ def gltf_problems(doc: dict) -> list[str]:
     """What of glTF document ``doc``'s drawn geometry the loader would not read as written
     (module doc), one phrase each, in file order."""
     problems, sparse_seen = [], set()
-    accessors = doc.get("accessors", [])
-    for m in sorted(drawn_meshes(doc)):
+    accessors, meshes, drawn = doc.get("accessors", []), doc.get("meshes", []), drawn_meshes(doc)
+    if meshes and not drawn:  # the loader draws nothing: "empty mesh (no triangles)" said less
+        problems.append(f"none of its {len(meshes)} mesh(es) is drawn by a node of the scene it draws (glTF draws a "
+                        "mesh only through a node), so there is nothing to render")
+    for m in sorted(drawn):
         for k, prim in enumerate(doc["meshes"][m].get("primitives", [])):
             mode = prim.get("mode", 4)
             if mode in SKIPPED_SURFACE_MODES:
