@@ -89,3 +89,35 @@ def test_draco_data_that_does_not_decode_is_refused_in_one_line(tmp_path):
     assert zeroed.startswith(f"{folder / 'zeroed.glb'}: mesh 0 primitive 0's Draco-compressed data does not decode (")
     assert zeroed.endswith("); not read") and "\n" not in zeroed and "surface area" not in zeroed
     assert sorted(objects_by_id(out)) == [("ball", "draco"), ("ball", "plain")]
+
+
+def test_a_skinned_draco_primitive_is_refused_saying_why(tmp_path):
+    """Skins are posed from the accessors' data (io/gltf_skins.py); a Draco primitive's POSITION
+    accessor has none (its data is in the bitstream), so the skin read zeros. Refused in one line."""
+    folder = tmp_path / "m" / "ball"
+    folder.mkdir(parents=True)
+    doc, binary = _write(folder)
+    n = doc["accessors"][doc["meshes"][0]["primitives"][0]["attributes"]["POSITION"]]["count"]
+    binary += b"\0" * (-len(binary) % 4)
+    joints, weights = np.zeros((n, 4), np.uint8), np.tile(np.float32([1, 0, 0, 0]), (n, 1))
+    for data, ctype in ((joints, 5121), (weights, 5126)):
+        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(binary), "byteLength": data.nbytes})
+        doc["accessors"].append({"bufferView": len(doc["bufferViews"]) - 1, "componentType": ctype, "count": n,
+                                 "type": "VEC4"})
+        binary += data.tobytes()
+    doc["buffers"][0]["byteLength"] = len(binary)
+    attributes = doc["meshes"][0]["primitives"][0]["attributes"]
+    attributes["JOINTS_0"], attributes["WEIGHTS_0"] = len(doc["accessors"]) - 2, len(doc["accessors"]) - 1
+    doc["nodes"][0]["skin"] = 0
+    doc["nodes"].append({"name": "joint"})
+    doc["skins"] = [{"joints": [len(doc["nodes"]) - 1]}]
+    doc["scenes"][0]["nodes"].append(len(doc["nodes"]) - 1)
+    (folder / "draco.glb").unlink()
+    (folder / "plain.glb").unlink()
+    _write_glb_document(folder / "skinned.glb", doc, binary)
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST], expect_exit=1)
+    (failure,) = index_of(out)["failures"]
+    assert failure["reason"] == (f"{folder / 'skinned.glb'}: node 0's skin 0 cannot be applied: mesh 0 primitive 0 is "
+                                 "Draco-compressed, and skins are applied to accessors' data (decompress the file "
+                                 "first, e.g. with gltf-transform copy); not read")

@@ -25,7 +25,8 @@ as the loader reads it (``resolver``: inside the dataset folder).
 Where a skin cannot be applied (``JOINTS_n`` without ``WEIGHTS_n`` or none at all, a sparse
 accessor among these, a component type or element type glTF does not allow for them, a joint
 index out of range, weights that are not finite or sum below 0, a buffer that cannot be read
-inside the dataset folder) :func:`skin_problems` names it, one phrase per node, and the file is refused
+inside the dataset folder, a Draco-compressed primitive, whose data is in its bitstream)
+:func:`skin_problems` names it, one phrase per node, and the file is refused
 (``sc3d_data.io.gltf_check``). Primitives that are not triangles (points, lines) are not drawn and
 are left as they are. A POSITION that is sparse is refused by ``gltf_check`` already.
 """
@@ -139,6 +140,9 @@ def skin_primitive(doc: dict, buffers: Buffers, prim: dict, joints: np.ndarray, 
     """``[vertices, 3]`` float64: the POSITION of primitive ``prim`` (``where`` names it) posed by
     the joint matrices ``joints [J, 4, 4]``, in the scene's frame; weights divided by their sum."""
     attributes = prim.get("attributes", {})
+    if isinstance(prim.get("extensions"), dict) and "KHR_draco_mesh_compression" in prim["extensions"]:
+        raise SkinError(f"{where} is Draco-compressed, and skins are applied to accessors' data (decompress the "
+                        "file first, e.g. with gltf-transform copy)")
     sets = sorted({int(k.split("_")[1]) for k in attributes if k.startswith(("JOINTS_", "WEIGHTS_"))
                    and k.split("_")[1].isdigit()})
     if not sets:
