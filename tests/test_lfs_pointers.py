@@ -31,6 +31,10 @@ def test_git_lfs_pointers_in_place_of_meshes_textures_and_buffers_are_named_so(t
                                     "f 1/1 2/1 3/1\nf 1/1 2/1 4/1\nf 1/1 3/1 4/1\nf 2/1 3/1 4/1\n")
     (textured / "m.mtl").write_text("newmtl mat\nKd 1 1 1\nmap_Kd t.png\n")
     (textured / "t.png").write_bytes(POINTER)
+    pointed = folder / "pointed"
+    pointed.mkdir()
+    (pointed / "m.obj").write_text((textured / "m.obj").read_text())
+    (pointed / "m.mtl").write_bytes(POINTER)
     doc, buf = _gltf_doc(CUBE)
     doc["buffers"] = [{"byteLength": len(buf), "uri": "cube.bin"}]
     (folder / "cube.gltf").write_text(json.dumps(doc))
@@ -45,7 +49,9 @@ def test_git_lfs_pointers_in_place_of_meshes_textures_and_buffers_are_named_so(t
     assert f"texture t.png (from m.mtl) unreadable ({SAYS})" in reasons.pop("textured/m.obj")
     assert f"buffer 0, whose file cube.bin holds {len(POINTER)} bytes ({SAYS})" in reasons.pop("cube.gltf")
     assert reasons == {}
-    assert list(objects_by_id(out)) == [("c", "good")]
+    assert sorted(objects_by_id(out)) == [("c", "good"), ("c", "pointed/m")]
+    assert [w["warning"].split(": ", 1)[1] for w in index_of(out)["warnings"]] == [
+        f"material file m.mtl is {SAYS}; rendered with the default material"]
 
 
 def test_a_file_that_only_starts_like_a_pointer_is_read_as_what_it_is(tmp_path):

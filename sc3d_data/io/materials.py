@@ -147,8 +147,9 @@ def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None =
         if not _inside(mtl, root):
             refs.append((printable(lib), mtl))
             continue
-        if not mtl.is_file():
-            report.warnings.append(f"material file {printable(lib)} not found; rendered with the default material")
+        if not mtl.is_file() or (pointer := file_lfs_pointer(mtl)) is not None:
+            why = "not found" if not mtl.is_file() else f"is {pointer}"
+            report.warnings.append(f"material file {printable(lib)} {why}; rendered with the default material")
             report.reported.add(str(mtl.resolve()))
             continue
         materials = mtl_materials(read_obj_text(mtl))
