@@ -27,7 +27,8 @@ moved by ``KHR_texture_transform``, which the loader ignores, are refused the sa
 (:mod:`sc3d_data.io.gltf_features`), and so are skinned nodes of the drawn scene whose skin
 cannot be applied (:mod:`sc3d_data.io.gltf_skins`, which reads their accessors' data), files
 whose quantized attributes cannot be read (:mod:`sc3d_data.io.gltf_dequantize`) and drawn Draco
-primitives whose data does not decode (:mod:`sc3d_data.io.gltf_draco`). A document malformed
+primitives whose data does not decode (:mod:`sc3d_data.io.gltf_draco`), and instanced nodes whose
+instances cannot be read (:mod:`sc3d_data.io.gltf_instancing`). A document malformed
 otherwise (its scenes, nodes, materials) is left for the loader.
 """
 from __future__ import annotations
@@ -39,6 +40,7 @@ from pathlib import Path
 
 from sc3d_data.io.gltf_accessors import layout_problems
 from sc3d_data.io.gltf_features import feature_problems, textured
+from sc3d_data.io.gltf_instancing import instanced_nodes, instancing_problems
 from sc3d_data.io.gltf_dequantize import dequantize_problems, quantized_accessors
 from sc3d_data.io.gltf_draco import draco_primitives, draco_problems
 from sc3d_data.io.gltf_skins import skin_problems, skinned_nodes
@@ -156,6 +158,15 @@ def _skin_problems(path: Path, doc: dict, resolver=None) -> list[str]:
     return skin_problems(path, doc, read_gltf(path, binary=True)[1], nodes, resolver)
 
 
+def _instancing_problems(path: Path, doc: dict, resolver=None) -> list[str]:
+    """The instanced nodes of the drawn scene whose instances cannot be read (``gltf_instancing``);
+    a GLB's BIN chunk is read only where there are such nodes."""
+    nodes = drawn_nodes(doc)
+    if not instanced_nodes(doc, nodes):
+        return []
+    return instancing_problems(path, doc, read_gltf(path, binary=True)[1], nodes, resolver)
+
+
 def _dequantize_problems(path: Path, doc: dict, resolver=None) -> list[str]:
     """The quantized accessors the loader's copy would store as floats (``gltf_dequantize``) that
     cannot be read; a GLB's BIN chunk is read only where there are such accessors."""
@@ -212,7 +223,8 @@ def judge_gltf(path: Path, shown: int = 3, resolver=None) -> tuple[dict | None, 
     problems = []  # each judge alone: what one cannot follow (a node that is no object) hides nothing of the other
     for judge, args in ((layout_problems, (path, doc)), (gltf_problems, (doc,)),
                         (lambda d: feature_problems(d, drawn_meshes(d)), (doc,)), (_skin_problems, (path, doc, resolver)),
-                        (_dequantize_problems, (path, doc, resolver)), (_draco_problems, (path, doc, resolver))):
+                        (_dequantize_problems, (path, doc, resolver)), (_draco_problems, (path, doc, resolver)),
+                        (_instancing_problems, (path, doc, resolver))):
         try:
             problems += judge(*args)
         except (KeyError, IndexError, TypeError, AttributeError, ValueError, RecursionError, OSError,

@@ -17,8 +17,6 @@ the wrong place, and which of its parts to draw plain cannot be told from what i
 * an extension in ``extensionsRequired`` that the loader cannot decode (:data:`UNDECODED`; Draco
   only where ``DracoPy`` is missing), or does not know (not in :data:`READ_OR_MOOT`): the file
   itself says it cannot be read without it;
-* a node drawing its mesh through ``EXT_mesh_gpu_instancing``, required or not: the loader draws
-  one copy at the node, where the file draws one per instance (:func:`instancing_problems`);
 * a primitive of a drawn mesh whose material's
   base colour texture (``pbrMetallicRoughness.baseColorTexture``, or the ``diffuseTexture`` of
   ``KHR_materials_pbrSpecularGlossiness``: the textures the renderer draws) reads another
@@ -42,7 +40,7 @@ import importlib.util
 
 import numpy as np
 
-__all__ = ["READ_OR_MOOT", "UNDECODED", "apply_texture_transforms", "feature_problems", "feature_warnings", "instancing_problems",
+__all__ = ["READ_OR_MOOT", "UNDECODED", "apply_texture_transforms", "feature_problems", "feature_warnings",
            "read_spec_gloss_as_matte", "textured",
            "transform_matrix"]
 
@@ -63,23 +61,7 @@ READ_OR_MOOT = frozenset({"KHR_mesh_quantization", "KHR_texture_transform", "EXT
 def _unknown(name: str) -> bool:
     """Whether required extension ``name`` is one the loader neither reads nor may leave out."""
     return not (name in READ_OR_MOOT or name in UNDECODED or name.startswith("KHR_materials_")
-                or name == "EXT_mesh_gpu_instancing")  # judged where a node uses it: instancing_problems
-
-
-def instancing_problems(doc: dict, drawn: set[int]) -> list[str]:
-    """The nodes of ``doc`` that draw a mesh of ``drawn`` through ``EXT_mesh_gpu_instancing``
-    (Blender's and gltfpack's instances): the loader draws the mesh once, at the node, where the
-    file draws it once per instance (``count`` of its attribute accessors)."""
-    accessors, problems = doc.get("accessors", []), []
-    for i, node in enumerate(doc.get("nodes", [])):
-        instancing = node.get("extensions", {}).get("EXT_mesh_gpu_instancing")
-        if isinstance(instancing, dict) and node.get("mesh") in drawn:
-            counts = {accessors[a].get("count") for a in instancing.get("attributes", {}).values()
-                      if isinstance(a, int) and 0 <= a < len(accessors)}
-            many = f" {counts.pop()} times" if len(counts) == 1 else ""
-            problems.append(f"node {i} draws mesh {node['mesh']}{many} through EXT_mesh_gpu_instancing, which the "
-                            "loader does not apply: it would draw it once")
-    return problems
+                or name == "EXT_mesh_gpu_instancing")  # applied: io.gltf_instancing
 
 
 def _undecoded(name: str) -> bool:
@@ -217,14 +199,13 @@ def feature_warnings(doc: dict, drawn: set[int]) -> list[str]:
 
 def feature_problems(doc: dict, drawn: set[int]) -> list[str]:
     """What of glTF document ``doc`` the loader would ignore (module doc), one phrase each:
-    required extensions first, then the nodes drawn through instancing and the weighted morph
-    targets, then the textures of the materials of the drawn meshes ``drawn`` (mesh indices), each
+    required extensions first, then the weighted morph targets, then the textures of the materials of the drawn meshes ``drawn`` (mesh indices), each
     material once."""
     required = [name for name in doc.get("extensionsRequired", []) if isinstance(name, str)]
     problems = [f"it requires {name} ({UNDECODED[name]}), which the loader cannot decode"
                 for name in required if _undecoded(name)]
     problems += [f"it requires {name}, an extension the loader does not read" for name in required if _unknown(name)]
-    problems += instancing_problems(doc, drawn) + morph_problems(doc, drawn)
+    problems += morph_problems(doc, drawn)
     materials, seen = doc.get("materials", []), set()
     for m in sorted(drawn):
         for prim in doc["meshes"][m].get("primitives", []):

@@ -20,7 +20,9 @@ own cameras), so such nodes are read as any other.
 Skinned nodes of the drawn scene are posed by their joints in the copy (``sc3d_data.io.gltf_skins``:
 the loader drew them in their bind pose, with the node's own transform, which glTF ignores), and
 quantized positions and texture coordinates are stored as the floats they mean
-(``sc3d_data.io.gltf_dequantize``: the loader read the integers unscaled).
+(``sc3d_data.io.gltf_dequantize``: the loader read the integers unscaled), and nodes drawn through
+``EXT_mesh_gpu_instancing`` get a child node per instance (``sc3d_data.io.gltf_instancing``: the
+loader drew them once).
 """
 from __future__ import annotations
 
@@ -31,6 +33,7 @@ from pathlib import Path
 
 from sc3d_data.io.gltf_check import drawn_nodes, read_gltf, scene_roots
 from sc3d_data.io.gltf_dequantize import dequantize, quantized_accessors
+from sc3d_data.io.gltf_instancing import apply_instancing, instanced_nodes
 from sc3d_data.io.gltf_skins import apply_skins, skinned_nodes
 
 __all__ = ["loader_gltf_bytes"]
@@ -66,12 +69,15 @@ def loader_gltf_bytes(path: Path, doc: dict, resolver=None) -> bytes | None:
     skinned = skinned_nodes(doc, nodes)
     quantized = quantized_accessors(doc)
     sceneless = not doc.get("scenes") and bool(doc.get("nodes"))
-    if not (_ushort_colours_alone(doc) or _camera_nodes(doc) or skinned or quantized or sceneless):
+    instanced = instanced_nodes(doc, nodes)
+    if not (_ushort_colours_alone(doc) or _camera_nodes(doc) or skinned or quantized or sceneless or instanced):
         return None
     doc = copy.deepcopy(doc)
     if sceneless:  # the loader draws no node of a document without scenes: its root nodes, as Blender
         doc.update(scenes=[{"nodes": scene_roots(doc)}], scene=0)
     binary = read_gltf(path, binary=True)[1] if Path(path).suffix.lower() == ".glb" else None
+    if instanced:
+        apply_instancing(path, doc, binary, nodes, resolver)
     if skinned:
         apply_skins(path, doc, binary, nodes, resolver)
     if quantized:  # after the skins, which read the integers as they are stored
