@@ -106,6 +106,9 @@ def test_a_binary_ply_cut_short_is_refused_in_one_line_and_uniform_lists_stay_bi
     tri = (tmp_path / "tri.ply").read_bytes()
     split_tri = tri.index(b"end_header\n") + len(b"end_header\n")
     assert ascii_ply(tri[:split_tri], tri[split_tri:]) is None  # the loader's binary reading is right
+    # an element of a billion rows without properties is not walked row by row (left to the loader)
+    huge = data[:split].replace(b"element face", b"element huge 1000000000\nelement face")
+    assert ascii_ply(huge, data[split:]) is None
     meshes = tmp_path / "m" / "c"
     meshes.mkdir(parents=True)
     (meshes / "short.ply").write_bytes(data[:-10])

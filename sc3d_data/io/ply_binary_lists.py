@@ -83,8 +83,8 @@ def ascii_ply(header: bytes, body) -> bytes | None:
     order = "<" if formats[0][1] == "binary_little_endian" else ">"
     elements = _elements(lines)
     if not elements or not any(items for _, _, props in elements for _, items in props) \
-            or _first_rows_fit(elements, body, order):
-        return None
+            or any(count and not props for _, count, props in elements) or _first_rows_fit(elements, body, order):
+        return None  # (an element of rows without properties: nothing to convert row by row)
     out, at = [], 0
     try:
         for _, count, props in elements:
