@@ -216,3 +216,19 @@ def test_a_gltf_whose_meshes_no_node_draws_is_refused_saying_so(tmp_path):
             "so there is nothing to render; not read")
     assert sorted(f["reason"] for f in index_of(out)["failures"]) == [
         f"{meshes / 'no_nodes.gltf'}: {says}", f"{meshes / 'other_scene.gltf'}: {says}"]
+
+
+def test_an_off_whose_faces_run_over_several_lines_reads_as_written_on_one(tmp_path):
+    """libigl's tutorial meshes ``inspired_mesh_quads_*.off`` write each quad's corners one per
+    line (Geomview's OFF reader and libigl read tokens): trimesh reads a face per line and failed
+    "empty mesh (no triangles)". Reference: the same pyramid with each face on one line; a face
+    colour after the last corner is dropped, as on one line."""
+    vertices = ["0 0 0", "1 0 0", "1 1 0", "0 1 0", "0.5 0.5 0.8"]
+    faces = [[0, 3, 2, 1], [0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]]
+    meshes = tmp_path / "m" / "c"
+    meshes.mkdir(parents=True)
+    one_line = "\n".join(f"{len(f)} {' '.join(map(str, f))}" for f in faces)
+    split = "\n".join(f"{len(f)} {f[0]}\n" + "\n".join(map(str, f[1:-1])) + f"\n{f[-1]} 255 0 0\n" for f in faces)
+    for name, text in (("one_line", one_line), ("split", split)):
+        (meshes / f"{name}.off").write_text("OFF\n# a comment\n5 5 0\n" + "\n".join(vertices) + "\n" + text + "\n")
+    _assert_same(_render(tmp_path), "split", "one_line", ("masks", "voxels", "images"))

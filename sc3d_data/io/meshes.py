@@ -200,7 +200,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     from sc3d_data.io.loader_visuals import keep_obj_vertex_colours, move_texture, texture_as_is
     from sc3d_data.io.materials import material_report
     from sc3d_data.io.obj_loader_text import check_obj_indices, loader_obj_bytes
-    from sc3d_data.io.off_polygons import loader_off_bytes
+    from sc3d_data.io.off_polygons import faces_one_per_line, loader_off_bytes
     from sc3d_data.io.ply_header import loader_ply_bytes
     from sc3d_data.io.ply_strips import strips_as_faces
     from sc3d_data.io.stl_check import loader_stl_bytes
@@ -241,6 +241,9 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     read_spec_gloss_as_matte()
     keep_obj_vertex_colours()
     scene = load_scene(path, resolver, text)
+    if path.suffix.lower() == ".off" and not any(len(getattr(g, "faces", ())) for g in scene.geometry.values()) \
+            and (relined := faces_one_per_line(path)) is not None:  # face lists over several lines
+        scene = load_scene(path, resolver, relined)
     missed = loader_misses(resolver, report)
     if missed and bad_texture == "fail":
         raise MeshError(f"{path}: {'; '.join(missed)} (use --bad-texture fallback to render with material colours)")

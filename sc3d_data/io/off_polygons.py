@@ -9,13 +9,19 @@ such polygon written as the fan of ``n - 2`` triangles ``(0, i, i + 1)`` that tr
 polygons elsewhere (OBJ, PLY; a concave polygon is drawn as that fan, as documented). Comments
 are left out, the header and vertex lines kept, a face line keeps its corners (per-face colours
 after them, which the loader does not read either, are dropped).
+
+The loader also reads each face from one line: a file whose face lists run over several lines
+(libigl's tutorial meshes ``inspired_mesh_quads_*.off`` write a corner per line), which
+Geomview's OFF reader and libigl read as tokens, failed "empty mesh (no triangles)".
+:func:`faces_one_per_line` writes such a file's faces one per line; ``io.meshes`` gives it to the
+loader where the file as written yields no triangle.
 """
 from __future__ import annotations
 
 import re
 from pathlib import Path
 
-__all__ = ["loader_off_bytes"]
+__all__ = ["faces_one_per_line", "loader_off_bytes"]
 
 #: a line that starts with a whole number of five or more and five more whole numbers: a candidate
 #: polygon's face line (the counts line has two more; a vertex line of whole numbers with a colour
@@ -25,18 +31,35 @@ _POLYGON = re.compile(rb"(?m)^[ \t]*(?:[5-9]|[1-9]\d+)(?:[ \t]+\d+){5}(?![\d.eE]
 _HEADER = re.compile(r"^([A-Z]*OFF)\s*(.*)$")
 
 
-def loader_off_bytes(path: Path) -> bytes | None:
-    """The OFF text to give the loader in place of file ``path`` (module doc), or None to load the
-    file as it is (no polygon of five or more corners, or a file the loader is left to judge)."""
-    data = Path(path).read_bytes()
-    if not _POLYGON.search(data):
-        return None
+def _lines(data: bytes) -> tuple[str, list[str]] | None:
+    """``(header keyword, lines after it)`` of OFF ``data`` without comments and blank lines (the
+    counts that may follow the keyword on its line first), or None for a file without a header."""
     lines = [line.split("#", 1)[0].strip() for line in data.decode("latin-1").splitlines()]
     lines = [line for line in lines if line]
     header = _HEADER.match(lines[0]) if lines else None
     if header is None:
         return None
-    body = ([header.group(2)] if header.group(2) else []) + lines[1:]
+    return header.group(1), ([header.group(2)] if header.group(2) else []) + lines[1:]
+
+
+def _fan(corners: list[str]) -> list[str]:
+    """Face lines of a face's ``corners``: itself, or the fan of triangles of a polygon of five or more."""
+    if len(corners) < 5:
+        return [" ".join([str(len(corners)), *corners])]
+    return [f"3 {corners[0]} {corners[i]} {corners[i + 1]}" for i in range(1, len(corners) - 1)]
+
+
+def _text(keyword: str, vertices: list[str], faces: list[str]) -> bytes:
+    return ("\n".join([keyword, f"{len(vertices)} {len(faces)} 0", *vertices, *faces]) + "\n").encode("latin-1")
+
+
+def loader_off_bytes(path: Path) -> bytes | None:
+    """The OFF text to give the loader in place of file ``path`` (module doc), or None to load the
+    file as it is (no polygon of five or more corners, or a file the loader is left to judge)."""
+    data = Path(path).read_bytes()
+    if not _POLYGON.search(data) or (read := _lines(data)) is None:
+        return None
+    keyword, body = read
     try:
         n_vertices, n_faces = (int(n) for n in body[0].split()[:2])
         faces, polygons = [], False
@@ -44,11 +67,34 @@ def loader_off_bytes(path: Path) -> bytes | None:
             words = line.split()
             corners = words[1:1 + int(words[0])]
             polygons |= len(corners) >= 5
-            faces += ([f"3 {corners[0]} {corners[i]} {corners[i + 1]}" for i in range(1, len(corners) - 1)]
-                      if len(corners) >= 5 else [" ".join([str(len(corners)), *corners])])
+            faces += _fan(corners)
     except (ValueError, IndexError):
         return None  # malformed: the loader names it
     if not polygons:
         return None
-    out = [header.group(1), f"{n_vertices} {len(faces)} 0", *body[1:1 + n_vertices], *faces]
-    return ("\n".join(out) + "\n").encode("latin-1")
+    return _text(keyword, body[1:1 + n_vertices], faces)
+
+
+def faces_one_per_line(path: Path) -> bytes | None:
+    """The OFF text of file ``path`` with each face on one line, where its face lists run over
+    several lines (module doc), or None (no such face, or a file the loader is left to judge)."""
+    read = _lines(Path(path).read_bytes())
+    if read is None:
+        return None
+    keyword, body = read
+    try:
+        n_vertices, n_faces = (int(n) for n in body[0].split()[:2])
+        rest, faces, split = body[1 + n_vertices:], [], False
+        row = 0
+        for _ in range(n_faces):
+            words = rest[row].split()
+            count = int(words[0])
+            corners = words[1:1 + count]
+            while len(corners) < count:  # the list goes on on the next lines (tokens, as Geomview reads it)
+                row, split = row + 1, True
+                corners += rest[row].split()[:count - len(corners)]
+            faces += _fan(corners)  # what follows the last corner on its line (a colour) is dropped
+            row += 1
+    except (ValueError, IndexError):
+        return None  # malformed: the loader names it
+    return _text(keyword, body[1:1 + n_vertices], faces) if split else None
