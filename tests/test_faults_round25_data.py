@@ -232,3 +232,16 @@ def test_an_off_whose_faces_run_over_several_lines_reads_as_written_on_one(tmp_p
     for name, text in (("one_line", one_line), ("split", split)):
         (meshes / f"{name}.off").write_text("OFF\n# a comment\n5 5 0\n" + "\n".join(vertices) + "\n" + text + "\n")
     _assert_same(_render(tmp_path), "split", "one_line", ("masks", "voxels", "images"))
+
+
+def test_a_texture_name_with_a_comment_after_it_is_read(tmp_path):
+    """``map_Kd t.png  # diffuse`` named the file "t.png  # diffuse" for trimesh and for sc3d's
+    check: "texture ... not found". The name now ends at its image extension (a ``#`` inside a
+    name, ``t#1.png``, stays). Reference: the same material without the comment."""
+    meshes = tmp_path / "m" / "c"
+    _textured_obj(meshes / "commented", b"newmtl mat\nKd 1 1 1\nmap_Kd t.png  # the diffuse texture\n")
+    _textured_obj(meshes / "plain", b"newmtl mat\nKd 1 1 1\nmap_Kd t.png\n")
+    _textured_obj(meshes / "hash", b"newmtl mat\nKd 1 1 1\nmap_Kd t#1.png\n", texture=b"t#1.png")
+    objects = _render(tmp_path, voxelize=False)
+    _assert_same(objects, "commented", "plain", ("images",))
+    _assert_same(objects, "hash", "plain", ("images",))

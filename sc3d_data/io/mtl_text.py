@@ -92,17 +92,23 @@ def _clamps_texture(value: str) -> bool:
     return any(t == "-clamp" and tokens[i + 1:i + 2] == ["on"] for i, t in enumerate(tokens))
 
 
+#: a comment after an image file's name (``map_Kd tex.png  # diffuse``): the name ends at its extension
+_TRAILING_COMMENT = re.compile(r'(?i)^(.*?\.(?:png|jpe?g|tga|bmp|tiff?|gif|webp|dds|exr|hdr|ktx2?|p[bgp]m)"?)\s+#.*$')
+
+
 def map_file_name(value: str) -> str:
-    """The file name of an MTL map statement's value, without its options:
-    ``"-s 1 1 1 -clamp on tex.png"`` -> ``"tex.png"``, ``'"my tex.png"'`` -> ``"my tex.png"``;
-    Windows separators become ``/``."""
+    """The file name of an MTL map statement's value, without its options and without a comment
+    after an image file's name: ``"-s 1 1 1 -clamp on tex.png"`` -> ``"tex.png"``,
+    ``'"my tex.png"'`` -> ``"my tex.png"``, ``"tex.png  # diffuse"`` -> ``"tex.png"``; Windows
+    separators become ``/``. The loader's resolver reads the file this names
+    (``io.texture_resolver``), so the loader reads it too."""
     tokens = value.split()
     while len(tokens) > 1 and tokens[0].startswith("-") and not _OPTION_VALUE.match(tokens[0]):
         if tokens.pop(0).lower() in _WORD_OPTIONS and len(tokens) > 1:
             tokens.pop(0)
         while len(tokens) > 1 and _OPTION_VALUE.match(tokens[0]):
             tokens.pop(0)
-    name = " ".join(tokens)
+    name = _TRAILING_COMMENT.sub(r"\1", " ".join(tokens))
     if len(name) >= 2 and name[0] == name[-1] == '"':
         name = name[1:-1]
     return name.replace("\\", "/")
