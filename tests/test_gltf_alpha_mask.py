@@ -105,6 +105,9 @@ CASES = {  # file stem: (material A, u, alpha of the texture's left half, COLOR_
     "mask_half_alpha_default_cutoff": ({"alphaMode": "MASK"}, U_LEFT, 192, None, "both"),
     "mask_half_alpha_cutoff_0_8": ({"alphaMode": "MASK", "alphaCutoff": 0.8}, U_LEFT, 192, None, "B alone"),
     "mask_factor_alpha": ({"alphaMode": "MASK", "baseColorFactor": [1, 1, 1, 0.4]}, U_RIGHT, 0, None, "B alone"),
+    # an alpha equal to the cutoff is drawn (trimesh keeps the factor in bytes: 0.3 became 76/255 < 0.3)
+    "mask_factor_at_cutoff": ({"alphaMode": "MASK", "alphaCutoff": 0.3, "baseColorFactor": [1, 1, 1, 0.3]}, U_RIGHT, 0,
+                              None, "both"),
     "mask_vertex_colour_alpha": ({"alphaMode": "MASK"}, U_RIGHT, 0, 0.3, "B alone"),
     "opaque_transparent_texel": ({}, U_LEFT, 0, None, "both"),
     "blend_transparent_texel": ({"alphaMode": "BLEND"}, U_LEFT, 0, None, "both"),

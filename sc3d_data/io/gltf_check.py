@@ -90,7 +90,8 @@ def scene_roots(doc: dict) -> list[int]:
     nodes, scenes = doc.get("nodes", []), doc.get("scenes")
     if scenes:
         return list(scenes[doc.get("scene", 0)].get("nodes", []))
-    children = {c for node in nodes if isinstance(node, dict) for c in node.get("children", [])}
+    children = {c for node in nodes if isinstance(node, dict) and isinstance(node.get("children"), list)
+                for c in node["children"] if isinstance(c, int)}  # malformed children: the loader reports them
     return [i for i in range(len(nodes)) if i not in children]
 
 

@@ -226,7 +226,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
                         "material colours)")
     text = None if gltf_doc is None else loader_gltf_bytes(path, gltf_doc, skin_files)  # the text the loader reads right:
     try:
-        text = {".ply": loader_ply_bytes, ".off": loader_off_bytes,
+        text = {".ply": lambda p: loader_ply_bytes(p, max_faces), ".off": loader_off_bytes,
                 ".stl": loader_stl_bytes}.get(path.suffix.lower(), lambda _: text)(path)
     except ValueError as e:  # io.stl_check: a triangle count that cannot be trusted
         raise MeshError(f"{path}: {e}; not read") from e

@@ -14,6 +14,7 @@ and 200,000 faces on a 2-core CPU box, 2026-11-28).
 """
 from __future__ import annotations
 
+import io
 import struct
 
 __all__ = ["ascii_ply"]
@@ -43,12 +44,16 @@ def _elements(lines: list[str]) -> list[tuple[str, int, list[tuple]]] | None:
     return elements
 
 
-def _first_rows_fit(elements: list, body: bytes, order: str) -> bool:
-    """Whether every element's rows, given its first row's list lengths, make up ``body``
-    exactly (trimesh's binary reading, module doc)."""
+def _first_rows_fit(elements: list, body, order: str) -> bool:
+    """Whether every element's rows have its first row's list lengths, as trimesh's binary
+    reading takes them to (module doc): the rows make up ``body`` exactly, and every row's list
+    counts, read at that spacing, equal the first row's (a quad, a triangle and a pentagon have
+    the size of three quads)."""
+    import numpy as np
+
     at = 0
     for _, count, props in elements:
-        row = 0
+        row, counts = 0, []
         for kind, items in props:
             fmt = order + _TYPES[kind][0]
             if items is None:
@@ -59,7 +64,13 @@ def _first_rows_fit(elements: list, body: bytes, order: str) -> bool:
             if at + row + struct.calcsize(fmt) > len(body):
                 return False
             n = struct.unpack_from(fmt, body, at + row)[0]
+            counts.append((row, fmt, n))
             row += struct.calcsize(fmt) + n * struct.calcsize(order + _TYPES[items][0])
+        if count and row and at + count * row <= len(body):
+            for offset, fmt, n in counts:  # every row's count at the spacing the first row gives
+                seen = np.ndarray((count,), np.dtype(fmt), buffer=body, offset=at + offset, strides=(row,))
+                if not (seen == n).all():
+                    return False
         at += count * row
     return at == len(body)
 
@@ -71,11 +82,13 @@ def _text(value, kind: str) -> str:
     return format(value, ".9g" if _TYPES[kind][0] == "f" else ".17g")
 
 
-def ascii_ply(header: bytes, body) -> bytes | None:
+def ascii_ply(header: bytes, body, max_faces: int | None = None) -> bytes | None:
     """The ASCII PLY of a binary PLY (``header``: its bytes up to and including the line
     ``end_header``; ``body``: the rest, bytes or a memoryview) whose list lengths vary from row to row (module doc), or
     None: an ASCII file, lists that the loader reads right, or a file this module cannot read
-    (the loader then reports it). ``ValueError`` where the data ends before its rows do."""
+    (the loader then reports it). ``ValueError`` where the data ends before its rows do, a list's
+    length is negative, or the ``face`` element has more rows than ``max_faces`` (checked before
+    any row is converted: each face is at least a triangle)."""
     lines = header.decode("latin-1").replace("\r\n", "\n").split("\n")
     formats = [line.split() for line in lines if line.split()[:1] == ["format"]]
     if len(formats) != 1 or len(formats[0]) < 2 or formats[0][1] not in ("binary_little_endian", "binary_big_endian"):
@@ -85,9 +98,14 @@ def ascii_ply(header: bytes, body) -> bytes | None:
     if not elements or not any(items for _, _, props in elements for _, items in props) \
             or any(count and not props for _, count, props in elements) or _first_rows_fit(elements, body, order):
         return None  # (an element of rows without properties: nothing to convert row by row)
-    out, at = [], 0
+    faces = sum(count for name, count, _ in elements if name == "face")
+    if max_faces and faces > max_faces:
+        raise ValueError(f"{faces:,} faces, more than the limit of {max_faces:,} (--max-faces)")
+    text = [("format ascii 1.0" if line.split()[:1] == ["format"] else line) for line in lines if line.strip()]
+    out, at = io.StringIO(), 0  # rows written as they are read: no list of a million strings
+    out.write("\n".join(text) + "\n")
     try:
-        for _, count, props in elements:
+        for name, count, props in elements:
             for _ in range(count):
                 row = []
                 for kind, items in props:
@@ -97,14 +115,15 @@ def ascii_ply(header: bytes, body) -> bytes | None:
                     if items is None:
                         row.append(_text(value, kind))
                         continue
+                    if value < 0:
+                        raise ValueError(f"a list of its {name} rows has a negative length ({value})")
                     item = order + _TYPES[items][0]
                     values = struct.unpack_from(f"{order}{value}{item[1]}", body, at)
                     at += value * struct.calcsize(item)
                     row += [str(value)] + [_text(v, items) for v in values]
-                out.append(" ".join(row))
+                out.write(" ".join(row) + "\n")
     except struct.error:
         raise ValueError(f"its binary data ends before its {sum(c for _, c, _ in elements):,} rows do "
                          f"({len(body):,} bytes)") from None
-    text = [("format ascii 1.0" if line.split()[:1] == ["format"] else line) for line in lines if line.strip()]
-    return ("\n".join(text) + "\n" + "\n".join(out) + "\n").encode("latin-1")
+    return out.getvalue().encode("latin-1")
 

@@ -41,11 +41,11 @@ def _renamed(header: bytes) -> bytes | None:
     return _DIFFUSE.sub(rb"\1\2", header)
 
 
-def loader_ply_bytes(path: Path) -> bytes | None:
+def loader_ply_bytes(path: Path, max_faces: int | None = None) -> bytes | None:
     """PLY ``path``'s bytes with its ``diffuse_``-prefixed colour properties renamed and a header
     of CR line ends given LF ones, a binary file whose lists vary in length as ASCII PLY (module
     doc), or None to load the file as it is. ``ValueError`` where a binary file's data ends
-    before its rows do."""
+    before its rows do, or where one to convert has more faces than ``max_faces``."""
     with open(path, "rb") as f:
         head = f.read(HEADER_BYTES)
     end = head.find(b"end_header")
@@ -65,13 +65,13 @@ def loader_ply_bytes(path: Path) -> bytes | None:
             return None
         with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data, \
                 memoryview(data) as view, view[line_end + 1:] as body:
-            return ascii_ply(head[:line_end + 1], body)
+            return ascii_ply(head[:line_end + 1], body, max_faces)
     header, rest = renamed if renamed is not None else header, Path(path).read_bytes()[end:]
     if cr_only:
         ascii_data = re.search(rb"(?m)^format[ \t]+ascii\b", header) is not None
         rest = rest.replace(b"\r", b"\n") if ascii_data else rest[:10] + rest[10:11].replace(b"\r", b"\n") + rest[11:]
     if lists and (line_end := rest.find(b"\n")) != -1:
-        converted = ascii_ply(header + rest[:line_end + 1], memoryview(rest)[line_end + 1:])
+        converted = ascii_ply(header + rest[:line_end + 1], memoryview(rest)[line_end + 1:], max_faces)
         if converted is not None:
             return converted
     return header + rest

@@ -274,6 +274,8 @@ def mesh_parts(scene, to_canonical: np.ndarray):
                 base, image = _color_factor(mat.baseColorFactor), mat.baseColorTexture
                 if mat.alphaMode == "MASK":
                     cutoff = DEFAULT_ALPHA_CUTOFF if mat.alphaCutoff is None else float(mat.alphaCutoff)
+                    if abs(base[3] - cutoff) <= 0.5 / 255:  # trimesh keeps the factor in bytes (0.3 -> 76/255):
+                        base[3] = cutoff  # an alpha equal to the cutoff is drawn, as glTF says
             elif isinstance(mat, trimesh.visual.material.SimpleMaterial):
                 base, image = _color_factor(mat.diffuse), mat.image
             if image is not None and vis.uv is not None and len(vis.uv) == len(pos):
