@@ -268,3 +268,32 @@ def test_a_texture_name_with_a_comment_after_it_is_read(tmp_path):
     objects = _render(tmp_path, voxelize=False)
     _assert_same(objects, "commented", "plain", ("images",))
     _assert_same(objects, "hash", "plain", ("images",))
+
+
+def test_a_gltf_node_with_two_parents_is_refused_naming_it(tmp_path):
+    """The draco project's ``CubeScaledInstances/glTF/cube_att.gltf``: four parent nodes share
+    one child holding the cube (glTF 2.0 allows one parent; the draco decoder reads four
+    instances). sc3d drew one cube, exit 0, no warning (the review of this round). Refused in one
+    line naming the node; the same document with one parent renders (control)."""
+    import json
+
+    from test_gltf_accessors import CUBE
+    from test_gltf_primitives import _gltf_doc
+
+    doc, buf = _gltf_doc(CUBE)
+    doc["buffers"] = [{"byteLength": len(buf), "uri": "cube.bin"}]
+    meshes = tmp_path / "m" / "c"
+    meshes.mkdir(parents=True)
+    (meshes / "cube.bin").write_bytes(buf)
+    doc["nodes"] = [{"children": [1, 2]}, {"children": [3]}, {"translation": [3, 0, 0], "children": [3]}, {"mesh": 0}]
+    (meshes / "two_parents.gltf").write_text(json.dumps(doc))
+    (meshes / "root_and_child.gltf").write_text(json.dumps({**doc, "nodes": [{"children": [1]}, {"mesh": 0}],
+                                                            "scenes": [{"nodes": [0, 1]}]}))
+    (meshes / "one_parent.gltf").write_text(json.dumps({**doc, "nodes": [{"children": [1]}, {"mesh": 0}]}))
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    assert sorted(f["reason"].split(": ", 1)[1] for f in index_of(out)["failures"]) == [
+        "node 1 is a root of the scene and a child of node 0, where glTF allows one parent; the loader would draw it "
+        "once; not read",
+        "node 3 is a child of nodes 1, 2, where glTF allows one parent; the loader would draw it once; not read"]
+    assert list(_objects(out)) == ["one_parent"]

@@ -123,10 +123,29 @@ def drawn_meshes(doc: dict, safe: bool = False) -> set[int]:
         raise
 
 
+def shared_children(doc: dict) -> list[str]:
+    """The nodes of the drawn scene that are children of several nodes, or a root of the scene and
+    a child (glTF 2.0 allows one parent: the loader draws such a node once, where other readers,
+    the draco project's among them, draw it once per parent), one phrase each."""
+    parents: dict[int, list[int]] = {}
+    for i, node in enumerate(doc.get("nodes", [])):
+        for c in node.get("children", []) if isinstance(node, dict) and isinstance(node.get("children"), list) else []:
+            parents.setdefault(c, []).append(i)
+    roots = set(scene_roots(doc)) if doc.get("scenes") else set()
+    problems = []
+    for i in drawn_nodes(doc):
+        of = parents.get(i, [])
+        if len(of) > 1 or (of and i in roots):
+            whose = f"a root of the scene and a child of node {of[0]}" if i in roots else \
+                f"a child of nodes {', '.join(map(str, of))}"
+            problems.append(f"node {i} is {whose}, where glTF allows one parent; the loader would draw it once")
+    return problems
+
+
 def gltf_problems(doc: dict) -> list[str]:
     """What of glTF document ``doc``'s drawn geometry the loader would not read as written
     (module doc), one phrase each, in file order."""
-    problems, sparse_seen = [], set()
+    problems, sparse_seen = shared_children(doc), set()
     accessors, meshes, drawn = doc.get("accessors", []), doc.get("meshes", []), drawn_meshes(doc)
     if meshes and not drawn:  # the loader draws nothing: "empty mesh (no triangles)" said less
         problems.append(f"none of its {len(meshes)} mesh(es) is drawn by a node of the scene it draws (glTF draws a "
