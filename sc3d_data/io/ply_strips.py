@@ -9,6 +9,13 @@ triangles as the strip convention defines them: strip ``s`` makes the triangles 
 s[i+2])`` for even ``i`` and ``(s[i+1], s[i], s[i+2])`` for odd ``i`` (every triangle wound as the
 first), and the repeated indices that join strips make triangles of no area, which the renderer
 leaves out (``io.meshes.validate_triangles``).
+
+A file may hold both elements (a ``face`` element beside its ``tristrips``): trimesh then reads
+the faces alone and the strips' triangles were dropped without a word. They are drawn too, as a
+second geometry of the same vertices at the same place, coloured or textured as the faces'
+geometry where its colours or texture coordinates are per vertex (face colours belong to the
+``face`` rows alone: the strips' triangles are then drawn in the default colour, as the
+triangles of a file without colours).
 """
 from __future__ import annotations
 
@@ -48,15 +55,30 @@ def _strip_rows(data) -> list[np.ndarray]:
 
 def strips_as_faces(scene) -> None:
     """Replace each point cloud of ``scene`` (loaded by trimesh from a PLY) whose file gave it
-    triangle strips by the mesh of those triangles (its vertices and vertex colours kept)."""
+    triangle strips by the mesh of those triangles (its vertices and vertex colours kept); where
+    the file also has faces, add the strips' triangles as a geometry beside the faces' (module doc)."""
     import trimesh
 
     for name, geometry in list(scene.geometry.items()):
         raw = getattr(geometry, "metadata", {}).get("_ply_raw", {})
-        if not isinstance(geometry, trimesh.PointCloud) or "tristrips" not in raw:
+        if "tristrips" not in raw or not isinstance(geometry, (trimesh.PointCloud, trimesh.Trimesh)):
             continue
         rows = _strip_rows(raw["tristrips"].get("data"))
         faces = strip_triangles(np.concatenate([np.append(r, -1) for r in rows])) if rows else np.zeros((0, 3))
+        if isinstance(geometry, trimesh.Trimesh):
+            if len(faces):
+                _add_beside(scene, name, trimesh.Trimesh(
+                    vertices=geometry.vertices, faces=faces, process=False,
+                    visual=geometry.visual.copy() if geometry.visual.kind in ("vertex", "texture") else None))
+            continue
         colours = geometry.colors if len(geometry.colors) == len(geometry.vertices) else None
         scene.geometry[name] = trimesh.Trimesh(vertices=geometry.vertices, faces=faces, vertex_colors=colours,
                                                process=False)
+
+
+def _add_beside(scene, name: str, mesh) -> None:
+    """Draw ``mesh`` wherever ``scene`` draws its geometry ``name`` (at each node's transform)."""
+    for node in list(scene.graph.nodes_geometry):
+        transform, drawn = scene.graph[node]
+        if drawn == name:
+            scene.add_geometry(mesh, geom_name=f"{name} tristrips", transform=transform)

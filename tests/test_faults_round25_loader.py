@@ -1,0 +1,65 @@
+"""Loader defects of the twenty-fifth round (items of the left-alone list), each with real files
+written byte by byte, the real loader, renderer and command; expected values come from the same
+shape written another way (plain faces, a file with a scene) or from bash itself, never from the
+code under test."""
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+
+from sc3d_cli.data import main as data_main
+from conftest import run_cli
+from test_faults import FAST, index_of
+from test_faults_round19_data import _objects
+
+
+def _ply(path, corners, colours=None, faces=None, strips=None, binary=False) -> None:
+    """A PLY of ``corners`` (with per-vertex ``colours`` where given), an ``element face`` of
+    ``faces`` (triangles) and an ``element tristrips`` of the one index list ``strips``, where
+    given; ASCII, or binary little-endian."""
+    head = ["ply", "format " + ("binary_little_endian 1.0" if binary else "ascii 1.0"),
+            f"element vertex {len(corners)}", "property float x", "property float y", "property float z"]
+    head += ["property uchar red", "property uchar green", "property uchar blue"] if colours is not None else []
+    head += [f"element face {len(faces)}", "property list uchar int vertex_indices"] if faces is not None else []
+    head += ["element tristrips 1", "property list int int vertex_indices"] if strips is not None else []
+    head = ("\n".join(head + ["end_header"]) + "\n").encode()
+    rows = [list(map(float, p)) + ([] if colours is None else list(map(int, c)))
+            for p, c in zip(corners, colours if colours is not None else [None] * len(corners))]
+    if binary:
+        vertex = b"".join(struct.pack("<3f" + "3B" * (colours is not None), *r) for r in rows)
+        body = b"".join(struct.pack("<B3i", 3, *map(int, f)) for f in (faces if faces is not None else []))
+        body += b"" if strips is None else struct.pack("<i", len(strips)) + np.int32(strips).astype("<i4").tobytes()
+    else:
+        vertex = "".join(" ".join(map(repr, r)) + "\n" for r in rows).encode()
+        body = "".join("3 %d %d %d\n" % tuple(f) for f in (faces if faces is not None else [])).encode()
+        body += b"" if strips is None else (" ".join(map(str, [len(strips), *strips])) + "\n").encode()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(head + vertex + body)
+
+
+def test_a_ply_with_both_faces_and_triangle_strips_draws_both(tmp_path):
+    """A PLY with an ``element face`` and an ``element tristrips`` kept the faces alone: trimesh
+    reads ``face`` and the strips were read only where there were no faces, so half the cube
+    below was dropped, exit 0. Its first six triangles as faces and the other six as strips
+    (ASCII, binary, and with vertex colours) must draw the masks, voxels and pixels of the same
+    cube written as twelve plain faces (trimesh's box, the reference)."""
+    import trimesh
+
+    box = trimesh.creation.box()
+    corners, faces = box.vertices, box.faces
+    colours = np.where(corners[:, :1] > 0, [200, 40, 40], [40, 40, 200])  # red at +x, blue at -x
+    strips = sum(([*map(int, f), -1] for f in faces[6:]), [])[:-1]  # a strip of 3 corners per triangle
+    meshes = tmp_path / "m" / "c"
+    _ply(meshes / "faces" / "m.ply", corners, faces=faces)
+    _ply(meshes / "both" / "m.ply", corners, faces=faces[:6], strips=strips)
+    _ply(meshes / "both_binary" / "m.ply", corners, faces=faces[:6], strips=strips, binary=True)
+    _ply(meshes / "faces_coloured" / "m.ply", corners, colours, faces=faces)
+    _ply(meshes / "both_coloured" / "m.ply", corners, colours, faces=faces[:6], strips=strips)
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST, "--voxelize"])
+    assert index_of(out)["failures"] == []
+    objects = _objects(out)
+    for name, reference in (("both", "faces"), ("both_binary", "faces"), ("both_coloured", "faces_coloured")):
+        for key in ("masks", "voxels", "images"):
+            np.testing.assert_array_equal(objects[name][key], objects[reference][key], err_msg=f"{name} {key}")
