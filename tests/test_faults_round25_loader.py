@@ -63,3 +63,43 @@ def test_a_ply_with_both_faces_and_triangle_strips_draws_both(tmp_path):
     for name, reference in (("both", "faces"), ("both_binary", "faces"), ("both_coloured", "faces_coloured")):
         for key in ("masks", "voxels", "images"):
             np.testing.assert_array_equal(objects[name][key], objects[reference][key], err_msg=f"{name} {key}")
+
+
+#: a unit cube's corners and its six sides (quads), for the test below
+CUBE = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)]
+SIDES = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)]
+
+
+def _listed(word: str, cwd) -> bytes:
+    """What ``ls -d WORD`` prints, run by bash in ``cwd`` (``WORD`` as printed in a message, after
+    a command's name: a word that starts with ``-`` is read as options)."""
+    import subprocess
+
+    return subprocess.run(["bash", "-c", f"ls -d {word}"], cwd=cwd, capture_output=True, check=True).stdout
+
+
+def test_a_suggested_folder_whose_name_starts_with_a_dash_is_read_as_a_path(tmp_path, monkeypatch):
+    """``shell_word`` printed a relative folder named ``-out`` as ``-out``: pasted after a command,
+    ``ls -d -out`` lists ``.`` (options ``-o -u -t``), ``ls -d '-my out'`` fails "invalid option".
+    Each such name (plain, quoted, ANSI-C quoted, ``--help``) must now be a word after which
+    ``ls -d`` lists that very folder (bash the reference); render's suggestion ``sc3d-data info
+    WORD`` for a run with ``--out=-out`` given relative names it so too, and names that start
+    otherwise print as before."""
+    import os
+
+    from sc3d_data.io.names import shell_word
+
+    monkeypatch.chdir(tmp_path)
+    for name in ("-out", "-my out", "-new\nline", "--help"):
+        os.mkdir(name)
+        assert _listed(shell_word(name), tmp_path) == b"./" + os.fsencode(name) + b"\n", name
+    assert [shell_word(n) for n in ("out", "my out", "/abs/-x", "a-b")] == ["out", "'my out'", "/abs/-x", "a-b"]
+    meshes = tmp_path / "m" / "c"
+    _ply(meshes / "good" / "m.ply", CUBE, faces=[f for q in SIDES for f in ((q[0], q[1], q[2]), (q[0], q[2], q[3]))])
+    (meshes / "broken").mkdir()
+    (meshes / "broken" / "m.ply").write_text("this is no mesh\n")
+    res = run_cli(data_main, ["render", "--meshes", "m", "--out=-run", *FAST])
+    suggestion = next(line for line in res.output.splitlines() if "listed with reasons by" in line)
+    word = suggestion.rsplit("`sc3d-data info ", 1)[1].rstrip("`")
+    assert _listed(word, tmp_path) == b"./-run\n", suggestion
+    assert (tmp_path / "-run" / "index.json").is_file()

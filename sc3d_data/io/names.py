@@ -68,14 +68,18 @@ def shell_word(text) -> str:
     """``str(text)`` as one word that a POSIX shell reads back as it is, for a command printed to be
     pasted: unchanged where it needs no quoting, ``shlex.quote``'s single quotes where every
     character is printable, else bash's ANSI-C quoting ``$'...'`` with :func:`printable`'s escapes
-    (an undecodable byte as ``\\xff``, which bash turns back into that byte).
+    (an undecodable byte as ``\\xff``, which bash turns back into that byte). A relative path
+    that starts with ``-`` (a folder named ``-out``) gets ``./`` before it, so that the command
+    reads it as a path, not as options.
 
-    >>> shell_word("my data/out"), shell_word("a\\nb")
-    ("'my data/out'", "$'a\\\\nb'")
+    >>> shell_word("my data/out"), shell_word("a\\nb"), shell_word("-out")
+    ("'my data/out'", "$'a\\\\nb'", './-out')
     """
     import shlex
 
     text = str(text)
+    if text.startswith("-"):
+        text = "./" + text
     if text.isprintable():
         return shlex.quote(text)
     return "$'" + "".join(_shell_escape(ch) for ch in text) + "'"
