@@ -4,6 +4,7 @@ shape written another way (plain faces, a file with a scene) or from bash itself
 code under test."""
 from __future__ import annotations
 
+import json
 import struct
 
 import numpy as np
@@ -103,3 +104,35 @@ def test_a_suggested_folder_whose_name_starts_with_a_dash_is_read_as_a_path(tmp_
     word = suggestion.rsplit("`sc3d-data info ", 1)[1].rstrip("`")
     assert _listed(word, tmp_path) == b"./-run\n", suggestion
     assert (tmp_path / "-run" / "index.json").is_file()
+
+
+def test_a_skinned_gltf_without_scenes_is_posed_as_its_twin_with_a_scene(tmp_path):
+    """A document without ``scenes`` draws its root nodes (``gltf_check.scene_roots``, as Blender
+    and trimesh's scene-less reading do; an unskinned one since 961e6fe). A skinned one must be
+    posed by its joints the same way: the bent bar of ``test_gltf_skins`` without ``scenes`` (.gltf
+    and .glb), and its unskinned reference posed by hand without ``scenes``, draw the masks and
+    pixels of the reference with its scene. (Passed before this round too: a regression test, the
+    left-alone list's entry was older than 961e6fe.)"""
+    from test_gltf_skins import BAR, BENT, S, _reference, _skinned_bar
+
+    def sceneless(d):
+        for key in ("scenes", "scene"):
+            d.doc.pop(key)
+        return d
+
+    folder = tmp_path / "m" / "bar"
+    folder.mkdir(parents=True)
+    _reference((BENT, [0, 0, 0])).write(folder / "ref_bent.gltf")
+    _reference((BAR, [0, 0, 0])).write(folder / "ref_straight.gltf")  # the bind pose: what an unposed skin draws
+    sceneless(_reference((BENT, [0, 0, 0]))).write(folder / "ref_bent_no_scenes.gltf")
+    sceneless(_skinned_bar([0, 0, S, S])).write(folder / "bent_no_scenes.gltf")
+    sceneless(_skinned_bar([0, 0, S, S], packed=True)).write(folder / "packed_no_scenes.glb")
+    assert "scenes" not in json.loads((folder / "bent_no_scenes.gltf").read_text())
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    assert index_of(out)["failures"] == []
+    objects = _objects(out)
+    assert not np.array_equal(objects["ref_bent"]["masks"], objects["ref_straight"]["masks"])  # unposed would show
+    for name in ("ref_bent_no_scenes", "bent_no_scenes", "packed_no_scenes"):
+        for key in ("masks", "images"):
+            np.testing.assert_array_equal(objects[name][key], objects["ref_bent"][key], err_msg=f"{name} {key}")
