@@ -8,6 +8,7 @@ import json
 import struct
 
 import numpy as np
+import pytest
 
 from sc3d_cli.data import main as data_main
 from conftest import run_cli
@@ -136,3 +137,75 @@ def test_a_skinned_gltf_without_scenes_is_posed_as_its_twin_with_a_scene(tmp_pat
     for name in ("ref_bent_no_scenes", "bent_no_scenes", "packed_no_scenes"):
         for key in ("masks", "images"):
             np.testing.assert_array_equal(objects[name][key], objects["ref_bent"][key], err_msg=f"{name} {key}")
+
+
+def _meshlab_ply(path, corners, faces, uv, binary: bool = False) -> None:
+    """``faces`` (lists of corners) with per-face texture coordinates ``uv(corner)``, textured
+    with ``tex.png`` beside it, as vcglib's ``ExporterPLY`` (MeshLab) writes them: the comments,
+    properties and ASCII number formats of its source (``%g`` positions and ``%f`` coordinates,
+    each followed by a space), or binary little-endian (``uchar`` counts, ``int`` corners,
+    ``float`` coordinates)."""
+    head = ("ply\nformat %s 1.0\ncomment VCGLIB generated\ncomment TextureFile tex.png\nelement vertex %d\n"
+            "property float x\nproperty float y\nproperty float z\nelement face %d\n"
+            "property list uchar int vertex_indices\nproperty list uchar float texcoord\nend_header\n"
+            % ("binary_little_endian" if binary else "ascii", len(corners), len(faces))).encode()
+    if binary:
+        body = b"".join(struct.pack("<3f", *p) for p in corners) + b"".join(
+            struct.pack(f"<B{len(f)}iB{2 * len(f)}f", len(f), *f, 2 * len(f), *sum((uv(i) for i in f), ()))
+            for f in faces)
+    else:
+        body = ("".join("%g %g %g \n" % tuple(p) for p in corners) + "".join(
+            "%d " % len(f) + "".join("%d " % i for i in f) + "%d " % (2 * len(f)) + "".join("%f %f " % uv(i) for i in f)
+            + "\n" for f in faces)).encode()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(head + body)
+
+
+def test_meshlab_polygons_with_per_face_texture_coordinates_draw_their_texture(tmp_path):
+    """MeshLab writes texture coordinates as a ``texcoord`` list on each face; trimesh read them
+    only where every face has the same number of corners: a cube of quads beside triangles failed
+    "cannot parse mesh file (ValueError: ...)" and a square of one quad "TypeError: object of type
+    'numpy.int64' has no len()". Each must draw the pixels, masks and voxels of the same shape
+    written with its polygons split by hand into the fans ``(0, k, k + 1)`` (all triangles, which
+    trimesh reads: the reference), textured half red, half blue so that a texture coordinate
+    misplaced shows; the all-quads cube (read before too) and a binary file of triangles stay as
+    they were. A quad with texture coordinates for three corners is refused naming the face."""
+    from PIL import Image
+
+    uv = lambda i: (CUBE[i][0] * 0.5 + 0.25, CUBE[i][1] * 0.5 + 0.25)  # noqa: E731  x=0 red, x=1 blue
+    fan = lambda faces: [(f[0], f[k], f[k + 1]) for f in faces for k in range(1, len(f) - 1)]  # noqa: E731
+    texture = Image.new("RGB", (8, 8), (220, 30, 30))
+    texture.paste((30, 30, 220), (4, 0, 8, 8))
+    cube_mixed = SIDES[:3] + fan(SIDES[3:])
+    files = {"mixed": (CUBE, cube_mixed), "mixed_ref": (CUBE, fan(cube_mixed)), "quads": (CUBE, SIDES),
+             "quads_ref": (CUBE, fan(SIDES)), "square": (CUBE[:4], [(0, 1, 2, 3)]),
+             "square_ref": (CUBE[:4], fan([(0, 1, 2, 3)]))}
+    meshes = tmp_path / "m" / "c"
+    for name, (corners, faces) in files.items():
+        _meshlab_ply(meshes / name / "m.ply", corners, faces, uv)
+        texture.save(meshes / name / "tex.png")
+    _meshlab_ply(meshes / "binary" / "m.ply", CUBE, fan(SIDES), uv, binary=True)
+    texture.save(meshes / "binary" / "tex.png")
+    _meshlab_ply(meshes / "short_uv" / "m.ply", CUBE, SIDES, uv)
+    lines = (meshes / "short_uv" / "m.ply").read_text().split("\n")
+    first = lines.index("end_header") + 1 + len(CUBE)
+    tokens = lines[first].split()  # 4 0 3 2 1 8 u v u v u v u v: the coordinates of three corners left
+    lines[first] = " ".join(tokens[:5] + ["6"] + tokens[6:12]) + " "
+    (meshes / "short_uv" / "m.ply").write_text("\n".join(lines))
+    texture.save(meshes / "short_uv" / "tex.png")
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST, "--voxelize"])
+    reasons = {f["model_id"].split("/")[0]: f["reason"] for f in index_of(out)["failures"]}
+    assert reasons == {"short_uv": f"{meshes / 'short_uv' / 'm.ply'}: face 0 has 4 corners and 6 texture coordinates "
+                                   "(two per corner expected); not read"}
+    objects = _objects(out)
+    for name, reference in (("mixed", "mixed_ref"), ("quads", "quads_ref"), ("square", "square_ref"),
+                            ("binary", "quads_ref")):
+        for key in ("masks", "voxels", "images"):
+            np.testing.assert_array_equal(objects[name][key], objects[reference][key], err_msg=f"{name} {key}")
+    seen = objects["mixed"]["images"][objects["mixed"]["masks"] > 0].astype(int)
+    assert (seen[:, 0] > 2 * seen[:, 2]).any() and (seen[:, 2] > 2 * seen[:, 0]).any()  # both halves drawn
+    from sc3d_data.io.meshes import MeshError, load_mesh
+
+    with pytest.raises(MeshError, match=r": 9 faces, more than the limit of 8 \(--max-faces\); not read$"):
+        load_mesh(meshes / "mixed" / "m.ply", max_faces=8)  # refused before its rows are split

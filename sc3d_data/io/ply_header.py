@@ -14,6 +14,8 @@ kept byte for byte, after the one line end that closes the header).
 
 A binary file whose list properties vary in length from row to row (faces of 3 and 4 corners) is
 given to the loader as ASCII PLY (``io.ply_binary_lists``): its binary reader assumes one length.
+An ASCII file (or such a conversion) whose polygons have per-face texture coordinates (MeshLab's
+``texcoord`` lists) is given to it with those polygons split into triangles (``io.ply_texcoords``).
 """
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ import re
 from pathlib import Path
 
 from sc3d_data.io.ply_binary_lists import ascii_ply
+from sc3d_data.io.ply_texcoords import textured_faces_as_triangles
 
 __all__ = ["loader_ply_bytes"]
 
@@ -43,11 +46,20 @@ def _renamed(header: bytes) -> bytes | None:
 
 def loader_ply_bytes(path: Path, max_faces: int | None = None) -> bytes | None:
     """PLY ``path``'s bytes with its ``diffuse_``-prefixed colour properties renamed and a header
-    of CR line ends given LF ones, a binary file whose lists vary in length as ASCII PLY (module
-    doc), or None to load the file as it is. ``ValueError`` where a binary file's data ends
-    before its rows do, or where one to convert has more faces than ``max_faces``."""
+    of CR line ends given LF ones, a binary file whose lists vary in length as ASCII PLY, textured
+    polygons as triangles (module doc), or None to load the file as it is. ``ValueError`` where a
+    binary file's data ends before its rows do, where one to convert or split has more faces than
+    ``max_faces``, or where a textured polygon's row cannot be read."""
     with open(path, "rb") as f:
         head = f.read(HEADER_BYTES)
+    text = _loader_text(path, head, max_faces)
+    if b"texcoord" in head[:head.find(b"end_header")]:  # (all of the file read only for such a header)
+        text = textured_faces_as_triangles(Path(path).read_bytes() if text is None else text, max_faces) or text
+    return text
+
+
+def _loader_text(path: Path, head: bytes, max_faces: int | None) -> bytes | None:
+    """:func:`loader_ply_bytes` but for textured polygons; ``head``: the file's first bytes."""
     end = head.find(b"end_header")
     if end == -1:
         return None
