@@ -209,3 +209,20 @@ def test_meshlab_polygons_with_per_face_texture_coordinates_draw_their_texture(t
 
     with pytest.raises(MeshError, match=r": 9 faces, more than the limit of 8 \(--max-faces\); not read$"):
         load_mesh(meshes / "mixed" / "m.ply", max_faces=8)  # refused before its rows are split
+
+
+def test_drawn_nodes_and_drawn_meshes_share_one_reading_of_a_malformed_scene():
+    """The errors that mark a malformed scene are one definition (``gltf_check.MALFORMED_SCENE``),
+    used by ``drawn_nodes(safe=True)`` (the loader's copy of the document) and ``drawn_meshes(safe=True)``
+    (the feature warnings): each returns nothing for such a document and raises without ``safe``;
+    a well-formed one reads the same either way."""
+    from sc3d_data.io.gltf_check import MALFORMED_SCENE, drawn_meshes, drawn_nodes
+
+    malformed = [{"scenes": [{"nodes": [5]}], "nodes": []}, {"nodes": [1]}, {"scenes": [{"nodes": [0]}], "nodes": [
+        {"children": 3}]}, {"scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0, "children": [7]}]}]
+    for doc in malformed:
+        assert drawn_nodes(doc, safe=True) == [] and drawn_meshes(doc, safe=True) == set(), doc
+        with pytest.raises(MALFORMED_SCENE):
+            drawn_nodes(doc)
+    good = {"scenes": [{"nodes": [0]}], "nodes": [{"children": [1]}, {"mesh": 0}]}
+    assert drawn_nodes(good, safe=True) == drawn_nodes(good) == [0, 1] and drawn_meshes(good, safe=True) == {0}

@@ -45,8 +45,8 @@ from sc3d_data.io.gltf_dequantize import dequantize_problems, quantized_accessor
 from sc3d_data.io.gltf_draco import draco_primitives, draco_problems
 from sc3d_data.io.gltf_skins import skin_problems, skinned_nodes
 
-__all__ = ["GLTF_SUFFIXES", "SKIPPED_SURFACE_MODES", "drawn_meshes", "drawn_nodes", "gltf_refusal", "judge_gltf",
-           "read_gltf"]
+__all__ = ["GLTF_SUFFIXES", "MALFORMED_SCENE", "SKIPPED_SURFACE_MODES", "drawn_meshes", "drawn_nodes", "gltf_refusal",
+           "judge_gltf", "read_gltf"]
 
 GLTF_SUFFIXES = (".gltf", ".glb")
 #: primitive modes that draw a surface but which the loader skips: ``{mode: name}``
@@ -56,6 +56,9 @@ SKIPPED_SURFACE_MODES = {6: "TRIANGLE_FAN"}
 SPARSE_JUDGED = ("POSITION", "TEXCOORD_0", "COLOR_0")
 #: primitive modes the loader reads as triangles (the default mode is TRIANGLES)
 TRIANGLE_MODES = (4, 5)
+#: what following a malformed document's scenes and nodes raises (a node that is no object, an
+#: index past the nodes, a ``children`` that is no list): ``drawn_nodes``/``drawn_meshes``' ``safe``
+MALFORMED_SCENE = (KeyError, IndexError, TypeError, AttributeError, RecursionError)
 _GLB_MAGIC, _JSON_CHUNK = b"glTF", b"JSON"
 
 
@@ -95,29 +98,34 @@ def scene_roots(doc: dict) -> list[int]:
     return [i for i in range(len(nodes)) if i not in children]
 
 
-def drawn_nodes(doc: dict) -> list[int]:
+def drawn_nodes(doc: dict, safe: bool = False) -> list[int]:
     """Indices of the nodes reachable from the root nodes the loader draws (:func:`scene_roots`),
-    in the order they are found."""
-    nodes = doc.get("nodes", [])
-    queue, seen, found = scene_roots(doc), set(), []
-    while queue:
-        i = queue.pop()
-        if i in seen:
-            continue
-        seen.add(i)
-        found.append(i)
-        queue.extend(nodes[i].get("children", []))
+    in the order they are found; ``safe``: none where the document's scenes or nodes cannot be
+    followed (:data:`MALFORMED_SCENE`; else the error is raised)."""
+    try:
+        nodes, queue, seen, found = doc.get("nodes", []), scene_roots(doc), set(), []
+        while queue:
+            i = queue.pop()
+            if i in seen:
+                continue
+            seen.add(i)
+            found.append(i)
+            queue.extend(nodes[i].get("children", []))
+    except MALFORMED_SCENE:
+        if safe:
+            return []
+        raise
     return found
 
 
 def drawn_meshes(doc: dict, safe: bool = False) -> set[int]:
     """Indices of the meshes of the nodes reachable from the root nodes the loader draws
     (:func:`scene_roots`); ``safe``: none where the document's scenes or nodes cannot be followed
-    (else the error is raised)."""
+    (:data:`MALFORMED_SCENE`; else the error is raised)."""
     nodes = doc.get("nodes", [])
     try:
         return {nodes[i]["mesh"] for i in drawn_nodes(doc) if "mesh" in nodes[i]}
-    except (KeyError, IndexError, TypeError, AttributeError, RecursionError):
+    except MALFORMED_SCENE:
         if safe:
             return set()
         raise

@@ -62,10 +62,7 @@ def loader_gltf_bytes(path: Path, doc: dict, resolver=None) -> bytes | None:
     material (white x colour: the colours as they are), nodes lose their ``camera``, skinned
     nodes are posed and quantized attributes stored as floats (module doc; buffer files read
     through ``resolver``, as the loader reads them); the binary chunk is kept as it is."""
-    try:
-        nodes = drawn_nodes(doc)
-    except (KeyError, IndexError, TypeError, AttributeError, RecursionError):
-        nodes = []  # a malformed scene: the loader reports it
+    nodes = drawn_nodes(doc, safe=True)  # none for a malformed scene: the loader reports it
     skinned = skinned_nodes(doc, nodes)
     quantized = quantized_accessors(doc)
     sceneless = not doc.get("scenes") and bool(doc.get("nodes"))
