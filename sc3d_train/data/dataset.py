@@ -182,6 +182,10 @@ def background_of(info: dict) -> list[int]:
 #: the ~4,400 objects of a 64 px dataset, so the 136 training objects of the bundled 195 meshes
 #: and single-category subsets up to that size
 CACHE_BYTES = 2 * 2**30
+#: the orders of a dataset's objects (``ShardDataset(order=)``): by category and model_id (the same
+#: for every shard layout of the same objects: one render, a merge of ``--part`` renders, a copy),
+#: or as the shard files and rows hold them (the order of runs started before 2026-11-29)
+OBJECT_ORDERS = ("category/model_id", "shards")
 
 
 def decoded_object_bytes(image_size: int, num_views: int, mask_size: int, voxel_resolution: int) -> int:
@@ -196,7 +200,8 @@ def decoded_object_bytes(image_size: int, num_views: int, mask_size: int, voxel_
 class ShardDataset(Dataset):
     """Views of the objects of one split; item ``i`` is view ``i % V`` of object ``i // V``.
 
-    ``subset``: ``"all"``, ``"labeled"`` or ``"unlabeled"`` with the labelled subset chosen by
+    ``order`` (:data:`OBJECT_ORDERS`): the order of :attr:`objects`, which the item indices and
+    so a loader's seeded shuffle follow. ``subset``: ``"all"``, ``"labeled"`` or ``"unlabeled"`` with the labelled subset chosen by
     :func:`choose_labeled` (``labeled_fraction``, ``seed``). ``require_voxels`` (training,
     evaluation) fails before any work when a shard has no ``voxels``. ``image_size``, when
     given, must match the shards (e.g. the size a checkpoint was trained at).
@@ -212,7 +217,10 @@ class ShardDataset(Dataset):
     def __init__(self, shard_dir: Path, split: str = "train", subset: str = "all",
                  labeled_fraction: float = 1.0, seed: int = 0, mask_size: int = MASK_SIZE,
                  require_voxels: bool = True, image_size: int | None = None,
-                 cache_objects: int | None = None, decoded_cache: Path | str | None = None):
+                 cache_objects: int | None = None, decoded_cache: Path | str | None = None,
+                 order: str = OBJECT_ORDERS[0]):
+        if order not in OBJECT_ORDERS:
+            raise ValueError(f"order must be one of {OBJECT_ORDERS}, got {order!r}")
         refs, info = scan_objects(shard_dir)
         self.shard_dir, self.split, self.subset = str(shard_dir), split, subset
         if require_voxels:
@@ -224,6 +232,8 @@ class ShardDataset(Dataset):
             raise DataError(f"{shard_dir}: images are {info['image_size']}x{info['image_size']} but "
                             f"the model expects {image_size}x{image_size}")
         in_split = [r for r in refs if r.split == split]
+        if order == "category/model_id":  # stable: objects of one name keep the shards' order
+            in_split.sort(key=lambda r: (r.category, r.model_id))
         if not in_split:
             splits = sorted({r.split for r in refs})
             raise DataError(f"{shard_dir}: split {split!r} is empty (splits present: {splits})")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from sc3d_train.loop.config_file import MODE_ONLY_OPTIONS, file_settings
 from sc3d_train.loop.run_folder import check_no_foreign_files, check_no_linked_files, check_path_names
-from sc3d_train.settings.config import RESUMABLE_FIELDS, TINY_MODEL, RunConfig
+from sc3d_train.settings.config import CONFIG_NAME, RESUMABLE_FIELDS, TINY_MODEL, RunConfig
 from sc3d_train.settings.config_io import defaults_of, load_yaml
 
 
@@ -24,7 +24,7 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     saved config, where ``options`` may change only :data:`~sc3d_train.settings.config.RESUMABLE_FIELDS` and
     ``model_options`` nothing."""
     from sc3d_train.loop.checkpoint import CheckpointError
-    from sc3d_train.data.dataset import DataError
+    from sc3d_train.data.dataset import OBJECT_ORDERS, DataError
 
     model_options = dict(model_options or {})
     tiny = model_options.pop("tiny", False)
@@ -58,7 +58,7 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
         model.update(TINY_MODEL)
     model.update(model_options, image_size=facts.pop("model.image_size"),
                  voxel_resolution=facts.pop("model.voxel_resolution"))
-    plain.update(model=model, **facts)
+    plain.update(model=model, object_order=OBJECT_ORDERS[0], **facts)
     return RunConfig.from_dict(plain)
 
 
@@ -218,9 +218,10 @@ def saved_config(out: Path) -> RunConfig:
         raise CheckpointError(f"{out}: nothing to resume (no {saved_path.name} and no checkpoint)")
     ckpt_file, ckpt = resume_checkpoint(out)
     cfg = checkpoint_config(ckpt_file, ckpt)
-    if os.environ.get("RANK", "0") == "0":  # one writer under torchrun
-        cfg.save(saved_path)
-        print(f"note: {saved_path} {problem}; the run's config is read from {ckpt_file} and written back")
+    if os.environ.get("RANK", "0") == "0":  # one writer under torchrun; config.yaml, never over a legacy file
+        cfg.save(Path(out) / CONFIG_NAME)
+        written = "written back" if saved_path.name == CONFIG_NAME else f"written to {CONFIG_NAME}"
+        print(f"note: {saved_path} {problem}; the run's config is read from {ckpt_file} and {written}")
     return cfg
 
 

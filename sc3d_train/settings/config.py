@@ -16,6 +16,7 @@ once with its check; split up, a setting's default and its check would live apar
 """
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
@@ -265,6 +266,10 @@ class RunConfig(_Plain):
                                              cli=False)
     view_setup: str | None = setting(None, "How the shards' views were rendered: elevations, up and front axes, "
                                      "normalisation, shading (--resume refuses shards rendered otherwise).", cli=False)
+    object_order: str | None = setting(None, "The order of the objects that the seeded shuffles follow: "
+                                       "category/model_id (runs started since 2026-11-29: the same for every shard "
+                                       "layout of the same objects) or, None, the shard files' order (runs started "
+                                       "before, kept so that they resume exactly).", cli=False)
 
     def __post_init__(self):
         check_choices(self)
@@ -332,10 +337,17 @@ class RunConfig(_Plain):
     @staticmethod
     def path_in(run_dir: Path) -> Path:
         """The config file of run folder ``run_dir`` (``config.json`` for runs of earlier
-        versions that have no ``config.yaml``)."""
+        versions that have no ``config.yaml``: a JSON object naming ``shards`` and ``model``,
+        not another file of that name, e.g. ``predict``'s record of an image ``config.png``)."""
         run_dir = Path(run_dir)
         legacy = run_dir / LEGACY_CONFIG_NAME
-        return legacy if legacy.is_file() and not (run_dir / CONFIG_NAME).is_file() else run_dir / CONFIG_NAME
+        if (run_dir / CONFIG_NAME).is_file() or not legacy.is_file():
+            return run_dir / CONFIG_NAME
+        try:
+            plain = json.loads(legacy.read_bytes()[:1 << 20])
+        except ValueError:  # not JSON (or cut short), or not UTF-8: no run's config
+            return run_dir / CONFIG_NAME
+        return legacy if isinstance(plain, dict) and {"shards", "model"} <= plain.keys() else run_dir / CONFIG_NAME
 
     def differences(self, other: "RunConfig", ignore=RESUMABLE_FIELDS) -> list[str]:
         """Names and values of the fields that differ, other than ``ignore``."""

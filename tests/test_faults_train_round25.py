@@ -1,0 +1,108 @@
+"""Training-half defects of the twenty-fifth attack: a run resumed on another shard layout of the
+same objects trained in another order without a word, and ``--resume`` wrote the run's config over
+a ``config.json`` that was a prediction's record. Real renderer, real HDF5, a real tiny model; the
+expected values come from a second, uninterrupted or unmoved run, never from the code under test."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+import torch
+
+from sc3d_cli.data import main as data_main
+from sc3d_cli.train import main as train_main
+from conftest import SAMPLE_MESHES, run_cli
+
+FAST = ["--views", "4", "--no-progress", "--workers", "1", "--voxelize"]
+TINY_FIT = ["--tiny", "--batch-size", "4", "--val-every", "0", "--no-progress", "--device", "cpu"]
+
+
+def _weights(run):
+    from sc3d_train.loop.checkpoint import load_checkpoint
+
+    return load_checkpoint(run / "checkpoints" / "last.pt")["model"]
+
+
+@pytest.fixture(scope="module")
+def one_and_merged(tmp_path_factory):
+    """Two folders of the sample meshes (4 views, voxels): one render, and a merge of two
+    ``--part`` renders (the same objects and splits, in two shards of another order)."""
+    tmp_path = tmp_path_factory.mktemp("layouts")
+    one, merged = tmp_path / "S", tmp_path / "SM"
+    run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", one, *FAST])
+    parts = [tmp_path / f"p{i}" for i in range(2)]
+    for i, part in enumerate(parts):
+        run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", part, "--part", f"{i}/2", *FAST])
+    run_cli(data_main, ["merge", merged, *parts])
+    return one, merged
+
+
+def _train_rows(shards) -> list[tuple[str, str]]:
+    """``(category, model_id)`` of the training objects, in the shard files' order as h5py reads them."""
+    import h5py
+
+    rows = []
+    for shard in json.loads((shards / "index.json").read_text())["shards"]:
+        with h5py.File(shards / shard["file"], "r") as f:
+            rows += [(c.decode(), m.decode()) for c, m, s in zip(f["category"][:], f["model_id"][:], f["split"][:])
+                     if s.decode() == "train"]
+    return rows
+
+
+def test_a_run_resumed_on_a_merge_of_its_shards_continues_as_on_its_own(one_and_merged, tmp_path):
+    """``fit --resume --shards COPY`` (docs/training.md: shards that moved) accepts a merge of two
+    ``--part`` renders of the same objects (the check compares the sorted object names), but the
+    run followed the shards' order of objects, which the merge changes: its resumed steps differed
+    from those resumed on the run's own shards (total loss 6.8643 against 6.5285), exit 0. Runs
+    now order their objects by category and model id, so both resumed runs must end with equal
+    weights. The control: the two folders do hold the objects in different orders."""
+    one, merged = one_and_merged
+    assert _train_rows(one) != _train_rows(merged) and sorted(_train_rows(one)) == sorted(_train_rows(merged))
+    run = tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", one, "--out", run, "--steps", 2, *TINY_FIT])
+    assert "object_order: category/model_id" in (run / "config.yaml").read_text()
+    shutil.copytree(run, tmp_path / "moved")
+    run_cli(train_main, ["fit", "--resume", "--out", run, "--steps", 4, "--no-progress"])
+    run_cli(train_main, ["fit", "--resume", "--out", tmp_path / "moved", "--steps", 4, "--no-progress",
+                         "--shards", merged])
+    a, b = _weights(run), _weights(tmp_path / "moved")
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_a_run_of_an_earlier_version_keeps_the_shards_order(one_and_merged):
+    """A run whose config predates ``object_order`` (None) trained in the shards' order: its
+    datasets must keep that order, so that it resumes exactly; a new run's follow category and
+    model id. Expected orders: the shards' rows as h5py reads them, and that list sorted."""
+    from sc3d_train.loop.streams import phase_dataset
+    from sc3d_train.settings.config import RunConfig
+
+    merged = one_and_merged[1]
+    rows = _train_rows(merged)
+    assert rows != sorted(rows)  # the control: the merge holds its objects unsorted
+    for order, expected in ((None, rows), ("category/model_id", sorted(rows))):
+        cfg = RunConfig(shards=str(merged), out="unused", object_order=order)
+        dataset = phase_dataset(cfg, "all")
+        assert [(r.category, r.model_id) for r in dataset.objects] == expected, order
+        dataset.close()
+
+
+def test_resume_writes_the_config_it_restores_beside_a_prediction_named_config(tmp_path, sample_shards):
+    """``predict --out RUN config.png`` writes ``RUN/config.json``, its record of the image. With
+    ``config.yaml`` missing, ``--resume`` took that record for an earlier version's run config,
+    said it "does not load" and wrote the run's YAML over it, exit 0: the record was lost. The
+    record must be left as it was, the config restored from the checkpoint into ``config.yaml``;
+    an earlier version's real ``config.json`` is still read (control)."""
+    from PIL import Image
+
+    run = tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, "--steps", 2, *TINY_FIT])
+    Image.new("RGB", (64, 64), "white").save(tmp_path / "config.png")
+    run_cli(train_main, ["predict", "--checkpoint", run, "--out", run, tmp_path / "config.png", "--device", "cpu"])
+    record = (run / "config.json").read_bytes()
+    assert "azimuth_deg" in json.loads(record)
+    (run / "config.yaml").unlink()
+    res = run_cli(train_main, ["fit", "--resume", "--out", run, "--steps", 3, "--no-progress"])
+    assert (run / "config.json").read_bytes() == record
+    assert "config.yaml is missing" in res.output and "does not load" not in res.output, res.output
+    assert "steps: 3" in (run / "config.yaml").read_text()
