@@ -96,3 +96,34 @@ def test_instances_that_cannot_be_read_are_refused_naming_the_node(tmp_path):
                                 "numbers of instances (2, 3); not read")
     assert ("node 0's EXT_mesh_gpu_instancing cannot be applied: it is also skinned, which EXT_mesh_gpu_instancing "
             "does not define") in reasons["skinned"]
+
+
+def test_a_glb_binary_chunk_is_read_once_by_the_judges_and_the_loader(tmp_path, monkeypatch):
+    """A GLB drawing instances (with quantized rotations) is judged by a judge that reads its data
+    (instancing; those of skins, quantized and Draco attributes read it too), its embedded images
+    are looked for, and its document is copied for the loader: each read the ``BIN`` chunk again
+    (three reads of one file). It must be read once (a spy
+    counts ``read_gltf(binary=True)`` in every module that reads it), and the GLB must still load the
+    triangles of its ``.gltf`` twin (three cubes: 36)."""
+    import sc3d_data.io.gltf_check as gltf_check
+    import sc3d_data.io.gltf_loader_doc as gltf_loader_doc
+    import sc3d_data.io.materials as materials
+    from sc3d_data.io.meshes import load_mesh
+    from test_gltf_primitives import _write_glb_document
+
+    doc, buf = _document(instanced=True, rotations_as_shorts=True)
+    buf += b"\0" * (-len(buf) % 4)
+    doc["buffers"] = [{"byteLength": len(buf)}]
+    _write_glb_document(tmp_path / "instanced.glb", doc, buf)
+    _write(tmp_path / "twin.gltf", *_document(instanced=True, rotations_as_shorts=True))
+    reads, real = [], gltf_check.read_gltf
+
+    def counted(path, binary=False):
+        reads.append(binary)
+        return real(path, binary)
+
+    for module in (gltf_check, gltf_loader_doc, materials):
+        monkeypatch.setattr(module, "read_gltf", counted, raising=False)
+    glb_faces = load_mesh(tmp_path / "instanced.glb")[2]
+    assert reads.count(True) == 1, reads
+    assert len(glb_faces) == len(load_mesh(tmp_path / "twin.gltf")[2]) == 36

@@ -33,9 +33,11 @@ otherwise (its scenes, nodes, materials) is left for the loader.
 """
 from __future__ import annotations
 
+import functools
 import importlib.util
 import json
 import struct
+from dataclasses import dataclass
 from pathlib import Path
 
 from sc3d_data.io.gltf_accessors import layout_problems
@@ -45,7 +47,7 @@ from sc3d_data.io.gltf_dequantize import dequantize_problems, quantized_accessor
 from sc3d_data.io.gltf_draco import draco_primitives, draco_problems
 from sc3d_data.io.gltf_skins import skin_problems, skinned_nodes
 
-__all__ = ["GLTF_SUFFIXES", "MALFORMED_SCENE", "SKIPPED_SURFACE_MODES", "drawn_meshes", "drawn_nodes", "gltf_refusal",
+__all__ = ["GLTF_SUFFIXES", "GltfFile", "MALFORMED_SCENE", "SKIPPED_SURFACE_MODES", "drawn_meshes", "drawn_nodes", "gltf_refusal",
            "judge_gltf", "read_gltf"]
 
 GLTF_SUFFIXES = (".gltf", ".glb")
@@ -86,6 +88,33 @@ def read_gltf(path: Path, binary: bool = False) -> tuple[dict, bytes | None]:
         return doc, f.read(struct.unpack_from("<I", chunk, 0)[0])
 
 
+@dataclass
+class GltfFile:
+    """A glTF/GLB file's JSON document and its binary chunk (:attr:`binary`), which is read on its
+    first use and kept: the judges that read data (skins, quantized attributes, Draco, instancing)
+    and the loader's copy of the document (``io.gltf_loader_doc``) share one read."""
+
+    path: Path
+    doc: dict
+
+    @functools.cached_property
+    def binary(self) -> bytes | None:
+        """A GLB's ``BIN`` chunk (None for a ``.gltf``, or a GLB without one)."""
+        return read_gltf(self.path, binary=True)[1] if Path(self.path).suffix.lower() == ".glb" else None
+
+
+def _parents(doc: dict) -> dict[int, list[int]]:
+    """``{node: [the nodes that list it among their children]}``; a malformed ``children`` (no
+    list, or no index) is passed over: the loader reports it."""
+    parents: dict[int, list[int]] = {}
+    for i, node in enumerate(doc.get("nodes", [])):
+        if isinstance(node, dict) and isinstance(node.get("children"), list):
+            for c in node["children"]:
+                if isinstance(c, int):
+                    parents.setdefault(c, []).append(i)
+    return parents
+
+
 def scene_roots(doc: dict) -> list[int]:
     """The root nodes of the scene the loader draws: the nodes of ``scene`` (else scene 0); in a
     document without ``scenes`` (glTF calls it a library), every node that is no node's child, as
@@ -93,8 +122,7 @@ def scene_roots(doc: dict) -> list[int]:
     nodes, scenes = doc.get("nodes", []), doc.get("scenes")
     if scenes:
         return list(scenes[doc.get("scene", 0)].get("nodes", []))
-    children = {c for node in nodes if isinstance(node, dict) and isinstance(node.get("children"), list)
-                for c in node["children"] if isinstance(c, int)}  # malformed children: the loader reports them
+    children = _parents(doc)
     return [i for i in range(len(nodes)) if i not in children]
 
 
@@ -135,10 +163,7 @@ def shared_children(doc: dict) -> list[str]:
     """The nodes of the drawn scene that are children of several nodes, or a root of the scene and
     a child (glTF 2.0 allows one parent: the loader draws such a node once, where other readers,
     the draco project's among them, draw it once per parent), one phrase each."""
-    parents: dict[int, list[int]] = {}
-    for i, node in enumerate(doc.get("nodes", [])):
-        for c in node.get("children", []) if isinstance(node, dict) and isinstance(node.get("children"), list) else []:
-            parents.setdefault(c, []).append(i)
+    parents = _parents(doc)
     roots = set(scene_roots(doc)) if doc.get("scenes") else set()
     problems = []
     for i in drawn_nodes(doc):
@@ -177,40 +202,35 @@ def gltf_problems(doc: dict) -> list[str]:
     return problems
 
 
-def _skin_problems(path: Path, doc: dict, resolver=None) -> list[str]:
+# The judges that read the file's data, each only where the drawn scene has what it judges; the
+# binary chunk is read by the first that needs it (``GltfFile.binary``) and kept for the others.
+def _skin_problems(gltf: GltfFile, resolver=None) -> list[str]:
     """The skinned nodes of the drawn scene whose skin cannot be applied (``gltf_skins``; buffer
-    files read through ``resolver``); a GLB's BIN chunk is read only where there are skinned nodes."""
-    nodes = drawn_nodes(doc)
-    if not skinned_nodes(doc, nodes):
-        return []
-    return skin_problems(path, doc, read_gltf(path, binary=True)[1], nodes, resolver)
+    files read through ``resolver``)."""
+    nodes = drawn_nodes(gltf.doc)
+    return skin_problems(gltf.path, gltf.doc, gltf.binary, nodes, resolver) if skinned_nodes(gltf.doc, nodes) else []
 
 
-def _instancing_problems(path: Path, doc: dict, resolver=None) -> list[str]:
-    """The instanced nodes of the drawn scene whose instances cannot be read (``gltf_instancing``);
-    a GLB's BIN chunk is read only where there are such nodes."""
-    nodes = drawn_nodes(doc)
-    if not instanced_nodes(doc, nodes):
-        return []
-    return instancing_problems(path, doc, read_gltf(path, binary=True)[1], nodes, resolver)
+def _instancing_problems(gltf: GltfFile, resolver=None) -> list[str]:
+    """The instanced nodes of the drawn scene whose instances cannot be read (``gltf_instancing``)."""
+    nodes = drawn_nodes(gltf.doc)
+    return instancing_problems(gltf.path, gltf.doc, gltf.binary, nodes, resolver) \
+        if instanced_nodes(gltf.doc, nodes) else []
 
 
-def _dequantize_problems(path: Path, doc: dict, resolver=None) -> list[str]:
+def _dequantize_problems(gltf: GltfFile, resolver=None) -> list[str]:
     """The quantized accessors the loader's copy would store as floats (``gltf_dequantize``) that
-    cannot be read; a GLB's BIN chunk is read only where there are such accessors."""
-    if not quantized_accessors(doc):
-        return []
-    return dequantize_problems(path, doc, read_gltf(path, binary=True)[1], resolver)
+    cannot be read."""
+    return dequantize_problems(gltf.path, gltf.doc, gltf.binary, resolver) if quantized_accessors(gltf.doc) else []
 
 
-def _draco_problems(path: Path, doc: dict, resolver=None) -> list[str]:
+def _draco_problems(gltf: GltfFile, resolver=None) -> list[str]:
     """The Draco primitives of the drawn meshes whose data does not decode (``gltf_draco``; where
-    ``DracoPy`` is missing the file is refused by ``gltf_features`` already); a GLB's BIN chunk is
-    read only where there are such primitives."""
-    drawn = drawn_meshes(doc)
-    if not draco_primitives(doc, drawn) or importlib.util.find_spec("DracoPy") is None:
+    ``DracoPy`` is missing the file is refused by ``gltf_features`` already)."""
+    drawn = drawn_meshes(gltf.doc)
+    if not draco_primitives(gltf.doc, drawn) or importlib.util.find_spec("DracoPy") is None:
         return []
-    return draco_problems(path, doc, read_gltf(path, binary=True)[1], drawn, resolver)
+    return draco_problems(gltf.path, gltf.doc, gltf.binary, drawn, resolver)
 
 
 def gltf_refusal(path: Path, shown: int = 3) -> str | None:
@@ -222,10 +242,11 @@ def gltf_refusal(path: Path, shown: int = 3) -> str | None:
     return judge_gltf(path, shown)[1]
 
 
-def judge_gltf(path: Path, shown: int = 3, resolver=None) -> tuple[dict | None, str | None]:
-    """``(document, refusal)`` of ``path``: its JSON document (None for another format, or a
+def judge_gltf(path: Path, shown: int = 3, resolver=None) -> tuple[GltfFile | None, str | None]:
+    """``(file, refusal)`` of ``path``: its :class:`GltfFile` (None for another format, or a
     file that could not be read as one) and :func:`gltf_refusal`'s line, so that the loader
-    reads the document once for the refusal and for what it applies after loading; ``resolver``
+    reads the document (and a GLB's binary chunk) once for the refusal and for what it applies
+    before and after loading; ``resolver``
     (``io.texture_resolver.make_resolver``) reads the buffer files skins are computed from, as
     the loader reads them (None: beside ``path`` only)."""
     path = Path(path)
@@ -248,17 +269,18 @@ def judge_gltf(path: Path, shown: int = 3, resolver=None) -> tuple[dict | None, 
     if isinstance(version, str) and version.split(".")[0].strip() not in ("2", ""):  # "2", "2.0", "2.1" are read
         return None, (f"{path}: a glTF {version} document: sc3d reads glTF 2.0 (convert the file, e.g. "
                       "with Blender or gltf-pipeline); not read")
+    gltf = GltfFile(path, doc)
     problems = []  # each judge alone: what one cannot follow (a node that is no object) hides nothing of the other
     for judge, args in ((layout_problems, (path, doc)), (gltf_problems, (doc,)),
-                        (lambda d: feature_problems(d, drawn_meshes(d)), (doc,)), (_skin_problems, (path, doc, resolver)),
-                        (_dequantize_problems, (path, doc, resolver)), (_draco_problems, (path, doc, resolver)),
-                        (_instancing_problems, (path, doc, resolver))):
+                        (lambda d: feature_problems(d, drawn_meshes(d)), (doc,)), (_skin_problems, (gltf, resolver)),
+                        (_dequantize_problems, (gltf, resolver)), (_draco_problems, (gltf, resolver)),
+                        (_instancing_problems, (gltf, resolver))):
         try:
             problems += judge(*args)
         except (KeyError, IndexError, TypeError, AttributeError, ValueError, RecursionError, OSError,
                 struct.error):
             pass  # a malformed document: the loader reports it
     if not problems:
-        return doc, None
+        return gltf, None
     more = f"; and {len(problems) - shown} more like these" if len(problems) > shown else ""
-    return doc, f"{path}: {'; '.join(problems[:shown])}{more}; not read"
+    return gltf, f"{path}: {'; '.join(problems[:shown])}{more}; not read"

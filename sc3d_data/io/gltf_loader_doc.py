@@ -31,7 +31,7 @@ import json
 import struct
 from pathlib import Path
 
-from sc3d_data.io.gltf_check import drawn_nodes, read_gltf, scene_roots
+from sc3d_data.io.gltf_check import GltfFile, drawn_nodes, scene_roots
 from sc3d_data.io.gltf_dequantize import dequantize, quantized_accessors
 from sc3d_data.io.gltf_instancing import apply_instancing, instanced_nodes
 from sc3d_data.io.gltf_skins import apply_skins, skinned_nodes
@@ -53,8 +53,9 @@ def _camera_nodes(doc: dict) -> list[dict]:
     return [node for node in doc.get("nodes", []) if isinstance(node, dict) and "camera" in node]
 
 
-def loader_gltf_bytes(path: Path, doc: dict, resolver=None) -> bytes | None:
-    """The glTF/GLB to give the loader in place of ``path`` (JSON ``doc``), or None for the file as
+def loader_gltf_bytes(gltf: GltfFile, resolver=None) -> bytes | None:
+    """The glTF/GLB to give the loader in place of file ``gltf`` (``io.gltf_check.GltfFile``:
+    its path, JSON document and binary chunk, read once), or None for the file as
     it is. trimesh turns the vertex colours of a primitive without a material into bytes by
     casting, not scaling, so unsigned shorts wrap (65535 -> 255, 32768 -> 0: Blender's vertex
     paint in wrong colours); with a material it keeps them as stored, and the renderer scales
@@ -62,6 +63,7 @@ def loader_gltf_bytes(path: Path, doc: dict, resolver=None) -> bytes | None:
     material (white x colour: the colours as they are), nodes lose their ``camera``, skinned
     nodes are posed and quantized attributes stored as floats (module doc; buffer files read
     through ``resolver``, as the loader reads them); the binary chunk is kept as it is."""
+    path, doc = gltf.path, gltf.doc
     nodes = drawn_nodes(doc, safe=True)  # none for a malformed scene: the loader reports it
     skinned = skinned_nodes(doc, nodes)
     quantized = quantized_accessors(doc)
@@ -72,7 +74,7 @@ def loader_gltf_bytes(path: Path, doc: dict, resolver=None) -> bytes | None:
     doc = copy.deepcopy(doc)
     if sceneless:  # the loader draws no node of a document without scenes: its root nodes, as Blender
         doc.update(scenes=[{"nodes": scene_roots(doc)}], scene=0)
-    binary = read_gltf(path, binary=True)[1] if Path(path).suffix.lower() == ".glb" else None
+    binary = gltf.binary
     if instanced:
         apply_instancing(path, doc, binary, nodes, resolver)
     if skinned:

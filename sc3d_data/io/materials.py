@@ -29,7 +29,7 @@ import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sc3d_data.io.gltf_check import read_gltf
+from sc3d_data.io.gltf_check import GltfFile, read_gltf
 from sc3d_data.io.lfs_pointers import MAX_POINTER_BYTES, file_lfs_pointer, lfs_pointer
 from sc3d_data.io.names import printable
 from sc3d_data.io.mtl_text import TextureMove, mtl_materials, read_obj_text
@@ -243,11 +243,14 @@ def named_files(path: Path, root: Path | None = None) -> list[Path]:
     return sorted({Path(os.path.abspath(ref)) for _, ref in refs if _inside(ref, top)})
 
 
-def material_report(path: Path, root: Path | None = None, outside: str = "warn") -> MaterialReport:
+def material_report(path: Path, root: Path | None = None, outside: str = "warn",
+                    gltf: GltfFile | None = None) -> MaterialReport:
     """The materials of mesh ``path`` (module doc), judged against :func:`texture_root`: files outside
     the root are decided on from their paths, before any is opened (``outside="refuse"``: a
     ``ValueError`` lists them; else ``report.outside``, never opened); the textures inside that are
-    missing or undecodable go to ``report.problems``, the others to ``report.textures``."""
+    missing or undecodable go to ``report.problems``, the others to ``report.textures``. ``gltf``:
+    a glTF/GLB ``path`` as ``io.gltf_check.judge_gltf`` read it (else it is read here); a GLB's
+    binary chunk is read only where an image lies in it."""
     path = real_file(path)
     top = texture_root(path, root)
     report = MaterialReport()
@@ -256,7 +259,9 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn")
         if suffix == ".obj":
             refs, embedded = _obj_refs(path, top, report), []
         elif suffix in (".glb", ".gltf"):
-            refs, embedded = _gltf_refs(path, *read_gltf(path, binary=True))  # not glTF: ValueError, as above
+            gltf = gltf if gltf is not None else GltfFile(path, read_gltf(path)[0])  # not glTF: ValueError, as above
+            in_binary = any(isinstance(im, dict) and "bufferView" in im for im in gltf.doc.get("images", []))
+            refs, embedded = _gltf_refs(path, gltf.doc, gltf.binary if in_binary else None)
         else:
             return report
     except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):

@@ -214,17 +214,18 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     check_mesh_file(path, max_file_bytes)
     # glTF/GLB only: not a glTF document, or unread geometry; skins' buffer files read as the loader reads files
     skin_files = make_resolver(path, root) if path.suffix.lower() in (".gltf", ".glb") else None
-    gltf_doc, refusal = judge_gltf(path, resolver=skin_files)
+    gltf, refusal = judge_gltf(path, resolver=skin_files)
+    gltf_doc = gltf.doc if gltf is not None else None
     if refusal is not None:
         raise MeshError(refusal)
     try:
-        report = material_report(path, root, outside_textures)
+        report = material_report(path, root, outside_textures, gltf)
     except ValueError as e:
         raise MeshError(f"{path}: {e} (refused by --outside-textures refuse)") from e
     if report.problems and bad_texture == "fail":
         raise MeshError(f"{path}: {'; '.join(report.problems)} (use --bad-texture fallback to render with "
                         "material colours)")
-    text = None if gltf_doc is None else loader_gltf_bytes(path, gltf_doc, skin_files)  # the text the loader reads right:
+    text = None if gltf_doc is None else loader_gltf_bytes(gltf, skin_files)  # the text the loader reads right:
     try:
         text = {".ply": lambda p: loader_ply_bytes(p, max_faces), ".off": loader_off_bytes,
                 ".stl": loader_stl_bytes}.get(path.suffix.lower(), lambda _: text)(path)
