@@ -1,7 +1,7 @@
 """glTF features trimesh ignores. Required extensions it cannot decode (Draco without DracoPy,
 meshopt) and base colour textures read through ``texCoord`` 1 are refused in one line; a
-``KHR_texture_transform`` is applied after loading where its material has a name of its own, and
-refused where it has not. Before: a Draco GLB printed two stderr lines naming no file and then
+``KHR_texture_transform`` is applied after loading (its material named in the loader's copy of
+the document where it has no name of its own, as gltfpack writes them). Before: a Draco GLB printed two stderr lines naming no file and then
 failed as "zero surface area", blaming the mesh; a texture meant for TEXCOORD_1, or moved by a
 transform, was drawn from TEXCOORD_0 unmoved (the wrong half of the image), with no warning. Real
 files built here (the cube writers of test_gltf_primitives), the real loader, renderer and command."""
@@ -42,19 +42,12 @@ def _refusal(tmp_path: Path, edit) -> str | None:
 @pytest.mark.parametrize("edit, problem", [
     (lambda d: _textured(d, texCoord=1),
      "material 0's base colour texture reads TEXCOORD_1, but the loader maps every texture with TEXCOORD_0"),
-    (lambda d: _textured(d, extensions={"KHR_texture_transform": {"offset": [0.5, 0]}}),  # a material of no name
-     "material 0's base colour texture has a KHR_texture_transform, which the loader does not apply, and the "
-     "material has no name of its own by which it could be applied after"),
-    (lambda d: (_textured(d, extensions={"KHR_texture_transform": {"offset": [0.5, 0]}}),
-                d["materials"].append({"name": "same"}), d["materials"][0].update(name="same")),
-     "material 0's base colour texture has a KHR_texture_transform, which the loader does not apply, and the "
-     "material has no name of its own by which it could be applied after"),
     (lambda d: _textured(d, extensions={"KHR_texture_transform": {"texCoord": 1}}),
      "material 0's base colour texture has a KHR_texture_transform to TEXCOORD_1, but the loader maps every "
      "texture with TEXCOORD_0"),
     (lambda d: d.update(extensionsRequired=["EXT_meshopt_compression"]),
      "it requires EXT_meshopt_compression (meshoptimizer compression), which the loader cannot decode"),
-], ids=["texCoord-1", "transform-unnamed", "transform-name-shared", "transform-texCoord", "meshopt"])
+], ids=["texCoord-1", "transform-texCoord", "meshopt"])
 def test_ignored_features_are_named(tmp_path, edit, problem):
     assert _refusal(tmp_path, edit) == f"{tmp_path / 'cube.gltf'}: {problem}; not read"
 
@@ -73,9 +66,13 @@ def _drawn_untextured_copy(doc: dict) -> None:
     lambda d: _textured(d, extensions={"KHR_texture_transform": {"offset": [0, 0], "scale": [1, 1], "rotation": 0}}),
     lambda d: (_textured(d, extensions={"KHR_texture_transform": {"offset": [0.5, 0]}}),  # applied after loading
                d["materials"][0].update(name="fabric")),
+    lambda d: _textured(d, extensions={"KHR_texture_transform": {"offset": [0.5, 0]}}),  # named for the loader
+    lambda d: (_textured(d, extensions={"KHR_texture_transform": {"offset": [0.5, 0]}}),
+               d["materials"].append({"name": "same"}), d["materials"][0].update(name="same")),
     lambda d: d.update(extensionsRequired=["KHR_mesh_quantization"]),  # the loader reads quantized data
     lambda d: (_textured(d, texCoord=1), _drawn_untextured_copy(d)),  # the textured mesh is not drawn
-], ids=["texCoord-0", "identity-transform", "named-transform", "quantization", "not-drawn"])
+], ids=["texCoord-0", "identity-transform", "named-transform", "unnamed-transform", "name-shared-transform",
+        "quantization", "not-drawn"])
 def test_what_the_loader_reads_as_written_passes(tmp_path, edit):
     assert _refusal(tmp_path, edit) is None
 
@@ -150,16 +147,32 @@ def _half_red_half_green_cube(path: Path, material: dict) -> None:
 
 
 def test_a_texture_transform_moves_the_texture_as_the_file_says(tmp_path):
-    """The same cube twice: without a transform it is red (its texture point is in the red
-    half); with the offset (0.5, 0) it is green (before: red, the transform ignored)."""
+    """The same cube: without a transform it is red (its texture point is in the red half); with
+    the offset (0.5, 0) it is green (before: red, the transform ignored), whether its material has
+    a name of its own, none (as gltfpack writes them; before: refused), or one another material
+    has too (before: refused). The other material of that name, drawn by a second cube without a
+    transform, stays red (a transform applied by a shared name would move it as well)."""
     folder = tmp_path / "m" / "box"
     folder.mkdir(parents=True)
     texture = {"index": 0}
+    moved = {"baseColorTexture": {**texture, "extensions": {"KHR_texture_transform": {"offset": [0.5, 0]}}},
+             "metallicFactor": 0}
     _half_red_half_green_cube(folder / "plain.gltf", {"name": "plain", "pbrMetallicRoughness": {
         "baseColorTexture": texture, "metallicFactor": 0}})
-    _half_red_half_green_cube(folder / "moved.gltf", {"name": "moved", "pbrMetallicRoughness": {
-        "baseColorTexture": {**texture, "extensions": {"KHR_texture_transform": {"offset": [0.5, 0]}}},
-        "metallicFactor": 0}})
+    _half_red_half_green_cube(folder / "moved.gltf", {"name": "moved", "pbrMetallicRoughness": moved})
+    _half_red_half_green_cube(folder / "unnamed.gltf", {"pbrMetallicRoughness": moved})
+    for name, drawn in (("shared_moved", 0), ("shared_plain", 1)):
+        def shared(doc, drawn=drawn):
+            doc["materials"] = [{"name": "same", "pbrMetallicRoughness": moved},
+                                {"name": "same", "pbrMetallicRoughness": {"baseColorTexture": texture,
+                                                                          "metallicFactor": 0}}]
+            doc["meshes"].append({"primitives": [{**doc["meshes"][0]["primitives"][0], "material": 1}]})
+            doc["nodes"].append({"mesh": 1})
+            doc["scenes"][0]["nodes"] = [drawn]  # node 0 draws the moved material, node 1 the other
+        _half_red_half_green_cube(folder / f"{name}.gltf", {})
+        doc = json.loads((folder / f"{name}.gltf").read_text())
+        shared(doc)
+        (folder / f"{name}.gltf").write_text(json.dumps(doc))
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
     assert index_of(out)["failures"] == []
@@ -168,4 +181,5 @@ def test_a_texture_transform_moves_the_texture_as_the_file_says(tmp_path):
         pixels = obj["images"][obj["masks"] > 0].astype(int)
         colour[name[1]] = "red" if (pixels[:, 0] > pixels[:, 1] + 50).all() else \
             "green" if (pixels[:, 1] > pixels[:, 0] + 50).all() else "mixed"
-    assert colour == {"plain": "red", "moved": "green"}
+    assert colour == {"plain": "red", "moved": "green", "unnamed": "green", "shared_moved": "green",
+                      "shared_plain": "red"}

@@ -42,7 +42,7 @@ import numpy as np
 
 __all__ = ["READ_OR_MOOT", "UNDECODED", "apply_texture_transforms", "feature_problems", "feature_warnings",
            "read_spec_gloss_as_matte", "textured",
-           "transform_matrix"]
+           "transform_matrix", "transform_names"]
 
 #: required extensions the loader cannot decode: ``{name: what it is}``
 UNDECODED = {"KHR_draco_mesh_compression": "Draco mesh compression",
@@ -119,10 +119,24 @@ def _transforms(doc: dict) -> dict[int, dict]:
     return found
 
 
-def _named_once(doc: dict, i: int) -> bool:
-    """Whether material ``i`` has a name no other material of ``doc`` has."""
-    names = [m.get("name") for m in doc.get("materials", [])]
-    return isinstance(names[i], str) and names[i] != "" and names.count(names[i]) == 1
+def transform_names(doc: dict) -> dict[int, str]:
+    """``{material index: the name by which its loaded geometries are found}`` of the materials
+    whose base colour texture a ``KHR_texture_transform`` moves (through ``TEXCOORD_0``): the
+    material's own name where no other material has it, else ``sc3d: material I (texture
+    transform)``, which ``io.gltf_loader_doc`` gives the loader's copy of the document (gltfpack
+    leaves its materials unnamed)."""
+    materials = doc.get("materials", [])
+    names = [m.get("name") if isinstance(m, dict) else None for m in materials]
+    found = {}
+    for i, transform in _transforms(doc).items():
+        if transform.get("texCoord", 0) != 0:
+            continue
+        own = names[i]
+        name = own if isinstance(own, str) and own != "" and names.count(own) == 1 else f"sc3d: material {i} (texture transform)"
+        while name != own and name in names:  # a name some material of the file has already
+            name += "'"
+        found[i] = name
+    return found
 
 
 def apply_texture_transforms(scene, doc: dict) -> None:
@@ -130,8 +144,8 @@ def apply_texture_transforms(scene, doc: dict) -> None:
     ``doc``) whose material is one with a ``KHR_texture_transform`` (module doc), found by its
     name. trimesh keeps ``uv`` with v up (``1 - v`` of glTF's), so the transform is applied in
     glTF's frame between two flips."""
-    by_name = {doc["materials"][i]["name"]: transform_matrix(t) for i, t in _transforms(doc).items()
-               if _named_once(doc, i) and t.get("texCoord", 0) == 0}
+    transforms = _transforms(doc)
+    by_name = {name: transform_matrix(transforms[i]) for i, name in transform_names(doc).items()}
     for geometry in scene.geometry.values():
         visual = getattr(geometry, "visual", None)
         name = getattr(getattr(visual, "material", None), "name", None)
@@ -222,7 +236,4 @@ def feature_problems(doc: dict, drawn: set[int]) -> list[str]:
                     problems.append(f"material {i}'s {name} has a KHR_texture_transform to "
                                     f"TEXCOORD_{transform['texCoord']}, but the loader maps every texture with "
                                     "TEXCOORD_0")
-                elif isinstance(transform, dict) and _moves(transform) and not _named_once(doc, i):
-                    problems.append(f"material {i}'s {name} has a KHR_texture_transform, which the loader does not "
-                                    "apply, and the material has no name of its own by which it could be applied after")
     return problems

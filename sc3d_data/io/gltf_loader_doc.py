@@ -22,7 +22,9 @@ the loader drew them in their bind pose, with the node's own transform, which gl
 quantized positions and texture coordinates are stored as the floats they mean
 (``sc3d_data.io.gltf_dequantize``: the loader read the integers unscaled), and nodes drawn through
 ``EXT_mesh_gpu_instancing`` get a child node per instance (``sc3d_data.io.gltf_instancing``: the
-loader drew them once).
+loader drew them once). Materials whose texture a ``KHR_texture_transform`` moves and that have no
+name of their own (gltfpack's) get one (``gltf_features.transform_names``), by which the transform
+is applied to their geometries after loading.
 """
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ import struct
 from pathlib import Path
 
 from sc3d_data.io.gltf_check import GltfFile, drawn_nodes, scene_roots
+from sc3d_data.io.gltf_features import transform_names
 from sc3d_data.io.gltf_dequantize import dequantize, quantized_accessors
 from sc3d_data.io.gltf_instancing import apply_instancing, instanced_nodes
 from sc3d_data.io.gltf_skins import apply_skins, skinned_nodes
@@ -69,9 +72,16 @@ def loader_gltf_bytes(gltf: GltfFile, resolver=None) -> bytes | None:
     quantized = quantized_accessors(doc)
     sceneless = not doc.get("scenes") and bool(doc.get("nodes"))
     instanced = instanced_nodes(doc, nodes)
-    if not (_ushort_colours_alone(doc) or _camera_nodes(doc) or skinned or quantized or sceneless or instanced):
+    try:
+        renamed = {i: name for i, name in transform_names(doc).items() if doc["materials"][i].get("name") != name}
+    except (AttributeError, TypeError):  # malformed materials: the loader reports them
+        renamed = {}
+    if not (_ushort_colours_alone(doc) or _camera_nodes(doc) or skinned or quantized or sceneless or instanced
+            or renamed):
         return None
     doc = copy.deepcopy(doc)
+    for i, name in renamed.items():  # apply_texture_transforms finds their geometries by these names
+        doc["materials"][i]["name"] = name
     if sceneless:  # the loader draws no node of a document without scenes: its root nodes, as Blender
         doc.update(scenes=[{"nodes": scene_roots(doc)}], scene=0)
     binary = gltf.binary
