@@ -40,16 +40,21 @@ def _refusal(tmp_path: Path, edit) -> str | None:
 
 
 @pytest.mark.parametrize("edit, problem", [
-    (lambda d: _textured(d, texCoord=1),
-     "material 0's base colour texture reads TEXCOORD_1, but the loader maps every texture with TEXCOORD_0"),
+    (lambda d: _textured(d, texCoord=1),  # the cube has TEXCOORD_0 alone
+     "material 0's base colour texture reads TEXCOORD_1, which a primitive of mesh 0 has not"),
     (lambda d: _textured(d, extensions={"KHR_texture_transform": {"texCoord": 1}}),
-     "material 0's base colour texture has a KHR_texture_transform to TEXCOORD_1, but the loader maps every "
-     "texture with TEXCOORD_0"),
+     "material 0's base colour texture reads TEXCOORD_1, which a primitive of mesh 0 has not"),
+    (lambda d: (_textured(d, texCoord=1), d["meshes"][0]["primitives"][0].update(extensions={
+        "KHR_draco_mesh_compression": {"bufferView": 0, "attributes": {"POSITION": 0, "TEXCOORD_1": 1}}}),
+        d["meshes"][0]["primitives"][0]["attributes"].update(TEXCOORD_1=0)),
+     "material 0's base colour texture reads TEXCOORD_1 of a Draco-compressed primitive of mesh 0, but the "
+     "loader maps every texture with TEXCOORD_0"),
     (lambda d: d.update(extensionsRequired=["EXT_meshopt_compression"]),
      "it requires EXT_meshopt_compression (meshoptimizer compression), which the loader cannot decode"),
-], ids=["texCoord-1", "transform-texCoord", "meshopt"])
+], ids=["texCoord-1", "transform-texCoord", "texCoord-1-draco", "meshopt"])
 def test_ignored_features_are_named(tmp_path, edit, problem):
-    assert _refusal(tmp_path, edit) == f"{tmp_path / 'cube.gltf'}: {problem}; not read"
+    refusal = _refusal(tmp_path, edit)  # the Draco case's empty bitstream is named after it
+    assert refusal.startswith(f"{tmp_path / 'cube.gltf'}: {problem}") and refusal.endswith("; not read"), refusal
 
 
 def _drawn_untextured_copy(doc: dict) -> None:
@@ -116,9 +121,10 @@ def test_the_transform_matrix_is_the_extensions():
     np.testing.assert_allclose(m @ [0.25, 0.25, 1], [0.75, -0.5, 1], atol=1e-12)
 
 
-def _half_red_half_green_cube(path: Path, material: dict) -> None:
-    """The cube as .gltf, every corner's TEXCOORD_0 at (0.25, 0.5): the middle of the left half of
-    an 8 x 16 texture whose left half is red and right half green (a data URI PNG)."""
+def _half_red_half_green_cube(path: Path, material: dict, u0: float = 0.25, u1: float | None = None) -> None:
+    """The cube as .gltf, every corner's TEXCOORD_0 at (``u0``, 0.5) (by default the middle of
+    the left half) of an 8 x 16 texture whose left half is red and right half green (a data URI
+    PNG); with ``u1``, a TEXCOORD_1 at (``u1``, 0.5)."""
     import base64
     import io
 
@@ -128,12 +134,15 @@ def _half_red_half_green_cube(path: Path, material: dict) -> None:
     from test_gltf_primitives import _gltf_doc
 
     doc, buf = _gltf_doc(CUBE)
-    uv = np.tile(np.float32([0.25, 0.5]), (8, 1)).tobytes()
-    doc["bufferViews"].append({"buffer": 0, "byteOffset": len(buf), "byteLength": len(uv)})
-    doc["accessors"].append({"bufferView": len(doc["bufferViews"]) - 1, "componentType": 5126, "count": 8,
-                             "type": "VEC2"})
-    buf += uv
-    doc["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"] = len(doc["accessors"]) - 1
+    for k, u in enumerate((u0, u1)):
+        if u is None:
+            continue
+        uv = np.tile(np.float32([u, 0.5]), (8, 1)).tobytes()
+        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(buf), "byteLength": len(uv)})
+        doc["accessors"].append({"bufferView": len(doc["bufferViews"]) - 1, "componentType": 5126, "count": 8,
+                                 "type": "VEC2"})
+        buf += uv
+        doc["meshes"][0]["primitives"][0]["attributes"][f"TEXCOORD_{k}"] = len(doc["accessors"]) - 1
     doc["meshes"][0]["primitives"][0]["material"] = 0
     texture = np.zeros((8, 16, 3), np.uint8)
     texture[:, :8], texture[:, 8:] = (255, 0, 0), (0, 255, 0)
@@ -144,6 +153,16 @@ def _half_red_half_green_cube(path: Path, material: dict) -> None:
                images=[{"uri": "data:image/png;base64," + base64.b64encode(png.getvalue()).decode()}],
                textures=[{"source": 0}], materials=[material])
     path.write_text(json.dumps(doc))
+
+
+def _cube_colours(out: Path) -> dict[str, str]:
+    """``{model id: "red", "green" or "mixed"}``: the colour of every rendered pixel of each object."""
+    colour = {}
+    for name, obj in objects_by_id(out).items():
+        pixels = obj["images"][obj["masks"] > 0].astype(int)
+        colour[name[1]] = "red" if (pixels[:, 0] > pixels[:, 1] + 50).all() else \
+            "green" if (pixels[:, 1] > pixels[:, 0] + 50).all() else "mixed"
+    return colour
 
 
 def test_a_texture_transform_moves_the_texture_as_the_file_says(tmp_path):
@@ -176,10 +195,25 @@ def test_a_texture_transform_moves_the_texture_as_the_file_says(tmp_path):
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
     assert index_of(out)["failures"] == []
-    colour = {}
-    for name, obj in objects_by_id(out).items():
-        pixels = obj["images"][obj["masks"] > 0].astype(int)
-        colour[name[1]] = "red" if (pixels[:, 0] > pixels[:, 1] + 50).all() else \
-            "green" if (pixels[:, 1] > pixels[:, 0] + 50).all() else "mixed"
-    assert colour == {"plain": "red", "moved": "green", "unnamed": "green", "shared_moved": "green",
+    assert _cube_colours(out) == {"plain": "red", "moved": "green", "unnamed": "green", "shared_moved": "green",
                       "shared_plain": "red"}
+
+
+def test_a_texture_read_through_texcoord_1_is_drawn_with_that_set(tmp_path):
+    """A base colour texture reading TEXCOORD_1 (its ``texCoord``, or its transform's, which
+    overrides it: Khronos' KhrTextureTransformWithFallback) was refused; the loader maps every
+    texture with TEXCOORD_0. Each cube is green only where the set the file names is read, moved
+    as its transform says: TEXCOORD_0 lies in the red half, and so does TEXCOORD_1 before the
+    transform's scale (2, 1) moves it (any other reading is red)."""
+    folder = tmp_path / "m" / "box"
+    folder.mkdir(parents=True)
+    texture = {"index": 0}
+    _half_red_half_green_cube(folder / "set1.gltf", {"pbrMetallicRoughness": {
+        "baseColorTexture": {**texture, "texCoord": 1}, "metallicFactor": 0}}, u0=0.125, u1=0.75)
+    _half_red_half_green_cube(folder / "set1_by_transform.gltf", {"pbrMetallicRoughness": {
+        "baseColorTexture": {**texture, "extensions": {"KHR_texture_transform": {"texCoord": 1, "scale": [2, 1]}}},
+        "metallicFactor": 0}}, u0=0.125, u1=0.375)
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    assert index_of(out)["failures"] == [] and index_of(out)["warnings"] == []
+    assert _cube_colours(out) == {"set1": "green", "set1_by_transform": "green"}

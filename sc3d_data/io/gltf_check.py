@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sc3d_data.io.gltf_accessors import layout_problems
-from sc3d_data.io.gltf_features import feature_problems, textured
+from sc3d_data.io.gltf_features import feature_problems, read_texcoord_sets, textured
 from sc3d_data.io.gltf_instancing import instanced_nodes, instancing_problems
 from sc3d_data.io.gltf_dequantize import dequantize_problems, quantized_accessors
 from sc3d_data.io.gltf_draco import draco_primitives, draco_problems
@@ -96,6 +96,9 @@ class GltfFile:
 
     path: Path
     doc: dict
+    #: primitives whose TEXCOORD_0 ``doc`` names another set's accessor than the file
+    #: (``gltf_features.read_texcoord_sets``: the set their base colour texture reads)
+    texcoord_sets_read: int = 0
 
     @functools.cached_property
     def binary(self) -> bytes | None:
@@ -270,6 +273,10 @@ def judge_gltf(path: Path, shown: int = 3, resolver=None) -> tuple[GltfFile | No
         return None, (f"{path}: a glTF {version} document: sc3d reads glTF 2.0 (convert the file, e.g. "
                       "with Blender or gltf-pipeline); not read")
     gltf = GltfFile(path, doc)
+    try:
+        gltf.texcoord_sets_read = read_texcoord_sets(doc)
+    except (KeyError, IndexError, TypeError, AttributeError):
+        pass  # a malformed document: the loader reports it
     problems = []  # each judge alone: what one cannot follow (a node that is no object) hides nothing of the other
     for judge, args in ((layout_problems, (path, doc)), (gltf_problems, (doc,)),
                         (lambda d: feature_problems(d, drawn_meshes(d)), (doc,)), (_skin_problems, (gltf, resolver)),

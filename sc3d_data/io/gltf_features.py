@@ -17,16 +17,18 @@ the wrong place, and which of its parts to draw plain cannot be told from what i
 * an extension in ``extensionsRequired`` that the loader cannot decode (:data:`UNDECODED`; Draco
   only where ``DracoPy`` is missing), or does not know (not in :data:`READ_OR_MOOT`): the file
   itself says it cannot be read without it;
-* a primitive of a drawn mesh whose material's
-  base colour texture (``pbrMetallicRoughness.baseColorTexture``, or the ``diffuseTexture`` of
-  ``KHR_materials_pbrSpecularGlossiness``: the textures the renderer draws) reads another
-  ``texCoord`` than 0 (also through its transform), or is moved by a ``KHR_texture_transform``
-  that cannot be applied after loading: its material's name is missing or shared with another
-  material, so the loaded geometry that uses it cannot be told.
+* a primitive of a drawn mesh whose material's base colour texture
+  (``pbrMetallicRoughness.baseColorTexture``, or the ``diffuseTexture`` of
+  ``KHR_materials_pbrSpecularGlossiness``: the textures the renderer draws) reads another set
+  than ``TEXCOORD_0`` (its ``texCoord``, or its ``KHR_texture_transform``'s) that it lacks, or
+  that is Draco-compressed. Where the primitive has that set, :func:`read_texcoord_sets` makes it
+  ``TEXCOORD_0`` in the document the judges and the loader read.
 
-:func:`apply_texture_transforms` applies every other ``KHR_texture_transform`` to the texture
-coordinates of the loaded geometries whose material has that name (an identity transform, offset
-0, scale 1, rotation 0, is no change and is not applied).
+:func:`apply_texture_transforms` applies every ``KHR_texture_transform`` to the texture
+coordinates of the loaded geometries whose material has the name :func:`transform_names` gives it:
+its own where no other material has it, else one the loader's copy of the document gives it
+(gltfpack leaves its materials unnamed) (an identity transform, offset 0, scale 1, rotation 0, is
+no change and is not applied).
 
 :func:`read_spec_gloss_as_matte` makes the loader read a ``KHR_materials_pbrSpecularGlossiness``
 material (older Sketchfab and Objaverse files) as the renderer's matte shading draws every
@@ -41,7 +43,7 @@ import importlib.util
 import numpy as np
 
 __all__ = ["READ_OR_MOOT", "UNDECODED", "apply_texture_transforms", "feature_problems", "feature_warnings",
-           "read_spec_gloss_as_matte", "textured",
+           "read_spec_gloss_as_matte", "read_texcoord_sets", "textured",
            "transform_matrix", "transform_names"]
 
 #: required extensions the loader cannot decode: ``{name: what it is}``
@@ -121,16 +123,14 @@ def _transforms(doc: dict) -> dict[int, dict]:
 
 def transform_names(doc: dict) -> dict[int, str]:
     """``{material index: the name by which its loaded geometries are found}`` of the materials
-    whose base colour texture a ``KHR_texture_transform`` moves (through ``TEXCOORD_0``): the
+    whose base colour texture a ``KHR_texture_transform`` moves: the
     material's own name where no other material has it, else ``sc3d: material I (texture
     transform)``, which ``io.gltf_loader_doc`` gives the loader's copy of the document (gltfpack
     leaves its materials unnamed)."""
     materials = doc.get("materials", [])
     names = [m.get("name") if isinstance(m, dict) else None for m in materials]
     found = {}
-    for i, transform in _transforms(doc).items():
-        if transform.get("texCoord", 0) != 0:
-            continue
+    for i in _transforms(doc):  # a transform to another set: read_texcoord_sets made it TEXCOORD_0
         own = names[i]
         name = own if isinstance(own, str) and own != "" and names.count(own) == 1 else f"sc3d: material {i} (texture transform)"
         while name != own and name in names:  # a name some material of the file has already
@@ -220,20 +220,59 @@ def feature_problems(doc: dict, drawn: set[int]) -> list[str]:
                 for name in required if _undecoded(name)]
     problems += [f"it requires {name}, an extension the loader does not read" for name in required if _unknown(name)]
     problems += morph_problems(doc, drawn)
-    materials, seen = doc.get("materials", []), set()
+    materials = doc.get("materials", [])
     for m in sorted(drawn):
         for prim in doc["meshes"][m].get("primitives", []):
             i = prim.get("material")
-            if not isinstance(i, int) or i in seen or not 0 <= i < len(materials):
-                continue
-            seen.add(i)
-            for name, info in _base_textures(materials[i]):
-                if info.get("texCoord", 0) != 0:
-                    problems.append(f"material {i}'s {name} reads TEXCOORD_{info['texCoord']}, but the loader maps "
-                                    "every texture with TEXCOORD_0")
-                transform = info.get("extensions", {}).get("KHR_texture_transform")
-                if isinstance(transform, dict) and transform.get("texCoord", 0) != 0:
-                    problems.append(f"material {i}'s {name} has a KHR_texture_transform to "
-                                    f"TEXCOORD_{transform['texCoord']}, but the loader maps every texture with "
-                                    "TEXCOORD_0")
+            if isinstance(i, int) and 0 <= i < len(materials):
+                problem = _texcoord_problem(materials[i], i, m, prim.get("attributes", {}))
+                if problem is not None and problem not in problems:
+                    problems.append(problem)
     return problems
+
+
+def _texcoord_problem(material: dict, i: int, m: int, attributes: dict) -> str | None:
+    """Why the loader would not map base colour texture of ``material`` (index ``i``) on a
+    primitive of mesh ``m`` (its ``attributes``) with the set it reads, or None."""
+    n = _texcoord_set(material)
+    if n is None:
+        return (f"material {i}'s base colour textures read different texture coordinate sets, but the loader "
+                "maps every texture with one")
+    if n != 0 and f"TEXCOORD_{n}" not in attributes:
+        return f"material {i}'s base colour texture reads TEXCOORD_{n}, which a primitive of mesh {m} has not"
+    if n != 0 and attributes.get("TEXCOORD_0") != attributes[f"TEXCOORD_{n}"]:  # left by read_texcoord_sets
+        return (f"material {i}'s base colour texture reads TEXCOORD_{n} of a Draco-compressed primitive of mesh "
+                f"{m}, but the loader maps every texture with TEXCOORD_0")
+    return None
+
+
+def _texcoord_set(material: dict) -> int | None:
+    """The texture coordinate set the base colour textures of glTF ``material`` read: the
+    ``texCoord`` of their ``KHR_texture_transform``, which overrides theirs (as the extension
+    says), else theirs; 0 without such a texture, None where two read different sets."""
+    sets = set()
+    for _, info in _base_textures(material):
+        transform = info.get("extensions", {}).get("KHR_texture_transform")
+        sets.add(transform["texCoord"] if isinstance(transform, dict) and "texCoord" in transform
+                 else info.get("texCoord", 0))
+    return (sets.pop() if len(sets) == 1 else None) if sets else 0
+
+
+def read_texcoord_sets(doc: dict) -> int:
+    """Make ``TEXCOORD_0`` of each primitive of ``doc`` whose material's base colour texture reads
+    another set (:func:`_texcoord_set`) that set's accessor, in place (the loader maps every
+    texture with ``TEXCOORD_0``; the judges, then the loader's copy, read the changed document);
+    the number of primitives changed. A primitive without that set, or Draco-compressed (its
+    attributes come from its bitstream), is left as it is: :func:`feature_problems` refuses it."""
+    materials, changed = doc.get("materials", []), 0
+    for mesh in doc.get("meshes", []):
+        for prim in mesh.get("primitives", []):
+            i, attributes = prim.get("material"), prim.get("attributes", {})
+            if not isinstance(i, int) or not 0 <= i < len(materials) or "KHR_draco_mesh_compression" in \
+                    prim.get("extensions", {}):
+                continue
+            n = _texcoord_set(materials[i])
+            if isinstance(n, int) and n != 0 and f"TEXCOORD_{n}" in attributes:
+                attributes["TEXCOORD_0"] = attributes[f"TEXCOORD_{n}"]
+                changed += 1
+    return changed

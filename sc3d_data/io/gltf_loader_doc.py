@@ -22,9 +22,12 @@ the loader drew them in their bind pose, with the node's own transform, which gl
 quantized positions and texture coordinates are stored as the floats they mean
 (``sc3d_data.io.gltf_dequantize``: the loader read the integers unscaled), and nodes drawn through
 ``EXT_mesh_gpu_instancing`` get a child node per instance (``sc3d_data.io.gltf_instancing``: the
-loader drew them once). Materials whose texture a ``KHR_texture_transform`` moves and that have no
-name of their own (gltfpack's) get one (``gltf_features.transform_names``), by which the transform
-is applied to their geometries after loading.
+loader drew them once). A primitive whose base colour texture reads another texture coordinate
+set than ``TEXCOORD_0`` has that set as ``TEXCOORD_0`` (``gltf_features.read_texcoord_sets``: the
+loader maps every texture with ``TEXCOORD_0``). Materials whose texture a
+``KHR_texture_transform`` moves and that have no name of their own (gltfpack's) get one
+(``gltf_features.transform_names``), by which the transform is applied to their geometries after
+loading.
 """
 from __future__ import annotations
 
@@ -77,7 +80,7 @@ def loader_gltf_bytes(gltf: GltfFile, resolver=None) -> bytes | None:
     except (AttributeError, TypeError):  # malformed materials: the loader reports them
         renamed = {}
     if not (_ushort_colours_alone(doc) or _camera_nodes(doc) or skinned or quantized or sceneless or instanced
-            or renamed):
+            or renamed or gltf.texcoord_sets_read):
         return None
     doc = copy.deepcopy(doc)
     for i, name in renamed.items():  # apply_texture_transforms finds their geometries by these names
