@@ -183,7 +183,10 @@ def gltf_problems(doc: dict) -> list[str]:
     (module doc), one phrase each, in file order."""
     problems, sparse_seen = shared_children(doc), set()
     accessors, meshes, drawn = doc.get("accessors", []), doc.get("meshes", []), drawn_meshes(doc)
-    if meshes and not drawn:  # the loader draws nothing: "empty mesh (no triangles)" said less
+    if meshes and not drawn and not doc.get("scenes") and doc.get("nodes") and not scene_roots(doc):
+        problems.append("it has no scene and every node of it is another node's child (its nodes form a cycle), so "
+                        "no node is a root to draw")
+    elif meshes and not drawn:  # the loader draws nothing: "empty mesh (no triangles)" said less
         problems.append(f"none of its {len(meshes)} mesh(es) is drawn by a node of the scene it draws (glTF draws a "
                         "mesh only through a node), so there is nothing to render")
     for m in sorted(drawn):
