@@ -27,3 +27,15 @@ def triangles_with_area(vertices, faces):
         vx, vy, vz = vertices[c, 0] - vertices[a, 0], vertices[c, 1] - vertices[a, 1], vertices[c, 2] - vertices[a, 2]
         keep[i] = uy * vz - uz * vy != 0.0 or uz * vx - ux * vz != 0.0 or ux * vy - uy * vx != 0.0
     return keep
+
+
+def all_needles(vertices: np.ndarray, faces: np.ndarray, ratio: float = 1e-9) -> bool:
+    """Whether every triangle of ``faces [m, 3]`` (into ``vertices [n, 3]``) is a needle: its
+    height over its longest edge at most ``ratio`` (corners on one line but for rounding, which
+    :func:`triangles_with_area`'s exact test counts as area). Such a mesh draws no pixel; said
+    where a render's silhouette is empty (``pipeline.jobs.render_job``)."""
+    corners = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
+    u, v = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    twice_area = np.linalg.norm(np.cross(u, v), axis=1)
+    longest = np.max(np.linalg.norm(np.stack([u, v, corners[:, 2] - corners[:, 1]], axis=1), axis=2), axis=1)
+    return bool(len(faces)) and bool((twice_area <= ratio * longest ** 2).all())

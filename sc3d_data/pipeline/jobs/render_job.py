@@ -110,6 +110,7 @@ def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord
     the voxelizer, as when the two ran in turn. Returns the shard record and warnings; raises on
     bad input."""
     from sc3d_data.formats.shapenet import resolve_front
+    from sc3d_data.geometry.triangle_area import all_needles
     from sc3d_data.geometry.normalize import to_canonical_transform
     from sc3d_data.io.materials import dataset_folder
     from sc3d_data.io.meshes import MeshError, load_mesh
@@ -136,6 +137,9 @@ def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord
         voxel_error = e
     arrays = renderer.read()
     if not np.asarray(arrays["masks"]).any():
+        if all_needles(vertices, faces):
+            raise MeshError(f"{task.path}: every one of its {len(faces):,} triangles has its corners on one line (but "
+                            "for rounding), so it has no surface to draw")
         raise MeshError(f"{task.path}: the silhouette is empty in every view after normalisation (geometry "
                         "collapsed to under a pixel, e.g. by an outlier vertex far from the rest)")
     if voxel_error is not None:
