@@ -106,3 +106,48 @@ def test_resume_writes_the_config_it_restores_beside_a_prediction_named_config(t
     assert (run / "config.json").read_bytes() == record
     assert "config.yaml is missing" in res.output and "does not load" not in res.output, res.output
     assert "steps: 3" in (run / "config.yaml").read_text()
+
+
+# ----------------------------------------------------------------------------- the twenty-sixth attack
+def test_the_config_of_an_extended_run_repeats_it(one_and_merged, tmp_path):
+    """``fit --resume --steps 6`` of a 4-step cosine run trains steps 4-5 on a 6-step plan, but its
+    ``config.yaml`` said only ``steps: 6``, so ``fit --config RUN/config.yaml`` (docs/config.md:
+    "repeats run/ exactly") trained one 6-step schedule: other learning rates at steps 1-3, other
+    weights, exit 0. The config now records where the plan changed; the repeat must end with
+    the extended run's weights, also for a run extended from an earlier checkpoint (step 2 of a
+    4-step plan: the plan changed at step 2, not at 4). With another ``--steps`` the repeat says
+    it follows one schedule."""
+    shards = one_and_merged[0]
+    fit = [*TINY_FIT, "--checkpoint-every", 2]
+    for name, cut in (("whole", None), ("cut", 2)):
+        run = tmp_path / name
+        run_cli(train_main, ["fit", "--shards", shards, "--out", run, "--steps", 4, *fit])
+        if cut:  # the run as a crash at step 3 leaves it: its newest checkpoint is step 2's
+            for stale in ("last.pt", "step_000004.pt"):
+                (run / "checkpoints" / stale).unlink()
+        run_cli(train_main, ["fit", "--resume", "--out", run, "--steps", 6, "--no-progress"])
+        assert f"steps_before: [[{cut or 4}, 4]]" in (run / "config.yaml").read_text()
+        again = tmp_path / f"{name}_again"
+        run_cli(train_main, ["fit", "--config", run / "config.yaml", "--out", again, "--no-progress"])
+        a, b = _weights(run), _weights(again)
+        assert all(torch.equal(a[k], b[k]) for k in a), name
+    res = run_cli(train_main, ["fit", "--config", tmp_path / "whole" / "config.yaml", "--out", tmp_path / "three",
+                               "--steps", 3, "--no-progress"])
+    assert "with --steps 3 this run follows one schedule of 3 steps" in res.output
+    assert "steps_before: null" in (tmp_path / "three" / "config.yaml").read_text()
+
+
+def test_a_hand_written_pretrain_steps_without_steps_is_kept(sample_shards, tmp_path):
+    """A config file with ``pretrain_steps: 1000`` and no ``steps``, run with ``--steps 4``, trained
+    with ``pretrain_steps: 2``: the file's missing ``steps`` was taken as the default 2000, of which
+    1000 is the half a run's own config records for a default. The file's value must be kept
+    (here refused, as the same file with ``steps: 3000`` is); a file without ``pretrain_steps``
+    still pretrains half the run's steps (control)."""
+    for name, extra in (("hand.yaml", "pretrain_steps: 1000\n"), ("none.yaml", "")):
+        (tmp_path / name).write_text("mode: semi\nlabeled_fraction: 0.5\nval_every: 0\n" + extra)
+    res = run_cli(train_main, ["fit", "--config", tmp_path / "hand.yaml", "--shards", sample_shards, "--out",
+                               tmp_path / "hand", "--steps", 4, *TINY_FIT], expect_exit=1)
+    assert "hand.yaml: pretrain_steps (--pretrain-steps) 1000 not in [0, steps=4]" in res.output, res.output
+    run_cli(train_main, ["fit", "--config", tmp_path / "none.yaml", "--shards", sample_shards, "--out",
+                         tmp_path / "none", "--steps", 4, *TINY_FIT])
+    assert "pretrain_steps: 2" in (tmp_path / "none" / "config.yaml").read_text()

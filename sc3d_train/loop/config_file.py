@@ -27,15 +27,16 @@ def given_paths(options: dict) -> dict:
     return {k: options[k] for k in ("shards", "out", *CHECKED_ACROSS) if options.get(k) is not None}
 
 
-def defaulted_pretraining(in_file, file_steps: int, options: dict) -> bool:
+def defaulted_pretraining(in_file, file_steps: int | None, options: dict) -> bool:
     """Whether a ``--config`` file's ``pretrain_steps`` (``in_file``; ``file_steps``: the file's
-    ``steps``) is the default's value that should follow this run's ``--steps`` (``options``):
-    left out of the file, or, with another ``--steps`` given, half the file's steps, which a run's
-    own ``config.yaml`` records for a default (docs/config.md)."""
+    ``steps``, None where it has none) is the default's value that should follow this run's
+    ``--steps`` (``options``): left out of the file, or, with another ``--steps`` given, half the
+    file's steps, which a run's own ``config.yaml`` records for a default (docs/config.md); a
+    file that gives no ``steps`` wrote its ``pretrain_steps`` by hand."""
     if in_file is None:
         return True
     new_steps = options.get("steps")
-    return new_steps is not None and new_steps != file_steps and in_file == file_steps // 2
+    return file_steps is not None and new_steps is not None and new_steps != file_steps and in_file == file_steps // 2
 
 
 def file_settings(config_file: Path, options: dict) -> dict:
@@ -47,7 +48,7 @@ def file_settings(config_file: Path, options: dict) -> dict:
     file_mode = in_file.get("mode", defaults["mode"])
     mode = options.get("mode", file_mode)
     reset = [k for k, modes in MODE_ONLY_OPTIONS.items() if file_mode in modes and mode not in modes]
-    if defaulted_pretraining(in_file.get("pretrain_steps"), in_file.get("steps", defaults["steps"]), options):
+    if defaulted_pretraining(in_file.get("pretrain_steps"), in_file.get("steps"), options):
         reset.append("pretrain_steps")  # [steps // 2] of this run's steps, not the file's
     plain = RunConfig.load(config_file, {**given, "mode": mode}, without=tuple(reset)).to_dict()
     plain.update({k: defaults[k] for k in reset})

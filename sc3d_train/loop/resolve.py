@@ -32,6 +32,10 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     if resume:
         return _resumed(options, model_options, tiny)
     plain = file_settings(config_file, options) if config_file is not None else {}
+    if plain.get("steps_before") and options.get("steps", plain["steps"]) != load_yaml(config_file).get("steps"):
+        print(f"note: {config_file} is of a run extended with --resume --steps (steps_before {plain['steps_before']}); "
+              f"with --steps {options['steps']} this run follows one schedule of {options['steps']} steps")
+        plain["steps_before"] = None
     plain.update(options)
     if plain.get("out") is None or plain.get("shards") is None:
         raise ValueError("a new run needs --shards and --out (or a --config file that names them)")

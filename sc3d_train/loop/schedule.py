@@ -26,14 +26,16 @@ def phase_start(cfg: RunConfig, step: int) -> int:
 def lr_at(cfg: RunConfig, step: int) -> float:
     """The learning rate at ``step``: ``lr`` (``semi_lr`` in the unsupervised phase when set),
     constant or, with ``lr_schedule="cosine"``, annealed over the phase from that value to
-    ``lr_min_ratio`` times it."""
+    ``lr_min_ratio`` times it, at the end the run planned at that step (``steps``, or for steps
+    before a ``--resume`` that changed it, the ``steps`` recorded in ``steps_before``)."""
     base = cfg.lr
     if phase_at(cfg, step) == "unsupervised" and cfg.semi_lr is not None:
         base = cfg.semi_lr
     if cfg.lr_schedule != "cosine":
         return base
     start = phase_start(cfg, step)
-    end = cfg.pretrain_steps if cfg.mode == "semi" and step < cfg.pretrain_steps else cfg.steps
+    planned = next((steps for until, steps in cfg.steps_before or [] if step < until), cfg.steps)
+    end = cfg.pretrain_steps if cfg.mode == "semi" and step < cfg.pretrain_steps else planned
     t = (step - start) / max(end - start, 1)
     return base * (cfg.lr_min_ratio + (1 - cfg.lr_min_ratio) * 0.5 * (1 + math.cos(math.pi * t)))
 

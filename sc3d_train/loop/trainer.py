@@ -47,7 +47,7 @@ import torch
 from sc3d_train.loop.checkpoint import (CheckpointError, checkpoint_config, interrupted_line, last_path,
                                         resume_checkpoint, rng_state, save_checkpoint, set_rng_state)
 from sc3d_train.loop.checkpoint_model import build_model, state_dict_mismatch
-from sc3d_train.settings.config import CONFIG_NAME, RunConfig
+from sc3d_train.settings.config import CONFIG_NAME, RESUMABLE_FIELDS, RunConfig
 from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.data.device_prefetch import DevicePrefetcher
 from sc3d_train.loop.loss_window import LossWindow, check_finite
@@ -128,7 +128,8 @@ def restore(t: Training) -> tuple[int, Path]:
     this config, data position and number of ranks. Returns ``(step, checkpoint file)``."""
     cfg = t.cfg
     ckpt_file, ckpt = resume_checkpoint(t.run_dir, say=print if t.dist.is_main else None)
-    diffs = checkpoint_config(ckpt_file, ckpt).differences(cfg)
+    saved = checkpoint_config(ckpt_file, ckpt)
+    diffs = saved.differences(cfg, ignore=RESUMABLE_FIELDS + ("steps_before",))
     if diffs:
         raise CheckpointError(f"{ckpt_file}: the run config differs from the checkpoint's: " + "; ".join(diffs))
     problems = state_dict_mismatch(t.model.state_dict(), ckpt["model"])
@@ -146,6 +147,8 @@ def restore(t: Training) -> tuple[int, Path]:
     if ckpt["data_position"] != expected:
         raise CheckpointError(f"{ckpt_file}: data position {ckpt['data_position']} != {expected}")
     set_rng_state(states[t.dist.rank], t.device)
+    # the schedule the checkpoint's steps followed, kept in config.yaml (lr_at; fit --config repeats it)
+    cfg.steps_before = (saved.steps_before or []) + ([[step, saved.steps]] if saved.steps != cfg.steps else []) or None
     return step, ckpt_file
 
 

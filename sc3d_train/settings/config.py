@@ -266,6 +266,9 @@ class RunConfig(_Plain):
                                              cli=False)
     view_setup: str | None = setting(None, "How the shards' views were rendered: elevations, up and front axes, "
                                      "normalisation, shading (--resume refuses shards rendered otherwise).", cli=False)
+    steps_before: list | None = setting(None, "[[step, steps], ...]: where --resume changed --steps, oldest first: "
+                                        "the steps before `step` followed the cosine schedule of a run of `steps` "
+                                        "(fit --config repeats them).", cli=False)
     object_order: str | None = setting(None, "The order of the objects that the seeded shuffles follow: "
                                        "category/model_id (runs started since 2026-11-29: the same for every shard "
                                        "layout of the same objects) or, None, the shard files' order (runs started "
@@ -301,6 +304,10 @@ class RunConfig(_Plain):
             value = getattr(self, name)
             if value is not None and not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} (--{name.replace('_', '-')}) must be a positive finite number, got {value}")
+        pairs = self.steps_before or []
+        if not all(isinstance(p, list) and len(p) == 2 and all(type(x) is int and x >= 0 for x in p) for p in pairs):
+            raise ValueError(f"steps_before must be a list of [step, steps] pairs of whole numbers (what --resume "
+                             f"records), got {self.steps_before!r}")
         if not 0.0 <= self.lr_min_ratio <= 1.0:
             raise ValueError(f"lr_min_ratio (--lr-min-ratio) must be in [0, 1] (a share of the lr), got {self.lr_min_ratio}")
         K = self.intrinsics
