@@ -200,7 +200,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     from sc3d_data.io.loader_visuals import keep_obj_vertex_colours, move_texture, texture_as_is
     from sc3d_data.io.materials import material_report
     from sc3d_data.io.obj_loader_text import check_obj_indices, loader_obj_bytes
-    from sc3d_data.io.off_polygons import faces_one_per_line, loader_off_bytes
+    from sc3d_data.io.off_polygons import colour_notes, faces_one_per_line, loader_off_bytes
     from sc3d_data.io.ply_header import loader_ply_bytes
     from sc3d_data.io.ply_strips import strips_as_faces
     from sc3d_data.io.stl_check import loader_stl_bytes
@@ -260,7 +260,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     vertices, faces = scene_triangles(scene, str(path))
     faces = validate_triangles(vertices, faces, str(path), max_faces)
     notes = report.warnings + report.outside + (feature_warnings(gltf_doc, drawn_meshes(gltf_doc, safe=True))
-                                                if gltf_doc is not None else [])
+                                                if gltf_doc is not None else []) + (
+        colour_notes(path) if path.suffix.lower() == ".off" else [])
     warnings = ([f"{path}: {p}; rendered with material colours" for p in report.problems + missed]
                 + [f"{path}: {n}" for n in notes] + unused_texture_warnings(path, scene, report))
     return scene, vertices, faces, warnings

@@ -15,13 +15,16 @@ The loader also reads each face from one line: a file whose face lists run over 
 Geomview's OFF reader and libigl read as tokens, failed "empty mesh (no triangles)".
 :func:`faces_one_per_line` writes such a file's faces one per line; ``io.meshes`` gives it to the
 loader where the file as written yields no triangle.
+
+The loader reads no colour of an OFF file (``COFF`` vertex colours, a colour after a face's
+corners): such an object renders grey; :func:`colour_notes` says so in a warning.
 """
 from __future__ import annotations
 
 import re
 from pathlib import Path
 
-__all__ = ["faces_one_per_line", "loader_off_bytes"]
+__all__ = ["colour_notes", "faces_one_per_line", "loader_off_bytes"]
 
 #: a line that starts with a whole number of five or more and five more whole numbers: a candidate
 #: polygon's face line (the counts line has two more; a vertex line of whole numbers with a colour
@@ -98,3 +101,23 @@ def faces_one_per_line(path: Path) -> bytes | None:
     except (ValueError, IndexError):
         return None  # malformed: the loader names it
     return _text(keyword, body[1:1 + n_vertices], faces) if split else None
+
+
+def colour_notes(path: Path) -> list[str]:
+    """A warning phrase when OFF file ``path`` has colours the loader drops (module doc): a
+    ``C`` in its header keyword (``COFF``: vertex colours) and a colour after its first vertex's
+    coordinates, or a colour after the corners of its last face line (per-face colours, which
+    files give every face or none, as a rule); reads the file's first and last 4 KiB only."""
+    with open(path, "rb") as f:
+        head = f.read(4096)
+        f.seek(0, 2)
+        f.seek(max(0, f.tell() - 4096))
+        tail = f.read()
+    read = _lines(head)
+    if read is not None and "C" in read[0][:-3] and len(read[1]) > 1 and len(read[1][1].split()) > 3:
+        return [f"its vertex colours ({read[0]}) are not read: it renders in the default grey"]
+    lines = [line.split(b"#", 1)[0].split() for line in tail.splitlines()]
+    words = next((w for w in reversed(lines) if w), [])
+    if words and words[0].isdigit() and len(words) > 1 + int(words[0]) >= 4:  # a face line with more than its corners
+        return ["its per-face colours are not read: it renders in the default grey"]
+    return []
