@@ -151,3 +151,37 @@ def test_a_hand_written_pretrain_steps_without_steps_is_kept(sample_shards, tmp_
     run_cli(train_main, ["fit", "--config", tmp_path / "none.yaml", "--shards", sample_shards, "--out",
                          tmp_path / "none", "--steps", 4, *TINY_FIT])
     assert "pretrain_steps: 2" in (tmp_path / "none" / "config.yaml").read_text()
+
+
+def test_the_config_of_a_run_of_an_earlier_version_repeats_it_in_its_order(one_and_merged, tmp_path):
+    """A run started before ``object_order`` existed trained in its shards' order; repeated with
+    ``fit --config RUN/config.yaml`` it was trained in category/model_id order (other weights, on
+    merged shards), although docs/config.md promises the same weights. Its repeat must keep the
+    shards' order: equal weights to a run of that order; a hand-written config (no
+    ``objects_sha256``) gets the new order. A bad ``object_order`` is refused naming the file, and
+    a ``steps_before`` in a file run without ``--steps`` raised a KeyError."""
+    import yaml
+
+    from sc3d_train.loop.resolve import resolve_config
+
+    merged = one_and_merged[1]
+    run = tmp_path / "run"
+    run_cli(train_main, ["fit", "--shards", merged, "--out", run, "--steps", 2, *TINY_FIT])
+    config = yaml.safe_load((run / "config.yaml").read_text())
+    old = {k: v for k, v in config.items() if k != "object_order"}  # as an earlier version wrote it
+    (tmp_path / "old.yaml").write_text(yaml.safe_dump(old))
+    (tmp_path / "shards_order.yaml").write_text(yaml.safe_dump({**config, "object_order": "shards"}))
+    for name in ("old", "shards_order"):
+        run_cli(train_main, ["fit", "--config", tmp_path / f"{name}.yaml", "--out", tmp_path / f"{name}_again",
+                             "--no-progress"])
+    assert "object_order: shards" in (tmp_path / "old_again" / "config.yaml").read_text()
+    a, b = _weights(tmp_path / "old_again"), _weights(tmp_path / "shards_order_again")
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    (tmp_path / "hand.yaml").write_text("batch_size: 4\nsteps_before: [[2, 4]]\n")
+    cfg = resolve_config({"shards": str(merged), "out": str(tmp_path / "hand")}, config_file=tmp_path / "hand.yaml")
+    assert cfg.object_order == "category/model_id" and cfg.steps_before == [[2, 4]]
+    (tmp_path / "bad.yaml").write_text("object_order: sorted\n")
+    res = run_cli(train_main, ["fit", "--config", tmp_path / "bad.yaml", "--shards", merged, "--out", tmp_path / "bad",
+                               "--steps", 2, *TINY_FIT], expect_exit=1)
+    assert "bad.yaml: object_order must be one of category/model_id, shards (or null), got 'sorted'" in res.output, \
+        res.output

@@ -31,7 +31,7 @@ from sc3d_data.io.shard_reader import ShardReader
 from sc3d_data.io.names import shell_word
 from sc3d_data.io.shards import ShardError
 from sc3d_train.data.batch_format import compact_tensors, expand_batch, sc_masks_bool
-from sc3d_train.settings.config import MASK_SIZE
+from sc3d_train.settings.config import MASK_SIZE, OBJECT_ORDERS
 from sc3d_train.data.decoded_cache import DecodedCache
 from sc3d_train.data.object_store import ObjectStore
 
@@ -182,10 +182,7 @@ def background_of(info: dict) -> list[int]:
 #: the ~4,400 objects of a 64 px dataset, so the 136 training objects of the bundled 195 meshes
 #: and single-category subsets up to that size
 CACHE_BYTES = 2 * 2**30
-#: the orders of a dataset's objects (``ShardDataset(order=)``): by category and model_id (the same
-#: for every shard layout of the same objects: one render, a merge of ``--part`` renders, a copy),
-#: or as the shard files and rows hold them (the order of runs started before 2026-11-29)
-OBJECT_ORDERS = ("category/model_id", "shards")
+
 
 
 def decoded_object_bytes(image_size: int, num_views: int, mask_size: int, voxel_resolution: int) -> int:

@@ -2,11 +2,12 @@
 a config file, the tiny preset, the options given, and the facts of the shards."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from sc3d_train.loop.config_file import MODE_ONLY_OPTIONS, file_settings
 from sc3d_train.loop.run_folder import check_no_foreign_files, check_no_linked_files, check_path_names
-from sc3d_train.settings.config import CONFIG_NAME, RESUMABLE_FIELDS, TINY_MODEL, RunConfig
+from sc3d_train.settings.config import CONFIG_NAME, OBJECT_ORDERS, RESUMABLE_FIELDS, TINY_MODEL, RunConfig
 from sc3d_train.settings.config_io import defaults_of, load_yaml
 
 
@@ -24,7 +25,7 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     saved config, where ``options`` may change only :data:`~sc3d_train.settings.config.RESUMABLE_FIELDS` and
     ``model_options`` nothing."""
     from sc3d_train.loop.checkpoint import CheckpointError
-    from sc3d_train.data.dataset import OBJECT_ORDERS, DataError
+    from sc3d_train.data.dataset import DataError
 
     model_options = dict(model_options or {})
     tiny = model_options.pop("tiny", False)
@@ -32,10 +33,15 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     if resume:
         return _resumed(options, model_options, tiny)
     plain = file_settings(config_file, options) if config_file is not None else {}
-    if plain.get("steps_before") and options.get("steps", plain["steps"]) != load_yaml(config_file).get("steps"):
-        print(f"note: {config_file} is of a run extended with --resume --steps (steps_before {plain['steps_before']}); "
-              f"with --steps {options['steps']} this run follows one schedule of {options['steps']} steps")
+    in_file = load_yaml(config_file) if config_file is not None else {}
+    if plain.get("steps_before") and "steps" in options and options["steps"] != in_file.get("steps"):
+        if os.environ.get("RANK", "0") == "0":
+            print(f"note: {config_file} is of a run extended with --resume --steps (steps_before "
+                  f"{plain['steps_before']}); with --steps {options['steps']} this run follows one schedule of "
+                  f"{options['steps']} steps")
         plain["steps_before"] = None
+    if "object_order" not in in_file:  # a run's config of an earlier version keeps its order: the repeat is exact
+        plain["object_order"] = "shards" if "objects_sha256" in in_file else OBJECT_ORDERS[0]
     plain.update(options)
     if plain.get("out") is None or plain.get("shards") is None:
         raise ValueError("a new run needs --shards and --out (or a --config file that names them)")
@@ -62,7 +68,7 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
         model.update(TINY_MODEL)
     model.update(model_options, image_size=facts.pop("model.image_size"),
                  voxel_resolution=facts.pop("model.voxel_resolution"))
-    plain.update(model=model, object_order=OBJECT_ORDERS[0], **facts)
+    plain.update(model=model, **facts)
     return RunConfig.from_dict(plain)
 
 
@@ -202,8 +208,6 @@ def saved_config(out: Path) -> RunConfig:
     newest checkpoint holds (the one ``config.yaml`` must equal anyway: ``--resume`` refuses a
     difference), written back as ``config.yaml`` on rank 0 with one ``note:`` line.
     ``CheckpointError`` when there is neither, or a folder stands where ``config.yaml`` goes."""
-    import os
-
     from sc3d_train.loop.checkpoint import CheckpointError, checkpoint_config, checkpoint_dir, resume_checkpoint
 
     saved_path = RunConfig.path_in(out)

@@ -47,6 +47,11 @@ MODES = ("supervised", "semi", "labeled-only", "true-pose-masks")
 #: folder only when it holds the data the run started on (``loop.resolve.check_same_shards``).
 RESUMABLE_FIELDS = ("steps", "checkpoint_every", "workers", "decoded_cache", "log_every", "device", "progress",
                     "out", "compile", "compile_backend", "val_every", "shards")
+#: the orders of a dataset's objects (``data.dataset.ShardDataset(order=)``, ``object_order``): by
+#: category and model_id (the same for every shard layout of the same objects: one render, a merge
+#: of ``--part`` renders, a copy), or as the shard files and rows hold them (runs started before
+#: 2026-11-29, whose config has no ``object_order``)
+OBJECT_ORDERS = ("category/model_id", "shards")
 #: what picks ``checkpoints/best.pt`` among the validations of a run (:mod:`sc3d_train.loop.validation`)
 SELECT_BY = ("iou+pose", "iou", "pose")
 #: the one "tiny" preset (``fit --tiny``, ``ModelConfig.tiny()``): a small network for CPU demos
@@ -271,8 +276,9 @@ class RunConfig(_Plain):
                                         "(fit --config repeats them).", cli=False)
     object_order: str | None = setting(None, "The order of the objects that the seeded shuffles follow: "
                                        "category/model_id (runs started since 2026-11-29: the same for every shard "
-                                       "layout of the same objects) or, None, the shard files' order (runs started "
-                                       "before, kept so that they resume exactly).", cli=False)
+                                       "layout of the same objects) or shards, the shard files' order (runs started "
+                                       "before, whose config has none: their --resume and fit --config repeats keep "
+                                       "it).", cli=False)
 
     def __post_init__(self):
         check_choices(self)
@@ -304,6 +310,8 @@ class RunConfig(_Plain):
             value = getattr(self, name)
             if value is not None and not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} (--{name.replace('_', '-')}) must be a positive finite number, got {value}")
+        if self.object_order is not None and self.object_order not in OBJECT_ORDERS:
+            raise ValueError(f"object_order must be one of {', '.join(OBJECT_ORDERS)} (or null), got {self.object_order!r}")
         pairs = self.steps_before or []
         if not all(isinstance(p, list) and len(p) == 2 and all(type(x) is int and x >= 0 for x in p) for p in pairs):
             raise ValueError(f"steps_before must be a list of [step, steps] pairs of whole numbers (what --resume "
@@ -351,8 +359,9 @@ class RunConfig(_Plain):
         if (run_dir / CONFIG_NAME).is_file() or not legacy.is_file():
             return run_dir / CONFIG_NAME
         try:
-            plain = json.loads(legacy.read_bytes()[:1 << 20])
-        except ValueError:  # not JSON (or cut short), or not UTF-8: no run's config
+            with open(legacy, "rb") as f:
+                plain = json.loads(f.read(1 << 20))  # a run's config is a few KiB
+        except (ValueError, OSError):  # not JSON (or cut short), or not UTF-8: no run's config
             return run_dir / CONFIG_NAME
         return legacy if isinstance(plain, dict) and {"shards", "model"} <= plain.keys() else run_dir / CONFIG_NAME
 
