@@ -220,7 +220,7 @@ def test_the_root_nodes_of_a_document_with_malformed_children_are_found():
 def test_a_gltf_whose_meshes_no_node_draws_is_refused_saying_so(tmp_path):
     """Meshes without nodes (a library), or a document whose ``scene`` names a scene without
     them, failed "empty mesh (no triangles)": the line now says that no node draws them; a
-    document without scenes whose nodes form a cycle (none is a root) says so."""
+    document without scenes whose nodes form a cycle (alone, or beside a root) names them."""
     import json
 
     from test_gltf_accessors import CUBE
@@ -234,16 +234,19 @@ def test_a_gltf_whose_meshes_no_node_draws_is_refused_saying_so(tmp_path):
     (meshes / "no_nodes.gltf").write_text(json.dumps({k: v for k, v in doc.items() if k not in ("nodes", "scenes",
                                                                                               "scene")}))
     (meshes / "other_scene.gltf").write_text(json.dumps({**doc, "scenes": [{"nodes": [0]}, {"nodes": []}], "scene": 1}))
-    cycle = {k: v for k, v in doc.items() if k not in ("scenes", "scene")}  # no scene, and no node a root:
+    cycle = {k: v for k, v in doc.items() if k not in ("scenes", "scene")}  # no scene; a cycle alone, beside a root
     (meshes / "cycle.gltf").write_text(json.dumps({**cycle, "nodes": [{"mesh": 0, "children": [1]}, {"children": [0]}]}))
+    (meshes / "cycle_beside_root.gltf").write_text(json.dumps({**cycle, "nodes": [{}, {"mesh": 0, "children": [2]},
+                                                                                   {"children": [1]}]}))
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST], expect_exit=1)
     says = ("none of its 1 mesh(es) is drawn by a node of the scene it draws (glTF draws a mesh only through a node), "
             "so there is nothing to render; not read")
-    cycle_says = ("it has no scene and every node of it is another node's child (its nodes form a cycle), so no node "
-                  "is a root to draw; not read")
+    cycle_says = "it has no scene, and node(s) {} form a cycle of children (glTF's nodes form trees), which no root " \
+                 "reaches; not read"
     assert sorted(f["reason"] for f in index_of(out)["failures"]) == [
-        f"{meshes / 'cycle.gltf'}: {cycle_says}", f"{meshes / 'no_nodes.gltf'}: {says}",
+        f"{meshes / 'cycle.gltf'}: {cycle_says.format('0, 1')}",
+        f"{meshes / 'cycle_beside_root.gltf'}: {cycle_says.format('1, 2')}", f"{meshes / 'no_nodes.gltf'}: {says}",
         f"{meshes / 'other_scene.gltf'}: {says}"]
 
 

@@ -16,15 +16,15 @@ def test_a_mesh_of_collinear_triangles_is_named_so(tmp_path):
     meshes = tmp_path / "m" / "c"
     meshes.mkdir(parents=True)
     (meshes / "needles.obj").write_text("v 0.1 0.2 0.3\nv 0.2 0.3 0.4\nv 0.3 0.4 0.5\nv 0.4 0.5 0.6\n"
-                                        "f 1 2 3\nf 1 2 4\n")
+                                        "f 1 2 3\nf 1 2 4\nf 1 1 2\n")  # and one of two corners in one point
     (meshes / "outlier.obj").write_text("v 0 0 0\nv 1e-4 0 0\nv 0 1e-4 0\nv 1e6 0 0\nv 1e6 1e-4 0\nv 1e6 0 1e-4\n"
                                         "f 1 2 3\nf 4 5 6\n")
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST], expect_exit=1)
     reasons = {f["source"]: f["reason"] for f in index_of(out)["failures"]}
     assert reasons == {
-        str(meshes / "needles.obj"): f"{meshes / 'needles.obj'}: every one of its 2 triangles has its corners on one "
-                                     "line (but for rounding), so it has no surface to draw",
+        str(meshes / "needles.obj"): f"{meshes / 'needles.obj'}: every triangle of it has its corners on one line "
+                                     "(but for rounding), so it has no surface to draw",
         str(meshes / "outlier.obj"): f"{meshes / 'outlier.obj'}: the silhouette is empty in every view after "
                                      "normalisation (geometry collapsed to under a pixel, e.g. by an outlier vertex "
                                      "far from the rest)"}, reasons

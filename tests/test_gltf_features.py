@@ -217,3 +217,19 @@ def test_a_texture_read_through_texcoord_1_is_drawn_with_that_set(tmp_path):
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
     assert index_of(out)["failures"] == [] and index_of(out)["warnings"] == []
     assert _cube_colours(out) == {"set1": "green", "set1_by_transform": "green"}
+
+
+def test_a_sparse_set_read_as_texcoord_0_is_named_by_its_own_name(tmp_path):
+    """A texture read through TEXCOORD_1 is given to the loader as TEXCOORD_0; a sparse TEXCOORD_1,
+    which the loader would not apply, was refused as "(TEXCOORD_0 of mesh 0) is sparse": the line
+    must name the set the file names."""
+    def sparse_set1(doc):
+        _textured(doc, texCoord=1)
+        doc["accessors"].append({"componentType": 5126, "count": 8, "type": "VEC2", "sparse": {
+            "count": 1, "indices": {"bufferView": 0, "componentType": 5125}, "values": {"bufferView": 0}}})
+        doc["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_1"] = len(doc["accessors"]) - 1
+
+    refusal = _refusal(tmp_path, sparse_set1)
+    a = json.loads((tmp_path / "cube.gltf").read_text())["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_1"]
+    assert refusal == (f"{tmp_path / 'cube.gltf'}: accessor {a} (TEXCOORD_1 of mesh 0) is sparse, which the loader "
+                       "does not apply; not read"), refusal

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sc3d_data.io.gltf_accessors import layout_problems
-from sc3d_data.io.gltf_features import feature_problems, read_texcoord_sets, textured
+from sc3d_data.io.gltf_features import feature_problems, read_texcoord_sets, set_read, textured
 from sc3d_data.io.gltf_instancing import instanced_nodes, instancing_problems
 from sc3d_data.io.gltf_dequantize import dequantize_problems, quantized_accessors
 from sc3d_data.io.gltf_draco import draco_primitives, draco_problems
@@ -183,9 +183,10 @@ def gltf_problems(doc: dict) -> list[str]:
     (module doc), one phrase each, in file order."""
     problems, sparse_seen = shared_children(doc), set()
     accessors, meshes, drawn = doc.get("accessors", []), doc.get("meshes", []), drawn_meshes(doc)
-    if meshes and not drawn and not doc.get("scenes") and doc.get("nodes") and not scene_roots(doc):
-        problems.append("it has no scene and every node of it is another node's child (its nodes form a cycle), so "
-                        "no node is a root to draw")
+    unreached = sorted(set(range(len(doc.get("nodes", [])))) - set(drawn_nodes(doc))) if not doc.get("scenes") else []
+    if unreached:  # without scenes every node that is no child is a root: the others hang in a cycle
+        problems.append(f"it has no scene, and node(s) {', '.join(map(str, unreached[:5]))}{', ...' * (len(unreached) > 5)} "
+                        "form a cycle of children (glTF's nodes form trees), which no root reaches")
     elif meshes and not drawn:  # the loader draws nothing: "empty mesh (no triangles)" said less
         problems.append(f"none of its {len(meshes)} mesh(es) is drawn by a node of the scene it draws (glTF draws a "
                         "mesh only through a node), so there is nothing to render")
@@ -204,6 +205,7 @@ def gltf_problems(doc: dict) -> list[str]:
             for role, a in used:
                 if a is not None and a not in sparse_seen and "sparse" in accessors[a]:
                     sparse_seen.add(a)
+                    role = set_read(attributes, role, a)
                     problems.append(f"accessor {a} ({role} of mesh {m}) is sparse, which the loader does not apply")
     return problems
 

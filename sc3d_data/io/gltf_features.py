@@ -43,7 +43,7 @@ import importlib.util
 import numpy as np
 
 __all__ = ["READ_OR_MOOT", "UNDECODED", "apply_texture_transforms", "feature_problems", "feature_warnings",
-           "read_spec_gloss_as_matte", "read_texcoord_sets", "textured",
+           "read_spec_gloss_as_matte", "read_texcoord_sets", "set_read", "textured",
            "transform_matrix", "transform_names"]
 
 #: required extensions the loader cannot decode: ``{name: what it is}``
@@ -276,3 +276,12 @@ def read_texcoord_sets(doc: dict) -> int:
                 attributes["TEXCOORD_0"] = attributes[f"TEXCOORD_{n}"]
                 changed += 1
     return changed
+
+
+def set_read(attributes: dict, role: str, a: int) -> str:
+    """The name the file gives attribute ``role`` (accessor ``a``) of a primitive whose
+    ``attributes`` :func:`read_texcoord_sets` may have changed: for a ``TEXCOORD_0`` it took from
+    another set, that set's name."""
+    if role != "TEXCOORD_0":
+        return role
+    return next((r for r, b in attributes.items() if r.startswith("TEXCOORD_") and r != role and b == a), role)

@@ -138,8 +138,8 @@ def render_one(renderer, task: Task, config: RenderConfig) -> tuple[ObjectRecord
     arrays = renderer.read()
     if not np.asarray(arrays["masks"]).any():
         if all_needles(vertices, faces):
-            raise MeshError(f"{task.path}: every one of its {len(faces):,} triangles has its corners on one line (but "
-                            "for rounding), so it has no surface to draw")
+            raise MeshError(f"{task.path}: every triangle of it has its corners on one line (but for rounding), so it "
+                            "has no surface to draw")
         raise MeshError(f"{task.path}: the silhouette is empty in every view after normalisation (geometry "
                         "collapsed to under a pixel, e.g. by an outlier vertex far from the rest)")
     if voxel_error is not None:
