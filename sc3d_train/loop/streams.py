@@ -19,7 +19,7 @@ def phase_dataset(cfg: RunConfig, subset: str) -> ShardDataset:
     return ShardDataset(cfg.shards, cfg.split, subset=subset, labeled_fraction=fraction,
                         seed=cfg.seed, mask_size=cfg.model.mask_size,
                         require_voxels=subset != "unlabeled", image_size=cfg.image_size,
-                        decoded_cache=cfg.decoded_cache, order=cfg.object_order or "shards")
+                        decoded_cache=cfg.decoded_cache, order=cfg.dataset_order)
 
 
 def run_datasets(cfg: RunConfig) -> dict:

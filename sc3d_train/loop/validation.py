@@ -105,7 +105,7 @@ def validation_dataset(cfg: RunConfig) -> ShardDataset | None:
         return None
     try:
         return ShardDataset(cfg.shards, cfg.val_split, subset="all", mask_size=cfg.model.mask_size,
-                            require_voxels=True, image_size=cfg.image_size, order=cfg.object_order or "shards")
+                            require_voxels=True, image_size=cfg.image_size, order=cfg.dataset_order)
     except DataError as e:
         if "is empty" in str(e):
             return None

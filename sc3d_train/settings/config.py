@@ -349,6 +349,12 @@ class RunConfig(_Plain):
                 raise
             raise ConfigError(f"{path}: {e}") from e
 
+    @property
+    def dataset_order(self) -> str:
+        """The order the run's datasets hold their objects in (``ShardDataset(order=)``):
+        ``object_order``, or the shards' order for a run of an earlier version, which has none."""
+        return self.object_order or "shards"
+
     @staticmethod
     def path_in(run_dir: Path) -> Path:
         """The config file of run folder ``run_dir`` (``config.json`` for runs of earlier
