@@ -164,9 +164,10 @@ def test_gltf_instancing_unknown_required_extensions_and_sparse_colours_are_refu
     assert set(_objects(out)) == {"requires_known", "sparse_uv_untextured", "instanced"}
 
 
-def _prism_off(hexagons_as_triangles: bool, header: str = "OFF") -> str:
+def _prism_off(hexagons_as_triangles: bool, header: str = "OFF", cap_colour: str = "") -> str:
     """A hexagonal prism as OFF text: two hexagons and six quad sides, or (``hexagons_as_triangles``)
-    each hexagon written by hand as the four triangles of its fan from corner 0."""
+    each hexagon written by hand as the four triangles of its fan from corner 0; ``cap_colour``
+    (``" r g b"``) after the corners of each hexagon (or each of its triangles)."""
     import math
 
     ring = [(math.cos(k * math.pi / 3), math.sin(k * math.pi / 3)) for k in range(6)]
@@ -175,7 +176,7 @@ def _prism_off(hexagons_as_triangles: bool, header: str = "OFF") -> str:
     caps = [[h[0], h[i], h[i + 1]] for h in (bottom, top) for i in range(1, 5)] if hexagons_as_triangles \
         else [bottom, top]
     sides = [[k, (k + 1) % 6, (k + 1) % 6 + 6, k + 6] for k in range(6)]
-    faces = [f"{len(f)} " + " ".join(map(str, f)) + (" 255 0 0" if len(f) == 6 else "") for f in caps + sides]
+    faces = [f"{len(f)} " + " ".join(map(str, f)) + (cap_colour if f in caps else "") for f in caps + sides]
     return "\n".join([header, "# a prism", f"{len(vertices)} {len(faces)} 0", *vertices, *faces]) + "\n"
 
 
@@ -185,7 +186,8 @@ def test_ply_diffuse_colours_off_polygons_and_clamped_mtl_textures(tmp_path):
     the pixels of the same file with ``red/green/blue``. An OFF with hexagons beside quads (a
     prism; CAD exports) failed "cannot parse" (trimesh's OFF loader): it must draw the pixels of
     the same prism whose hexagons are written as triangles by hand, also after a header with the
-    counts on its line and in ``COFF``. A ``map_Kd -clamp on`` texture, which the renderer repeats,
+    counts on its line and in ``COFF`` with a colour after each hexagon's corners (drawn since
+    ``io.off_colours``: the reference's triangles carry it). A ``map_Kd -clamp on`` texture, which the renderer repeats,
     is warned of, naming the material."""
     import trimesh
 
@@ -205,8 +207,9 @@ def test_ply_diffuse_colours_off_polygons_and_clamped_mtl_textures(tmp_path):
     (meshes / "diffuse_colours.ply").write_text(ply("diffuse_"))
     (meshes / "prism_triangles.off").write_text(_prism_off(True))
     (meshes / "prism_hexagons.off").write_text(_prism_off(False))
+    (meshes / "prism_red_triangles.off").write_text(_prism_off(True, cap_colour=" 255 0 0"))
     (meshes / "prism_coff_counts_on_header.off").write_text(
-        _prism_off(False, "COFF").replace("COFF\n# a prism\n", "COFF ", 1))
+        _prism_off(False, "COFF", " 255 0 0").replace("COFF\n# a prism\n", "COFF ", 1))
     _textured_clamp = meshes / "clamped"
     _textured_clamp.mkdir()
     (_textured_clamp / "m.obj").write_text("mtllib m.mtl\n" + "\n".join("v %f %f %f" % tuple(p) for p in box.vertices)
@@ -227,7 +230,7 @@ def test_ply_diffuse_colours_off_polygons_and_clamped_mtl_textures(tmp_path):
     grey = objects["plain_colours"]["images"][objects["plain_colours"]["masks"] > 0]
     assert np.ptp(grey.astype(int), axis=1).max() > 50  # the reference is coloured, not grey
     for name, reference in (("diffuse_colours", "plain_colours"), ("prism_hexagons", "prism_triangles"),
-                            ("prism_coff_counts_on_header", "prism_triangles")):
+                            ("prism_coff_counts_on_header", "prism_red_triangles")):
         np.testing.assert_array_equal(objects[name]["masks"], objects[reference]["masks"], err_msg=name)
         np.testing.assert_array_equal(objects[name]["images"], objects[reference]["images"], err_msg=name)
 

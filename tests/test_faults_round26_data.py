@@ -2,8 +2,10 @@
 real files written here; expected messages and values derived by hand."""
 from __future__ import annotations
 
+import numpy as np
+
 from sc3d_cli.data import main as data_main
-from conftest import run_cli
+from conftest import objects_by_id, run_cli
 from test_faults import FAST, index_of
 
 
@@ -30,23 +32,68 @@ def test_a_mesh_of_collinear_triangles_is_named_so(tmp_path):
                                      "far from the rest)"}, reasons
 
 
-def test_the_colours_of_an_off_file_that_are_dropped_are_warned_of(tmp_path):
+def _ply_tetrahedron(vertex_colours: list | None = None, face_colours: list | None = None) -> str:
+    """The tetrahedron of the OFF test below as an ASCII PLY, with colours (bytes) by vertex or face."""
+    def props(colours):
+        return ["property uchar red", "property uchar green", "property uchar blue"] if colours else []
+
+    head = ["ply", "format ascii 1.0", "element vertex 4", "property float x", "property float y", "property float z",
+            *props(vertex_colours), "element face 4", "property list uchar int vertex_indices", *props(face_colours),
+            "end_header"]
+    rows = [v + ("" if not vertex_colours else " %d %d %d" % c) for v, c in zip(TETRA_V, vertex_colours or TETRA_V)]
+    rows += [f + ("" if not face_colours else " %d %d %d" % c) for f, c in zip(TETRA_F, face_colours or TETRA_F)]
+    return "\n".join(head + rows) + "\n"
+
+
+TETRA_V = ["0 0 0", "1 0 0", "0 1 0", "0 0 1"]
+TETRA_F = ["3 0 1 2", "3 0 1 3", "3 0 2 3", "3 1 2 3"]
+
+
+def test_the_colours_of_an_off_file_are_drawn(tmp_path):
     """trimesh's OFF reader drops ``COFF`` vertex colours and the colours after a face's corners:
-    such a tetrahedron rendered grey with no warning (docs/data.md said so). Each must now warn
-    that its colours are not read; the same tetrahedron without colours, also with a comment
-    after its last face, warns of nothing (control)."""
+    such a tetrahedron rendered grey (a warning said so since the twenty-sixth round). They must
+    be drawn as the same tetrahedron written by hand as a PLY with those colours draws them:
+    MeshLab's whole numbers with alpha, Geomview's floats 0-1, whole numbers none above 1 read as
+    floats (``1 0 0`` is red: the control that the 0-255 reading, which draws it black, is not
+    taken there), per-face colours in both, and faces without a colour beside coloured ones in
+    the renderer's grey 0.3 (77 of 255; the uncoloured file draws within one level of a PLY of
+    that colour). A face colour of one number (an index into Geomview's colour map) is not read:
+    warned of, drawn as the file without colours."""
     meshes = tmp_path / "m" / "c"
     meshes.mkdir(parents=True)
-    vertices, faces = ["0 0 0", "1 0 0", "0 1 0", "0 0 1"], ["3 0 1 2", "3 0 1 3", "3 0 2 3", "3 1 2 3"]
-    colours = ["255 0 0", "0 255 0", "0 0 255", "255 255 0"]
-    files = {"vertex_colours": ["COFF", "4 4 0", *(f"{v} {c} 255" for v, c in zip(vertices, colours)), *faces],
-             "face_colours": ["OFF", "4 4 0", *vertices, *(f"{f} 1 0 0" for f in faces)],
-             "plain": ["OFF", "4 4 0", *vertices, *faces],
-             "comment": ["OFF", "4 4 0", *vertices, *faces[:-1], faces[-1] + "  # the last face", ""]}
+    colours = [(200, 30, 60), (20, 180, 90), (40, 60, 230), (250, 240, 10)]
+    units = [(1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0)]
+    floats = [" ".join(f"{c / 255:.6f}" for c in rgb) for rgb in colours]
+    files = {"vc_int": ["COFF", "4 4 0", *(f"{v} {' '.join(map(str, c))} 255" for v, c in zip(TETRA_V, colours)),
+                        *TETRA_F],
+             "vc_float": ["COFF", "4 4 0", *(f"{v} {c} 1.0" for v, c in zip(TETRA_V, floats)), *TETRA_F],
+             "vc_unit_ints": ["COFF", "4 4 0", *(f"{v} {' '.join(map(str, c))} 1" for v, c in zip(TETRA_V, units)),
+                              *TETRA_F],
+             "fc_int": ["OFF", "4 4 0", *TETRA_V, *(f"{f} {' '.join(map(str, c))}" for f, c in zip(TETRA_F, colours))],
+             "fc_float": ["OFF", "4 4 0", *TETRA_V, *(f"{f} {c} 1" for f, c in zip(TETRA_F, floats))],
+             "fc_partial": ["OFF", "4 4 0", *TETRA_V, TETRA_F[0] + " 0 0 255", TETRA_F[1] + " 0 0 255", *TETRA_F[2:]],
+             "fc_colour_map": ["OFF", "4 4 0", *TETRA_V, *(f + " 7" for f in TETRA_F)],
+             "plain": ["OFF", "4 4 0", *TETRA_V, *TETRA_F]}
     for name, lines in files.items():
         (meshes / f"{name}.off").write_text("\n".join(lines) + "\n")
+    grey = (77, 77, 77)
+    references = {"ref_vertex": _ply_tetrahedron(vertex_colours=colours),
+                  "ref_unit": _ply_tetrahedron(vertex_colours=[tuple(255 * c for c in u) for u in units]),
+                  "ref_face": _ply_tetrahedron(face_colours=colours),
+                  "ref_partial": _ply_tetrahedron(face_colours=[(0, 0, 255), (0, 0, 255), grey, grey]),
+                  "ref_grey": _ply_tetrahedron(face_colours=[grey] * 4)}
+    for name, text in references.items():
+        (meshes / f"{name}.ply").write_text(text)
     out = tmp_path / "out"
     run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
-    assert sorted(w["warning"] for w in index_of(out)["warnings"]) == [
-        f"{meshes / 'face_colours.off'}: its per-face colours are not read: it renders in the default grey",
-        f"{meshes / 'vertex_colours.off'}: its vertex colours (COFF) are not read: it renders in the default grey"]
+    assert [w["warning"] for w in index_of(out)["warnings"]] == [
+        f"{meshes / 'fc_colour_map.off'}: its per-face colours are not read: it renders in the default grey"]
+    objects = {name[1]: obj for name, obj in objects_by_id(out).items()}
+    reference = objects["ref_vertex"]["images"][objects["ref_vertex"]["masks"] > 0].astype(int)
+    assert np.ptp(reference, axis=1).max() > 100  # the reference is coloured
+    for name, ref in (("vc_int", "ref_vertex"), ("vc_float", "ref_vertex"), ("vc_unit_ints", "ref_unit"),
+                      ("fc_int", "ref_face"), ("fc_float", "ref_face"), ("fc_partial", "ref_partial"),
+                      ("fc_colour_map", "plain")):
+        np.testing.assert_array_equal(objects[name]["masks"], objects[ref]["masks"], err_msg=name)
+        np.testing.assert_array_equal(objects[name]["images"], objects[ref]["images"], err_msg=name)
+    assert np.abs(objects["plain"]["images"].astype(int) - objects["ref_grey"]["images"]).max() <= 1

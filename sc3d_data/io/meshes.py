@@ -48,9 +48,9 @@ class MeshError(ValueError):
     """A mesh file that cannot be used; the message names the file and the reason."""
 
 
-def load_scene(path: Path, resolver=None, text: bytes | None = None):
+def load_scene(path: Path, resolver=None, text: bytes | None = None, text_type: str | None = None):
     """Parse ``path`` (or ``text``, its content to load instead: ``io.obj_loader_text``,
-    ``io.gltf_loader_doc``) into a
+    ``io.gltf_loader_doc``; in format ``text_type``, default the file's suffix) into a
     ``trimesh.Scene`` (no validation), reading the files it names through ``resolver``
     (``io.texture_resolver.make_resolver``; None: trimesh's own, rooted at the mesh's folder).
     Raises ``MeshError`` when the file does not parse."""
@@ -66,7 +66,7 @@ def load_scene(path: Path, resolver=None, text: bytes | None = None):
         raise MeshError(f"{path}: unsupported mesh format {path.suffix!r} (use one of {', '.join(MESH_SUFFIXES)})")
     try:
         source = dict(file_obj=str(path)) if text is None else dict(file_obj=io.BytesIO(text),
-                                                                     file_type=path.suffix.lower().lstrip("."))
+                                                                     file_type=text_type or path.suffix.lower().lstrip("."))
         with quiet_loader():  # what its logger says of the files it asks for, one line naming the mesh says
             scene = trimesh.load(**source, force="scene", process=False, resolver=resolver)
     except (UnicodeDecodeError, ModuleNotFoundError) as e:  # text formats: bytes that no charset decodes
@@ -200,7 +200,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     from sc3d_data.io.loader_visuals import keep_obj_vertex_colours, move_texture, texture_as_is
     from sc3d_data.io.materials import material_report
     from sc3d_data.io.obj_loader_text import check_obj_indices, loader_obj_bytes
-    from sc3d_data.io.off_polygons import colour_notes, faces_one_per_line, loader_off_bytes
+    from sc3d_data.io.off_colours import coloured_off_as_ply
+    from sc3d_data.io.off_polygons import faces_one_per_line, loader_off_bytes
     from sc3d_data.io.ply_header import loader_ply_bytes
     from sc3d_data.io.ply_strips import strips_as_faces
     from sc3d_data.io.stl_check import loader_stl_bytes
@@ -241,7 +242,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     resolver = make_resolver(path, root)
     read_spec_gloss_as_matte()
     keep_obj_vertex_colours()
-    scene = load_scene(path, resolver, text)
+    ply_of_off, off_notes = coloured_off_as_ply(path) if path.suffix.lower() == ".off" else (None, [])
+    scene = load_scene(path, resolver, ply_of_off or text, "ply" if ply_of_off else None)  # an OFF's colours: as PLY
     if path.suffix.lower() == ".off" and not any(len(getattr(g, "faces", ())) for g in scene.geometry.values()) \
             and (relined := faces_one_per_line(path)) is not None:  # face lists over several lines
         scene = load_scene(path, resolver, relined)
@@ -260,8 +262,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     vertices, faces = scene_triangles(scene, str(path))
     faces = validate_triangles(vertices, faces, str(path), max_faces)
     notes = report.warnings + report.outside + (feature_warnings(gltf_doc, drawn_meshes(gltf_doc, safe=True))
-                                                if gltf_doc is not None else []) + (
-        colour_notes(path) if path.suffix.lower() == ".off" else [])
+                                                if gltf_doc is not None else []) + off_notes
     warnings = ([f"{path}: {p}; rendered with material colours" for p in report.problems + missed]
                 + [f"{path}: {n}" for n in notes] + unused_texture_warnings(path, scene, report))
     return scene, vertices, faces, warnings

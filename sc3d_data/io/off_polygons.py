@@ -17,24 +17,27 @@ Geomview's OFF reader and libigl read as tokens, failed "empty mesh (no triangle
 loader where the file as written yields no triangle.
 
 The loader reads no colour of an OFF file (``COFF`` vertex colours, a colour after a face's
-corners): such an object renders grey; :func:`colour_notes` says so in a warning.
+corners); ``io.off_colours`` gives it such a file as a PLY, and :func:`colour_notes` finds the
+files that have colours and, where that module cannot read them, says so in a warning.
 """
 from __future__ import annotations
 
 import re
 from pathlib import Path
 
-__all__ = ["colour_notes", "faces_one_per_line", "loader_off_bytes"]
+__all__ = ["FACE_COLOURS_UNREAD", "POLYGON_LINE", "colour_notes", "faces_one_per_line", "loader_off_bytes", "off_lines"]
 
 #: a line that starts with a whole number of five or more and five more whole numbers: a candidate
 #: polygon's face line (the counts line has two more; a vertex line of whole numbers with a colour
 #: may match too, and only costs the full reading)
-_POLYGON = re.compile(rb"(?m)^[ \t]*(?:[5-9]|[1-9]\d+)(?:[ \t]+\d+){5}(?![\d.eE])")
+POLYGON_LINE = re.compile(rb"(?m)^[ \t]*(?:[5-9]|[1-9]\d+)(?:[ \t]+\d+){5}(?![\d.eE])")
+#: the warning phrase of per-face colours that are not read
+FACE_COLOURS_UNREAD = "its per-face colours are not read: it renders in the default grey"
 #: the header keyword (``OFF``, ``COFF``, ``NOFF``, ``STOFF``...) and what follows it on its line
 _HEADER = re.compile(r"^([A-Z]*OFF)\s*(.*)$")
 
 
-def _lines(data: bytes) -> tuple[str, list[str]] | None:
+def off_lines(data: bytes) -> tuple[str, list[str]] | None:
     """``(header keyword, lines after it)`` of OFF ``data`` without comments and blank lines (the
     counts that may follow the keyword on its line first), or None for a file without a header."""
     lines = [line.split("#", 1)[0].strip() for line in data.decode("latin-1").splitlines()]
@@ -60,7 +63,7 @@ def loader_off_bytes(path: Path) -> bytes | None:
     """The OFF text to give the loader in place of file ``path`` (module doc), or None to load the
     file as it is (no polygon of five or more corners, or a file the loader is left to judge)."""
     data = Path(path).read_bytes()
-    if not _POLYGON.search(data) or (read := _lines(data)) is None:
+    if not POLYGON_LINE.search(data) or (read := off_lines(data)) is None:
         return None
     keyword, body = read
     try:
@@ -81,7 +84,7 @@ def loader_off_bytes(path: Path) -> bytes | None:
 def faces_one_per_line(path: Path) -> bytes | None:
     """The OFF text of file ``path`` with each face on one line, where its face lists run over
     several lines (module doc), or None (no such face, or a file the loader is left to judge)."""
-    read = _lines(Path(path).read_bytes())
+    read = off_lines(Path(path).read_bytes())
     if read is None:
         return None
     keyword, body = read
@@ -113,11 +116,11 @@ def colour_notes(path: Path) -> list[str]:
         f.seek(0, 2)
         f.seek(max(0, f.tell() - 4096))
         tail = f.read()
-    read = _lines(head)
+    read = off_lines(head)
     if read is not None and "C" in read[0][:-3] and len(read[1]) > 1 and len(read[1][1].split()) > 3:
         return [f"its vertex colours ({read[0]}) are not read: it renders in the default grey"]
     lines = [line.split(b"#", 1)[0].split() for line in tail.splitlines()]
     words = next((w for w in reversed(lines) if w), [])
     if words and words[0].isdigit() and len(words) > 1 + int(words[0]) >= 4:  # a face line with more than its corners
-        return ["its per-face colours are not read: it renders in the default grey"]
+        return [FACE_COLOURS_UNREAD]
     return []
