@@ -31,6 +31,12 @@ __all__ = ["FACE_COLOURS_UNREAD", "POLYGON_LINE", "colour_notes", "faces_one_per
 #: polygon's face line (the counts line has two more; a vertex line of whole numbers with a colour
 #: may match too, and only costs the full reading)
 POLYGON_LINE = re.compile(rb"(?m)^[ \t]*(?:[5-9]|[1-9]\d+)(?:[ \t]+\d+){5}(?![\d.eE])")
+#: a header keyword of Geomview's points of other dimensions (``4OFF``: 4; ``nOFF``: the number
+#: after it), whose first three coordinates the loader would draw as a 3D mesh
+_DIMENSIONS = re.compile(rb"\A(?:\s|#[^\n]*\n)*([STCN]*(?:4n?|n)OFF)\b")
+#: a counts line (vertices, faces and perhaps edges), and a file that starts with one
+_COUNTS = re.compile(r"\d+\s+\d+(?:\s+\d+)?")
+_COUNTS_FIRST = re.compile(rb"\A(?:\s|#[^\n]*\n)*\d+[ \t]+\d+(?:[ \t]+\d+)?[ \t]*(?:#[^\n]*)?\r?\n")
 #: the warning phrase of per-face colours that are not read
 FACE_COLOURS_UNREAD = "its per-face colours are not read: it renders in the default grey"
 #: the header keyword (``OFF``, ``COFF``, ``NOFF``, ``STOFF``...) and what follows it on its line
@@ -43,8 +49,8 @@ def off_lines(data: bytes) -> tuple[str, list[str]] | None:
     lines = [line.split("#", 1)[0].strip() for line in data.decode("latin-1").splitlines()]
     lines = [line for line in lines if line]
     header = _HEADER.match(lines[0]) if lines else None
-    if header is None:
-        return None
+    if header is None:  # Geomview's keyword is optional: a file may start with its counts
+        return ("OFF", lines) if lines and _COUNTS.fullmatch(lines[0]) else None
     return header.group(1), ([header.group(2)] if header.group(2) else []) + lines[1:]
 
 
@@ -61,9 +67,15 @@ def _text(keyword: str, vertices: list[str], faces: list[str]) -> bytes:
 
 def loader_off_bytes(path: Path) -> bytes | None:
     """The OFF text to give the loader in place of file ``path`` (module doc), or None to load the
-    file as it is (no polygon of five or more corners, or a file the loader is left to judge)."""
+    file as it is (no polygon of five or more corners, or a file the loader is left to judge); a
+    file without a header keyword (optional in Geomview's OFF; trimesh's loader needs it) gets one.
+    Raises ValueError for a file of points of another dimension than 3 (``4OFF``, ``nOFF``)."""
     data = Path(path).read_bytes()
-    if not POLYGON_LINE.search(data) or (read := off_lines(data)) is None:
+    if (dimensions := _DIMENSIONS.match(data)) is not None:
+        raise ValueError(f"its header {dimensions.group(1).decode()} says its points have "
+                         f"{'4' if b'4' in dimensions.group(1) else 'N (given after it)'} coordinates: not a 3D mesh")
+    headless = _COUNTS_FIRST.match(data) is not None
+    if not (headless or POLYGON_LINE.search(data)) or (read := off_lines(data)) is None:
         return None
     keyword, body = read
     try:
@@ -76,7 +88,7 @@ def loader_off_bytes(path: Path) -> bytes | None:
             faces += _fan(corners)
     except (ValueError, IndexError):
         return None  # malformed: the loader names it
-    if not polygons:
+    if not polygons and not headless:
         return None
     return _text(keyword, body[1:1 + n_vertices], faces)
 

@@ -1,0 +1,42 @@
+"""Data-half defects of the twenty-seventh round (OFF files as Geomview's own examples and
+ModelNet write them). Real loader, renderer and command; references are the same shapes written
+by hand in the form the loader always read."""
+from __future__ import annotations
+
+import numpy as np
+
+from sc3d_cli.data import main as data_main
+from conftest import objects_by_id, run_cli
+from test_faults import FAST, index_of
+
+CUBE_V = ["-1 -1 -1", "1 -1 -1", "1 1 -1", "-1 1 -1", "-1 -1 1", "1 -1 1", "1 1 1", "-1 1 1"]
+CUBE_QUADS = ["4 0 3 2 1", "4 4 5 6 7", "4 0 1 5 4", "4 2 3 7 6", "4 1 2 6 5", "4 0 4 7 3"]
+
+
+def test_off_headers_without_keyword_glued_to_counts_and_of_four_dimensions(tmp_path):
+    """Geomview's OFF keyword is optional (its example ``pieces/cube1.off`` starts with its
+    counts): such a file failed "cannot parse mesh file (ValueError: not enough values to
+    unpack...)"; it must draw the pixels of the same cube with an ``OFF`` line. ModelNet's files
+    glue the counts to the keyword (``OFF8 6 0``): drawn as the reference too (control of a form
+    that already worked). A ``4OFF`` file (points of four coordinates: Geomview's hypercubes) was
+    drawn from its first three coordinates, or failed "zero surface area": it must be refused
+    saying what its header means."""
+    meshes = tmp_path / "m" / "c"
+    meshes.mkdir(parents=True)
+    (meshes / "reference.off").write_text("\n".join(["OFF", "8 6 12", *CUBE_V, *CUBE_QUADS]) + "\n")
+    (meshes / "headless.off").write_text("\n".join(["# a cube", "8 6 12", *CUBE_V, *CUBE_QUADS]) + "\n")
+    (meshes / "glued.off").write_text("\n".join(["OFF8 6 0", *CUBE_V, *CUBE_QUADS]) + "\n")
+    (meshes / "tesseract_slice.off").write_text(
+        "\n".join(["4OFF", "8 6 12", *(v + " 0.5" for v in CUBE_V), *CUBE_QUADS]) + "\n")
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    assert [f["reason"] for f in index_of(out)["failures"]] == [
+        f"{meshes / 'tesseract_slice.off'}: its header 4OFF says its points have 4 coordinates: not a 3D mesh; "
+        "not read"]
+    assert index_of(out)["warnings"] == []
+    objects = {name[1]: obj for name, obj in objects_by_id(out).items()}
+    assert set(objects) == {"reference", "headless", "glued"}
+    assert objects["reference"]["masks"].mean() > 0.1
+    for name in ("headless", "glued"):
+        np.testing.assert_array_equal(objects[name]["masks"], objects["reference"]["masks"], err_msg=name)
+        np.testing.assert_array_equal(objects[name]["images"], objects["reference"]["images"], err_msg=name)
