@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from sc3d_cli.folder_path import FilePath
 from sc3d_data.io.names import printable
 
 
@@ -24,10 +25,10 @@ from sc3d_data.io.names import printable
               help="Also exit 1 when any object's mean IoU is below this (0: IoU is only reported; "
                    "thin objects score low IoU at 32^3 even when correct).")
 @click.option("--worst", default=10, show_default=True, type=click.IntRange(1), help="Worst objects listed (the picture draws the first 8 of them).")
-@click.option("--png", type=click.Path(dir_okay=False),
+@click.option("--png", type=FilePath(),
               help="Picture of the worst views (image | mask | voxels | diff); default SHARDS/check_worst.png "
                    "(not written there when the dataset is read-only: a warning, not an error).")
-@click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Write per-object scores as JSON.")
+@click.option("--json", "json_out", type=FilePath(), help="Write per-object scores as JSON.")
 @click.option("--progress/--no-progress", default=True, show_default=True)
 def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, json_out, progress):
     """Project every object's voxels through each stored camera and compare with the rendered

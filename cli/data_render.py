@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from sc3d_cli.folder_path import FolderPath
+from sc3d_cli.folder_path import FilePath, FolderPath
 from sc3d_data.geometry.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS
 from sc3d_data.io.meshes import DEFAULT_MAX_FACES, DEFAULT_MAX_FILE_BYTES
 from sc3d_cli.scale_options import axis_value, executor_options, part_from_slurm_note, part_option, run_render
@@ -67,7 +67,7 @@ def _rgb(text: str) -> tuple[int, int, int]:
 @click.option("--category", default=None, callback=lambda ctx, param, v: _not_blank(v, param),
               help="Give every mesh this category instead of the folder's.")
 @click.option("--split", default="random:0.7,0.1,0.2", show_default=True, help=SPLIT_HELP)
-@click.option("--split-file", multiple=True, help=SPLIT_FILE_HELP + " Repeatable.")
+@click.option("--split-file", multiple=True, type=FilePath("a split file", dir_okay=True), help=SPLIT_FILE_HELP + " Repeatable.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--objects-per-shard", type=click.IntRange(1), default=256, show_default=True)
 @click.option("--chunks", type=click.Choice(["view", "object"]), default="view", show_default=True,

@@ -281,7 +281,7 @@ def find_r2n2_models(renderings: Path, voxels: Path, categories=None
     for p, what in ((renderings, "--renderings"), (voxels, "--voxels")):
         if not p.is_dir():
             raise FileNotFoundError(f"{p}: {what} folder not found")
-    wanted = resolve_categories(categories) if categories else None
+    wanted = resolve_categories(categories) if categories is not None else None  # '' names nothing: refused
     problems: list[dict] = []
     models: list[R2N2Model] = []
     synsets = sorted(d.name for d in renderings.iterdir() if d.is_dir() and is_synset_id(d.name))
