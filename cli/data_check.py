@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from sc3d_cli.folder_path import FilePath
-from sc3d_data.io.names import printable
+from sc3d_data.io.names import printable, shell_word
 
 
 @click.command("check")
@@ -56,9 +56,14 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
                               min_near=min_near)
     except (FileNotFoundError, ValueError, OSError) as e:
         raise click.ClickException(one_line(e))
+    left_out = (f"{len(report.left_out)} object(s) left out, their voxelization failed (index.json failures; "
+                f"`sc3d-data info {shell_word(shards)}` gives the reasons): " + ", ".join(map(printable, report.left_out[:3]))
+                + (", ..." if len(report.left_out) > 3 else ""))
     if not report.objects:
-        raise click.ClickException(f"{shards}: no objects to check")
+        raise click.ClickException(f"{shards}: no objects to check" + (f" ({left_out})" if report.left_out else ""))
     click.echo(report.text(worst))
+    if report.left_out:
+        click.echo(f"note: {left_out}", err=True)
     if not load_index(Path(shards)).get("complete"):  # the verdict covers only what the shards hold
         click.echo(f"note: {printable(shards)} is incomplete (the command that writes it stopped before its end; rerun it to "
                    "finish): the verdict is on the objects written so far", err=True)
@@ -79,6 +84,7 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
         try:
             Path(json_out).write_text(json.dumps(
                 {"min_iou": min_iou, "min_coverage": min_coverage, "min_near": min_near, "passed": report.passed, "per_category": report.per_category(),
+                 "left_out_voxelize_failed": report.left_out,
                  "objects": [{"category": o.category, "model_id": o.model_id, "shard": o.shard, "row": o.row,
                               "behind_camera_views": list(o.behind), "mean_iou": o.mean_iou, "mean_coverage": o.mean_coverage, "mean_near": o.mean_near,
                               "near": o.near.round(4).tolist(), "iou": o.iou.round(4).tolist(),

@@ -40,3 +40,30 @@ def test_off_headers_without_keyword_glued_to_counts_and_of_four_dimensions(tmp_
     for name in ("headless", "glued"):
         np.testing.assert_array_equal(objects[name]["masks"], objects["reference"]["masks"], err_msg=name)
         np.testing.assert_array_equal(objects[name]["images"], objects["reference"]["images"], err_msg=name)
+
+
+def test_check_leaves_out_objects_whose_voxelization_failed(tmp_path):
+    """After ``voxelize SHARDS`` could not voxelize an object (its mesh moved away), the object
+    keeps an empty placeholder grid and a ``stage: voxelize`` failure in the index; ``check``
+    scored that grid (coverage 0) and failed the dataset (exit 1) without saying it was that
+    known failure. It must leave the object out, say so in a note naming it, list it in
+    ``--json``, and judge the others (which pass: exit 0)."""
+    import json
+
+    meshes = tmp_path / "m" / "box"
+    meshes.mkdir(parents=True)
+    cube = "".join(f"v {v}\n" for v in CUBE_V) + "".join(
+        "f " + " ".join(str(int(c) + 1) for c in q.split()[1:]) + "\n" for q in CUBE_QUADS)
+    for name in ("kept", "moved"):
+        (meshes / f"{name}.obj").write_text(cube)
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    (meshes / "moved.obj").rename(tmp_path / "moved.obj")
+    run_cli(data_main, ["voxelize", out, "--no-progress"], expect_exit=None)
+    assert [f["model_id"] for f in index_of(out)["failures"] if f.get("stage") == "voxelize"] == ["moved"]
+    res = run_cli(data_main, ["check", out, "--no-progress", "--json", tmp_path / "check.json"])
+    assert "note: 1 object(s) left out, their voxelization failed" in res.output and "box/moved" in res.output
+    report = json.loads((tmp_path / "check.json").read_text())
+    assert report["left_out_voxelize_failed"] == ["box/moved"]
+    assert [o["model_id"] for o in report["objects"]] == ["kept"] and report["passed"]
+    assert report["objects"][0]["mean_coverage"] > 0.98

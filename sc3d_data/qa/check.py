@@ -43,10 +43,11 @@ from pathlib import Path
 import numpy as np
 
 from sc3d_data.geometry.projection import project_voxels_views
+from sc3d_data.io.failed_grids import voxelize_failures
 from sc3d_data.io.names import printable, shell_word
 from sc3d_data.io.pictures import write_figure
 from sc3d_data.io.shard_reader import ShardReader, iter_objects, verify_shards
-from sc3d_data.io.shards import ShardError, shard_path
+from sc3d_data.io.shards import ShardError, load_index, shard_path
 from sc3d_data.formats.shapenet import category_label
 
 DEFAULT_MIN_IOU = 0.0
@@ -86,6 +87,8 @@ class ObjectScore:
 @dataclass
 class CheckReport:
     objects: list[ObjectScore] = field(default_factory=list)
+    #: ``category/model_id`` of the objects left out: their voxelization failed (``io.failed_grids``)
+    left_out: list[str] = field(default_factory=list)
     min_iou: float = DEFAULT_MIN_IOU
     min_coverage: float = DEFAULT_MIN_COVERAGE
     min_near: float = DEFAULT_MIN_NEAR
@@ -207,18 +210,24 @@ def check_shards(shard_dir: Path, min_iou: float = DEFAULT_MIN_IOU,
                  min_near: float = DEFAULT_MIN_NEAR) -> CheckReport:
     """Score every object of the shards in ``shard_dir`` (module doc). The shards are verified
     against the index checksums first (a corrupted image fails the check even though only
-    masks and voxels are scored): ``ShardError`` naming the first broken shard."""
+    masks and voxels are scored): ``ShardError`` naming the first broken shard. Objects whose
+    voxelization failed (an empty placeholder grid, ``io.failed_grids``) are left out and
+    listed in ``left_out``: their failure is in the index, not a disagreement to find."""
     broken = verify_shards(shard_dir)
     if broken:
         more = f" (and {len(broken) - 1} more; `sc3d-data info --verify {shard_dir}` lists them)" if len(broken) > 1 else ""
         raise ShardError(broken[0] + more)
     report = CheckReport(min_iou=min_iou, min_coverage=min_coverage, min_near=min_near)
+    failed = voxelize_failures(load_index(shard_dir))
     it = iter_objects(shard_dir, fields=("voxels", "masks", "K", "R", "t"))
     if progress:
         from sc3d_data.pipeline.run.progress import progress_bar
 
         it = progress_bar(it, unit="obj", desc="check")
     for obj in it:
+        if (obj["shard"], obj["row"]) in failed:  # an empty placeholder grid: nothing to check
+            report.left_out.append(f"{obj['category']}/{obj['model_id']}")
+            continue
         if "voxels" not in obj:
             raise ValueError(f"{shard_dir}/{obj['shard']}: no voxels (run `sc3d-data voxelize {shell_word(shard_dir)}` first)")
         behind: list[int] = []

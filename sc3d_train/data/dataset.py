@@ -27,6 +27,7 @@ import numpy as np
 from torch.utils.data import Dataset
 
 from sc3d_data.geometry.camera import scale_intrinsics
+from sc3d_data.io.failed_grids import voxelize_failures
 from sc3d_data.io.shard_reader import ShardReader
 from sc3d_data.io.names import shell_word
 from sc3d_data.io.shards import ShardError
@@ -67,7 +68,7 @@ def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
     units, the median of every view's), "distance_range" ([min, max] of every view's: one value
     for ``render``'s shards, 3D-R2N2's imports vary by view), "left_out",
     "complete" (the index's: false while a render was cut short)}``. Objects whose
-    voxelization failed are left out (:func:`voxelize_failures`; ``left_out``: their
+    voxelization failed are left out (``sc3d_data.io.failed_grids``; ``left_out``: their
     ``category/model_id``, also told once on stderr). Clear errors for a missing/empty directory."""
     shard_dir = Path(shard_dir)
     if not shard_dir.is_dir():
@@ -119,17 +120,6 @@ def require_one_voxel_resolution(shard_dir: Path, info: dict) -> None:
         raise DataError(f"{shard_dir}: shards disagree on voxel resolution ({sizes}; a voxelize at another "
                         f"--resolution cut short?): run `sc3d-data voxelize {shell_word(shard_dir)} --resolution G` with the one G "
                         "to train on (it redoes the shards of the other size)")
-
-
-def voxelize_failures(index: dict) -> set[tuple[str, int]]:
-    """``{(shard file name, row)}`` of the objects whose grid ``sc3d-data voxelize SHARDS`` could
-    not make: they keep their row with an empty grid (the shard stays rectangular) and a
-    ``"stage": "voxelize"`` entry in the index's ``failures``. An empty grid is no ground truth,
-    so :func:`scan_objects` leaves these objects out of every split. A failure that kept the
-    object's earlier grid (``grid_kept``: a rerun could not voxelize a mesh changed or gone since,
-    and kept the grid made from the mesh as rendered) is no such row."""
-    return {(Path(str(f.get("shard"))).name, int(f["row"])) for f in index.get("failures", [])
-            if f.get("stage") == "voxelize" and isinstance(f.get("row"), int) and not f.get("grid_kept")}
 
 
 _TOLD: set[str] = set()
