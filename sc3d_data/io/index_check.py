@@ -77,3 +77,41 @@ def index_problem(index, schema_version: int) -> str | None:
         if bad is not None:
             return f"malformed: {key}[{bad}] is {entries[bad]!r}, not an object"
     return None
+
+
+def listing_problems(index: dict) -> dict[str, str]:
+    """``{shard file name: problem}`` where the index's ``shards`` and ``objects`` disagree: a
+    file listed twice, an object (category/model_id) listed twice, an object naming a file
+    ``shards`` lacks, a file whose ``objects`` count differs from the objects naming it. Readers
+    trust these lists (training reads every listed file, eval counts its rows), so a hand-edited
+    index that lists a shard twice trained and evaluated its objects twice with exit 0; checks of
+    the files themselves (``info --verify``) cannot see it. A duplicated object names every file
+    it is listed in. ``index``: the parsed index, its ``shards`` list already checked."""
+    from sc3d_data.io.names import printable
+
+    shards, objects = index.get("shards", []), index.get("objects", [])
+    out: dict[str, str] = {}
+    seen: set[str] = set()
+    for e in shards:
+        if e["file"] in seen:
+            out.setdefault(e["file"], f"{printable(e['file'])} is listed twice in shards")
+        seen.add(e["file"])
+    named: dict[str, int] = {}
+    first: dict[tuple, str] = {}
+    for o in objects:
+        key, file = (o.get("category"), o.get("model_id")), o.get("shard")
+        if not isinstance(file, str):  # not a reader's concern here (older or partial entries)
+            continue
+        named[file] = named.get(file, 0) + 1
+        if key in first:
+            what = f"{printable(str(key[0]))}/{printable(str(key[1]))} is listed twice in objects"
+            for f in (first[key], file):
+                out.setdefault(f, what)
+        first.setdefault(key, file)
+    for file in named.keys() - seen:
+        out.setdefault(file, f"objects name {printable(file)}, which shards does not list")
+    for e in shards:
+        if isinstance(e.get("objects"), int) and e["objects"] != named.get(e["file"], 0):
+            out.setdefault(e["file"], f"shards says {printable(e['file'])} holds {e['objects']} objects, "
+                                      f"objects name it {named.get(e['file'], 0)} times")
+    return out

@@ -490,10 +490,13 @@ def held_voxel_resolution(index: dict) -> int | None:
     return None
 
 
-def load_index(shard_dir: Path) -> dict:
+def load_index(shard_dir: Path, listing: bool = True) -> dict:
     """Read ``index.json`` of a shard directory; a clear error if it is missing or broken, of a
-    newer schema, or malformed where readers look (``sc3d_data.io.index_check``)."""
-    from sc3d_data.io.index_check import index_problem
+    newer schema, or malformed where readers look (``sc3d_data.io.index_check``). ``listing``:
+    also refuse ``shards`` and ``objects`` that disagree (``index_check.listing_problems``; a shard
+    name that is not plain is left to :func:`shard_path`, whose refusal says more); False for a
+    render rerun, which renders such shards' chunks again."""
+    from sc3d_data.io.index_check import index_problem, listing_problems
 
     p = index_path(shard_dir)
     if not p.is_file():
@@ -511,6 +514,9 @@ def load_index(shard_dir: Path) -> dict:
     if not isinstance(shards, list) or not all(isinstance(e, dict) and isinstance(e.get("file"), str)
                                                and isinstance(e.get("chunk", 0), int) for e in shards):
         raise ShardError(f"{p}: not an sc3d index (malformed shard list)")
+    if listing and all(SHARD_NAME.match(e["file"]) for e in shards) and (problems := listing_problems(index)):
+        raise ShardError(f"{p}: malformed: {next(iter(problems.values()))} (hand-edited?); render or merge "
+                         "it again")
     return index
 
 

@@ -206,7 +206,7 @@ class NewShards:
         if index_path(out).is_file() and overwrite:
             listed = listed_shard_names(out)
         elif index_path(out).is_file():
-            old = load_index(out)
+            old = load_index(out, listing=False)
             check_resume(out, old, index.settings, defaults or {}, index.extra["part"])
             state = resume_state(out, old, retry_failed, K, tasks, index.settings.get("meshes"))
             listed = {s["file"] for s in old.get("shards", [])}

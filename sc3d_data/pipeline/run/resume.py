@@ -131,12 +131,16 @@ def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[T
     empty), their index entries, and the failures to render again (``retry_failed``).
     ``meshes``: this run's ``--meshes`` (the folder companion files must lie in).
     ``ValueError`` when this run's split rule moves a kept object (:func:`check_kept_splits`)."""
+    from sc3d_data.io.index_check import listing_problems
     from sc3d_data.io.shard_reader import verify_shard
+    from sc3d_data.io.shards import INDEX_NAME
 
     by_key = {(t.category, t.model_id): t for t in tasks}
     done_chunks, broken = set(old.get("empty_chunks", [])), []
+    listing = listing_problems(old)  # an index whose lists disagree: its files' chunks are made again
     for s in old.get("shards", []):
-        problem = verify_shard(out, s)
+        problem = verify_shard(out, s) or (f"{out / INDEX_NAME}: {listing[s['file']]}" if s["file"] in listing
+                                           else None)
         if problem is None:
             done_chunks.add(s["chunk"])
         else:
