@@ -82,3 +82,35 @@ def test_a_render_rerun_makes_the_disagreeing_shards_again(rendered, tmp_path, e
     index = json.loads((out / "index.json").read_text())
     assert [s["file"] for s in index["shards"]] == [f"shard-{c:05d}.h5" for c in range(4)]
     assert len(index["objects"]) == 11
+
+
+def _parts(tmp_path):
+    """Two parts of the sample meshes (2 views), the second's first shard damaged in place: 8
+    bytes of an image chunk flipped, the size kept (bit rot, a bad copy)."""
+    from test_faults_round8_data import flip_bytes_in_a_chunk
+
+    parts = [tmp_path / f"p{i}" for i in range(2)]
+    for i, p in enumerate(parts):
+        run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", p, "--part", f"{i}/2", "--views", "2",
+                            "--no-progress", "--workers", "1", "--objects-per-shard", "3"])
+    return parts, flip_bytes_in_a_chunk
+
+
+def test_merge_refuses_a_part_shard_whose_bytes_changed(tmp_path):
+    """``merge`` checked a part's shards by size only: one with flipped bytes was merged, exit 0,
+    and ``info --verify`` of OUT then said to rerun the merge, which linked the same damaged
+    file again, exit 0, for ever. It must refuse naming the part's file, before writing an
+    index, and also when the damage appears after a merge (a hard link shares the bytes)."""
+    (p0, p1), flip = _parts(tmp_path)
+    out = tmp_path / "m"
+    run_cli(data_main, ["merge", out, p0, p1])
+    flip(p1 / "shard-00000.h5")  # OUT's linked copy is the same file: damaged too
+    want = (f"Error: {p1 / 'shard-00000.h5'}: SHA-256 differs from the index (corrupted or modified); rerun that "
+            "part (it re-renders the shard), then merge")
+    assert one_error(run_cli(data_main, ["merge", out, p0, p1], expect_exit=1).output) == want
+    assert one_error(run_cli(data_main, ["merge", tmp_path / "m2", p0, p1], expect_exit=1).output) == want
+    assert not (tmp_path / "m2" / "index.json").exists()
+    run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES, "--out", p1, "--part", "1/2", "--views", "2",
+                        "--no-progress", "--workers", "1", "--objects-per-shard", "3"])  # repairs the part
+    run_cli(data_main, ["merge", out, p0, p1])
+    assert run_cli(data_main, ["info", out, "--verify"]).exit_code == 0

@@ -149,6 +149,17 @@ def merge_parts(out: Path, part_dirs: list[Path], copy: bool = False, overwrite:
         return _merge_checked(out, check_parts(dirs, defaults_of), copy, overwrite, defaults_of, t0)
 
 
+def _refuse_damaged(src: Path, entry: dict) -> None:
+    """``MergeError`` when part shard ``src`` is not the file its part's index records (SHA-256):
+    the checks before the merge compare sizes only, so a shard with flipped bytes was linked,
+    exit 0, and every rerun linked it again. Only the shards to be placed are hashed (kept ones
+    were just hashed in ``OUT``)."""
+    from sc3d_data.io.shard_reader import verify_shard
+
+    if (problem := verify_shard(src.parent, entry)) is not None:
+        raise MergeError(f"{problem}; rerun that part (it re-renders the shard), then merge")
+
+
 def _merge_checked(out: Path, parts: list[dict], copy: bool, overwrite: bool, defaults_of: Callable[[dict], dict],
                    t0: float) -> MergeSummary:
     """:func:`merge_parts` once the ``parts`` (their checked indexes, in part order) are held."""
@@ -188,6 +199,9 @@ def _merge_checked(out: Path, parts: list[dict], copy: bool, overwrite: bool, de
                 if not same and dst.name not in listed:
                     check_unlisted_shard(dst, parts[0]["settings"], out / INDEX_NAME, "this merge",
                                          "move it away, use another OUT or --overwrite")
+        for (src, _, entry), same in zip(places, kept):
+            if not same:
+                _refuse_damaged(src, entry)
         for (src, dst, _), same in zip(places, kept):
             counts["kept" if same else _place(src, dst, copy)] += 1
         for stale in listed - {s["file"] for s in shards}:
