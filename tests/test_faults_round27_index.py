@@ -114,3 +114,27 @@ def test_merge_refuses_a_part_shard_whose_bytes_changed(tmp_path):
                         "--no-progress", "--workers", "1", "--objects-per-shard", "3"])  # repairs the part
     run_cli(data_main, ["merge", out, p0, p1])
     assert run_cli(data_main, ["info", out, "--verify"]).exit_code == 0
+
+
+def test_a_failed_slurm_part_is_reported_with_its_reason(tmp_path):
+    """A part of ``--executor slurm`` that failed (here: its folder locked by another writer, as
+    after a stopped submitting process whose array still runs) was reported as
+    ``part 0/2 (job N):   - .../N_0_log.out``: the last line of submitit's message, a log path
+    whose file does not hold the error. The line must carry the part's own error and the log
+    that holds its trace (``_log.err``)."""
+    import re
+
+    pytest.importorskip("submitit")
+    from sc3d_data.io.outlock import exclusive_lock
+
+    out, part = tmp_path / "out", tmp_path / "out" / "parts" / "part-000-of-002"
+    part.mkdir(parents=True)
+    with exclusive_lock(part, "a test"):
+        res = run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES / "chair", "--out", out, "--executor", "slurm",
+                                  "--slurm-cluster", "local", "--slurm-parts", "2", "--slurm-cpus-per-task", "1",
+                                  *FAST], expect_exit=1)
+    line = one_error(res.output)
+    want = (rf"Error: part 0/2 \(job \d+\): {re.escape(str(part))}: another process \(PID \d+: a test\) is writing "
+            rf"to this folder; wait for it to finish or use another --out \(log: \S+_0_log\.err\) -- rerun the same "
+            r"command \(finished parts are kept\)")
+    assert re.fullmatch(want, line), line

@@ -19,6 +19,7 @@ named with its error and the merge is not attempted until every part is complete
 from __future__ import annotations
 
 import dataclasses
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -111,11 +112,25 @@ def run_array(fn, config, options: SlurmOptions, paths: tuple[str, ...] = ("mesh
                     print(f"part {i}/{len(jobs)}: done {s['done']}, resumed {s['resumed']}, failed {s['failed']} "
                           f"({len(jobs) - len(pending)}/{len(jobs)} parts finished)", flush=True)
                 except Exception as e:  # noqa: BLE001 - reported per part below
-                    errors.append(f"part {i}/{len(jobs)} (job {jobs[i].job_id}): {str(e).strip().splitlines()[-1]}")
+                    errors.append(f"part {i}/{len(jobs)} (job {jobs[i].job_id}): {failure_reason(e, jobs[i])}")
         time.sleep(0.5 if pending else 0)
     if errors:
         raise RuntimeError("; ".join(errors) + " -- rerun the same command (finished parts are kept)")
     return configs, summaries
+
+
+def failure_reason(error: Exception, job) -> str:
+    """One line for a failed array task: submitit's ``FailedJobError`` holds the task's traceback
+    between dashed lines, then log paths (its last line, once reported, named the ``.out`` log,
+    which does not hold the error): the traceback's last line, the exception's class name left
+    out, and the ``.err`` log that holds the trace. Other errors (a task that never finished:
+    time limit, lost node) by their first line, which says so."""
+    text = str(error).strip()
+    parts = text.split("----------------------")
+    if len(parts) >= 3 and parts[1].strip():
+        reason = re.sub(r"^[\w.]*(Error|Exception|Exit|Interrupt): ", "", parts[1].strip().splitlines()[-1])
+        return f"{reason} (log: {job.paths.stderr})"
+    return text.splitlines()[0] if text else type(error).__name__
 
 
 def summed_parts(summaries: list[dict], keys: tuple[str, ...], t0: float, config) -> dict:
