@@ -137,9 +137,11 @@ def final_validation_owed(cfg: RunConfig, start_step: int) -> bool:
 
 def best_of_an_early_stop(run_dir: Path) -> bool:
     """Whether ``run_dir``'s checkpoints are a ``best.pt`` alone of a step before its run's first
-    checkpoint, whose ``metrics.csv`` logged no step from there on (a run stopped, e.g. by Ctrl-C,
-    before it: nothing to resume, so ``fit`` starts it again and drops that ``best.pt``; one kept
-    from a finished run whose other checkpoints were deleted stays refused)."""
+    checkpoint, whose ``metrics.csv`` logged no step after it and whose ``validation.csv`` holds no
+    step from it on (a run stopped, e.g. by Ctrl-C or a full disk, before or while writing it:
+    nothing to resume, so ``fit`` starts it again and drops that ``best.pt``; one kept from a
+    finished run whose other checkpoints were deleted stays refused). The checkpoint's own step
+    may be logged: a step logs before it checkpoints, and validates after."""
     if sorted(p.name for p in (run_dir / "checkpoints").glob("*.pt")) != ["best.pt"]:
         return False
     try:
@@ -149,7 +151,9 @@ def best_of_an_early_stop(run_dir: Path) -> bool:
                     *([int(c.get("pretrain_steps") or int(c["steps"]) // 2)] if c.get("mode") == "semi" else []))
         log = run_dir / "metrics.csv"
         logged = [int(r["step"]) + 1 for r in complete_rows(log)] if log.is_file() else []  # 0-based
-        return int(best["step"]) < first and max(logged, default=0) < first
+        val = run_dir / VAL_CSV
+        validated = [int(r["step"]) for r in complete_rows(val)] if val.is_file() else []
+        return int(best["step"]) < first and max(logged, default=0) <= first and max(validated, default=0) < first
     except Exception:  # unreadable or not fit's: refused as before
         return False
 

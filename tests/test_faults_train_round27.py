@@ -1,0 +1,51 @@
+"""Defects of the training half found by the twenty-seventh attack (2026-11-29), each test
+failing without its fix. Real runs of the tiny model on the bundled sample meshes."""
+from __future__ import annotations
+
+from sc3d_cli.train import main
+from sc3d_train.loop.checkpoint import load_checkpoint
+from tests.conftest import run_cli
+from tests.test_train import TINY
+
+
+# ----------------------------------------------------------------------------- A1: the first checkpoint's write
+def test_a_run_whose_first_checkpoint_write_failed_after_a_best_pt_can_be_started_again(sample_shards, tmp_path):
+    """Validation before the first checkpoint (the defaults: every 100 steps, checkpoints every
+    500) leaves ``best.pt``; when the first checkpoint's write then fails (a full disk, a kill or
+    Ctrl-C inside the write), fit said 'start the run again (the same command ...)', the same
+    command was refused ('already holds checkpoints of a run (best.pt) but no last.pt; use
+    --resume') and ``--resume`` said 'start it again without --resume': no command continued the
+    run. The step of the failed checkpoint was logged before it (a log comes before the step's
+    checkpoint), which the early-stop test took for a run gone past its first checkpoint. Now the
+    same command starts the run again. The write fails for real: a folder stands at the
+    checkpoint's temporary name."""
+    out = tmp_path / "run"
+    args = ["fit", "--shards", sample_shards, "--out", out, "--batch-size", 2, *TINY, "--steps", 6,
+            "--checkpoint-every", 4, "--val-every", 2, "--val-min-objects", 1, "--log-every", 2]
+    blocker = out / "checkpoints" / "step_000004.pt.tmp"
+    blocker.mkdir(parents=True)
+    res = run_cli(main, args, expect_exit=1)
+    assert "step_000004.pt: cannot write checkpoint" in res.output and "start the run again" in res.output
+    assert sorted(p.name for p in (out / "checkpoints").glob("*.pt")) == ["best.pt"]
+    assert "start it again without --resume" in run_cli(main, ["fit", "--out", out, "--resume"], expect_exit=1).output
+    blocker.rmdir()
+    res = run_cli(main, [*args, "--seed", 3])  # what the first error said to do: the same command
+    assert "removed best.pt of step" in res.output
+    assert load_checkpoint(out / "checkpoints" / "last.pt")["step"] == 6
+    assert load_checkpoint(out / "checkpoints" / "best.pt")["config"]["seed"] == 3
+
+
+def test_a_finished_run_of_one_checkpoint_whose_other_files_were_deleted_stays_refused(sample_shards, tmp_path):
+    """The control: a finished 4-step run that checkpointed only at its end (step 4), whose log
+    reaches step 4 like the run above's and whose ``last.pt`` and step file were deleted, validated
+    step 4 after writing that checkpoint: its ``best.pt`` is kept and a new run refused."""
+    out = tmp_path / "run"
+    args = ["fit", "--shards", sample_shards, "--out", out, "--batch-size", 2, *TINY, "--steps", 4,
+            "--checkpoint-every", 4, "--val-every", 2, "--val-min-objects", 1, "--log-every", 2]
+    run_cli(main, args)
+    for p in (out / "checkpoints").glob("*.pt"):
+        if p.name != "best.pt":
+            p.unlink()
+    res = run_cli(main, args, expect_exit=1)
+    assert "already holds checkpoints of a run (best.pt) but no last.pt" in res.output
+    assert (out / "checkpoints" / "best.pt").is_file()
