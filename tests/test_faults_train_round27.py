@@ -49,3 +49,33 @@ def test_a_finished_run_of_one_checkpoint_whose_other_files_were_deleted_stays_r
     res = run_cli(main, args, expect_exit=1)
     assert "already holds checkpoints of a run (best.pt) but no last.pt" in res.output
     assert (out / "checkpoints" / "best.pt").is_file()
+
+
+# ----------------------------------------------------------------------------- A2: TensorBoard of a run started again
+def tb_steps(run_dir) -> dict:
+    """{tag: [step, ...]} as TensorBoard reads ``run_dir/tb`` (every event file, its purges applied)."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    ea = EventAccumulator(str(run_dir / "tb"), size_guidance={"scalars": 0})
+    ea.Reload()
+    return {tag: [e.step for e in ea.Scalars(tag)] for tag in ea.Tags()["scalars"]}
+
+
+def test_a_run_started_again_shows_each_step_once_in_tensorboard(sample_shards, tmp_path):
+    """A run stopped before its first checkpoint is started again by its own command, which
+    rewrites ``metrics.csv``; its TensorBoard folder kept the stopped run's event file beside the
+    new one, so every step the stopped run had logged showed twice (``train/total`` at steps
+    0, 1, 2, 3, 0, 1, 2, 3), with the stopped run's values among the new run's. Now a new run
+    starts ``tb/`` empty, as it starts ``metrics.csv``."""
+    out = tmp_path / "run"
+    args = ["fit", "--shards", sample_shards, "--out", out, "--batch-size", 2, *TINY, "--steps", 4,
+            "--checkpoint-every", 4, "--val-every", 0, "--log-every", 1]
+    blocker = out / "checkpoints" / "step_000004.pt.tmp"
+    blocker.mkdir(parents=True)
+    run_cli(main, [*args, "--seed", 7], expect_exit=1)  # stopped at its first checkpoint
+    assert tb_steps(out)["train/total"] == [0, 1, 2, 3]
+    blocker.rmdir()
+    run_cli(main, args)
+    steps = tb_steps(out)
+    assert steps["train/total"] == [0, 1, 2, 3] and steps["train/lr"] == [0, 1, 2, 3], steps
+    assert len(list((out / "tb").iterdir())) == 1

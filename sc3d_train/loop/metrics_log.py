@@ -54,6 +54,15 @@ def write_csv_atomic(path: Path, fields: list[str] | None, rows: list[dict]) -> 
     atomic_write_bytes(path, text.getvalue().encode())
 
 
+def drop_event_files(tb_dir: Path) -> None:
+    """Remove the TensorBoard event files in ``tb_dir`` before a new run writes there: they are
+    a run's that stopped before its first checkpoint (``fit`` refuses a folder holding anything
+    else), which the new run replaces as it replaces ``metrics.csv``. Left, TensorBoard shows both
+    runs' values at every step the stopped one logged (a resume purges from its step instead)."""
+    for f in Path(tb_dir).glob("events.out.tfevents.*"):
+        f.unlink(missing_ok=True)
+
+
 class MetricsLog:
     """Scalars to ``metrics.csv`` (one row per logged step) and TensorBoard (``tb/``).
     On resume, rows at or after the resume step (written after the checkpoint by the
@@ -76,6 +85,8 @@ class MetricsLog:
         self._rewrite()
         from torch.utils.tensorboard import SummaryWriter
 
+        if start_step == 0:
+            drop_event_files(Path(run_dir) / "tb")
         self.tb = SummaryWriter(str(Path(run_dir) / "tb"), purge_step=start_step or None)
 
     def _rewrite(self):
