@@ -79,3 +79,27 @@ def test_a_run_started_again_shows_each_step_once_in_tensorboard(sample_shards, 
     steps = tb_steps(out)
     assert steps["train/total"] == [0, 1, 2, 3] and steps["train/lr"] == [0, 1, 2, 3], steps
     assert len(list((out / "tb").iterdir())) == 1
+
+
+# ----------------------------------------------------------------------------- A3: claims with another preset
+def test_claims_with_other_settings_is_refused_before_it_trains_a_run(sample_shards, tmp_path):
+    """A study rerun into its folder with other settings (``--preset paper`` after ``cpu``, with
+    ``--runs`` naming a run not yet trained) said 'also in the report, finished before: ...' of
+    the earlier runs, trained its new runs with the other settings (20000 steps each at the paper
+    preset), and only then, reaching an earlier run, was refused; the folder was left holding runs
+    of two settings, so that the first study's own rerun was refused in turn. Now the runs it
+    would reuse are checked first: refused before anything is trained, the folder unchanged."""
+    import pytest
+
+    from sc3d_train.evaluation.claims import ClaimsPreset, run_all
+    from sc3d_train.loop.checkpoint import CheckpointError
+
+    out = tmp_path / "study"
+    first = ClaimsPreset(steps=2, batch_size=4, lr=1e-3, tiny=True, extra={"base_channels": 4, "val_every": 0})
+    run_all(sample_shards, sample_shards, out, first, "test", "cpu", runs=["ray"], echo=lambda line: None)
+    other = ClaimsPreset(steps=2, batch_size=4, lr=2e-4, tiny=True, extra={"base_channels": 4, "val_every": 0})
+    with pytest.raises(CheckpointError) as e:
+        run_all(sample_shards, sample_shards, out, other, "test", "cpu", runs=["ray-proj"], echo=lambda line: None)
+    assert f"{out / 'runs' / 'ray' / 'seed-0'}: cannot change on --resume: --lr" in str(e.value)
+    assert "give another --out" in str(e.value)
+    assert not (out / "runs" / "ray-proj").exists()

@@ -168,19 +168,15 @@ def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path
     shards as they are now exists (``data_digest``: their
     :func:`~sc3d_train.evaluation.evaluated_data.split_digest`, computed here when None), else trained (resumed from its ``last.pt`` when there is one) and evaluated on ``pick``.
     Returns ``(metrics, seconds spent or None when read back)``."""
-    from sc3d_train.loop.checkpoint import CheckpointError, run_checkpoint
+    from sc3d_train.loop.checkpoint import run_checkpoint
     from sc3d_train.evaluation.evaluate import evaluate
     from sc3d_train.loop.trainer import fit
 
     run_dir = run_folder(out, name, seed)
     metrics_file = eval_folder(run_dir, pick) / "metrics.json"
-    saved = RunConfig.path_in(run_dir).is_file()  # a run of this study's settings, else refused
+    saved = RunConfig.path_in(run_dir).is_file()
     trained_steps = RunConfig.load(RunConfig.path_in(run_dir)).steps if saved else None
-    try:
-        cfg = run_config(name, p, train_shards, run_dir, device, workers, seed, resume=saved)
-    except CheckpointError as e:
-        raise CheckpointError(f"{e} [claims: {out} holds this study's runs; give another --out for other "
-                              f"settings or shards]") from e
+    cfg = study_run_config(name, seed, p, train_shards, out, device, workers)
     if metrics_file.is_file() and trained_steps in (None, cfg.steps) and \
             evaluated_on(metrics_file, eval_shards, eval_split, data_digest):
         echo(f"{name} seed {seed}: done before, reading {metrics_file}")
@@ -196,6 +192,30 @@ def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path
     echo(f"    {name} seed {seed} (step {res['step']}): mean IoU@0.4 {res['mean']['voxel_iou_0.4']:.3f}, median "
          f"rotation error {res['mean']['pose_rotation_median']:.1f} deg ({seconds / 60:.1f} min)")
     return res, seconds
+
+
+def study_run_config(name: str, seed: int, p: ClaimsPreset, train_shards: Path, out: Path, device: str,
+                     workers: int | None) -> RunConfig:
+    """:func:`run_config` of run ``name`` with ``seed`` in study ``out``: its folder's config where it
+    holds one, refused (``CheckpointError`` naming the folder) where trained with other settings or data."""
+    from sc3d_train.loop.checkpoint import CheckpointError
+
+    run_dir = run_folder(out, name, seed)
+    try:
+        return run_config(name, p, train_shards, run_dir, device, workers, seed, resume=RunConfig.path_in(run_dir).is_file())
+    except CheckpointError as e:
+        raise CheckpointError(f"{e} [claims: {out} holds this study's runs; give another --out for other "
+                              f"settings or shards]") from e
+
+
+def check_study_runs(names: list, seeds: list, p: ClaimsPreset, train_shards: Path, out: Path, device: str,
+                     workers: int | None) -> None:
+    """Refuse (:func:`study_run_config`) before any training where a run of ``names`` x ``seeds`` that
+    ``out`` holds was trained with other settings: checked run by run, a rerun with another ``--preset``
+    trained its new runs first (hours at the paper preset) and left runs of two settings in ``out``."""
+    for name, seed in ((n, s) for n in names for s in seeds):
+        if RunConfig.path_in(run_folder(out, name, seed)).is_file():
+            study_run_config(name, seed, p, train_shards, out, device, workers)
 
 
 def resumed_state(run_dir: Path, steps: int) -> str:
@@ -256,6 +276,7 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path,
     finished = [n for n in p.runs if n not in names and all(  # a rerun with --runs keeps the study's other runs
         evaluated_on(eval_folder(run_folder(out, n, s), pick) / "metrics.json", eval_shards, eval_split, data_digest)
         for s in seed_values)]
+    check_study_runs(names + finished, seed_values, p, train_shards, out, device, workers)
     if finished:
         echo(f"also in the report, finished before in {out}: {', '.join(finished)}")
     for name in names + finished:
