@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 
+import pytest
 import yaml
 
 from sc3d_cli.train import main
@@ -67,11 +68,16 @@ def test_a_run_stopped_by_ctrl_c_before_its_first_checkpoint_can_be_started_agai
     assert load_checkpoint(out / "checkpoints" / "best.pt")["config"]["seed"] == 5
 
 
-def test_a_best_pt_kept_from_a_finished_run_still_refuses_a_new_run(sample_shards, tmp_path):
+@pytest.mark.parametrize("schedule", [["--checkpoint-every", 1000], ["--checkpoint-every", 4, "--log-every", 2]],
+                         ids=["end_before_first_checkpoint", "end_at_first_checkpoint"])
+def test_a_best_pt_kept_from_a_finished_run_still_refuses_a_new_run(sample_shards, tmp_path, schedule):
     """The control: a finished 4-step run (its end is its checkpoint, at step 4 < 1000) whose
-    ``last.pt`` and step files were deleted keeps its ``best.pt``: a new run there is refused."""
+    ``last.pt`` and step files were deleted keeps its ``best.pt``: a new run there is refused.
+    Also where its first checkpoint is its end (``--checkpoint-every 4``), whose log reaches step 4
+    like a run stopped while writing that checkpoint (``test_faults_train_round27``): it validated
+    step 4 after writing it."""
     out = tmp_path / "run"
-    args = ["fit", "--shards", sample_shards, "--out", out, "--batch-size", 2, *TINY, "--checkpoint-every", 1000,
+    args = ["fit", "--shards", sample_shards, "--out", out, "--batch-size", 2, *TINY, *schedule,
             "--val-every", 2, "--val-min-objects", 1, "--steps", 4]
     run_cli(main, args)
     for p in (out / "checkpoints").glob("*.pt"):

@@ -35,22 +35,6 @@ def test_a_run_whose_first_checkpoint_write_failed_after_a_best_pt_can_be_starte
     assert load_checkpoint(out / "checkpoints" / "best.pt")["config"]["seed"] == 3
 
 
-def test_a_finished_run_of_one_checkpoint_whose_other_files_were_deleted_stays_refused(sample_shards, tmp_path):
-    """The control: a finished 4-step run that checkpointed only at its end (step 4), whose log
-    reaches step 4 like the run above's and whose ``last.pt`` and step file were deleted, validated
-    step 4 after writing that checkpoint: its ``best.pt`` is kept and a new run refused."""
-    out = tmp_path / "run"
-    args = ["fit", "--shards", sample_shards, "--out", out, "--batch-size", 2, *TINY, "--steps", 4,
-            "--checkpoint-every", 4, "--val-every", 2, "--val-min-objects", 1, "--log-every", 2]
-    run_cli(main, args)
-    for p in (out / "checkpoints").glob("*.pt"):
-        if p.name != "best.pt":
-            p.unlink()
-    res = run_cli(main, args, expect_exit=1)
-    assert "already holds checkpoints of a run (best.pt) but no last.pt" in res.output
-    assert (out / "checkpoints" / "best.pt").is_file()
-
-
 # ----------------------------------------------------------------------------- A2: TensorBoard of a run started again
 def tb_steps(run_dir) -> dict:
     """{tag: [step, ...]} as TensorBoard reads ``run_dir/tb`` (every event file, its purges applied)."""
