@@ -31,8 +31,7 @@ from sc3d_data.geometry.normalize import used_vertices
 from sc3d_data.io.lfs_pointers import file_lfs_pointer
 
 MESH_SUFFIXES = (".obj", ".glb", ".gltf", ".ply", ".off", ".stl")
-#: meshes with more triangles than this are rejected (so a 2-million-face mesh is skipped);
-#: ``--max-faces`` changes it
+#: meshes with more triangles than this are rejected (``--max-faces``; a 2-million-face mesh is skipped)
 DEFAULT_MAX_FACES = 1_000_000
 #: largest coordinate accepted: the renderer draws float32 positions scaled by 1/extent, and
 #: below sqrt(float32 max) ~ 1.8e19 both the coordinates and that scale stay normal float32
@@ -204,6 +203,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     from sc3d_data.io.off_polygons import faces_one_per_line, loader_off_bytes
     from sc3d_data.io.ply_header import loader_ply_bytes
     from sc3d_data.io.ply_strips import strips_as_faces
+    from sc3d_data.io.ply_textures import split_by_texnumber
     from sc3d_data.io.stl_check import loader_stl_bytes
     from sc3d_data.io.texture_resolver import loader_misses, make_resolver
 
@@ -247,6 +247,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     if path.suffix.lower() == ".off" and not any(len(getattr(g, "faces", ())) for g in scene.geometry.values()) \
             and (relined := faces_one_per_line(path)) is not None:  # face lists over several lines
         scene = load_scene(path, resolver, relined)
+    if (refusal := split_by_texnumber(scene, path, resolver)) is not None:  # a PLY's textures, before misses are judged
+        raise MeshError(refusal)
     missed = loader_misses(resolver, report)
     if missed and bad_texture == "fail":
         raise MeshError(f"{path}: {'; '.join(missed)} (use --bad-texture fallback to render with material colours)")

@@ -16,6 +16,7 @@ A binary file whose list properties vary in length from row to row (faces of 3 a
 given to the loader as ASCII PLY (``io.ply_binary_lists``): its binary reader assumes one length.
 An ASCII file (or such a conversion) whose polygons have per-face texture coordinates (MeshLab's
 ``texcoord`` lists) is given to it with those polygons split into triangles (``io.ply_texcoords``).
+A texture name holding MeshLab's ``<this>`` is given to it filled in (``io.ply_textures``).
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ from pathlib import Path
 
 from sc3d_data.io.ply_binary_lists import ascii_ply
 from sc3d_data.io.ply_texcoords import textured_faces_as_triangles
+from sc3d_data.io.ply_textures import this_named
 
 __all__ = ["loader_ply_bytes"]
 
@@ -47,7 +49,7 @@ def _renamed(header: bytes) -> bytes | None:
 def loader_ply_bytes(path: Path, max_faces: int | None = None) -> bytes | None:
     """PLY ``path``'s bytes with its ``diffuse_``-prefixed colour properties renamed and a header
     of CR line ends given LF ones, a binary file whose lists vary in length as ASCII PLY, textured
-    polygons as triangles (module doc), or None to load the file as it is. ``ValueError`` where a
+    polygons as triangles, ``<this>`` in texture names filled in (module doc), or None to load the file as it is. ``ValueError`` where a
     binary file's data ends before its rows do, where one to convert or split has more faces than
     ``max_faces``, or where a textured polygon's row cannot be read."""
     with open(path, "rb") as f:
@@ -55,7 +57,7 @@ def loader_ply_bytes(path: Path, max_faces: int | None = None) -> bytes | None:
     text = _loader_text(path, head, max_faces)
     if b"texcoord" in head[:head.find(b"end_header")]:  # (all of the file read only for such a header)
         text = textured_faces_as_triangles(Path(path).read_bytes() if text is None else text, max_faces) or text
-    return text
+    return this_named(path, text)
 
 
 def _loader_text(path: Path, head: bytes, max_faces: int | None) -> bytes | None:
