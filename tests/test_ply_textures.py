@@ -88,3 +88,23 @@ def test_a_texnumber_that_names_no_texture_is_refused_in_one_line(tmp_path):
     [failure] = index_of(out)["failures"]
     assert failure["reason"] == (f"{meshes / 'bad' / 'm.ply'}: a face's texnumber 2 names no texture (the header "
                                  "names 2: red.png, blue.png); not read")
+
+
+def test_a_ply_texture_replaced_since_the_render_is_rendered_again(tmp_path):
+    """A rerun renders again an object whose texture was replaced, as for an OBJ's or a glTF's
+    (``io.materials.named_files``): a PLY's ``TextureFile`` textures were not fingerprinted, so a
+    rerun after the texture was fixed kept the old images ("resumed 1"), exit 0."""
+    from PIL import Image
+
+    folder = tmp_path / "m" / "c" / "sq"
+    _meshlab_ply(folder / "m.ply", ["<this>_a.png", "b.png"])
+    Image.new("RGB", (8, 8), BLUE).save(folder / "m_a.png")
+    Image.new("RGB", (8, 8), BLUE).save(folder / "b.png")
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST, "--elevations", "0"])
+    Image.new("RGB", (16, 16), RED).save(folder / "m_a.png")  # the left square's texture, fixed
+    res = run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST, "--elevations", "0"])
+    assert "changed since it was rendered (m_a.png: " in res.output and "done 1, resumed 0" in res.output, res.output
+    obj = _objects(out)["sq"]
+    left, right = _left_right(obj["images"][0], obj["masks"][0])
+    assert left[0] > 2 * left[2] and right[2] > 2 * right[0], (left, right)

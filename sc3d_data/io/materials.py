@@ -34,6 +34,7 @@ from sc3d_data.io.lfs_pointers import MAX_POINTER_BYTES, file_lfs_pointer, lfs_p
 from sc3d_data.io.names import printable
 from sc3d_data.io.mtl_text import TextureMove, mtl_materials, read_obj_text
 from sc3d_data.io.obj_statements import statement_values
+from sc3d_data.io.ply_textures import texture_names
 
 __all__ = ["SHAPENET_V2_MESH", "MaterialReport", "dataset_folder", "material_report", "mtllib_names",
            "named_files", "real_file", "texture_root"]
@@ -223,8 +224,9 @@ def _data_uri_bytes(uri: str) -> bytes:
 def named_files(path: Path, root: Path | None = None) -> list[Path]:
     """The companion files of mesh ``path`` inside :func:`texture_root` that it names, there or
     not: an OBJ's material files and the textures they name, a glTF's external images and buffer
-    files; sorted, each once. What a rerun compares (``io.source_fingerprint.material_fingerprints``)
-    to notice a texture replaced, or a missing one put in place. Unparseable files name none."""
+    files, a PLY's textures (``comment TextureFile``); sorted, each once. What a rerun compares
+    (``io.source_fingerprint.material_fingerprints``) to notice a texture replaced, or a missing one put
+    in place. Unparseable files name none."""
     path = real_file(path)
     top, suffix = texture_root(path, root), path.suffix.lower()
     try:
@@ -236,6 +238,8 @@ def named_files(path: Path, root: Path | None = None) -> list[Path]:
             refs = _gltf_refs(path, doc, None, embedded_too=False)[0] + [
                 (b["uri"], gltf_uri_path(path.parent, b["uri"])) for b in doc.get("buffers", [])
                 if isinstance(b.get("uri"), str) and not b["uri"].startswith("data:")]
+        elif suffix == ".ply":  # its textures, ``<this>`` filled in as the loader is given them
+            refs = [(name, path.parent / name) for name in texture_names(path)]
         else:
             return []
     except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):
