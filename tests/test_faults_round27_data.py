@@ -67,3 +67,66 @@ def test_check_leaves_out_objects_whose_voxelization_failed(tmp_path):
     assert report["left_out_voxelize_failed"] == ["box/moved"]
     assert [o["model_id"] for o in report["objects"]] == ["kept"] and report["passed"]
     assert report["objects"][0]["mean_coverage"] > 0.98
+
+
+def _textured_box_gltf(folder, extra_images: dict[str, bytes | None]) -> None:
+    """``folder/model.gltf``: a box drawn with an 8 px red base colour texture (trimesh's export),
+    whose material also reads, for each ``extra_images`` slot (``metallicRoughnessTexture``,
+    ``normalTexture``, ``baseColorTexture``...), an image file ``SLOT.png`` holding the given bytes
+    (None: the file is missing)."""
+    import json
+
+    import trimesh
+    from PIL import Image
+
+    folder.mkdir(parents=True)
+    box = trimesh.creation.box()
+    box.visual = trimesh.visual.TextureVisuals(uv=box.vertices[:, :2] + 0.5, material=trimesh.visual.material.PBRMaterial(
+        baseColorTexture=Image.new("RGB", (8, 8), (200, 40, 40))))
+    files = trimesh.exchange.gltf.export_gltf(trimesh.Scene(box))
+    doc = json.loads(files.pop("model.gltf"))
+    for name, data in files.items():
+        (folder / name).write_bytes(data)
+    material = doc["materials"][0]
+    for slot, data in extra_images.items():
+        doc["images"].append({"uri": f"{slot}.png"})
+        doc["textures"].append({"source": len(doc["images"]) - 1})
+        where = material if slot in ("normalTexture", "occlusionTexture", "emissiveTexture") \
+            else material["pbrMetallicRoughness"]
+        where[slot] = {"index": len(doc["textures"]) - 1}
+        if data is not None:
+            (folder / f"{slot}.png").write_bytes(data)
+    (folder / "model.gltf").write_text(json.dumps(doc))
+
+
+def test_a_gltf_image_the_renderer_does_not_draw_is_not_a_failure(tmp_path):
+    """The renderer draws base colour textures only. A glTF whose metallic-roughness or normal
+    texture image is missing or does not decode (the glTF samples' ``Avocado.gltf`` as a viewer
+    repository ships it, without its metallic-roughness PNG) failed "texture image 1 ... not
+    found", and with ``--bad-texture fallback`` was said to be "rendered with material colours"
+    while its base colour texture was drawn. It must render as the same box without those
+    textures, with a warning naming the image and saying nothing drawn changes. Control: a base
+    colour texture that is missing still fails the object."""
+    meshes = tmp_path / "m" / "box"
+    _textured_box_gltf(meshes / "reference", {})
+    _textured_box_gltf(meshes / "missing_mr", {"metallicRoughnessTexture": None})
+    _textured_box_gltf(meshes / "broken_normal", {"normalTexture": b"not a png"})
+    _textured_box_gltf(meshes / "missing_base", {"baseColorTexture": None})
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", tmp_path / "m", "--out", out, *FAST])
+    index = index_of(out)
+    assert [f["reason"].split(": ", 1)[1] for f in index["failures"]] == [
+        "texture image 1 (baseColorTexture.png) not found (use --bad-texture fallback to render with material "
+        "colours)"]
+    warnings = sorted(w["warning"].split(": ", 1)[1] for w in index["warnings"])
+    moot = "; sc3d draws base colour textures only, so the object renders the same without it"
+    assert warnings == [
+        "texture image 1 (metallicRoughnessTexture.png) (read by no base colour texture) not found" + moot,
+        "texture image 1 (normalTexture.png) (read by no base colour texture) unreadable (not an image format Pillow "
+        "reads)" + moot], warnings
+    objects = {name[1].split("/")[0]: obj for name, obj in objects_by_id(out).items()}  # model_id: folder/file
+    assert sorted(objects) == ["broken_normal", "missing_mr", "reference"], sorted(objects)
+    reference = objects["reference"]["images"][objects["reference"]["masks"] > 0].astype(int)
+    assert (reference[:, 0] - reference[:, 1]).min() > 50  # the red texture is drawn
+    for name in ("missing_mr", "broken_normal"):
+        np.testing.assert_array_equal(objects[name]["images"], objects["reference"]["images"], err_msg=name)

@@ -42,7 +42,7 @@ import importlib.util
 
 import numpy as np
 
-__all__ = ["READ_OR_MOOT", "UNDECODED", "apply_texture_transforms", "feature_problems", "feature_warnings",
+__all__ = ["READ_OR_MOOT", "UNDECODED", "apply_texture_transforms", "base_colour_textures", "feature_problems", "feature_warnings",
            "read_spec_gloss_as_matte", "read_texcoord_sets", "set_read", "textured",
            "transform_matrix", "transform_names"]
 
@@ -114,7 +114,7 @@ def _transforms(doc: dict) -> dict[int, dict]:
     """``{material index: its base colour texture's KHR_texture_transform}`` where it moves."""
     found = {}
     for i, material in enumerate(doc.get("materials", [])):
-        for _, info in _base_textures(material):
+        for _, info in base_colour_textures(material):
             transform = info.get("extensions", {}).get("KHR_texture_transform")
             if isinstance(transform, dict) and _moves(transform):
                 found[i] = transform
@@ -156,7 +156,7 @@ def apply_texture_transforms(scene, doc: dict) -> None:
         visual.uv = np.stack([moved[0], 1.0 - moved[1]], axis=1)
 
 
-def _base_textures(material: dict) -> list[tuple[str, dict]]:
+def base_colour_textures(material: dict) -> list[tuple[str, dict]]:
     """``[(name, textureInfo)]`` of the base colour textures of glTF ``material``."""
     found = []
     if isinstance(info := material.get("pbrMetallicRoughness", {}).get("baseColorTexture"), dict):
@@ -172,7 +172,7 @@ def textured(doc: dict, prim: dict) -> bool:
     colour texture (the loader maps it with ``TEXCOORD_0``; an untextured primitive's texture
     coordinates place nothing)."""
     materials, i = doc.get("materials", []), prim.get("material")
-    return isinstance(i, int) and 0 <= i < len(materials) and bool(_base_textures(materials[i]))
+    return isinstance(i, int) and 0 <= i < len(materials) and bool(base_colour_textures(materials[i]))
 
 
 def morph_problems(doc: dict, drawn: set[int]) -> list[str]:
@@ -251,7 +251,7 @@ def _texcoord_set(material: dict) -> int | None:
     ``texCoord`` of their ``KHR_texture_transform``, which overrides theirs (as the extension
     says), else theirs; 0 without such a texture, None where two read different sets."""
     sets = set()
-    for _, info in _base_textures(material):
+    for _, info in base_colour_textures(material):
         transform = info.get("extensions", {}).get("KHR_texture_transform")
         sets.add(transform["texCoord"] if isinstance(transform, dict) and "texCoord" in transform
                  else info.get("texCoord", 0))

@@ -25,11 +25,11 @@ import io
 import os
 import re
 import struct
-import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from sc3d_data.io.gltf_check import GltfFile, read_gltf
+from sc3d_data.io.gltf_images import UNDRAWN, gltf_image_refs, gltf_uri_path, not_drawn
 from sc3d_data.io.lfs_pointers import MAX_POINTER_BYTES, file_lfs_pointer, lfs_pointer
 from sc3d_data.io.names import printable
 from sc3d_data.io.mtl_text import TextureMove, mtl_materials, read_obj_text
@@ -39,8 +39,8 @@ from sc3d_data.io.ply_textures import texture_names
 __all__ = ["SHAPENET_V2_MESH", "MaterialReport", "dataset_folder", "material_report", "mtllib_names",
            "named_files", "real_file", "texture_root"]
 
-#: the end of the name of a glTF image that no texture draws (``_gltf_refs``): where it lies is judged, not its content
-UNDRAWN = " (drawn by no texture)"
+#: what a warning of an image the renderer does not draw adds (``io.gltf_images``)
+MOOT = "; sc3d draws base colour textures only, so the object renders the same without it"
 #: ShapeNetCore v2's mesh inside a model folder
 SHAPENET_V2_MESH = ("models", "model_normalized.obj")
 
@@ -173,54 +173,6 @@ def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None =
     return refs
 
 
-def gltf_uri_path(folder: Path, uri: str) -> Path:
-    """The file a glTF ``uri`` names relative to ``folder``: glTF URIs are percent-encoded
-    (Blender writes ``my%20tex.png`` for ``my tex.png``), so the decoded name, unless only the
-    name as written exists."""
-    literal, decoded = folder / uri, folder / urllib.parse.unquote(uri)
-    return literal if literal.exists() and not decoded.exists() else decoded
-
-
-def _gltf_refs(path: Path, doc: dict, binary: bytes | None, embedded_too: bool = True
-               ) -> tuple[list[tuple[str, Path]], list[tuple[str, bytes]]]:
-    """``(external images [(name, path)], embedded images [(name, bytes)])`` of GLTF/GLB ``path``
-    (its JSON ``doc`` and binary chunk, ``read_gltf``; the embedded images only with
-    ``embedded_too``: in data URIs, and in a GLB's ``binary``). Every external image, which the
-    loader asks for whether drawn or not (so where it lies is judged for each); of the embedded
-    ones the images its textures draw (``source``, or ``EXT_texture_webp``'s), not those only
-    another extension names (``KHR_texture_basisu``'s KTX2 beside a PNG fallback), which would not
-    decode. The names of the external images no texture draws end in ``(drawn by no texture)``."""
-    external, embedded = [], []
-    read = {t.get("extensions", {}).get("EXT_texture_webp", {}).get("source", t.get("source"))
-            for t in doc.get("textures", []) if isinstance(t, dict)}
-    for i, image in enumerate(doc.get("images", [])):
-        if "uri" in image and not image["uri"].startswith("data:"):
-            external.append((f"image {i} ({image['uri']})" + ("" if i in read else UNDRAWN),
-                             gltf_uri_path(path.parent, image["uri"])))
-            continue
-        if i not in read:
-            continue
-        if "bufferView" in image and binary is not None:
-            view = doc["bufferViews"][image["bufferView"]]
-            start = view.get("byteOffset", 0)
-            embedded.append((f"texture image {i}", binary[start:start + view["byteLength"]]))
-        elif "uri" in image and embedded_too:  # a data URI: the image is in the JSON
-            embedded.append((f"texture image {i}", _data_uri_bytes(image["uri"])))
-    return external, embedded
-
-
-def _data_uri_bytes(uri: str) -> bytes:
-    """The bytes of a ``data:`` URI (base64 or percent-encoded); what does not decode, none."""
-    import base64
-    import binascii
-
-    head, _, payload = uri.partition(",")
-    try:
-        return base64.b64decode(payload) if head.endswith(";base64") else urllib.parse.unquote_to_bytes(payload)
-    except (binascii.Error, ValueError):
-        return b""
-
-
 def named_files(path: Path, root: Path | None = None) -> list[Path]:
     """The companion files of mesh ``path`` inside :func:`texture_root` that it names, there or
     not: an OBJ's material files and the textures they name, a glTF's external images and buffer
@@ -235,7 +187,7 @@ def named_files(path: Path, root: Path | None = None) -> list[Path]:
             refs = _obj_refs(path, top, MaterialReport(), text) + [(lib, path.parent / lib) for lib in mtllib_names(path, text)]
         elif suffix in (".glb", ".gltf"):  # its images, and its buffers in files (the geometry)
             doc = read_gltf(path)[0]  # not a glTF document: ValueError, the loader reports it
-            refs = _gltf_refs(path, doc, None, embedded_too=False)[0] + [
+            refs = gltf_image_refs(path, doc, None, embedded_too=False)[0] + [
                 (b["uri"], gltf_uri_path(path.parent, b["uri"])) for b in doc.get("buffers", [])
                 if isinstance(b.get("uri"), str) and not b["uri"].startswith("data:")]
         elif suffix == ".ply":  # its textures, ``<this>`` filled in as the loader is given them
@@ -265,7 +217,7 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn",
         elif suffix in (".glb", ".gltf"):
             gltf = gltf if gltf is not None else GltfFile(path, read_gltf(path)[0])  # not glTF: ValueError, as above
             in_binary = any(isinstance(im, dict) and "bufferView" in im for im in gltf.doc.get("images", []))
-            refs, embedded = _gltf_refs(path, gltf.doc, gltf.binary if in_binary else None)
+            refs, embedded = gltf_image_refs(path, gltf.doc, gltf.binary if in_binary else None)
         else:
             return report
     except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):
@@ -282,13 +234,15 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn",
     report.outside = [f"{o}: not read; rendered without it (--outside-textures)" for o in report.outside]
     for name, ref in dict.fromkeys(inside):  # a texture several materials name: judged and named once
         report.reported.add(str(ref.resolve()))
+        moot = not_drawn(name)  # a glTF image the renderer does not draw: a warning (io.gltf_images)
         if not ref.is_file():
-            report.problems.append(f"texture {name} not found")
-        elif not name.endswith(UNDRAWN) and (p := _image_problem(ref)) is not None:
-            report.problems.append(f"texture {name} unreadable ({p})")
+            (report.warnings if moot else report.problems).append(f"texture {name} not found" + MOOT * moot)
+        elif (p := _image_problem(ref)) is not None and not name.endswith(UNDRAWN):
+            (report.warnings if moot else report.problems).append(f"texture {name} unreadable ({p})" + MOOT * moot)
         else:
             report.textures.append(printable(ref.name))
     for name, data in embedded:
         if (p := _image_problem(data)) is not None:
-            report.problems.append(f"{name} unreadable ({p})")
+            moot = not_drawn(name)
+            (report.warnings if moot else report.problems).append(f"{name} unreadable ({p})" + MOOT * moot)
     return report
