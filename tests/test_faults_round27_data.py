@@ -130,3 +130,94 @@ def test_a_gltf_image_the_renderer_does_not_draw_is_not_a_failure(tmp_path):
     assert (reference[:, 0] - reference[:, 1]).min() > 50  # the red texture is drawn
     for name in ("missing_mr", "broken_normal"):
         np.testing.assert_array_equal(objects[name]["images"], objects["reference"]["images"], err_msg=name)
+
+
+#: a 12 x 4 texture: columns 0-3 red, 4-7 green, 8-11 red (the same colour at both edges, so a
+#: repeated texture and a clamped one agree at u = 0 and u = 1, and differ beyond)
+def _stripes():
+    from PIL import Image
+
+    image = Image.new("RGB", (12, 4), (220, 30, 30))
+    image.paste((30, 200, 40), (4, 0, 8, 4))
+    return image
+
+
+def _quad_parts(spans: list[tuple[float, float, float, float]]) -> tuple[list, list, list]:
+    """Vertices, texture coordinates and faces of quads side by side along x, one per
+    ``(x0, x1, u0, u1)``: x from x0 to x1 mapped to u from u0 to u1, y -0.5..0.5 to v 0..1."""
+    vertices, uv, faces = [], [], []
+    for x0, x1, u0, u1 in spans:
+        k = len(vertices)
+        vertices += [(x0, -0.5, 0), (x1, -0.5, 0), (x1, 0.5, 0), (x0, 0.5, 0)]
+        uv += [(u0, 0), (u1, 0), (u1, 1), (u0, 1)]
+        faces += [(k, k + 1, k + 2), (k, k + 2, k + 3)]
+    return vertices, uv, faces
+
+
+def _far_apart(a, b, mask) -> float:
+    """The share of the pixels of ``mask`` where two renders differ by more than 40 in a channel."""
+    return float((np.abs(a.astype(int) - b.astype(int)).max(axis=-1) > 40)[mask > 0].mean())
+
+
+def test_texture_wrap_modes_of_gltf_samplers_and_mtl_clamp_are_drawn(tmp_path):
+    """A texture whose coordinates leave [0, 1] was drawn repeated whatever the file said: a glTF
+    sampler's CLAMP_TO_EDGE, and an MTL ``map_Kd -clamp on`` (warned of). A quad whose u runs from
+    -1 to 2 over a red | green | red texture must draw as the same quad cut in three by hand: the
+    outer thirds in the texture's edge colour (glTF: u held at 0 and 1, read with REPEAT) or in the
+    material's colour alone (MTL: Wavefront's "outside of the origin texture, the underlying
+    material is unchanged"), the middle third the texture once; the linear filter may differ on the
+    texels at a cut. Control: the same quad with REPEAT (no sampler; no -clamp) draws green stripes
+    in the outer thirds, far from the reference."""
+    import json
+
+    import trimesh
+
+    meshes = tmp_path / "m"
+    whole, cut = _quad_parts([(-1.5, 1.5, -1, 2)]), _quad_parts([(-1.5, -0.5, 0, 0), (-0.5, 0.5, 0, 1), (0.5, 1.5, 1, 1)])
+
+    def gltf(name, parts, sampler):
+        (meshes / "gltf" / name).mkdir(parents=True)
+        vertices, uv, faces = parts
+        mesh = trimesh.Trimesh(vertices, faces, process=False, visual=trimesh.visual.TextureVisuals(
+            uv=np.array(uv, float), material=trimesh.visual.material.PBRMaterial(baseColorTexture=_stripes())))
+        files = trimesh.exchange.gltf.export_gltf(trimesh.Scene(mesh))
+        doc = json.loads(files.pop("model.gltf"))
+        doc["samplers"] = [sampler]
+        for texture in doc["textures"]:
+            texture["sampler"] = 0
+        for file, data in files.items():
+            (meshes / "gltf" / name / file).write_bytes(data)
+        (meshes / "gltf" / name / "model.gltf").write_text(json.dumps(doc))
+
+    repeat, clamp = {"wrapS": 10497, "wrapT": 10497}, {"wrapS": 33071, "wrapT": 33071}
+    gltf("clamped", whole, clamp)
+    gltf("repeated", whole, repeat)
+    gltf("reference", cut, repeat)
+
+    def obj(name, parts, materials):
+        folder = meshes / "obj" / name
+        folder.mkdir(parents=True)
+        vertices, uv, faces = parts
+        lines = ["mtllib m.mtl", *("v %g %g %g" % v for v in vertices), *("vt %g %g" % t for t in uv)]
+        for j, material in enumerate(materials):
+            lines += [f"usemtl {material}"] + ["f " + " ".join(f"{i + 1}/{i + 1}" for i in f)
+                                               for f in faces[2 * j:2 * j + 2]]
+        (folder / "m.obj").write_text("\n".join(lines) + "\n")
+        (folder / "m.mtl").write_text("newmtl clamped\nKd 0.3 0.5 0.9\nmap_Kd -clamp on t.png\n"
+                                      "newmtl repeated\nKd 0.3 0.5 0.9\nmap_Kd t.png\nnewmtl plain\nKd 0.3 0.5 0.9\n")
+        _stripes().save(folder / "t.png")
+
+    obj("clamped", whole, ["clamped"])
+    obj("repeated", whole, ["repeated"])
+    obj("reference", cut, ["plain", "repeated", "plain"])
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", meshes, "--out", out, *FAST])
+    assert index_of(out)["failures"] == [] and index_of(out)["warnings"] == []
+    objects = {(c, m.split("/")[0]): o for (c, m), o in objects_by_id(out).items()}
+    # measured (2-core CPU box, llvmpipe): glTF 0.0 against 0.25 repeated; MTL 0.046 (the texel at
+    # each cut blends the texture with the white border: one column of pixels) against 0.66
+    for kind, bound in (("gltf", 0.02), ("obj", 0.1)):
+        reference, mask = objects[kind, "reference"]["images"], objects[kind, "reference"]["masks"]
+        assert (objects[kind, "clamped"]["masks"] == mask).all(), kind
+        assert _far_apart(objects[kind, "clamped"]["images"], reference, mask) < bound, kind
+        assert _far_apart(objects[kind, "repeated"]["images"], reference, mask) > 0.2, kind

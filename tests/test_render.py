@@ -200,7 +200,7 @@ def test_parts_sharing_one_texture_image_upload_it_once_and_each_part_draws_its_
     r = MeshRenderer(views)
     made = []
     texture = r._texture
-    r._texture = lambda image: made.append(image) or texture(image)
+    r._texture = lambda image, wrap: made.append(image) or texture(image, wrap)
     try:
         R = np.repeat(np.diag([1.0, -1.0, -1.0])[None], 4, axis=0)  # camera at (0, 0, 2) looking down -z
         t = np.repeat(np.array([[0.0, 0.0, 2.0]]), 4, axis=0)

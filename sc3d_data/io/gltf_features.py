@@ -44,7 +44,7 @@ import numpy as np
 
 __all__ = ["READ_OR_MOOT", "UNDECODED", "apply_texture_transforms", "base_colour_textures", "feature_problems", "feature_warnings",
            "read_spec_gloss_as_matte", "read_texcoord_sets", "set_read", "textured",
-           "transform_matrix", "transform_names"]
+           "material_name", "transform_matrix", "transform_names"]
 
 #: required extensions the loader cannot decode: ``{name: what it is}``
 UNDECODED = {"KHR_draco_mesh_compression": "Draco mesh compression",
@@ -121,22 +121,24 @@ def _transforms(doc: dict) -> dict[int, dict]:
     return found
 
 
+def material_name(doc: dict, i: int) -> str:
+    """The name by which the loaded geometries of glTF ``doc``'s material ``i`` are found after
+    loading (a texture transform, ``io.texture_wraps``' sampler wrap): the material's own name
+    where no other material has it, else ``sc3d: material I``, which ``io.gltf_loader_doc`` gives
+    the loader's copy of the document (gltfpack leaves its materials unnamed)."""
+    names = [m.get("name") if isinstance(m, dict) else None for m in doc.get("materials", [])]
+    own = names[i]
+    name = own if isinstance(own, str) and own != "" and names.count(own) == 1 else f"sc3d: material {i}"
+    while name != own and name in names:  # a name some material of the file has already
+        name += "'"
+    return name
+
+
 def transform_names(doc: dict) -> dict[int, str]:
-    """``{material index: the name by which its loaded geometries are found}`` of the materials
-    whose base colour texture a ``KHR_texture_transform`` moves: the
-    material's own name where no other material has it, else ``sc3d: material I (texture
-    transform)``, which ``io.gltf_loader_doc`` gives the loader's copy of the document (gltfpack
-    leaves its materials unnamed)."""
-    materials = doc.get("materials", [])
-    names = [m.get("name") if isinstance(m, dict) else None for m in materials]
-    found = {}
-    for i in _transforms(doc):  # a transform to another set: read_texcoord_sets made it TEXCOORD_0
-        own = names[i]
-        name = own if isinstance(own, str) and own != "" and names.count(own) == 1 else f"sc3d: material {i} (texture transform)"
-        while name != own and name in names:  # a name some material of the file has already
-            name += "'"
-        found[i] = name
-    return found
+    """``{material index: material_name}`` of the materials whose base colour texture a
+    ``KHR_texture_transform`` moves (a transform to another set: ``read_texcoord_sets`` made it
+    ``TEXCOORD_0``)."""
+    return {i: material_name(doc, i) for i in _transforms(doc)}
 
 
 def apply_texture_transforms(scene, doc: dict) -> None:

@@ -25,9 +25,9 @@ quantized positions and texture coordinates are stored as the floats they mean
 loader drew them once). A primitive whose base colour texture reads another texture coordinate
 set than ``TEXCOORD_0`` has that set as ``TEXCOORD_0`` (``gltf_features.read_texcoord_sets``: the
 loader maps every texture with ``TEXCOORD_0``). Materials whose texture a
-``KHR_texture_transform`` moves and that have no name of their own (gltfpack's) get one
-(``gltf_features.transform_names``), by which the transform is applied to their geometries after
-loading.
+``KHR_texture_transform`` moves, or whose sampler wraps other than REPEAT (``io.texture_wraps``),
+and that have no name of their own (gltfpack's) get one (``gltf_features.material_name``), by
+which the transform or wrap is applied to their geometries after loading.
 """
 from __future__ import annotations
 
@@ -37,7 +37,8 @@ import struct
 from pathlib import Path
 
 from sc3d_data.io.gltf_check import GltfFile, drawn_nodes, scene_roots
-from sc3d_data.io.gltf_features import transform_names
+from sc3d_data.io.gltf_features import material_name, transform_names
+from sc3d_data.io.texture_wraps import gltf_wraps
 from sc3d_data.io.gltf_dequantize import dequantize, quantized_accessors
 from sc3d_data.io.gltf_instancing import apply_instancing, instanced_nodes
 from sc3d_data.io.gltf_skins import apply_skins, skinned_nodes
@@ -76,14 +77,15 @@ def loader_gltf_bytes(gltf: GltfFile, resolver=None) -> bytes | None:
     sceneless = not doc.get("scenes") and bool(doc.get("nodes"))
     instanced = instanced_nodes(doc, nodes)
     try:
-        renamed = {i: name for i, name in transform_names(doc).items() if doc["materials"][i].get("name") != name}
+        found = set(transform_names(doc)) | set(gltf_wraps(doc))  # found by name after loading
+        renamed = {i: material_name(doc, i) for i in sorted(found) if doc["materials"][i].get("name") != material_name(doc, i)}
     except (AttributeError, TypeError):  # malformed materials: the loader reports them
         renamed = {}
     if not (_ushort_colours_alone(doc) or _camera_nodes(doc) or skinned or quantized or sceneless or instanced
             or renamed or gltf.texcoord_sets_read):
         return None
     doc = copy.deepcopy(doc)
-    for i, name in renamed.items():  # apply_texture_transforms finds their geometries by these names
+    for i, name in renamed.items():  # apply_texture_transforms and apply_wraps find their geometries by these names
         doc["materials"][i]["name"] = name
     if sceneless:  # the loader draws no node of a document without scenes: its root nodes, as Blender
         doc.update(scenes=[{"nodes": scene_roots(doc)}], scene=0)

@@ -35,6 +35,7 @@ from sc3d_data.io.names import printable
 from sc3d_data.io.mtl_text import TextureMove, mtl_materials, read_obj_text
 from sc3d_data.io.obj_statements import statement_values
 from sc3d_data.io.ply_textures import texture_names
+from sc3d_data.io.texture_wraps import CLAMP_TO_BORDER
 
 __all__ = ["SHAPENET_V2_MESH", "MaterialReport", "dataset_folder", "material_report", "mtllib_names",
            "named_files", "real_file", "texture_root"]
@@ -102,7 +103,8 @@ class MaterialReport:
     (never opened); ``reported``: resolved paths of all of these; ``textures``: the file names of the textures
     inside the root that exist and decode; ``texture_only``: an OBJ's materials with a ``map_Kd`` texture
     and no ``Kd``; ``texture_moves``: ``{material: TextureMove}`` of an OBJ's ``map_Kd`` textures
-    moved by ``-o``/``-s`` (``io.mtl_text``)."""
+    moved by ``-o``/``-s`` (``io.mtl_text``); ``wraps``: ``{material: (wrap u, wrap v)}`` of an OBJ's
+    materials whose ``map_Kd`` is clamped (``-clamp on``: ``io.texture_wraps``)."""
 
     textures: list[str] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
@@ -111,6 +113,7 @@ class MaterialReport:
     reported: set[str] = field(default_factory=set)
     texture_only: set[str] = field(default_factory=set)
     texture_moves: dict[str, TextureMove] = field(default_factory=dict)
+    wraps: dict[str, tuple[int, int]] = field(default_factory=dict)
 
 
 def mtllib_names(path: Path, text: str | None = None) -> list[str]:
@@ -162,9 +165,7 @@ def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None =
                             "map_Ka (ambient), which is not drawn (only map_Kd is); rendered in its colour"
                             for m, name in materials.ambient_only]
         report.texture_moves.update(materials.moves)
-        report.warnings += [f"material {printable(m)} of {printable(mtl.name)} clamps its texture {printable(name)} "
-                            "(map_Kd -clamp on), which the loader does not apply; drawn repeated where its texture "
-                            "coordinates leave [0, 1]" for m, name in materials.clamped]
+        report.wraps.update({m: (CLAMP_TO_BORDER, CLAMP_TO_BORDER) for m, _ in materials.clamped})  # io.texture_wraps
     undefined = [] if defined is None else list(dict.fromkeys(
         m for m in statement_values(text, "usemtl") if m not in defined))
     if undefined:

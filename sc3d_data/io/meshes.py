@@ -168,19 +168,6 @@ def file_kind(mode: int) -> str:
 
 
 # ----------------------------------------------------------------------------- public API
-def match_ply_face_colors(scene, path: Path) -> None:
-    """One face colour per triangle in each PLY geometry of ``scene`` whose quads or polygons the
-    loader split into triangles, and its texture drawn as it is (``io.ply_colors``); ``MeshError``
-    where the colours cannot be matched."""
-    from sc3d_data.io.loader_visuals import texture_as_is
-    from sc3d_data.io.ply_colors import per_triangle_face_colors
-
-    for geometry in scene.geometry.values():
-        if hasattr(geometry, "faces") and (refusal := per_triangle_face_colors(geometry, str(path))):
-            raise MeshError(refusal)
-        texture_as_is(geometry)
-
-
 def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str = "fail",
               root: Path | None = None, outside_textures: str = "warn",
               max_file_bytes: int = DEFAULT_MAX_FILE_BYTES):
@@ -194,15 +181,15 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     ``root``, never read: refused when ``outside_textures="refuse"``). Raises ``MeshError`` on
     bad input (see module doc)."""
     from sc3d_data.io.gltf_check import drawn_meshes, judge_gltf
-    from sc3d_data.io.gltf_features import apply_texture_transforms, feature_warnings, read_spec_gloss_as_matte
+    from sc3d_data.io.gltf_features import feature_warnings, read_spec_gloss_as_matte
     from sc3d_data.io.gltf_loader_doc import loader_gltf_bytes
-    from sc3d_data.io.loader_visuals import keep_obj_vertex_colours, move_texture, texture_as_is
+    from sc3d_data.io.loaded_scene import finish_visuals
+    from sc3d_data.io.loader_visuals import keep_obj_vertex_colours
     from sc3d_data.io.materials import material_report
     from sc3d_data.io.obj_loader_text import check_obj_indices, loader_obj_bytes
     from sc3d_data.io.off_colours import coloured_off_as_ply
     from sc3d_data.io.off_polygons import faces_one_per_line, loader_off_bytes
     from sc3d_data.io.ply_header import loader_ply_bytes
-    from sc3d_data.io.ply_strips import strips_as_faces
     from sc3d_data.io.ply_textures import split_by_texnumber
     from sc3d_data.io.stl_check import loader_stl_bytes
     from sc3d_data.io.texture_resolver import loader_misses, make_resolver
@@ -252,15 +239,8 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     missed = loader_misses(resolver, report)
     if missed and bad_texture == "fail":
         raise MeshError(f"{path}: {'; '.join(missed)} (use --bad-texture fallback to render with material colours)")
-    if path.suffix.lower() == ".ply":
-        strips_as_faces(scene)
-        match_ply_face_colors(scene, path)
-    elif report.texture_only or report.texture_moves:  # an OBJ's materials' map_Kd without Kd, moved by -o/-s
-        for geometry in scene.geometry.values():
-            texture_as_is(geometry, report.texture_only)
-            move_texture(geometry, report.texture_moves)
-    elif gltf_doc is not None:
-        apply_texture_transforms(scene, gltf_doc)
+    if (refusal := finish_visuals(scene, path, report, gltf_doc)) is not None:  # what the loader drops
+        raise MeshError(refusal)
     vertices, faces = scene_triangles(scene, str(path))
     faces = validate_triangles(vertices, faces, str(path), max_faces)
     notes = report.warnings + report.outside + (feature_warnings(gltf_doc, drawn_meshes(gltf_doc, safe=True))

@@ -121,8 +121,8 @@ class MtlMaterials:
     the materials whose only texture is ``map_Ka``, which is not drawn, ``moves`` ``{material:
     TextureMove}`` of the ``map_Kd`` textures offset or scaled by ``-o``/``-s`` (applied by the
     loader: ``io.loader_visuals.move_texture``), ``clamped`` ``[(material, map_Kd file name)]``
-    of those clamped by ``-clamp on``, which the loader does not apply (the renderer repeats every
-    texture), and ``texture_only``: the materials with a ``map_Kd`` and no ``Kd``."""
+    of those clamped by ``-clamp on``, which the loader does not read (``io.texture_wraps``
+    applies it), and ``texture_only``: the materials with a ``map_Kd`` and no ``Kd``."""
 
     names: list[str] = field(default_factory=list)
     textures: list[tuple[str, str]] = field(default_factory=list)

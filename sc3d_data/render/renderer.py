@@ -228,7 +228,10 @@ class MeshPart(NamedTuple):
     bits of mantissa, and the model matrix's translation is the part's place in the canonical
     frame, near 0. ``faces [M,3]`` uint32; ``colors [N,4]`` uint8 RGBA or None; ``uv [N,2]``
     float32 and ``image`` (a PIL texture) both given or both None; ``base_color [4]`` RGBA 0-1;
-    ``alpha_cutoff``: the material's ``alphaCutoff`` when its ``alphaMode`` is MASK, else None."""
+    ``alpha_cutoff``: the material's ``alphaCutoff`` when its ``alphaMode`` is MASK, else None;
+    ``wrap``: the texture's wrap modes along u and v, OpenGL's numbers (``io.texture_wraps``:
+    REPEAT by default, glTF samplers' CLAMP_TO_EDGE and MIRRORED_REPEAT, an MTL ``-clamp on`` as
+    CLAMP_TO_BORDER with a white border: the material's colour outside the texture)."""
 
     model: np.ndarray
     positions: np.ndarray
@@ -238,6 +241,7 @@ class MeshPart(NamedTuple):
     base_color: np.ndarray
     image: object
     alpha_cutoff: float | None
+    wrap: tuple[int, int] = (0x2901, 0x2901)
 
 
 #: glTF 2.0's default ``alphaCutoff`` of an ``alphaMode`` MASK material
@@ -259,6 +263,7 @@ def mesh_parts(scene, to_canonical: np.ndarray):
         model = np.asarray(to_canonical, dtype=np.float64) @ transform
         pos, faces = m.vertices, m.faces
         colors = uv = image = cutoff = None
+        wrap = MeshPart._field_defaults["wrap"]
         base = np.array(DEFAULT_GREY)
         vis = m.visual
         if vis.defined and vis.kind == "vertex":
@@ -279,7 +284,7 @@ def mesh_parts(scene, to_canonical: np.ndarray):
             elif isinstance(mat, trimesh.visual.material.SimpleMaterial):
                 base, image = _color_factor(mat.diffuse), mat.image
             if image is not None and vis.uv is not None and len(vis.uv) == len(pos):
-                uv = vis.uv
+                uv, wrap = vis.uv, getattr(mat, "sc3d_wrap", wrap)
             else:
                 image = None  # a texture needs uv, and uv is read only for a texture
             colors = material_vertex_colors(vis, len(pos))
@@ -289,7 +294,7 @@ def mesh_parts(scene, to_canonical: np.ndarray):
         shift[:3, 3] = centre
         yield MeshPart(model @ shift, np.ascontiguousarray(pos - centre, np.float32),
                        np.ascontiguousarray(faces, np.uint32), None if colors is None else np.ascontiguousarray(colors, np.uint8),
-                       None if uv is None else np.ascontiguousarray(uv, np.float32), base, image, cutoff)
+                       None if uv is None else np.ascontiguousarray(uv, np.float32), base, image, cutoff, wrap)
 
 
 #: modes of texture images that PIL's ``Image.reduce`` refuses (palette, 1-bit)
@@ -424,7 +429,7 @@ class MeshRenderer:
         """Draw with the world -> OpenGL camera matrices ``views_gl [V,4,4]`` from now on."""
         self._views_now, self._views_serial = views_gl, self._views_serial + 1
 
-    def _texture(self, image):
+    def _texture(self, image, wrap: tuple[int, int]):
         GL = self.gl
         image = eight_bit(image)
         factor = math.ceil(max(image.size) / max(MAX_TEXTURE_SIZE, 8 * self.S))
@@ -443,8 +448,10 @@ class MeshRenderer:
         GL.glGenerateMipmap(GL.GL_TEXTURE_2D)
         GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR_MIPMAP_LINEAR)
         GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAG_FILTER, GL.GL_LINEAR)
-        for p in (GL.GL_TEXTURE_WRAP_S, GL.GL_TEXTURE_WRAP_T):
-            GL.glTexParameteri(GL.GL_TEXTURE_2D, p, GL.GL_REPEAT)
+        for p, mode in zip((GL.GL_TEXTURE_WRAP_S, GL.GL_TEXTURE_WRAP_T), wrap):
+            GL.glTexParameteri(GL.GL_TEXTURE_2D, p, mode)
+        if GL.GL_CLAMP_TO_BORDER in wrap:  # an MTL -clamp on: the material's colour (x 1) outside
+            GL.glTexParameterfv(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_BORDER_COLOR, (1.0, 1.0, 1.0, 1.0))
         return tex
 
     def _upload(self, parts: list) -> list[tuple[int, int, int, int]]:
@@ -467,9 +474,10 @@ class MeshRenderer:
                 GL.glBufferData(target, data.nbytes, data, GL.GL_STREAM_DRAW)
         return offsets
 
-    def _draw_part(self, model, pos, faces, colors, uv, base, image, cutoff, offsets: tuple, textures: dict) -> None:
+    def _draw_part(self, model, pos, faces, colors, uv, base, image, cutoff, wrap, offsets: tuple,
+                   textures: dict) -> None:
         """Draw one part (``mesh_parts``) from its data at ``offsets`` in the buffers (``_upload``).
-        ``textures`` maps ``id(image)`` to ``(image, texture)`` for the textures this object has
+        ``textures`` maps ``(id(image), wrap)`` to ``(image, texture)`` for the textures this object has
         made so far: parts that share one image (a GLB's material used by many meshes) upload it once."""
         GL = self.gl
         has_tex = image is not None  # then uv too (mesh_parts)
@@ -484,10 +492,10 @@ class MeshRenderer:
             GL.glVertexAttribPointer(attr, size, dtype, norm, 0, ctypes.c_void_p(offsets[attr]))
             GL.glEnableVertexAttribArray(attr)
         if has_tex:
-            if id(image) not in textures:  # the image is kept in the dict, so its id stays its own
-                textures[id(image)] = (image, self._texture(image))
+            if (id(image), wrap) not in textures:  # the image is kept in the dict, so its id stays its own
+                textures[id(image), wrap] = (image, self._texture(image, wrap))
             GL.glActiveTexture(GL.GL_TEXTURE0)
-            GL.glBindTexture(GL.GL_TEXTURE_2D, textures[id(image)][1])
+            GL.glBindTexture(GL.GL_TEXTURE_2D, textures[id(image), wrap][1])
         GL.glUniform4f(loc["base_color"], *[float(x) for x in base])
         if cutoff is not None:
             GL.glUniform1f(loc["alpha_cutoff"], cutoff)
