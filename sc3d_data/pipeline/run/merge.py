@@ -109,8 +109,9 @@ def _voxelized_since(out: Path, old: dict, parts: list[dict], objects: list[dict
     (its index's ``voxels`` record is not the parts'): the parts' shards would replace them.
     When ``out`` still holds this merge (the same parts, plan and objects, the parts' shards the
     ones merged: ``sources``, their SHA-256 as the merge recorded them; every shard of ``out``
-    intact as its index lists it) nothing is written and the voxelized dataset is kept; otherwise
+    intact as its index lists it, lists that agree) nothing is written and the voxelized dataset is kept; otherwise
     ``MergeError``: merging again needs ``--overwrite`` (and then ``voxelize`` again)."""
+    from sc3d_data.io.index_check import listing_problems
     from sc3d_data.io.shard_reader import verify_shard
 
     same_merge = (old["merged"].get("plan_sha256") == parts[0]["part"]["plan_sha256"]
@@ -122,7 +123,7 @@ def _voxelized_since(out: Path, old: dict, parts: list[dict], objects: list[dict
         return {(o["category"], o["model_id"], o["shard"], o.get("row")) for o in entries}
 
     shards = old.get("shards", [])
-    intact = all(verify_shard(out, s) is None for s in shards)
+    intact = not listing_problems(old) and all(verify_shard(out, s) is None for s in shards)
     if same_merge and intact and rows(old.get("objects", [])) == rows(objects):
         return MergeSummary(parts=len(parts), shards=len(shards), objects=len(objects),
                             failed=len(old.get("failures", [])), linked=0, copied=0, kept=len(shards),
@@ -168,7 +169,8 @@ def _merge_checked(out: Path, parts: list[dict], copy: bool, overwrite: bool, de
 
     out.mkdir(parents=True, exist_ok=True)
     with exclusive_lock(out, "sc3d-data merge"), tmp_cleaned(out):  # a killed merge's *.tmp go
-        old = load_index(out) if (out / INDEX_NAME).is_file() else {}
+        # OUT's lists may disagree (hand-edited): readers say to merge again, which writes them anew
+        old = load_index(out, listing=False) if (out / INDEX_NAME).is_file() else {}
         if old and not overwrite and "merged" not in old:
             raise MergeError(f"{out}: already holds a dataset that is not a merge; use another OUT or --overwrite")
         listed = {e["file"] for e in old.get("shards", [])}
