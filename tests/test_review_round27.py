@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 from sc3d_cli.data import main as data_main
 from conftest import one_error, run_cli
 from test_faults import FAST
+from test_ply_textures import BLUE, RED
 
 CUBE = ("OFF\n8 6 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n0 0 1\n1 0 1\n1 1 1\n0 1 1\n"
         "4 0 3 2 1\n4 4 5 6 7\n4 0 1 5 4\n4 1 2 6 5\n4 2 3 7 6\n4 3 0 4 7\n")
@@ -38,3 +41,38 @@ def test_merge_again_repairs_an_out_index_whose_lists_disagree(tmp_path):
     run_cli(data_main, ["merge", out, *parts])
     assert run_cli(data_main, ["info", out, "--verify"]).exit_code == 0
     assert len(json.loads((out / "index.json").read_text())["shards"]) == 4
+
+
+def _ply_of_quads_with_vertex_uv(path):
+    """The two squares of ``test_ply_textures`` as quads, texture coordinates per vertex (``s t``),
+    ``texnumber`` per face: trimesh splits the quads, so there are more triangles than numbers."""
+    square = [(0, 0), (1, 0), (1, 1), (0, 1)]
+    rows = [f"{x} {y} 0 {s} {t}" for k in (0, 2) for (x, y), (s, t) in zip([(k + a, b) for a, b in square], square)]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("ply\nformat ascii 1.0\ncomment TextureFile red.png\ncomment TextureFile blue.png\n"
+                    "element vertex 8\nproperty float x\nproperty float y\nproperty float z\nproperty float s\n"
+                    "property float t\nelement face 3\nproperty list uchar int vertex_indices\nproperty int texnumber\n"
+                    "end_header\n" + "\n".join(rows) + "\n4 0 1 2 3 0\n3 4 5 6 1\n3 4 6 7 1\n")
+
+
+def _drawn_colours(scene) -> dict[float, tuple]:
+    """``{x of a part's centre: its texture's colour}`` of a loaded scene."""
+    return {round(float(np.mean(g.vertices[:, 0])), 1): g.visual.material.image.getpixel((0, 0))[:3]
+            for g in scene.geometry.values()}
+
+
+def test_texnumbers_of_faces_the_loader_split_into_triangles(tmp_path):
+    """A PLY of several textures whose quads trimesh splits (texture coordinates per vertex) has
+    more triangles than ``texnumber`` values: it was refused '3 texnumber values for 4 faces; not
+    read' (before 2026-12-07 it rendered with one texture). Each triangle now takes its face's
+    number, in trimesh's order of splitting (``io.ply_colors.face_sources``)."""
+    from PIL import Image
+
+    from sc3d_data.io.meshes import load_mesh
+
+    path = tmp_path / "c" / "q.ply"
+    _ply_of_quads_with_vertex_uv(path)
+    Image.new("RGB", (8, 8), RED).save(path.parent / "red.png")
+    Image.new("RGB", (8, 8), BLUE).save(path.parent / "blue.png")
+    scene, _, faces, _ = load_mesh(path)
+    assert len(faces) == 4 and _drawn_colours(scene) == {0.5: RED, 2.5: BLUE}

@@ -18,10 +18,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["face_sources", "per_triangle_face_colors"]
+__all__ = ["face_lists", "face_sources", "per_triangle_face_colors"]
 
 
-def _face_lists(raw: dict) -> list[np.ndarray] | None:
+def face_lists(raw: dict) -> list[np.ndarray] | None:
     """The vertex index list of each face of the raw PLY ``face`` element, or None."""
     face = raw.get("face", {}).get("data") if isinstance(raw, dict) else None
     if not isinstance(face, dict):
@@ -60,7 +60,7 @@ def per_triangle_face_colors(geometry, source: str) -> str | None:
     colors = geometry.visual.face_colors if geometry.visual.kind == "face" else None
     if colors is None or len(colors) == len(geometry.faces):
         return None
-    lists = _face_lists(geometry.metadata.get("_ply_raw"))
+    lists = face_lists(geometry.metadata.get("_ply_raw"))
     if lists is None or len(lists) != len(colors) or any(len(f) < 3 for f in lists):
         return (f"{source}: {len(colors):,} face colours for {len(geometry.faces):,} triangles, and which triangle "
                 "came from which face cannot be told; not read")

@@ -74,13 +74,22 @@ def this_named(path: Path, text: bytes | None) -> bytes | None:
 
 
 def _texnumbers(geometry) -> np.ndarray | None:
-    """The ``texnumber`` of each face of ``geometry`` as the loader parsed them, or None."""
-    face = getattr(geometry, "metadata", {}).get("_ply_raw", {}).get("face", {})
+    """The ``texnumber`` of each triangle of ``geometry`` as the loader parsed them (one per face of
+    the file: where the loader split quads or polygons, as ``io.ply_colors.face_sources`` says), or None."""
+    from sc3d_data.io.ply_colors import face_lists, face_sources
+
+    raw = getattr(geometry, "metadata", {}).get("_ply_raw", {})
+    face = raw.get("face", {})
     data = face.get("data") if isinstance(face, dict) else None
     try:
-        return np.asarray(data["texnumber"]).astype(np.int64).ravel()
+        numbers = np.asarray(data["texnumber"]).astype(np.int64).ravel()
     except (KeyError, ValueError, TypeError, IndexError):
         return None
+    lists = face_lists(raw) if len(numbers) != len(geometry.faces) else None
+    if lists is not None and len(lists) == len(numbers) and all(len(f) >= 3 for f in lists):
+        origin = face_sources(np.array([len(f) for f in lists]))
+        numbers = numbers[origin] if len(origin) == len(geometry.faces) else numbers
+    return numbers
 
 
 def _image(resolver, name: str):
