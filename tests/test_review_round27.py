@@ -3,13 +3,14 @@ checks), each test failing without its fix. Files written here by hand; real loa
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 
 from sc3d_cli.data import main as data_main
 from conftest import one_error, run_cli
 from test_faults import FAST
-from test_ply_textures import BLUE, RED
+from test_ply_textures import BLUE, RED, _meshlab_ply
 
 CUBE = ("OFF\n8 6 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n0 0 1\n1 0 1\n1 1 1\n0 1 1\n"
         "4 0 3 2 1\n4 4 5 6 7\n4 0 1 5 4\n4 1 2 6 5\n4 2 3 7 6\n4 3 0 4 7\n")
@@ -76,3 +77,24 @@ def test_texnumbers_of_faces_the_loader_split_into_triangles(tmp_path):
     Image.new("RGB", (8, 8), BLUE).save(path.parent / "blue.png")
     scene, _, faces, _ = load_mesh(path)
     assert len(faces) == 4 and _drawn_colours(scene) == {0.5: RED, 2.5: BLUE}
+
+
+def test_this_in_a_ply_reached_through_a_symlink_names_the_file_linked_to(tmp_path):
+    """A mesh reached through a symlink names its files relative to the file the link points to
+    (docs/data.md); ``<this>`` was filled with the link's name: the loader looked for
+    ``chair_a.png`` and failed 'not found', while the rerun fingerprints
+    (``materials.named_files``) named ``abc_a.png``. Both now name the linked file's."""
+    from PIL import Image
+
+    from sc3d_data.io.materials import named_files
+    from sc3d_data.io.meshes import load_mesh
+
+    store, meshes = tmp_path / "store", tmp_path / "m" / "c"
+    _meshlab_ply(store / "abc.ply", ["<this>_a.png", "<this>_b.png"])
+    Image.new("RGB", (8, 8), RED).save(store / "abc_a.png")
+    Image.new("RGB", (8, 8), BLUE).save(store / "abc_b.png")
+    meshes.mkdir(parents=True)
+    os.symlink(store / "abc.ply", meshes / "chair.ply")
+    scene = load_mesh(meshes / "chair.ply")[0]
+    assert _drawn_colours(scene) == {0.5: RED, 2.5: BLUE}
+    assert [p.name for p in named_files(meshes / "chair.ply")] == ["abc_a.png", "abc_b.png"]

@@ -19,6 +19,7 @@ gives the loader the header with the name filled in, as vcglib fills it.
 from __future__ import annotations
 
 import io
+import os
 import re
 from pathlib import Path
 
@@ -35,8 +36,9 @@ HEADER_BYTES = 1 << 16
 
 
 def _stem(path: Path) -> bytes:
-    """The file name vcglib puts for ``<this>``: ``path``'s name without a ``.ply`` ending (any case)."""
-    name = Path(path).name
+    """The file name vcglib puts for ``<this>``: ``path``'s name without a ``.ply`` ending (any case),
+    that of the file a symlink points to (its textures lie beside it: ``io.materials.real_file``)."""
+    name = Path(os.path.realpath(path)).name
     return (name[:-4] if name.lower().endswith(".ply") else name).encode("utf-8", "surrogateescape")
 
 
