@@ -26,17 +26,30 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from sc3d_data.io.off_polygons import FACE_COLOURS_UNREAD, POLYGON_LINE, colour_notes, off_lines
+from sc3d_data.io.off_polygons import FACE_COLOURS_UNREAD, colour_notes, off_lines
 
 __all__ = ["UNCOLOURED", "coloured_off_as_ply"]
 
 #: a triangle's or quad's face line with more words after its corners (a colour), wherever it is in
 #: the file (``colour_notes`` reads the last face only; polygons of five or more corners are read
-#: in full where the file has one, ``off_polygons.POLYGON_LINE``); a vertex line may match too,
+#: in full where the file has one with more words than corners, :func:`_coloured_polygon`); a vertex line may match too,
 #: and only costs the full reading
 _COLOURED_FACE = re.compile(rb"(?m)^[ \t]*(?:3(?:[ \t]+\d+){3}|4(?:[ \t]+\d+){4})[ \t]+[-+.\d]")
+#: a line that may be a polygon's face line (``off_polygons.POLYGON_LINE``), to the line's end
+_POLYGON_ROW = re.compile(rb"(?m)^[ \t]*(?:[5-9]|[1-9]\d+)(?:[ \t]+\d+){5}(?![\d.eE])[^\n]*")
 #: the renderer's ``DEFAULT_GREY`` (0.3) in bytes: faces of a face-coloured file without a colour
 UNCOLOURED = (77, 77, 77)
+
+
+def _coloured_polygon(data: bytes) -> bool:
+    """Whether OFF ``data`` has a line like a polygon's face line with more words than its corners
+    (a colour): only such lines are looked at, so a file of polygons without colours (read in full
+    by ``off_polygons``) is not read in full a second time here (twice the load time)."""
+    for match in _POLYGON_ROW.finditer(data):
+        words = match.group(0).split(b"#", 1)[0].split()
+        if len(words) > 1 + int(words[0]):
+            return True
+    return False
 
 
 def _bytes(colours: list[list[str]]) -> list[tuple[int, int, int]]:
@@ -65,7 +78,7 @@ def coloured_off_as_ply(path: Path) -> tuple[bytes | None, list[str]]:
     """``(PLY text to load in place of OFF file path, warnings)``: ``(None, [])`` for a file
     without colours; ``(None, colour_notes)`` for colours this module does not read (module doc)."""
     notes, data = colour_notes(path), Path(path).read_bytes()
-    read = off_lines(data) if notes or _COLOURED_FACE.search(data) or POLYGON_LINE.search(data) else None
+    read = off_lines(data) if notes or _COLOURED_FACE.search(data) or _coloured_polygon(data) else None
     if read is None or set(read[0][:-3]) - set("STCN"):
         return None, notes
     keyword, body = read
