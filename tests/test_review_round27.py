@@ -116,3 +116,16 @@ def test_an_off_of_polygons_without_colours_is_not_read_twice(tmp_path, monkeypa
     assert off_colours.coloured_off_as_ply(plain) == (None, []) and read == []
     off_colours.coloured_off_as_ply(coloured)
     assert read == [1]
+
+
+def test_an_index_object_whose_id_is_not_text_is_no_traceback(tmp_path):
+    """A hand-edited index whose object has a list for its ``model_id`` made every reader fail with
+    a traceback ('TypeError: unhashable type: list') in ``index_check.listing_problems``; before
+    2026-12-07 ``info`` read it. The lists are compared on the ids' text."""
+    meshes = _cubes(tmp_path / "m")
+    out = tmp_path / "out"
+    run_cli(data_main, ["render", "--meshes", meshes, "--out", out, *FAST, "--image-size", "32"])
+    index = json.loads((out / "index.json").read_text())
+    index["objects"][0]["model_id"] = ["cube1"]
+    (out / "index.json").write_text(json.dumps(index))
+    assert run_cli(data_main, ["info", out, "--verify"]).exit_code == 0

@@ -99,12 +99,12 @@ def listing_problems(index: dict) -> dict[str, str]:
     named: dict[str, int] = {}
     first: dict[tuple, str] = {}
     for o in objects:
-        key, file = (o.get("category"), o.get("model_id")), o.get("shard")
+        key, file = (str(o.get("category")), str(o.get("model_id"))), o.get("shard")  # hashable, whatever it holds
         if not isinstance(file, str):  # not a reader's concern here (older or partial entries)
             continue
         named[file] = named.get(file, 0) + 1
         if key in first:
-            what = f"{printable(str(key[0]))}/{printable(str(key[1]))} is listed twice in objects"
+            what = f"{printable(key[0])}/{printable(key[1])} is listed twice in objects"
             for f in (first[key], file):
                 out.setdefault(f, what)
         first.setdefault(key, file)
