@@ -102,8 +102,8 @@ def step_losses(batches: dict, model: torch.nn.Module, train_model: torch.nn.Mod
         losses = {**ls, **{f"u_{k}": v for k, v in lu.items()}}
         losses["total"] = ls["total"] + lu["total"]
         return losses
-    if "unsupervised" in batches:
-        out = train_model(batches["unsupervised"]["images"], batches["unsupervised"].get("noise"))
+    if "unsupervised" in batches:  # the mask is no target here: outside the graph, or DDP waits for its gradients
+        out = train_model(batches["unsupervised"]["images"], batches["unsupervised"].get("noise"), mask_grad=False)
         losses = {f"u_{k}": v for k, v in
                   unsupervised_loss(out, batches["unsupervised"], weights, grid).items()}
         losses["total"] = losses.pop("u_total")

@@ -196,10 +196,13 @@ class SelfConsistencyNet(nn.Module):
         self.voxel_decoder = VoxelDecoder(config)
         self.mask_decoder = MaskDecoder(config, self.encoder.channels)
 
-    def forward(self, images: Tensor, noise: Tensor | None = None) -> ModelOutput:
+    def forward(self, images: Tensor, noise: Tensor | None = None, mask_grad: bool = True) -> ModelOutput:
         """``noise [B, shape_dim]`` float: the reparameterisation's standard normal draw in
         training (drawn here with ``randn_like`` when None). The training step draws it outside
-        the network, so the compiled and the eager step consume the same random numbers."""
+        the network, so the compiled and the eager step consume the same random numbers.
+        ``mask_grad=False`` runs the mask decoder outside the autograd graph (same values): the
+        unlabelled loss reads the mask detached, and under DDP a mask left in the graph made DDP
+        wait for mask-decoder gradients that never come (``phase_step.step_losses``)."""
         s = self.config.image_size
         if images.ndim != 4 or images.shape[1] != 3 or images.shape[2] != s or images.shape[3] != s:
             raise ValueError(f"images must be [B, 3, {s}, {s}] (model image_size {s}), got {tuple(images.shape)}")
@@ -213,8 +216,10 @@ class SelfConsistencyNet(nn.Module):
         z_p = self.fc_pose_code(feat)
         pose_logits = self.pose_head(z_p)
         azimuth, elevation = pose_from_logits(pose_logits.float(), self.pose_grid)
+        voxel_logits = self.voxel_decoder(z_s)
+        with torch.set_grad_enabled(mask_grad and torch.is_grad_enabled()):
+            mask_logits = self.mask_decoder(z_mean, z_p, skips)
         return ModelOutput(
-            voxel_logits=self.voxel_decoder(z_s),
-            mask_logits=self.mask_decoder(z_mean, z_p, skips),
+            voxel_logits=voxel_logits, mask_logits=mask_logits,
             azimuth=azimuth, elevation=elevation, pose_logits=pose_logits,
             z_mean=z_mean, z_logvar=z_logvar)
