@@ -3,6 +3,15 @@
 model on the bundled sample meshes (about 10 s each)."""
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from sc3d_train.loop.batch_floor import check_batch_parts
+from sc3d_train.settings.config import RunConfig
 from tests.test_train import TINY, _torchrun_fit, read_csv
 
 
@@ -39,3 +48,35 @@ def test_the_mask_decoder_outside_the_graph_gives_the_same_outputs():
     b = net(images, noise, mask_grad=False)
     assert torch.equal(a.mask_logits, b.mask_logits) and torch.equal(a.voxel_logits, b.voxel_logits)
     assert a.mask_logits.requires_grad and not b.mask_logits.requires_grad and b.voxel_logits.requires_grad
+
+
+# ----------------------------------------------------------------------------- D2: one mixed image per rank
+def semi_cfg(**kw) -> RunConfig:
+    return RunConfig(shards="s", out="o", mode="semi", steps=10, pretrain_steps=4, labeled_fraction=0.5, **kw)
+
+
+def test_a_mixed_batch_of_one_image_per_rank_is_refused():
+    """``--semi --batch-size 2`` on 2 ranks (or ``--semi-batch-size 2``): each rank's mixed batch
+    is 1 image, which ``batch_split`` gave entirely to the unlabelled part, so a run asking for a
+    labelled share of 0.5 trained with none (and, under DDP, died as in D1). The single-process
+    check (``--semi-batch-size`` at least 2) did not see the per-rank split. Now refused before
+    any work; with ``--semi-labeled-share 0`` one image per rank is what was asked for."""
+    with pytest.raises(ValueError, match=r"1 image per rank.*--semi-labeled-share 0.5"):
+        check_batch_parts(semi_cfg(batch_size=2), 1)
+    with pytest.raises(ValueError, match=r"1 image per rank"):
+        check_batch_parts(semi_cfg(batch_size=8, semi_batch_size=2), 4)
+    check_batch_parts(semi_cfg(batch_size=2, semi_labeled_share=0.0), 1)  # no labelled part asked for
+    check_batch_parts(semi_cfg(batch_size=4), 2)  # 1 labelled + 1 unlabelled: fine at 64 px
+
+
+def test_ddp_semi_batch_of_one_image_per_rank_is_one_line(sample_shards, tmp_path):
+    """Through torchrun: one ``Error:`` line per rank, no traceback, no run folder."""
+    script = Path(sys.executable).parent / "sc3d-train"
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2", str(script),
+           "fit", "--device", "cpu", "--shards", str(sample_shards), "--out", str(out), *TINY, "--steps", "4",
+           "--batch-size", "4", "--semi", "--labeled-fraction", "0.5", "--semi-batch-size", "2"]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert r.returncode != 0
+    assert "Error: the second phase's batch of 1 image per rank" in r.stdout + r.stderr, r.stderr[-2000:]
+    assert "[rank0]: Traceback" not in r.stderr and not out.exists()

@@ -36,6 +36,18 @@ def smallest_norm_plane(cfg: RunConfig) -> int:
     return min(planes, default=2**31)
 
 
+def check_mixed_parts(cfg: RunConfig, mixed: int, labelled: int, ranks: int) -> None:
+    """``ValueError`` when a rank's mixed batch of ``mixed`` images has no labelled image although
+    ``semi_labeled_share`` asks for some: one image per rank (``--semi --batch-size 2`` on 2 ranks)
+    went to the unlabelled part whole, so the run silently trained with a share of 0 (the
+    ``--semi-batch-size`` floor of 2 counts all ranks together)."""
+    if cfg.semi_labeled_share > 0 and labelled == 0:
+        raise ValueError(f"the second phase's batch of {mixed} image per rank cannot hold a labelled and an unlabelled "
+                         f"image (--semi-labeled-share {cfg.semi_labeled_share}); raise --semi-batch-size (or "
+                         f"--batch-size) to at least 2 per rank ({2 * ranks} over {ranks} ranks), or use "
+                         "--semi-labeled-share 0")
+
+
 def check_batch_parts(cfg: RunConfig, local_batch: int) -> None:
     """``ValueError`` naming the options when a forward pass of a step would give a BatchNorm layer
     one value per channel: one image per rank (the batch; in a ``semi`` run's second phase, its
@@ -44,6 +56,7 @@ def check_batch_parts(cfg: RunConfig, local_batch: int) -> None:
     if cfg.mode == "semi" and cfg.pretrain_steps < cfg.steps:
         mixed = mixed_batch(cfg, local_batch)
         labelled, unlabelled = batch_split(cfg, mixed)  # (0, mixed) at --semi-labeled-share 0
+        check_mixed_parts(cfg, mixed, labelled, cfg.batch_size // local_batch)
     if min(n for n in (local_batch, labelled, unlabelled) if n) >= 2 or (values := smallest_norm_plane(cfg)) >= 2:
         return
     where = f"at {cfg.model.image_size} px the network's deepest BatchNorm sees {values} value per channel and image"
