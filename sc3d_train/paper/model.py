@@ -217,8 +217,11 @@ class SelfConsistencyNet(nn.Module):
         pose_logits = self.pose_head(z_p)
         azimuth, elevation = pose_from_logits(pose_logits.float(), self.pose_grid)
         voxel_logits = self.voxel_decoder(z_s)
-        with torch.set_grad_enabled(mask_grad and torch.is_grad_enabled()):
+        if mask_grad:
             mask_logits = self.mask_decoder(z_mean, z_p, skips)
+        else:
+            with torch.no_grad():
+                mask_logits = self.mask_decoder(z_mean, z_p, skips)
         return ModelOutput(
             voxel_logits=voxel_logits, mask_logits=mask_logits,
             azimuth=azimuth, elevation=elevation, pose_logits=pose_logits,
