@@ -164,6 +164,8 @@ def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None =
         report.warnings += [f"material {printable(m)} of {printable(mtl.name)} gives its texture {printable(name)} as "
                             "map_Ka (ambient), which is not drawn (only map_Kd is); rendered in its colour"
                             for m, name in materials.ambient_only]
+        for m in materials.names:  # a later file's material replaces an earlier one's of its name, as in the loader
+            report.texture_moves.pop(m, None), report.wraps.pop(m, None)
         report.texture_moves.update(materials.moves)
         report.wraps.update({m: (CLAMP_TO_BORDER, CLAMP_TO_BORDER) for m, _ in materials.clamped})  # io.texture_wraps
     undefined = [] if defined is None else list(dict.fromkeys(

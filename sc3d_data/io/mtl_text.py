@@ -143,13 +143,16 @@ def mtl_materials(text: str) -> MtlMaterials:
         key, value = words[0].lower(), words[1].strip()
         if key == "newmtl":
             current = " ".join(value.split())
-            found.names.append(current)
+            found.names.append(current)  # a material defined again is replaced whole, as by the loader
+            found.moves.pop(current, None)
+            found.clamped = [c for c in found.clamped if c[0] != current]
         elif key == "map_kd":
             found.textures.append((current, map_file_name(value)))
             if (move := texture_move(value)) is not None:
                 found.moves[current] = move
             else:  # a later map_Kd of the material replaces an earlier one, as in the loader
                 found.moves.pop(current, None)
+            found.clamped = [c for c in found.clamped if c[0] != current]  # the loader draws the last map_Kd
             if _clamps_texture(value):
                 found.clamped.append(found.textures[-1])
         elif key == "map_ka":
