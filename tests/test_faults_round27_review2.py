@@ -36,3 +36,18 @@ def test_mtl_clamp_is_that_of_the_definition_the_loader_draws(tmp_path, mtls, wr
     [part] = list(mesh_parts(scene, np.eye(4)))
     assert part.image.getpixel((0, 0)) == (0, 0, 255) and warnings == []
     assert part.wrap == (wrap, wrap)
+
+
+def test_mtl_texture_move_is_that_of_the_definition_the_loader_draws(tmp_path):
+    """Same cause for ``map_Kd -o``: a material file's move of its ``m`` moved the texture of a
+    later file's ``m`` (the one drawn, not moved): texture coordinates shifted by 0.5, exit 0."""
+    (tmp_path / "m.obj").write_text("mtllib a.mtl b.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\n"
+                                    "usemtl m\nf 1/1 2/2 3/3\n")
+    (tmp_path / "a.mtl").write_text("newmtl m\nKd 1 1 1\nmap_Kd -o 0.5 0 red.png\n")
+    (tmp_path / "b.mtl").write_text("newmtl m\nKd 1 1 1\nmap_Kd blue.png\n")
+    Image.new("RGB", (4, 4), (255, 0, 0)).save(tmp_path / "red.png")
+    Image.new("RGB", (4, 4), (0, 0, 255)).save(tmp_path / "blue.png")
+    scene = load_mesh(tmp_path / "m.obj", root=tmp_path)[0]
+    [part] = list(mesh_parts(scene, np.eye(4)))
+    assert part.image.getpixel((0, 0)) == (0, 0, 255)
+    np.testing.assert_allclose(part.uv, [[0, 0], [1, 0], [1, 1]])
