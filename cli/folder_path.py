@@ -9,23 +9,11 @@ from pathlib import Path
 import click
 
 
-class FolderPath(click.Path):
-    """``click.Path(file_okay=False, path_type=Path)`` that fails on an empty (or blank) value
-    (``file_okay=True``: the command names a file given for the folder with its own message)."""
-
-    def __init__(self, file_okay: bool = False):
-        super().__init__(file_okay=file_okay, path_type=Path)
-
-    def convert(self, value, param, ctx):
-        if isinstance(value, str) and value.strip() == "":
-            self.fail("is empty: give a folder (an unset variable?)", param, ctx)
-        return super().convert(value, param, ctx)
-
-
 class FilePath(click.Path):
     """``click.Path(dir_okay=False)`` that fails on an empty (or blank) value: a report file
     (``check --json "$REPORT"``) or a split list given through an unset variable was taken as not
-    given (no report written, the default split used) instead of refused."""
+    given (no report written, the default split used) instead of refused. ``what`` the option
+    wants, for the message."""
 
     def __init__(self, what: str = "a file", **kwargs):
         kwargs.setdefault("dir_okay", False)
@@ -36,3 +24,11 @@ class FilePath(click.Path):
         if isinstance(value, str) and value.strip() == "":
             self.fail(f"is empty: give {self.what} (an unset variable?)", param, ctx)
         return super().convert(value, param, ctx)
+
+
+class FolderPath(FilePath):
+    """``click.Path(file_okay=False, path_type=Path)`` that fails on an empty (or blank) value
+    (``file_okay=True``: the command names a file given for the folder with its own message)."""
+
+    def __init__(self, file_okay: bool = False):
+        super().__init__("a folder", file_okay=file_okay, dir_okay=True, path_type=Path)

@@ -42,7 +42,7 @@ import importlib.util
 
 import numpy as np
 
-__all__ = ["READ_OR_MOOT", "UNDECODED", "apply_texture_transforms", "base_colour_textures", "feature_problems", "feature_warnings",
+__all__ = ["READ_OR_MOOT", "UNDECODED", "apply_texture_transforms", "base_colour_textures", "element", "feature_problems", "feature_warnings",
            "read_spec_gloss_as_matte", "read_texcoord_sets", "set_read", "textured",
            "material_name", "transform_matrix", "transform_names"]
 
@@ -156,6 +156,13 @@ def apply_texture_transforms(scene, doc: dict) -> None:
         u, v = np.asarray(visual.uv, dtype=np.float64).T
         moved = by_name[name] @ np.stack([u, 1.0 - v, np.ones_like(u)])
         visual.uv = np.stack([moved[0], 1.0 - moved[1]], axis=1)
+
+
+def element(doc: dict, key: str, i) -> dict:
+    """``doc[key][i]`` (a texture, a sampler...) where ``i`` indexes an object of that list, else
+    ``{}``: a reference that names nothing is read as absent."""
+    items = doc.get(key, [])
+    return items[i] if isinstance(i, int) and 0 <= i < len(items) and isinstance(items[i], dict) else {}
 
 
 def base_colour_textures(material: dict) -> list[tuple[str, dict]]:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import urllib.parse
 from pathlib import Path
 
-from sc3d_data.io.gltf_features import base_colour_textures
+from sc3d_data.io.gltf_features import base_colour_textures, element
 
 __all__ = ["NOT_DRAWN", "UNDRAWN", "gltf_image_refs", "gltf_uri_path", "not_drawn"]
 
@@ -41,9 +41,7 @@ def gltf_uri_path(folder: Path, uri: str) -> Path:
 
 def _source(doc: dict, info: dict):
     """The image index a ``textureInfo`` reads (``EXT_texture_webp``'s source first), or None."""
-    textures = doc.get("textures", [])
-    i = info.get("index")
-    texture = textures[i] if isinstance(i, int) and 0 <= i < len(textures) and isinstance(textures[i], dict) else {}
+    texture = element(doc, "textures", info.get("index"))
     return texture.get("extensions", {}).get("EXT_texture_webp", {}).get("source", texture.get("source"))
 
 
@@ -75,6 +73,7 @@ def gltf_image_refs(path: Path, doc: dict, binary: bytes | None, embedded_too: b
             embedded.append((f"texture image {i}{mark}", _data_uri_bytes(image["uri"])))
     return external, embedded
 
+
 def _data_uri_bytes(uri: str) -> bytes:
     """The bytes of a ``data:`` URI (base64 or percent-encoded); what does not decode, none."""
     import base64
@@ -85,4 +84,3 @@ def _data_uri_bytes(uri: str) -> bytes:
         return base64.b64decode(payload) if head.endswith(";base64") else urllib.parse.unquote_to_bytes(payload)
     except (binascii.Error, ValueError):
         return b""
-

@@ -26,7 +26,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from sc3d_data.io.off_polygons import FACE_COLOURS_UNREAD, colour_notes, off_lines
+from sc3d_data.io.off_polygons import FACE_COLOURS_UNREAD, POLYGON_LINE, colour_notes, off_lines
 
 __all__ = ["UNCOLOURED", "coloured_off_as_ply"]
 
@@ -35,18 +35,18 @@ __all__ = ["UNCOLOURED", "coloured_off_as_ply"]
 #: in full where the file has one with more words than corners, :func:`_coloured_polygon`); a vertex line may match too,
 #: and only costs the full reading
 _COLOURED_FACE = re.compile(rb"(?m)^[ \t]*(?:3(?:[ \t]+\d+){3}|4(?:[ \t]+\d+){4})[ \t]+[-+.\d]")
-#: a line that may be a polygon's face line (``off_polygons.POLYGON_LINE``), to the line's end
-_POLYGON_ROW = re.compile(rb"(?m)^[ \t]*(?:[5-9]|[1-9]\d+)(?:[ \t]+\d+){5}(?![\d.eE])[^\n]*")
 #: the renderer's ``DEFAULT_GREY`` (0.3) in bytes: faces of a face-coloured file without a colour
 UNCOLOURED = (77, 77, 77)
 
 
 def _coloured_polygon(data: bytes) -> bool:
-    """Whether OFF ``data`` has a line like a polygon's face line with more words than its corners
-    (a colour): only such lines are looked at, so a file of polygons without colours (read in full
-    by ``off_polygons``) is not read in full a second time here (twice the load time)."""
-    for match in _POLYGON_ROW.finditer(data):
-        words = match.group(0).split(b"#", 1)[0].split()
+    """Whether OFF ``data`` has a line like a polygon's face line (``off_polygons.POLYGON_LINE``) with
+    more words than its corners (a colour): only such lines are looked at, so a file of polygons
+    without colours (read in full by ``off_polygons``) is not read in full a second time here
+    (twice the load time)."""
+    for match in POLYGON_LINE.finditer(data):
+        end = data.find(b"\n", match.start())
+        words = data[match.start():None if end < 0 else end].split(b"#", 1)[0].split()
         if len(words) > 1 + int(words[0]):
             return True
     return False

@@ -17,7 +17,7 @@ texture (``render.renderer.MeshPart.wrap``).
 """
 from __future__ import annotations
 
-from sc3d_data.io.gltf_features import base_colour_textures, material_name
+from sc3d_data.io.gltf_features import base_colour_textures, element, material_name
 
 __all__ = ["CLAMP_TO_BORDER", "CLAMP_TO_EDGE", "MIRRORED_REPEAT", "REPEAT", "apply_wraps", "gltf_wrap_names"]
 
@@ -31,13 +31,9 @@ def gltf_wraps(doc: dict) -> dict[int, tuple[int, int]]:
     """``{material index: (wrap u, wrap v)}`` of glTF ``doc``'s materials whose base colour
     texture's sampler wraps other than REPEAT (a mode glTF does not name: REPEAT, its default)."""
     found = {}
-    textures, samplers = doc.get("textures", []), doc.get("samplers", [])
     for i, material in enumerate(doc.get("materials", [])):
         for _, info in base_colour_textures(material) if isinstance(material, dict) else []:
-            t = info.get("index")
-            texture = textures[t] if isinstance(t, int) and 0 <= t < len(textures) else None
-            s = texture.get("sampler") if isinstance(texture, dict) else None
-            sampler = samplers[s] if isinstance(s, int) and 0 <= s < len(samplers) and isinstance(samplers[s], dict) else {}
+            sampler = element(doc, "samplers", element(doc, "textures", info.get("index")).get("sampler"))
             wrap = tuple(w if w in GLTF_WRAPS else REPEAT for w in (sampler.get("wrapS"), sampler.get("wrapT")))
             if wrap != (REPEAT, REPEAT):
                 found[i] = wrap

@@ -49,6 +49,7 @@ from typing import NamedTuple
 import numpy as np
 
 from sc3d_data.geometry.camera import ViewSettings
+from sc3d_data.io.texture_wraps import REPEAT
 from sc3d_data.render.gl_backend import activate
 
 #: OpenCV camera axes -> OpenGL camera axes (flip y and z)
@@ -241,7 +242,7 @@ class MeshPart(NamedTuple):
     base_color: np.ndarray
     image: object
     alpha_cutoff: float | None
-    wrap: tuple[int, int] = (0x2901, 0x2901)
+    wrap: tuple[int, int] = (REPEAT, REPEAT)
 
 
 #: glTF 2.0's default ``alphaCutoff`` of an ``alphaMode`` MASK material
