@@ -214,8 +214,9 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
         raise MeshError(f"{path}: {'; '.join(report.problems)} (use --bad-texture fallback to render with "
                         "material colours)")
     text = None if gltf_doc is None else loader_gltf_bytes(gltf, skin_files)  # the text the loader reads right:
+    ply_of_off, off_notes = coloured_off_as_ply(path) if path.suffix.lower() == ".off" else (None, [])  # as PLY
     try:
-        text = {".ply": lambda p: loader_ply_bytes(p, max_faces), ".off": loader_off_bytes,
+        text = {".ply": lambda p: loader_ply_bytes(p, max_faces), ".off": lambda p: ply_of_off or loader_off_bytes(p),
                 ".stl": loader_stl_bytes}.get(path.suffix.lower(), lambda _: text)(path)
     except ValueError as e:  # io.stl_check: a triangle count that cannot be trusted
         raise MeshError(f"{path}: {e}; not read") from e
@@ -229,8 +230,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     resolver = make_resolver(path, root)
     read_spec_gloss_as_matte()
     keep_obj_vertex_colours()
-    ply_of_off, off_notes = coloured_off_as_ply(path) if path.suffix.lower() == ".off" else (None, [])
-    scene = load_scene(path, resolver, ply_of_off or text, "ply" if ply_of_off else None)  # an OFF's colours: as PLY
+    scene = load_scene(path, resolver, text, "ply" if ply_of_off else None)
     if path.suffix.lower() == ".off" and not any(len(getattr(g, "faces", ())) for g in scene.geometry.values()) \
             and (relined := faces_one_per_line(path)) is not None:  # face lists over several lines
         scene = load_scene(path, resolver, relined)
