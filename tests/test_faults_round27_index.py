@@ -76,7 +76,9 @@ def test_a_render_rerun_makes_the_disagreeing_shards_again(rendered, tmp_path, e
     """A rerun of the render renders the chunks of the files the lists disagree on and leaves the
     dataset one clean render makes (a shard listed twice stayed listed twice, exit 0)."""
     out, _ = _edited(rendered, tmp_path, edit)
-    run_cli(data_main, [*RENDER, "--out", out])
+    warnings = [line for line in run_cli(data_main, [*RENDER, "--out", out]).output.splitlines()
+                if line.startswith("warning: ")]
+    assert len(set(warnings)) == len(warnings), warnings  # a shard listed twice was warned of twice
     assert_same_dataset(out, rendered)
     assert run_cli(data_main, ["info", out, "--verify"]).exit_code == 0
     index = json.loads((out / "index.json").read_text())

@@ -143,7 +143,7 @@ def resume_state(out: Path, old: dict, retry_failed: bool, K: int, tasks: list[T
                                            else None)
         if problem is None:
             done_chunks.add(s["chunk"])
-        else:
+        elif problem + "; rendering its objects again" not in broken:  # a shard listed twice: said once
             broken.append(problem + "; rendering its objects again")
     for chunk, problem in changed_sources(old.get("objects", []), by_key, done_chunks, meshes).items():
         done_chunks.discard(chunk)
