@@ -138,6 +138,14 @@ def test_t3_resume_with_another_number_of_ranks_says_so(sample_shards, tmp_path)
     assert len(line) == 1 and res.output.rstrip().endswith(line[0]), res.output
     assert f"{run / 'checkpoints' / 'last.pt'}: saved with 2 ranks, now 1; resume with 2" in line[0]
     assert files() == before
+    # on 3 ranks, which do not split its batch of 4, the line named the batch ("batch size 4 is not
+    # divisible by 3 ranks") and not the ranks to resume with
+    three = [*cmd[:5], "3", str(script), "fit", "--out", str(run), "--resume", "--steps", "4", "--device", "cpu",
+             "--no-progress"]
+    r = subprocess.run(three, capture_output=True, text=True, timeout=300, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert r.returncode != 0
+    assert f"Error: {run / 'checkpoints' / 'last.pt'}: saved with 2 ranks, now 3; resume with 2" in r.stderr, r.stderr[-3000:]
+    assert files() == before
 
 
 # ----------------------------------------------------------------------------- T4

@@ -285,3 +285,13 @@ def checkpoint_config(path: Path, ckpt: dict) -> RunConfig:
         return RunConfig.from_dict(ckpt["config"])
     except ValueError as e:
         raise CheckpointError(f"{path}: its config is not one this version reads ({e})") from e
+
+
+def check_saved_ranks(path: Path, ckpt: dict, world_size: int) -> None:
+    """``CheckpointError`` when checkpoint ``ckpt`` (read from ``path``) was saved by another
+    number of ranks than ``world_size``: a run resumes with the ranks it was trained with (one
+    random state and one data position per rank), and the line says how many."""
+    saved = len(ckpt["rng"])
+    if saved != world_size:
+        raise CheckpointError(f"{path}: saved with {saved} ranks, now {world_size}; "
+                              f"resume with {saved} (torchrun --nproc_per_node, or none for 1)")

@@ -44,8 +44,8 @@ from pathlib import Path
 
 import torch
 
-from sc3d_train.loop.checkpoint import (CheckpointError, checkpoint_config, interrupted_line, last_path,
-                                        resume_checkpoint, rng_state, save_checkpoint, set_rng_state)
+from sc3d_train.loop.checkpoint import (CheckpointError, check_saved_ranks, checkpoint_config, interrupted_line,
+                                        last_path, resume_checkpoint, rng_state, save_checkpoint, set_rng_state)
 from sc3d_train.loop.checkpoint_model import build_model, state_dict_mismatch
 from sc3d_train.settings.config import CONFIG_NAME, RESUMABLE_FIELDS, RunConfig
 from sc3d_train.data.dataset import ShardDataset
@@ -92,12 +92,15 @@ class Training:
         return labeled_dataset(self.datasets)
 
 
-def prepare(cfg: RunConfig) -> Training:
+def prepare(cfg: RunConfig, resume: bool = False) -> Training:
     """Datasets (every data error surfaces here, before any work), pose targets, the seeded
-    model, Adam and AMP of this process; a CPU batch too large for memory is refused (``memory_check``)."""
+    model, Adam and AMP of this process; a CPU batch too large for memory is refused (``memory_check``).
+    ``resume``: a run resumed on ranks that do not split its batch is told the ranks it was saved with."""
     dist_info = setup_distributed(cfg.device)
     device = resolve_device(cfg.device, dist_info)
     if cfg.batch_size % dist_info.world_size:
+        if resume:  # 2 ranks resumed on 3: the cause is the rank count, not the batch
+            check_saved_ranks(*resume_checkpoint(Path(cfg.out)), dist_info.world_size)
         raise ValueError(f"batch size {cfg.batch_size} is not divisible by {dist_info.world_size} ranks")
     local_batch = cfg.batch_size // dist_info.world_size
     weights, grid = cfg.loss_weights, PoseGrid.of(cfg.model)
@@ -140,9 +143,7 @@ def restore(t: Training) -> tuple[int, Path]:
     if t.scaler is not None and ckpt.get("scaler"):
         t.scaler.load_state_dict(ckpt["scaler"])
     step, states = int(ckpt["step"]), ckpt["rng"]
-    if len(states) != t.dist.world_size:  # before the data position, which the rank count also changes
-        raise CheckpointError(f"{ckpt_file}: saved with {len(states)} ranks, now {t.dist.world_size}; "
-                              f"resume with {len(states)} (torchrun --nproc_per_node, or none for 1)")
+    check_saved_ranks(ckpt_file, ckpt, t.dist.world_size)  # before the data position, which the rank count changes
     expected = data_position(cfg, step, t.local_batch)
     if ckpt["data_position"] != expected:
         raise CheckpointError(f"{ckpt_file}: data position {ckpt['data_position']} != {expected}")
@@ -209,7 +210,7 @@ def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --
 
     Raises :class:`~sc3d_train.loop.loss_window.TrainingDiverged` on a non-finite loss, ``DataError`` / ``CheckpointError``
     on bad inputs, before any training step."""
-    t = prepare(cfg)
+    t = prepare(cfg, resume)
     start_step, last_good = 0, None
     if resume:
         start_step, ckpt_file = restore(t)
