@@ -69,7 +69,7 @@ def install_worker_hooks() -> None:
     import sc3d_data.geometry.normalize as normalize
     import sc3d_data.render.renderer as render
     import sc3d_data.pipeline.executors.job as job_mod
-    import sc3d_data.pipeline.executors.local_pool as pool
+    import sc3d_data.pipeline.executors.pool_worker as worker
     import sc3d_data.pipeline.jobs.render_job as job
     import sc3d_data.voxel.voxelize as voxelize
 
@@ -114,7 +114,7 @@ def install_worker_hooks() -> None:
             _current["task"] = time.monotonic() - t
 
     job.render_task = render_task  # the worker unpickles RENDER's ``run`` by this name
-    main = pool._worker_main
+    main = worker.worker_main
     life: dict[str, float] = {}
     _wrap(job_mod.Job, "start", "job start", life)
 
@@ -154,7 +154,7 @@ def install_worker_hooks() -> None:
             with open(log_dir / f"life-{os.getpid()}.json", "w") as f:
                 json.dump(life, f)
 
-    pool._worker_main = timed_main
+    worker.worker_main = timed_main
 
 
 def replicate_meshes(paths: list[Path], root: Path, copies: int, dest: Path) -> Path:

@@ -71,7 +71,8 @@ def executor_options(f):
         click.option("--address", default=None,
                      help="ray: address of a running cluster (auto, HOST:PORT); default: start a local one."),
         click.option("--retries", type=click.IntRange(0), default=3, show_default=True,
-                     help="ray: times an object is run again when its worker dies."),
+                     help="Times an object is run again when its worker process dies (segfault, OOM "
+                          "killer, lost node); a timeout or an error of the mesh is not retried."),
         click.option("--slurm-cpus-per-task", type=click.IntRange(1), default=4, show_default=True, is_eager=True,
                      expose_value=True, help="slurm: CPUs (render workers) per array task."),
         click.option("--slurm-partition", default=None, is_eager=True, help="slurm: partition to submit to."),
@@ -96,7 +97,7 @@ def timeout_option(f):
 
 
 #: the options of one executor (``--executor``), refused on the command line with another
-EXECUTOR_ONLY = {"address": "ray", "retries": "ray", "slurm_cpus_per_task": "slurm", "slurm_partition": "slurm",
+EXECUTOR_ONLY = {"address": "ray", "slurm_cpus_per_task": "slurm", "slurm_partition": "slurm",
                  "slurm_time": "slurm", "slurm_cluster": "slurm", "slurm": "slurm"}
 
 

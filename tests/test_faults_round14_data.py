@@ -70,7 +70,7 @@ def test_gpus_with_the_cpu_backend_is_refused_in_one_line(tmp_path):
 
 @pytest.mark.parametrize("args,names,executor", [
     (["--slurm-parts", 16, "--slurm-partition", "gpu"], "--slurm-partition, --slurm-parts", "slurm"),
-    (["--address", "10.0.0.1:6379", "--retries", 9], "--address, --retries", "ray"),
+    (["--address", "10.0.0.1:6379"], "--address", "ray"),
 ], ids=["slurm", "ray"])
 def test_options_of_another_executor_are_refused(tmp_path, args, names, executor):
     """``render --slurm-parts 16`` without ``--executor slurm`` rendered the whole dataset here and

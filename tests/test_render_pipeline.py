@@ -15,7 +15,8 @@ import h5py
 import numpy as np
 
 from sc3d_cli.data import main
-from conftest import REPO, SAMPLE_MESHES, assert_same_raster, require_backend, run_cli, write_hanging_gltf
+from conftest import (REPO, SAMPLE_MESHES, assert_same_raster, objects_by_id, require_backend, run_cli,
+                      write_hanging_gltf)
 
 FAST = ["--views", "4", "--no-progress"]
 
@@ -124,14 +125,50 @@ def test_workers_get_the_environment_the_main_process_has_when_they_start(tmp_pa
     os.environ[CRASH_ENV] = "box_a"
     try:
         res = run_cli(main, ["render", "--meshes", tmp_path / "meshes", "--out", tmp_path / "second",
-                             "--workers", "1", *FAST])
+                             "--workers", "1", "--retries", "0", *FAST])
     finally:
         del os.environ[CRASH_ENV]
     assert "done 2" in res.output and "failed 1" in res.output
     index = json.loads((tmp_path / "second" / "index.json").read_text())
     assert [f["model_id"] for f in index["failures"]] == ["box_a"]
-    assert "killed by signal 9 (SIGKILL" in index["failures"][0]["reason"]
+    assert index["failures"][0]["reason"].endswith("render worker killed by signal 9 (SIGKILL: out of memory or "
+                                                   "killed from outside) while working on it")
     assert sorted(o["model_id"] for o in index["objects"]) == ["box_b", "box_c"]
+
+
+def test_an_object_whose_worker_crashed_is_run_again_in_a_new_worker(tmp_path):
+    """A render worker killed by a signal (a GL driver's rare segfault, seen once in CI on a
+    textured PLY that renders fine every other time) cost its object: recorded as failed, the
+    run's dataset short of it until a rerun. Now the object runs again in the new worker up to
+    ``--retries`` times (3 by default, as on Ray); one that crashes every time is recorded with
+    the count. Reference: the same meshes rendered with no crash."""
+    from sc3d_data.pipeline.executors.job import CRASH_ENV
+
+    meshes = tmp_path / "meshes" / "thing"
+    meshes.mkdir(parents=True)
+    for name in ("box_a", "box_b", "box_c"):
+        _write_obj(meshes / f"{name}.obj", *_cube())
+    clean = tmp_path / "clean"
+    run_cli(main, ["render", "--meshes", tmp_path / "meshes", "--out", clean, "--workers", "1", *FAST])
+    os.environ[CRASH_ENV] = f"box_a@{tmp_path / 'crashed_once'},box_c"  # box_a's first attempt, box_c's every one
+    try:
+        res = run_cli(main, ["render", "--meshes", tmp_path / "meshes", "--out", tmp_path / "crashed",
+                             "--workers", "1", "--retries", "2", *FAST])
+    finally:
+        del os.environ[CRASH_ENV]
+    assert (tmp_path / "crashed_once").exists()  # box_a's worker did crash
+    assert "done 2" in res.output and "failed 1" in res.output, res.output
+    index = json.loads((tmp_path / "crashed" / "index.json").read_text())
+    assert [f["model_id"] for f in index["failures"]] == ["box_c"]
+    assert index["failures"][0]["reason"].endswith("render worker killed by signal 9 (SIGKILL: out of memory or "
+                                                   "killed from outside) while working on it, on all 3 attempts "
+                                                   "(--retries)")
+    a, b = objects_by_id(clean), objects_by_id(tmp_path / "crashed")
+    assert sorted(b) == [("thing", "box_a"), ("thing", "box_b")]
+    for key in b:
+        assert a[key].keys() == b[key].keys() and "images" in b[key]
+        for k in b[key]:
+            np.testing.assert_array_equal(a[key][k], b[key][k], err_msg=f"{key} {k}")
 
 
 def test_osmesa_run_after_an_egl_run_in_one_process(tmp_path):

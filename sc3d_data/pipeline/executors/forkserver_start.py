@@ -12,7 +12,7 @@ def ensure_server(ctx) -> None:
     process's forkserver unless it runs, with Ctrl-C (SIGINT) ignored from the
     server's first instruction: multiprocessing ignores it only after the server's preload, so a
     Ctrl-C during its seconds of imports printed their traceback. The disposition is inherited
-    through exec and fork; ``_worker_main`` gives each worker Python's handler back."""
+    through exec and fork; ``pool_worker.worker_main`` gives each worker Python's handler back."""
     if ctx.get_start_method() != "forkserver":
         return
     if threading.current_thread() is not threading.main_thread():

@@ -20,8 +20,22 @@ THREAD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THRE
               "LP_NUM_THREADS": "1"}
 #: TEST-ONLY fault injection (tests/test_scale.py): comma-separated model ids whose worker
 #: process kills itself with SIGKILL when it starts them, as a mesh that crashes the GL driver
-#: would. Unset in normal use; nothing else reads it.
+#: would; ``ID@FILE``: only while FILE does not exist (the crash creates it: a crash of the first
+#: attempt alone, as a driver's rare one). Unset in normal use; nothing else reads it.
 CRASH_ENV = "SC3D_TEST_CRASH_MODEL_IDS"
+
+
+def crash_if_asked(model_id: str) -> None:
+    """Kill this process with SIGKILL where :data:`CRASH_ENV` names ``model_id`` (see there)."""
+    import os
+    import signal
+
+    for entry in os.environ.get(CRASH_ENV, "").split(","):
+        name, _, marker = entry.partition("@")
+        if name == model_id and not (marker and os.path.exists(marker)):
+            if marker:
+                open(marker, "x").close()
+            os.kill(os.getpid(), signal.SIGKILL)
 
 
 @dataclass(frozen=True)
@@ -60,7 +74,7 @@ class ExecOptions:
     """Where and how long the objects of a job run (settings that never change the output):
     ``executor`` ``local`` | ``ray`` | ``slurm``, ``workers`` (0 = CPU cores; Ray: 0 = the
     cluster's CPUs), ``timeout_s`` per object, ``address`` of a Ray cluster (None: a local one
-    for the run), ``retries`` of an object whose Ray worker died. ``backend`` is the GL backend
+    for the run), ``retries`` of an object whose worker process died (``local_pool``, Ray). ``backend`` is the GL backend
     of render jobs (unused by the others)."""
 
     executor: str = "local"

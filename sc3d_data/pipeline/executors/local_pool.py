@@ -2,22 +2,23 @@
 worker processes on this machine (no extra dependency).
 
 Workers are forked from multiprocessing's ``forkserver``, a clean process that imported
-``worker_preload`` (trimesh, the voxelizer's compiled kernels) once, so a worker starts in
-~0.3 CPU-s instead of ~1.2 (``spawn``, the fallback where there is no forkserver). Neither the
-server nor the main process ever creates a GL context, so none is inherited through a fork; a
-worker gets the main process's environment as it is when the worker starts (``_worker_main``),
-as a spawned one would. Each makes its per-worker state once (``Job.start``: for rendering ONE
-``MeshRenderer``) and handles one object at a time; ``start_pool`` returns when the first worker
-is up (all of them with ``--gpus``, so that a failing device is named before any work) and the
-others take tasks as they come up; one that fails to start while another is up or starting is
-left out, its reason in ``start_failures`` (``render`` warns of them). ``render_dataset`` starts the server
-(``start_server_early``) before it plans, so its imports overlap the planning. To each worker
-the main process sends tasks down a pipe, keeping the next one queued behind the current
-(``QUEUED``), and gets the result of ``job.run`` back (``job.Job``, e.g.
-``jobs.render_job.RENDER``). Per-object time limit (``config.timeout_s``, counted from when the
-worker starts the object): a worker that takes longer (a loader that hangs, a huge mesh) is
-killed and replaced and the object is recorded as a failure, as is one that crashes (the next run
-retries it, ``retry_failed``); the task queued behind it goes to another worker. With ``config.gpus``,
+``worker_preload`` (trimesh, the voxelizer's compiled kernels) once, so a worker starts in ~0.3
+CPU-s instead of ~1.2 (``spawn``, the fallback where there is no forkserver). Neither the server nor
+the main process ever creates a GL context, so none is inherited through a fork; a worker gets the
+main process's environment as it is when the worker starts (``pool_worker.worker_main``), as a spawned one
+would. Each makes its per-worker state once (``Job.start``: for rendering ONE ``MeshRenderer``) and
+handles one object at a time; ``start_pool`` returns when the first worker is up (all of them with
+``--gpus``, so that a failing device is named before any work) and the others take tasks as they
+come up; one that fails to start while another is up or starting is left out, its reason in
+``start_failures`` (``render`` warns of them). ``render_dataset`` starts the server
+(``start_server_early``) before it plans, so its imports overlap the planning. To each worker the
+main process sends tasks down a pipe, keeping the next one queued behind the current (``QUEUED``),
+and gets the result of ``job.run`` back (``job.Job``, e.g. ``jobs.render_job.RENDER``). Per-object
+time limit (``config.timeout_s``, counted from when the worker starts the object): a worker that
+takes longer (a loader that hangs, a huge mesh) is killed and replaced and the object is recorded as
+a failure (the next run retries it, ``retry_failed``); one that crashes (segfault, OOM killer) is
+replaced and its object run again in the new worker up to ``config.retries`` times (``--retries``,
+as Ray's), then recorded; the tasks queued behind either are sent again. With ``config.gpus``,
 worker slot ``i`` renders on EGL device ``gpus[i % len(gpus)]`` (``devices.py``).
 
 Implements ``sc3d_data.pipeline.executors.executor.Executor`` (as ``ray_executor.RayExecutor`` does).
@@ -26,15 +27,14 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
-import signal
-import sys
 import time
 from multiprocessing.connection import wait
 
-from sc3d_data.pipeline.executors.devices import worker_environ
 from sc3d_data.render.gl_backend import BackendError, install_hint
+from sc3d_data.render.probe import exit_status
 from sc3d_data.pipeline.executors.forkserver_start import ensure_server
 from sc3d_data.pipeline.executors.job import THREAD_ENV, Job
+from sc3d_data.pipeline.executors.pool_worker import WorkerProcess
 from sc3d_data.pipeline.run.plan import Task
 from sc3d_data.io.shards import write_shard
 
@@ -70,71 +70,6 @@ def worker_context(gl_backend: str | None):
     return ctx
 
 
-def _worker_main(conn, job: Job, config, backend: str, environ: dict | None = None) -> None:
-    """Worker process: take the main process's ``environ`` (the forkserver's dates from its own
-    start), ``job.start`` (one renderer), then (task -> result) until ``None``."""
-    signal.signal(signal.SIGINT, signal.default_int_handler)  # the server ignores it: ensure_server
-    if environ is not None:
-        fixed = {k: os.environ[k] for k in ("PYOPENGL_PLATFORM",) if k in os.environ and "OpenGL" in sys.modules}
-        os.environ.clear()
-        os.environ.update(environ)
-        os.environ.update(fixed)  # PyOpenGL was imported by the forkserver with this platform
-    for k, v in THREAD_ENV.items():
-        os.environ.setdefault(k, v)
-    try:
-        job.start(config, backend)
-    except Exception as e:
-        conn.send(("dead", None, f"{type(e).__name__}: {e}"))
-        return
-    try:
-        conn.send(("ready", None, None))
-        while True:
-            task = conn.recv()
-            if task is None:
-                break
-            try:
-                pos, status, payload = job.run(config, backend, task)
-                reply = (status, pos, payload)
-                del payload
-            except KeyboardInterrupt:
-                break
-            conn.send(reply)
-            del reply
-    except (EOFError, OSError, KeyboardInterrupt):
-        pass  # the main process is gone or stopping: nothing to report to
-    if job.drop is not None:
-        job.drop()
-
-
-class _Worker:
-    def __init__(self, ctx, job: Job, config, backend: str, slot: int = 0):
-        self.conn, child = ctx.Pipe()
-        self.slot = slot  # its GPU: ``devices.device_of_slot(slot, config.gpus)`` (render jobs)
-        gpus = tuple(getattr(config, "gpus", ())) if job.gl else ()
-        self.proc = ctx.Process(target=_worker_main, args=(child, job, config, backend,
-                                                           worker_environ(os.environ, slot, gpus)),
-                                daemon=True)
-        self.proc.start()
-        child.close()
-        self.ready = False
-        self.tasks: list[Task] = []  # sent, no result yet; the first is the one being worked on
-        self.started = 0.0  # when the first of ``tasks`` started (its time limit runs from here)
-
-    def receive(self) -> tuple:
-        """The worker's next message ``(status, pos, payload)``; ``("crash", None, None)`` when
-        its pipe is closed (the process died)."""
-        try:
-            return self.conn.recv()
-        except (EOFError, OSError):
-            return "crash", None, None
-
-    def kill(self) -> None:
-        if self.proc.is_alive():
-            self.proc.kill()
-        self.proc.join(5)
-        self.conn.close()
-
-
 class WorkerPool:
     """``n`` workers of ``job``, each holding up to ``QUEUED`` tasks; ``run(tasks)`` yields
     ``(pos, status, payload)`` with status ``ok`` (payload: (record, warnings)) or ``fail``
@@ -146,7 +81,7 @@ class WorkerPool:
         self.ctx = worker_context(backend if job.gl else None)
         ensure_server(self.ctx)
         self.config, self.backend, self.job = config, backend, job
-        self.workers = [_Worker(self.ctx, job, config, backend, slot) for slot in range(n)]
+        self.workers = [WorkerProcess(self.ctx, job, config, backend, slot) for slot in range(n)]
         self.start_failures: list[str] = []  # why the workers left out did not start (``run``)
 
     def wait_ready(self, every: bool = True) -> str | None:
@@ -171,7 +106,7 @@ class WorkerPool:
                     self._drop_unstarted(w, payload if status == "dead" else None)
         return None
 
-    def _drop_unstarted(self, w: _Worker, reason: str | None) -> None:
+    def _drop_unstarted(self, w: WorkerProcess, reason: str | None) -> None:
         """``w`` could not start (``reason``; None: it crashed). With another worker up or still
         starting the run goes on without it and ``start_failures`` says why; else the pool is
         closed and the error raised (``BackendError`` with a reason, ``RuntimeError`` for a crash)."""
@@ -187,11 +122,11 @@ class WorkerPool:
             raise RuntimeError(f"a {self.job.name} worker died while starting (exit code {w.proc.exitcode})")
         raise BackendError(f"{self.job.name} worker could not start: {reason}")
 
-    def _replace(self, w: _Worker) -> list[Task]:
+    def _replace(self, w: WorkerProcess) -> list[Task]:
         """Kill ``w`` and start a worker in its place; the tasks it had queued behind the one it
         was working on (to be sent again)."""
         w.kill()
-        new = _Worker(self.ctx, self.job, self.config, self.backend, w.slot)
+        new = WorkerProcess(self.ctx, self.job, self.config, self.backend, w.slot)
         self.workers[self.workers.index(w)] = new
         return w.tasks[1:]
 
@@ -200,7 +135,7 @@ class WorkerPool:
         sent ahead, so it starts the next object the moment it sends a result (no round trip
         through this process in between); the time limit of a task runs from then."""
         todo = list(tasks)[::-1]  # pop() from the end = plan order
-        timeout = self.config.timeout_s
+        timeout, crashes = self.config.timeout_s, {}  # crashes: {pos: times its worker died on it}
         while todo or any(w.tasks for w in self.workers):
             for w in self.workers:
                 while w.ready and len(w.tasks) < QUEUED and todo and may_dispatch(todo[-1].pos):
@@ -232,14 +167,18 @@ class WorkerPool:
                         task = w.tasks[0] if w.tasks else None
                         w.proc.join(5)
                         code = w.proc.exitcode
-                        if code == 0 and task is not None:  # it stopped on Ctrl-C (_worker_main), whose
+                        if code == 0 and task is not None:  # it stopped on Ctrl-C (pool_worker.worker_main), whose
                             raise KeyboardInterrupt  # KeyboardInterrupt here was lost (a weakref callback's)
                         todo.extend(self._replace(w)[::-1])
-                        if task is not None:
-                            from sc3d_data.render.probe import exit_status
-
-                            how = exit_status(code) if code and code < 0 else f"exited with code {code}"
-                            yield task.pos, "fail", f"{task.path}: {self.job.name} worker {how} while working on it"
+                        if task is None:
+                            continue
+                        crashes[task.pos] = n = crashes.get(task.pos, 0) + 1
+                        if n <= self.config.retries:  # a driver's rare crash is not the mesh's fault
+                            todo.append(task)  # next, in the new worker
+                            continue
+                        how = exit_status(code) if code and code < 0 else f"exited with code {code}"
+                        yield task.pos, "fail", (f"{task.path}: {self.job.name} worker {how} while working on it"
+                                                 + (f", on all {n} attempts (--retries)" if n > 1 else ""))
                 elif w.tasks and time.monotonic() - w.started > timeout:
                     task = w.tasks[0]
                     todo.extend(self._replace(w)[::-1])

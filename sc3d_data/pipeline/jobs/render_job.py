@@ -19,7 +19,7 @@ import numpy as np
 
 from sc3d_data.geometry.camera import DEFAULT_DISTANCE, DEFAULT_FOV_DEG, DEFAULT_IMAGE_SIZE, DEFAULT_NUM_VIEWS, ViewSettings
 from sc3d_data.io.meshes import DEFAULT_MAX_FACES, DEFAULT_MAX_FILE_BYTES
-from sc3d_data.pipeline.executors.job import CRASH_ENV, THREAD_ENV, Job
+from sc3d_data.pipeline.executors.job import THREAD_ENV, Job, crash_if_asked
 from sc3d_data.pipeline.run.partition import Part
 from sc3d_data.pipeline.run.plan import Task
 from sc3d_data.io.shards import ObjectRecord, border_clipped, encode_arrays
@@ -69,7 +69,7 @@ class RenderConfig:
     part: Part = Part(0, 1)  # this run's share of the plan (run/partition.py)
     executor: str = "local"  # local | ray (slurm runs parts through slurm_executor)
     address: str | None = None  # ray: cluster address, None = a local cluster for the run
-    retries: int = 3  # ray: re-runs of an object whose worker died
+    retries: int = 3  # re-runs of an object whose worker process died
     gpus: tuple[int, ...] = ()  # EGL devices the workers are spread over (executors/devices.py); () = as today
 
     def validate(self, n_workers: int = 1) -> None:
@@ -231,10 +231,7 @@ def render_task(config: RenderConfig, backend: str, task: Task) -> tuple[int, st
     input never raises; a crash or hang of this process is the
     executor's to catch (it kills and replaces the worker)."""
     renderer, _ = cached_renderer(config, backend)
-    if task.model_id in os.environ.get(CRASH_ENV, "").split(","):
-        import signal
-
-        os.kill(os.getpid(), signal.SIGKILL)
+    crash_if_asked(task.model_id)  # tests only
     try:
         record, warnings = render_one(renderer, task, config)
         return task.pos, "ok", (encode_arrays(record, config.chunks), warnings)
