@@ -73,7 +73,7 @@ def voxelize(shards, meshes, out, resolution, normalize, up, front, workers, ove
             from sc3d_data.io.shards import load_index
 
             s = voxelize_shards(shards, resolution, workers or os.cpu_count() or 1, overwrite, progress,
-                                scale["timeout_s"])
+                                scale["timeout_s"], scale["retries"])
             if not s.shards_done and not s.shards_skipped and load_index(shards).get("failures"):  # not an empty part
                 raise click.ClickException(f"{shards}: holds no shard, so nothing was voxelized (no object was rendered "
                                            f"into it: `sc3d-data info {shell_word(shards)}` lists why)")

@@ -171,6 +171,34 @@ def test_an_object_whose_worker_crashed_is_run_again_in_a_new_worker(tmp_path):
             np.testing.assert_array_equal(a[key][k], b[key][k], err_msg=f"{key} {k}")
 
 
+def test_voxelize_shards_reads_retries(tmp_path):
+    """``voxelize SHARDS`` runs on the same pool: ``--retries`` (refused there before, as an
+    option of Ray's) runs an object whose worker died again; ``--retries 0`` records it at once.
+    Reference: the grids of the same shards voxelized with no crash."""
+    from sc3d_data.pipeline.executors.job import CRASH_ENV
+
+    meshes = tmp_path / "meshes" / "thing"
+    meshes.mkdir(parents=True)
+    for name in ("box_a", "box_b"):
+        _write_obj(meshes / f"{name}.obj", *_cube())
+    run_cli(main, ["render", "--meshes", tmp_path / "meshes", "--out", tmp_path / "clean", "--workers", "1", *FAST])
+    for name in ("once", "none"):
+        shutil.copytree(tmp_path / "clean", tmp_path / name)
+    run_cli(main, ["voxelize", tmp_path / "clean", "--workers", "1", "--no-progress"])
+    os.environ[CRASH_ENV] = f"box_a@{tmp_path / 'crashed_once'}"
+    try:
+        res = run_cli(main, ["voxelize", tmp_path / "once", "--workers", "1", "--retries", "1", "--no-progress"])
+        assert "voxelized 2 objects" in res.output and "0 failed" in res.output, res.output
+        (tmp_path / "crashed_once").unlink()
+        res = run_cli(main, ["voxelize", tmp_path / "none", "--workers", "1", "--retries", "0", "--no-progress"])
+        assert "1 failed" in res.output, res.output
+    finally:
+        del os.environ[CRASH_ENV]
+    a, b = objects_by_id(tmp_path / "clean"), objects_by_id(tmp_path / "once")
+    for key in a:
+        np.testing.assert_array_equal(a[key]["voxels"], b[key]["voxels"], err_msg=str(key))
+
+
 def test_osmesa_run_after_an_egl_run_in_one_process(tmp_path):
     """The forkserver imported PyOpenGL for EGL; an OSMesa run in the same process gets spawned
     workers instead (PyOpenGL's platform cannot change) and renders the same pixels: identical

@@ -10,9 +10,9 @@ voxelization of one mesh file shared with ``voxel_meshes.py`` (``voxelize --mesh
     unless objects of it failed (their ``voxelize`` failures): those objects are voxelized again
     and the shard rewritten with the other objects' grids kept (as ``render`` retries its
     failures); ``overwrite=True`` redoes every shard. The objects run on the local pool
-    (``executor.py``: ``workers`` processes; a worker that dies or passes the per-object time
-    limit ``--timeout`` costs its object, retried by the next run) and the shards are the chunks
-    of the loop ``render`` and ``import-r2n2`` write with (``shard_output.py``): the index's
+    (``executor.py``: ``workers`` processes; a worker past ``--timeout``, or dying on all ``--retries``
+    runs of its object, costs that object, retried by the next run) and the shards are the chunks of
+    the loop ``render`` and ``import-r2n2`` write with (``shard_output.py``): the index's
     ``bytes``/``sha256`` of a shard are written right after it is rewritten, and the run holds
     the folder's write lock. An object that fails (mesh missing or unreadable) gets an all-empty
     grid so the shard stays rectangular, and is recorded in the index under ``failures`` with
@@ -33,7 +33,7 @@ import numpy as np
 
 from sc3d_data.io.shards import index_path, replace_dataset_atomically, voxels_attr
 from sc3d_data.io.shard_reader import read_strings, refuse_changed
-from sc3d_data.pipeline.executors.job import ExecOptions, Job
+from sc3d_data.pipeline.executors.job import ExecOptions, Job, crash_if_asked
 from sc3d_data.pipeline.run.plan import Task
 
 #: why a shard to rewrite (its chunks copied undecoded) must be the one indexed (``refuse_changed``)
@@ -97,6 +97,7 @@ def voxelize_row_task(config: VoxelizeShardsConfig, backend: str, task: RowTask)
     from sc3d_data.io.source_fingerprint import source_change
 
     limit_threads()
+    crash_if_asked(task.model_id)  # tests only
     if task.source_file is not None and (why := source_change(task.path, dict(task.source_file))) is not None:
         return task.pos, "fail", (f"{task.path}: changed since it was rendered ({why}); its voxels would not "
                                   "match its images: render it again, then voxelize")
@@ -147,13 +148,13 @@ class VoxelizeSummary:
 
 
 def voxelize_shards(shard_dir: Path, resolution: int = 32, workers: int = 1, overwrite: bool = False,
-                    progress: bool = False, timeout_s: float = 120.0) -> VoxelizeSummary:
+                    progress: bool = False, timeout_s: float = 120.0, retries: int = 3) -> VoxelizeSummary:
     """Add ``voxels [N, G, G, G]`` to every shard of ``shard_dir`` (module doc); ``timeout_s``:
-    the per-object time limit, seconds (``--timeout``)."""
+    the per-object time limit, seconds (``--timeout``); ``retries``: of an object whose worker died."""
     from sc3d_data.pipeline.jobs.shard_output import locked_output
 
     with locked_output(Path(shard_dir), "sc3d-data voxelize", create=False):
-        return _voxelize_shards_locked(Path(shard_dir), resolution, workers, overwrite, progress, timeout_s)
+        return _voxelize_shards_locked(Path(shard_dir), resolution, workers, overwrite, progress, timeout_s, retries)
 
 
 def _earlier_grid(path: Path, row: int) -> np.ndarray | None:
@@ -199,7 +200,7 @@ def _kept_voxels(path: Path) -> np.ndarray:
             raise ShardError(f"{path}: broken shard ({io_reason(e)}); see `sc3d-data info --verify`") from e
 
 
-def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, progress, timeout_s) -> VoxelizeSummary:
+def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, progress, timeout_s, retries):
     """The shards are the chunks of ``shard_output.write_chunks``: row ``r`` of the ``c``-th
     shard listed is plan position ``c * K + r`` (``K`` = the most rows of a shard)."""
     from sc3d_data.io.shards import shard_path
@@ -282,7 +283,7 @@ def _voxelize_shards_locked(shard_dir: Path, resolution, workers, overwrite, pro
             bar.update(1)
 
     config = VoxelizeShardsConfig(resolution=resolution, max_faces=settings.get("max_faces"), workers=workers,
-                                  timeout_s=timeout_s)
+                                  timeout_s=timeout_s, retries=retries)
     n_workers = max(1, min(workers, len(todo)))
     pool = start_executor(config, n_workers, VOXELIZE_ROW) if todo else None
     try:
