@@ -21,7 +21,13 @@ first) is left out, since the loader took it for part of the first statement (a 
 and every face index after it one off: "cannot parse"); and a comment after the data of a
 vertex or element statement (``f 1 2 3 # back``, ``v 0 0 1 # tip``), which the loader cannot
 parse, is cut off (comments after names, ``usemtl``, ``mtllib``, ``o``, ``g``, are left: a
-``#`` may be part of a name). Otherwise None: the loader reads the file (the common case costs a
+``#`` may be part of a name). And the loader finds a statement only as ``KEYWORD `` (one space)
+at the very start of a line ended by LF or CRLF: a statement written indented, or with a tab after
+its keyword (``v\t1.00  0.00  -1.04``, as in Williams College's ``CornellBox-Original.obj``), was
+not read (its vertices lost: every later index off by them, "cannot parse ... IndexError", or
+wrong triangles), and a file whose lines end with CR alone (classic Mac OS) was read as no
+triangles; such a file is given with its lines ended by LF, joined where continued by ``\\``, and
+its statements written ``KEYWORD VALUE`` (:func:`plain_statements`). Otherwise None: the loader reads the file (the common case costs a
 few ``bytes.find`` calls).
 """
 from __future__ import annotations
@@ -32,7 +38,7 @@ import numpy as np
 
 from sc3d_data.io.mtl_text import loader_reading
 
-__all__ = ["absolute_indices", "check_obj_indices", "loader_obj_bytes", "without_number_comments"]
+__all__ = ["absolute_indices", "check_obj_indices", "loader_obj_bytes", "plain_statements", "without_number_comments"]
 
 #: a face statement holding a negative index (``f 1 -2``, ``f 1/-1 ...``)
 _RELATIVE_FACE = re.compile(rb"(?m)^[ \t]*f[ \t][^\n#]*?(?<=[ \t/])-\d")
@@ -42,11 +48,38 @@ _VERTEX_KEYS = ("v", "vt", "vn")
 _NUMBER_KEYS = frozenset({"v", "vt", "vn", "vp", "f", "l", "p"})
 _NUMBER_KEYS_BYTES = frozenset(k.encode() for k in _NUMBER_KEYS)
 UTF8_BOM = b"\xef\xbb\xbf"
+#: a statement the loader does not find: indented, or a tab after its keyword
+_LOOSE_STATEMENT = re.compile(rb"(?m)^(?:[ \t]+[^\s#]|[a-z_]+\t)")
 
 
 def _is_any(values: np.ndarray, chars: bytes) -> np.ndarray:
     """``values [n] uint8`` -> ``[n] bool``: which are one of the bytes ``chars``."""
     return np.logical_or.reduce([values == c for c in chars])
+
+
+def _lone_cr(data: bytes) -> bool:
+    """Whether a line of ``data`` ends with CR alone (two counts, no scan in Python)."""
+    return data.count(b"\r") != data.count(b"\r\n")
+
+
+def _loose_statements(data: bytes) -> bool:
+    """Whether OBJ ``data`` holds a statement the loader would not find, or lines it would not
+    split (module doc)."""
+    return _lone_cr(data) or ((b"\t" in data or b"\n " in data or data[:1] == b" ")
+                              and _LOOSE_STATEMENT.search(data) is not None)
+
+
+def plain_statements(data: bytes) -> bytes:
+    """OBJ ``data`` as the loader reads it (module doc): lines ended by LF, a line continued by
+    ``\\`` joined to the next (before any line is trimmed: the space before the ``\\`` stays),
+    and each statement written ``KEYWORD VALUE`` without indentation; the value is kept as written
+    (a material name may hold a tab)."""
+    data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n").replace(b"\\\n", b"")
+    lines = data.split(b"\n")
+    for n, line in enumerate(lines):
+        if line[:1] in (b" ", b"\t") or b"\t" in line[:8]:
+            lines[n] = b" ".join(line.split(None, 1))
+    return b"\n".join(lines)
 
 
 def check_obj_indices(data: bytes) -> None:
@@ -57,6 +90,7 @@ def check_obj_indices(data: bytes) -> None:
     (0 becomes the last vertex). Such a file is refused, not rendered wrong. Vectorised (a
     70 MB OBJ in a fraction of its parse time): every token ``0`` between separators is a
     candidate, kept when its line is an ``f`` statement and it comes before any ``#``."""
+    data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n") if _lone_cr(data) else data  # lines ended by CR alone
     text = b"\n" + data + b"\n"  # padded: a byte each side
     b = np.frombuffer(text, dtype=np.uint8)
     zeros = np.flatnonzero(b == ord("0"))
@@ -87,7 +121,7 @@ def absolute_indices(text: str) -> str:
     line for an index that is no number, or that counts back past the first vertex."""
     counts = dict.fromkeys(_VERTEX_KEYS, 0)
     out = []
-    for number, line in enumerate(text.replace("\\\n", "").split("\n"), 1):
+    for number, line in enumerate(text.replace("\r\n", "\n").replace("\\\n", "").split("\n"), 1):
         parts = line.split(None, 1)
         key = parts[0] if parts else ""
         if key in counts:
@@ -138,9 +172,11 @@ def loader_obj_bytes(data: bytes) -> bytes | None:
     decoded)."""
     bom = data.startswith(UTF8_BOM)
     data = data[len(UTF8_BOM):] if bom else data
+    if loose := _loose_statements(data):
+        data = plain_statements(data)
     relative = _later_vertices(data) and _RELATIVE_FACE.search(data) is not None
     comments = _comment_after_numbers(data)
-    as_is = data if bom else None  # the file's bytes, or the file itself
+    as_is = data if bom or loose else None  # the bytes to read, or the file itself
     if not (relative or comments) and data.isascii():
         return as_is
     if data[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\0" in data[:4096]:  # UTF-16/32: the loader's own decoding
