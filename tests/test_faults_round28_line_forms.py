@@ -73,3 +73,25 @@ def test_obj_with_index_zero_on_cr_only_lines_is_refused(tmp_path):
     with pytest.raises(ValueError, match="line 4 .*names index 0"):
         check_obj_indices(b"v 0 0 0\rv 1 0 0\rv 0 1 0\rf 0 1 2\r")
 
+
+def test_ascii_stl_with_cr_only_lines_is_read(tmp_path):
+    """numpy-stl's ``mac.stl`` layout: an ASCII STL whose lines end with CR alone was refused as
+    "does not end with an `endsolid` line: cut short?" (it does end with one), and the loader could
+    not parse it either. It renders as its LF twin; one really cut short is still refused."""
+    facets = "".join(f"facet normal 0 0 1\n outer loop\n  vertex {a}\n  vertex {b}\n  vertex {c}\n endloop\nendfacet\n"
+                      for a, b, c in (("0 0 0", "1 0 0", "0 1 0"), ("0 0 0", "0 1 0", "0 0 1"),
+                                      ("0 0 0", "0 0 1", "1 0 0"), ("1 0 0", "0 0 1", "0 1 0")))
+    lf = f"solid Moon.stl\n{facets}endsolid Moon.stl\n"
+    objects = _render(tmp_path, {"lf.stl": lf.encode(), "mac.stl": lf.replace("\n", "\r").encode(),
+                                 "dos.stl": lf.replace("\n", "\r\n").encode()})
+    assert len(objects) == 3
+    _assert_same(objects, "lf")
+
+    from sc3d_data.io.stl_check import loader_stl_bytes
+
+    import pytest
+
+    cut = tmp_path / "cut.stl"
+    cut.write_bytes(lf.replace("\n", "\r").encode()[:-40])
+    with pytest.raises(ValueError, match="cut short"):
+        loader_stl_bytes(cut)

@@ -16,7 +16,10 @@ the file's size (binary) or its last bytes (ASCII), as assimp, admesh and numpy-
   draw a part of the object or something that is not part of it;
 - an ASCII STL (``solid``, in any case, after a byte-order mark, with a ``facet`` in its first
   KiB) that does not end with an ``endsolid`` line (then only whitespace, NUL or ^Z padding) is
-  refused as cut short: its last facets may be missing.
+  refused as cut short: its last facets may be missing;
+- an ASCII STL whose lines end with CR alone (classic Mac OS; numpy-stl's ``mac.stl``), which
+  the loader cannot split into statements ("cannot parse"), and whose last line was taken for no
+  ``endsolid`` line (refused as cut short), is given to the loader with its lines ended by LF.
 """
 from __future__ import annotations
 
@@ -37,6 +40,15 @@ _ASCII_END = re.compile(rb"(^|\n)[ \t]*endsolid\b[^\n]*[\s\0\x1a]*$", re.IGNOREC
 _ASCII_START = re.compile(rb"^(\xef\xbb\xbf)?\s*solid\b.*?\bfacet\b", re.IGNORECASE | re.DOTALL)
 
 
+def _lf_lines(path: Path) -> bytes | None:
+    """The text of ASCII STL ``path`` with its lines ended by LF where one ends with CR alone
+    (module doc); None where none does (CRLF is read as it is)."""
+    data = Path(path).read_bytes()
+    if data.count(b"\r") == data.count(b"\r\n"):
+        return None
+    return data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+
+
 def loader_stl_bytes(path: Path) -> bytes | None:
     """The STL to give the loader in place of ``path`` (module doc): a copy whose header count is
     filled in, or None for the file as it is; ``ValueError`` saying why a file whose count
@@ -50,11 +62,12 @@ def loader_stl_bytes(path: Path) -> bytes | None:
         if size == _HEADER + _TRIANGLE * count:
             return None  # a binary STL as the loader reads it
         if _ASCII_START.match(head):
+            relined = _lf_lines(path) if b"\r" in head else None
             f.seek(max(0, size - 4096))
-            if not _ASCII_END.search(f.read()):
+            if not _ASCII_END.search(f.read() if relined is None else relined[-4096:]):
                 raise ValueError("an ASCII STL that does not end with an `endsolid` line: cut short? (its last "
                                  "facets may be missing)")
-            return None
+            return relined
     held, extra = divmod(size - _HEADER, _TRIANGLE)
     if count == 0 and held and not extra:
         data = Path(path).read_bytes()
