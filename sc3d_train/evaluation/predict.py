@@ -14,8 +14,9 @@ Per input image ``NAME.png`` (written to the output directory):
 
 Input images must have the training image size (no silent resizing: the camera intrinsics and
 the framing of the training renders would no longer hold). Modes: RGB is used as is; RGBA, LA,
-L and P are converted to RGBA and alpha-composited onto the training data's background colour
-(stored in the checkpoint), so a transparent PNG looks like the renders; other modes (CMYK,
+L and P, and RGB with a transparent colour (a PNG's tRNS key), are converted to RGBA and
+alpha-composited onto the training data's background colour (stored in the checkpoint), so a
+transparent PNG looks like the renders; other modes (CMYK,
 16-bit grey, float, 1-bit) are refused. A 16-bit RGB(A) PNG is read by PIL as 8-bit RGB(A)
 (its high bytes), which is the image as viewers show it. A JPEG that holds further images after
 its own (MPO: a camera's preview or depth image) is read as its first image, which viewers show. An EXIF orientation tag (a camera's JPEG) is applied, so the
@@ -74,7 +75,8 @@ def load_image(path: Path, image_size: int, background: list[int]) -> np.ndarray
         raise ImageError(f"{printable(path)}: cannot read image ({type(e).__name__}: {e})") from e
     if img.mode not in ACCEPTED_MODES:
         raise ImageError(f"{printable(path)}: image mode {img.mode!r} not supported (use one of {ACCEPTED_MODES})")
-    if img.mode == "RGB":
+    if img.mode == "RGB" and "transparency" not in img.info:  # an RGB PNG's tRNS colour key (a cut-out
+        # as PNG optimisers store it) is transparency too: composited below, as viewers show it
         return np.asarray(img, dtype=np.float32) / 255.0
     rgba = np.asarray(img.convert("RGBA"), dtype=np.float32) / 255.0
     alpha = rgba[..., 3:4]
