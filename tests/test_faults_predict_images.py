@@ -3,9 +3,14 @@ the files a researcher has at hand; expected values are derived by hand, never f
 under test."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 from PIL import Image
 
+from sc3d_cli.train import main as train_main
+from conftest import run_cli
+from test_faults_train import tiny_run  # noqa: F401 - a fixture
 
 
 def test_an_rgb_png_with_a_transparent_colour_is_composited_like_a_cut_out(tmp_path):
@@ -29,3 +34,30 @@ def test_an_rgb_png_with_a_transparent_colour_is_composited_like_a_cut_out(tmp_p
     np.testing.assert_allclose(load_image(tmp_path / "keyed.png", 64, background), expected, atol=1e-6)
     np.testing.assert_allclose(load_image(tmp_path / "opaque.png", 64, background), pixels / 255.0, atol=1e-6)
 
+
+def test_another_image_of_the_same_name_does_not_replace_a_prediction(sample_shards, tiny_run, tmp_path,
+                                                                       monkeypatch):
+    """Camera files restart their names per folder (``day1/IMG_0001.jpg``, ``day2/IMG_0001.jpg``):
+    predicting ``day2``'s into the folder that holds ``day1``'s predictions replaced them without a
+    word (exit 0), although within one call the second image gets ``IMG_0001_``. Now refused in
+    one line naming the record and the image it holds, with day1's files untouched; the same image
+    again, by another path (relative, from another folder), still replaces its own prediction."""
+    import h5py
+
+    with h5py.File(next(sample_shards.glob("*.h5")), "r") as f:
+        views = [Image.fromarray(f["images"][i, 3]) for i in (0, 1)]
+    (tmp_path / "day1").mkdir()
+    (tmp_path / "day2").mkdir()
+    views[0].save(tmp_path / "day1" / "IMG_0001.png")
+    views[1].save(tmp_path / "day2" / "IMG_0001.png")
+    ckpt, out = tiny_run / "checkpoints" / "last.pt", tmp_path / "pred"
+    run_cli(train_main, ["predict", "--checkpoint", ckpt, tmp_path / "day1" / "IMG_0001.png", "--out", out])
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    res = run_cli(train_main, ["predict", "--checkpoint", ckpt, tmp_path / "day2" / "IMG_0001.png", "--out", out],
+                  expect_exit=1)
+    assert res.output.count("\n") == 1, res.output
+    assert "IMG_0001.json" in res.output and f"{tmp_path}/day1/IMG_0001.png" in res.output, res.output
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    monkeypatch.chdir(tmp_path / "day1")  # the same image by a relative path: its own prediction, replaced
+    run_cli(train_main, ["predict", "--checkpoint", ckpt, "IMG_0001.png", "--out", out])
+    assert json.loads((out / "IMG_0001.json").read_text())["image"] == "IMG_0001.png"

@@ -78,3 +78,23 @@ def check_default_folder_free(outputs: list[dict], checkpoint: Path, pose_from: 
         if changed := replaced_provenance(files["json"], {"checkpoint": checkpoint, "pose_from": pose_from}):
             raise ImageError(f"{out}: {files['json'].name} holds the prediction of {changed[0]}, which this one "
                              f"({changed[1]}) would replace; give --out for this one (or remove those files)")
+
+
+def check_same_images(images: list[Path], outputs: list[dict], out: Path) -> None:
+    """``ImageError`` naming ``--out`` when an image's ``NAME.json`` (:func:`output_files`) holds the
+    prediction of another image file of the same name: camera names restart per folder
+    (``day1/IMG_0001.jpg``, then ``day2/IMG_0001.jpg`` into the same ``--out``), and the second
+    call replaced the first one's files without a word. The same file again, by any path,
+    replaces its own prediction; records without ``image_realpath`` (earlier versions) are not judged."""
+    from sc3d_data.io.names import printable
+
+    for path, files in zip(images, outputs):
+        try:
+            was = json.loads(Path(files["json"]).read_text())
+        except (OSError, ValueError):
+            continue
+        recorded = was.get("image_realpath") if isinstance(was, dict) else None
+        if isinstance(recorded, str) and recorded != os.path.realpath(path):
+            raise ImageError(f"--out {out}: {files['json'].name} holds the prediction of another image of that "
+                             f"name, {printable(recorded)}, which this one ({printable(path)}) would replace; "
+                             "choose another --out (or remove those files)")
