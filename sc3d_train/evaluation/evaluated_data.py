@@ -111,13 +111,13 @@ def selection_objects_among(cfg, validation: dict | None, objects, shards: Path,
 
 
 #: how :func:`replaced_provenance` names what an output was made from
-PROVENANCE_LABELS = {"checkpoint": "checkpoint", "shards": "shards", "pose_from": "--pose"}
+PROVENANCE_LABELS = {"checkpoint": "checkpoint", "shards": "shards", "pose_from": "--pose", "image_realpath": "image"}
 
 
 def replaced_provenance(record: Path, given: dict) -> tuple[str, str] | None:
     """Whether the JSON file ``record`` (an evaluation's ``metrics.json``, a prediction's
-    ``NAME.json``) holds the output of another ``checkpoint`` or ``shards`` (paths, compared by real
-    path) or ``pose_from`` than ``given`` records: ``(what it holds, what is given)``, each as
+    ``NAME.json``) holds the output of another ``checkpoint``, ``shards`` or ``image_realpath`` (paths,
+    compared by real path) or ``pose_from`` than ``given`` records: ``(what it holds, what is given)``, each as
     ``"LABEL VALUE, ..."`` (:data:`PROVENANCE_LABELS`), which a default output folder must not
     replace without a word; None where it holds the same, or is no readable record."""
     try:

@@ -87,14 +87,10 @@ def check_same_images(images: list[Path], outputs: list[dict], out: Path) -> Non
     call replaced the first one's files without a word. The same file again, by any path,
     replaces its own prediction; records without ``image_realpath`` (earlier versions) are not judged."""
     from sc3d_data.io.names import printable
+    from sc3d_train.evaluation.evaluated_data import replaced_provenance
 
     for path, files in zip(images, outputs):
-        try:
-            was = json.loads(Path(files["json"]).read_text())
-        except (OSError, ValueError):
-            continue
-        recorded = was.get("image_realpath") if isinstance(was, dict) else None
-        if isinstance(recorded, str) and recorded != os.path.realpath(path):
-            raise ImageError(f"--out {out}: {files['json'].name} holds the prediction of another image of that "
-                             f"name, {printable(recorded)}, which this one ({printable(path)}) would replace; "
-                             "choose another --out (or remove those files)")
+        if changed := replaced_provenance(files["json"], {"image_realpath": str(path)}):
+            raise ImageError(f"--out {out}: {files['json'].name} holds the prediction of another {printable(changed[0])} "
+                             f"of that name, which this one ({printable(path)}) would replace; choose another --out "
+                             "(or remove those files)")
