@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import io
 import os
-import re
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +34,7 @@ from sc3d_data.io.names import printable
 from sc3d_data.io.mtl_text import TextureMove, mtl_materials, read_obj_text
 from sc3d_data.io.obj_statements import statement_values
 from sc3d_data.io.ply_textures import texture_names
+from sc3d_data.io.stand_ins import silent, stand_in
 from sc3d_data.io.texture_wraps import CLAMP_TO_BORDER
 
 __all__ = ["SHAPENET_V2_MESH", "MaterialReport", "dataset_folder", "material_report", "mtllib_names",
@@ -104,7 +104,9 @@ class MaterialReport:
     inside the root that exist and decode; ``texture_only``: an OBJ's materials with a ``map_Kd`` texture
     and no ``Kd``; ``texture_moves``: ``{material: TextureMove}`` of an OBJ's ``map_Kd`` textures
     moved by ``-o``/``-s`` (``io.mtl_text``); ``wraps``: ``{material: (wrap u, wrap v)}`` of an OBJ's
-    materials whose ``map_Kd`` is clamped (``-clamp on``: ``io.texture_wraps``)."""
+    materials whose ``map_Kd`` is clamped (``-clamp on``: ``io.texture_wraps``); ``replaced``: files as
+    named that are not there, read under their bare name (``io.stand_ins``; fingerprinted: one put
+    in place is read instead)."""
 
     textures: list[str] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
@@ -114,6 +116,7 @@ class MaterialReport:
     texture_only: set[str] = field(default_factory=set)
     texture_moves: dict[str, TextureMove] = field(default_factory=dict)
     wraps: dict[str, tuple[int, int]] = field(default_factory=dict)
+    replaced: list[Path] = field(default_factory=list)
 
 
 def mtllib_names(path: Path, text: str | None = None) -> list[str]:
@@ -127,17 +130,18 @@ def mtllib_names(path: Path, text: str | None = None) -> list[str]:
     return names
 
 
-def _texture_file(folder: Path, name: str, root: Path) -> Path:
-    """The file map-statement file ``name`` of a material file in ``folder`` reaches: the name as
-    written, or where it is an absolute or Windows path of the machine that wrote it
-    (``C:/Users/me/t.png``) and no file inside ``root``, the same file name in ``folder`` when that
-    exists, which is the file the loader's resolver reads then (``io.texture_resolver``); a missing
-    relative name (``textures/t.png``) stays missing, never swapped for another file."""
-    written, local = folder / name, folder / name.rsplit("/", 1)[-1]
-    elsewhere = name.startswith("/") or re.match(r"[A-Za-z]:/", name) is not None  # a relative name is this tree's
-    if elsewhere and not (_inside(written, root) and written.is_file()) and _inside(local, root) and local.is_file():
-        return local
-    return written
+def _read_as(folder: Path, ref: Path, root: Path, report: MaterialReport, what: str, beside: str) -> Path:
+    """The file the loader reads for companion file ``ref`` (its name joined to ``folder``): ``ref``,
+    or the file of its bare name in ``folder`` (``io.stand_ins``), then noted in ``report`` and, for
+    a relative name, warned about (``what``: how the warning names ``ref``; ``beside``: ``folder``)."""
+    local = stand_in(folder, ref, root)
+    if local is None:
+        return ref
+    report.replaced.append(ref)
+    warning = f"{what} not found; {printable(local.name)} beside {beside} is read in its place"
+    if not silent(folder, ref) and warning not in report.warnings:
+        report.warnings.append(warning)
+    return local
 
 
 def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None = None) -> list[tuple[str, Path]]:
@@ -147,7 +151,7 @@ def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None =
     read do not define, and materials whose only texture is ``map_Ka``, are warned about."""
     refs, defined, text = [], None, read_obj_text(path) if text is None else text
     for lib in mtllib_names(path, text):
-        mtl = path.parent / lib
+        mtl = _read_as(path.parent, path.parent / lib, root, report, f"material file {printable(lib)}", "the OBJ")
         if not _inside(mtl, root):
             refs.append((printable(lib), mtl))
             continue
@@ -159,7 +163,9 @@ def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None =
         materials = mtl_materials(read_obj_text(mtl))
         defined = (defined or set()) | set(materials.names)
         report.texture_only |= set(materials.texture_only)
-        refs += [(f"{printable(name)} (from {printable(mtl.name)})", _texture_file(mtl.parent, name, root))
+        refs += [(f"{printable(name)} (from {printable(mtl.name)})", _read_as(
+            mtl.parent, mtl.parent / name, root, report, f"texture {printable(name)} (from {printable(mtl.name)})",
+            printable(mtl.name)))
                  for _, name in materials.textures]
         report.warnings += [f"material {printable(m)} of {printable(mtl.name)} gives its texture {printable(name)} as "
                             "map_Ka (ambient), which is not drawn (only map_Kd is); rendered in its colour"
@@ -186,8 +192,10 @@ def named_files(path: Path, root: Path | None = None) -> list[Path]:
     top, suffix = texture_root(path, root), path.suffix.lower()
     try:
         if suffix == ".obj":
-            text = read_obj_text(path)
-            refs = _obj_refs(path, top, MaterialReport(), text) + [(lib, path.parent / lib) for lib in mtllib_names(path, text)]
+            text, report = read_obj_text(path), MaterialReport()
+            refs = _obj_refs(path, top, report, text) + [(lib, stand_in(path.parent, path.parent / lib, top) or
+                                                          path.parent / lib) for lib in mtllib_names(path, text)]
+            refs += [("as named", ref) for ref in report.replaced]  # one put in place is read instead
         elif suffix in (".glb", ".gltf"):  # its images, and its buffers in files (the geometry)
             doc = read_gltf(path)[0]  # not a glTF document: ValueError, the loader reports it
             refs = gltf_image_refs(path, doc, None, embedded_too=False)[0] + [
@@ -197,6 +205,8 @@ def named_files(path: Path, root: Path | None = None) -> list[Path]:
             refs = [(name, path.parent / name) for name in texture_names(path)]
         else:
             return []
+        if suffix != ".obj":  # and the files read in place of those not there (io.stand_ins)
+            refs += [(name, local) for name, ref in refs if (local := stand_in(path.parent, ref, top)) is not None]
     except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):
         return []
     return sorted({Path(os.path.abspath(ref)) for _, ref in refs if _inside(ref, top)})
@@ -221,6 +231,7 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn",
             gltf = gltf if gltf is not None else GltfFile(path, read_gltf(path)[0])  # not glTF: ValueError, as above
             in_binary = any(isinstance(im, dict) and "bufferView" in im for im in gltf.doc.get("images", []))
             refs, embedded = gltf_image_refs(path, gltf.doc, gltf.binary if in_binary else None)
+            refs = [(name, _read_as(path.parent, ref, top, report, f"texture {name}", "the glTF")) for name, ref in refs]
         else:
             return report
     except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):

@@ -4,14 +4,24 @@ from __future__ import annotations
 
 import re
 
-__all__ = ["statement_values"]
+__all__ = ["loader_lines", "statement_values"]
+
+
+def loader_lines(text: str) -> str:
+    """OBJ ``text`` with its lines as the loader reads them (``io.obj_loader_text.plain_statements``):
+    ended by LF where CRLF or CR alone (classic Mac OS), a line continued by ``\\`` joined to the
+    next. The text itself where it needs neither (no copy of an OBJ of megabytes)."""
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    return text.replace("\\\n", "") if "\\\n" in text else text
 
 
 def statement_values(text: str, keyword: str) -> list[str]:
     """The values of the lines of ``text`` that are the statement ``keyword`` (the line
     ``keyword VALUE``, spaces around trimmed), in order. Found with ``str.find``, then each line
     matched: an OBJ of megabytes holds a few such lines, and a regex over its whole text took
-    ~20 ms for 3 MB."""
+    ~20 ms for 3 MB. Lines are the loader's (:func:`loader_lines`)."""
+    text = loader_lines(text)
     values, i = [], text.find(keyword)
     pattern = re.compile(rf"\s*{re.escape(keyword)}\s+(.+?)\s*$")
     while i != -1:

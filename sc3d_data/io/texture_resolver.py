@@ -3,8 +3,9 @@ buffers): it serves only files inside the mesh's texture root (``io.materials.te
 records every name it could not serve, so that a texture named but not loaded is reported
 (:func:`loader_misses`), never dropped silently.
 
-Names are tried as trimesh's own resolver tries them (as written, without the map statement's
-options, without leading ``/``, the bare file name, each also percent-decoded: glTF URIs). A
+Names are tried as written, without the map statement's options, each also percent-decoded (glTF
+URIs), then as the bare file name of each: the file read in place of one that is not there, which
+``io.materials`` warns about, fingerprints and checks as the file drawn (``io.stand_ins``). A
 material file that is not UTF-8 is served as the UTF-8 text of its Latin-1 reading (each byte one
 character), so trimesh reads the same text whatever its encoding guess, and a texture name of
 such a file is also tried as the bytes it was written in (``io.names``: a name that is not UTF-8
@@ -23,6 +24,7 @@ from pathlib import Path
 from sc3d_data.io.materials import MaterialReport, mtllib_names, real_file, texture_root
 from sc3d_data.io.mtl_text import loader_mtl_text, loader_reading, map_file_name, read_obj_text
 from sc3d_data.io.names import printable
+from sc3d_data.io.obj_statements import loader_lines
 
 __all__ = ["loader_misses", "make_resolver", "quiet_loader"]
 
@@ -85,27 +87,30 @@ def make_resolver(path: Path, root: Path | None):
             self.file_name = printable(Path(path).name)  # trimesh names (and hashes) geometry by it
 
         def _candidates(self, name: str) -> list[str]:
-            stripped = map_file_name(name.strip())
-            names = [name.strip(), stripped, stripped.lstrip("/"), os.path.basename(stripped)]
+            names = [name.strip(), map_file_name(name.strip())]
             names += [urllib.parse.unquote(n) for n in names]  # glTF URIs
-            return list(dict.fromkeys(names + [n for n in map(_as_written, names) if n is not None]))
+            names += [n for n in map(_as_written, names) if n is not None]
+            return list(dict.fromkeys(names + [os.path.basename(n) for n in names]))  # bare: io.stand_ins
 
         def get(self, name: str) -> bytes:
             if name.strip() == first_mtllib and (len(libs) > 1 or first_mtllib not in libs):  # see above
-                return b"\n".join(self._read(lib) for lib in libs if self._inside_file(lib))
+                return b"\n".join(self._read(lib) for lib in libs if self._find(lib) is not None)
             return self._read(name)
 
-        def _inside_file(self, name: str) -> bool:
-            p = (self.parent / name).resolve()
-            return p.is_relative_to(self.top) and p.is_file()
+        def _find(self, name: str) -> Path | None:
+            """The file inside the root that ``name`` is read from (its first candidate there), or None."""
+            for cand in self._candidates(name):
+                p = (self.parent / cand).resolve()
+                if p.is_relative_to(self.top) and p.exists() and not p.is_dir():  # a FIFO too: its read blocks
+                    # until --timeout, as the loader's own would (a folder of the name is passed over)
+                    return p
+            return None
 
         def _read(self, name: str) -> bytes:
             first = (self.parent / map_file_name(name.strip())).resolve()
-            for cand in self._candidates(name):
-                p = (self.parent / cand).resolve()
-                if p.is_relative_to(self.top) and p.exists():
-                    with open(p, "rb") as f:
-                        return _served_material(f.read()) if p.suffix.lower() == ".mtl" else f.read()
+            if (p := self._find(name)) is not None:
+                with open(p, "rb") as f:
+                    return _served_material(f.read()) if p.suffix.lower() == ".mtl" else f.read()
             inside = first.is_relative_to(self.top)
             self.misses.append((name.strip(), str(first), "not found" if inside else
                                 f"outside the dataset folder {self.top}, not read"))
@@ -126,7 +131,7 @@ def make_resolver(path: Path, root: Path | None):
     if real.suffix.lower() == ".obj":  # all material files, served for the first statement
         text = read_obj_text(real)
         libs = mtllib_names(real, text)
-        found = re.search(r"mtllib(.*)", text.replace("\\\n", ""))  # what trimesh asks for (lines joined)
+        found = re.search(r"mtllib(.*)", loader_lines(text))  # what trimesh asks for (lines as it splits them)
         first_mtllib = found.group(1).strip() if found else None
     return _RootResolver(real.parent, texture_root(real, root), [])
 
