@@ -44,6 +44,7 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
     shards = shards_opt or shards_arg
     if shards is None:
         raise click.UsageError("give the shard directory (SHARDS or --shards)")
+    from sc3d_data.io.pictures import check_figure_format
     from sc3d_data.io.shards import load_index, one_line, refuse_dataset_file
 
     default_png = not png
@@ -52,6 +53,10 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
         for option, path in (("--png", png), ("--json", json_out)):
             if path:
                 refuse_dataset_file(Path(shards), Path(path), option)
+        try:  # refused now, not after the check (whose --json would then be lost too)
+            check_figure_format(png)
+        except ValueError as e:
+            raise click.ClickException(f"--png {png}: {one_line(e)}")
         report = check_shards(Path(shards), min_iou=min_iou, min_coverage=min_coverage, progress=progress,
                               min_near=min_near)
     except (FileNotFoundError, ValueError, OSError) as e:
@@ -82,6 +87,7 @@ def check(shards_arg, shards_opt, min_coverage, min_near, min_iou, worst, png, j
         click.echo(f"worst views: {printable(png_path)}")
     if json_out:
         try:
+            Path(json_out).parent.mkdir(parents=True, exist_ok=True)  # as --png's folder is made
             Path(json_out).write_text(json.dumps(
                 {"min_iou": min_iou, "min_coverage": min_coverage, "min_near": min_near, "passed": report.passed, "per_category": report.per_category(),
                  "left_out_voxelize_failed": report.left_out,

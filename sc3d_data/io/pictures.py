@@ -19,6 +19,18 @@ def write_figure(fig, path: Path, dpi: int, metadata: dict | None = None) -> Non
     atomic_write_bytes(Path(path), buf.getvalue())
 
 
+def check_figure_format(path: Path) -> None:
+    """``ValueError`` (matplotlib's own words) when :func:`write_figure` could not write ``path``'s
+    format: called before a long computation whose picture it is (``check --png``), so that a
+    name such as ``worst.txt`` is refused at once, not after the check has run."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    fmt = Path(path).suffix[1:].lower() or "png"
+    supported = FigureCanvasBase.get_supported_filetypes()
+    if fmt not in supported:
+        raise ValueError(f"Format {fmt!r} is not supported (supported formats: {', '.join(sorted(supported))})")
+
+
 def write_image(image, path: Path) -> None:
     """PIL image ``image`` to ``path`` in the format of its extension (``ValueError`` from PIL for
     an extension it cannot write, before anything is written)."""

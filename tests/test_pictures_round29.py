@@ -1,0 +1,48 @@
+"""The pictures of round 29 (check, preview, curves, claims) on unusual but legitimate data: a
+picture shows what the docs say whatever the image size, the number of logged steps or of
+categories, and a picture that cannot be written is refused before the work it shows."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from sc3d_cli.data import main as data_main
+from tests.conftest import one_error, run_cli
+from test_faults import CUBE_F, CUBE_V, FAST, obj_text
+
+
+def _cube_dataset(tmp_path: Path, name: str, *options: str) -> Path:
+    """A one-cube dataset (category ``chair``), rendered and voxelized with ``options``."""
+    meshes = tmp_path / f"m_{name}" / "chair"
+    meshes.mkdir(parents=True)
+    (meshes / "cube.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    out = tmp_path / name
+    run_cli(data_main, ["render", "--meshes", meshes.parent, "--out", out, *FAST, "--voxelize", *options])
+    return out
+
+
+@pytest.fixture(scope="module")
+def cube_shards(tmp_path_factory) -> Path:
+    return _cube_dataset(tmp_path_factory.mktemp("pictures"), "cube")
+
+
+def test_check_refuses_a_png_format_it_cannot_write_before_checking(cube_shards, tmp_path):
+    """``check --png worst.txt --json c.json`` ran the whole check (hours on a large dataset),
+    printed its verdict, then failed on the picture's format, and the --json was never written.
+    Now the format is refused first, in one line, and nothing is checked."""
+    res = run_cli(data_main, ["check", cube_shards, "--png", tmp_path / "worst.txt", "--json", tmp_path / "c.json",
+                              "--no-progress"], expect_exit=1)
+    assert one_error(res.output).startswith(f"Error: --png {tmp_path / 'worst.txt'}: Format 'txt'")
+    assert "PASS" not in res.output and "worst objects" not in res.output
+
+
+def test_check_writes_its_json_into_a_folder_it_makes(cube_shards, tmp_path):
+    """``--png new/w.png`` made its folder; ``--json new2/c.json`` failed after the check
+    ("No such file or directory"), the scores lost. Both folders are made now."""
+    js = tmp_path / "new2" / "c.json"
+    run_cli(data_main, ["check", cube_shards, "--png", tmp_path / "new" / "w.png", "--json", js, "--no-progress"])
+    assert json.loads(js.read_text())["passed"]
