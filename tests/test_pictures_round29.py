@@ -46,3 +46,21 @@ def test_check_writes_its_json_into_a_folder_it_makes(cube_shards, tmp_path):
     js = tmp_path / "new2" / "c.json"
     run_cli(data_main, ["check", cube_shards, "--png", tmp_path / "new" / "w.png", "--json", js, "--no-progress"])
     assert json.loads(js.read_text())["passed"]
+
+
+def _coloured(pixels: np.ndarray) -> int:
+    """Pixels of a colour (not grey, black or white): what a plotted line or marker leaves."""
+    rgb = pixels[..., :3].astype(int)
+    return int(((rgb.max(-1) - rgb.min(-1)) > 60).sum())
+
+
+def test_curves_of_a_run_that_logged_one_step_show_that_step(tmp_path):
+    """``fit --steps 3`` (one logged step) drew curves.png with empty loss and samples/s panels:
+    a line through one point draws nothing. Its point is drawn now."""
+    from sc3d_train.loop.metrics_log import plot_curves
+
+    csv = tmp_path / "metrics.csv"
+    csv.write_text("step,phase,total,l3d,lr,samples_per_s,data_wait\n2,supervised,6.99,2.38,0.001,0.87,0.005\n")
+    plot_curves(csv, tmp_path / "curves.png")
+    picture = np.asarray(Image.open(tmp_path / "curves.png").convert("RGB"))
+    assert _coloured(picture[:, picture.shape[1] // 2:]) > 20  # the samples/s panel (no legend): its point

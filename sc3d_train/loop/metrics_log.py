@@ -198,18 +198,21 @@ def plot_curves(csv_path: Path, png_path: Path) -> None:
     val_path = Path(csv_path).with_name("validation.csv")
     val = complete_rows(val_path) if val_path.is_file() else []
     steps = [int(r["step"]) for r in rows]
+    # a line through one point draws nothing: a run that logged once (or was resumed at its last
+    # logged step) got empty panels; a marker shows its point
+    marker = "o" if len(steps) == 1 else None
     fig, axes = plt.subplots(1, 3 if val else 2, figsize=(16 if val else 11, 4))
     ax, ax2 = axes[0], axes[1]
     for key in ("total", "l3d", "l2d", "lsc", "kl", "pose", "u_lsc", "u_pose"):
         if any(r.get(key) not in ("", None) for r in rows):
             vals = [cell_number(r, key) for r in rows]
             if any(v > 0 for v in vals if not math.isnan(v)):
-                ax.plot(steps, vals, label=key)
+                ax.plot(steps, vals, label=key, marker=marker)
     ax.set_yscale("log")
     ax.set_xlabel("step")
     ax.set_title("training losses")
     ax.legend(fontsize=8)
-    ax2.plot(steps, [cell_number(r, "samples_per_s") for r in rows])
+    ax2.plot(steps, [cell_number(r, "samples_per_s") for r in rows], marker=marker)
     ax2.set_xlabel("step")
     ax2.set_title("samples/s")
     if val:
