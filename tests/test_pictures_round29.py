@@ -64,3 +64,21 @@ def test_curves_of_a_run_that_logged_one_step_show_that_step(tmp_path):
     plot_curves(csv, tmp_path / "curves.png")
     picture = np.asarray(Image.open(tmp_path / "curves.png").convert("RGB"))
     assert _coloured(picture[:, picture.shape[1] // 2:]) > 20  # the samples/s panel (no legend): its point
+
+
+@pytest.mark.parametrize("validated", [False, True])
+def test_curves_keep_the_loss_axis_labels_inside_the_picture(tmp_path, validated):
+    """Without validation (``--val-every 0``, shards without a val split) curves.png is two panels,
+    11 inches wide, with the three-panel figure's 5% left margin: the log axis' labels
+    ("6x10^-1") were cut at the picture's left edge. The edge is blank now, in both layouts."""
+    from sc3d_train.loop.metrics_log import plot_curves
+
+    csv = tmp_path / "metrics.csv"
+    csv.write_text("step,phase,total,l3d,lr,samples_per_s,data_wait\n"
+                   + "".join(f"{s},supervised,{6 - s},{0.6 - s / 10},0.001,1.0,0.0\n" for s in range(4)))
+    if validated:
+        (tmp_path / "validation.csv").write_text("step,val_iou,val_rot_median,val_rot_acc30,val_score,seconds,best\n"
+                                                 "4,0.1,90,0.2,0.3,1.0,1\n")
+    plot_curves(csv, tmp_path / "curves.png")
+    picture = np.asarray(Image.open(tmp_path / "curves.png").convert("L"))
+    assert picture[:, :3].min() > 200, "something is drawn at the picture's left edge (cut labels)"

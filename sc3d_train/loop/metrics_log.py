@@ -226,6 +226,8 @@ def plot_curves(csv_path: Path, png_path: Path) -> None:
         ax3.set_xlabel("step")
         ax3.set_title("validation (objects never trained on)")
         ax3.legend(fontsize=8)
-    fig.subplots_adjust(left=0.05, right=0.99, bottom=0.14, top=0.91, wspace=0.18)
+    # the same 0.8 inch for the loss axis' labels ("6x10^-1") whether the figure is 16 or 11 inches wide:
+    # 5% of the two-panel figure (a run without validation) cut them at the picture's edge
+    fig.subplots_adjust(left=0.8 / fig.get_figwidth(), right=0.99, bottom=0.14, top=0.91, wspace=0.18)
     write_figure(fig, png_path, dpi=80)
     plt.close(fig)
