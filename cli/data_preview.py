@@ -13,8 +13,10 @@ from sc3d_data.io.names import printable
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=Path("sheet.png"), show_default=True)
 @click.option("--objects", "max_objects", type=click.IntRange(1), default=8, show_default=True)
 @click.option("--views", type=click.IntRange(1), default=6, show_default=True, help="Views per object.")
-@click.option("--scale", type=click.IntRange(1, 8), default=2, show_default=True, help="Pixel magnification.")
-def preview(shard_dir: Path, out: Path, max_objects: int, views: int, scale: int):
+@click.option("--scale", type=click.IntRange(1, 8), default=None,
+              help="Pixel magnification [auto: 2 for views up to 64 pixels, 1 up to 256; larger views are "
+                   "drawn at every k-th pixel, at most 256 a side].")
+def preview(shard_dir: Path, out: Path, max_objects: int, views: int, scale: int | None):
     """Write a contact sheet of SHARD_DIR: per object, images, masks and (with voxels) voxel
     silhouettes (dark blue = voxels over the mask, light blue = voxels outside it, grey = mask
     not covered by voxels) of several views."""

@@ -82,3 +82,39 @@ def test_curves_keep_the_loss_axis_labels_inside_the_picture(tmp_path, validated
     plot_curves(csv, tmp_path / "curves.png")
     picture = np.asarray(Image.open(tmp_path / "curves.png").convert("L"))
     assert picture[:, :3].min() > 200, "something is drawn at the picture's left edge (cut labels)"
+
+
+def test_preview_rows_are_as_tall_as_their_label(tmp_path):
+    """16-pixel views at the default scale made 36-pixel rows, and the label's third line (the
+    split) was cut off at the row's bottom. The row is as tall as its label now."""
+    out = _cube_dataset(tmp_path, "s16", "--image-size", "16")
+    run_cli(data_main, ["preview", out, "--out", tmp_path / "sheet.png"])
+    sheet = np.asarray(Image.open(tmp_path / "sheet.png").convert("L"))
+    label = sheet[:, :150]
+    assert label[-3:].min() > 200, "the label reaches the sheet's bottom edge (cut)"
+    assert (label[sheet.shape[0] * 2 // 3:] < 100).any(), "no text in the label's lower third (no split line)"
+
+
+def test_preview_of_large_views_stays_a_picture_a_viewer_opens(tmp_path):
+    """1024-pixel views (``--image-size 1024`` is accepted) made a 37,086-pixel-wide sheet at the
+    default scale 2. The default draws them at most 256 pixels a side."""
+    out = _cube_dataset(tmp_path, "s1024", "--image-size", "1024")
+    res = run_cli(data_main, ["preview", out, "--out", tmp_path / "sheet.png"])
+    width, height = Image.open(tmp_path / "sheet.png").size
+    assert width <= 150 + 12 * 260 and height <= 260, (width, height, res.output)
+
+
+def test_preview_names_objects_whose_voxelization_failed(tmp_path):
+    """An object whose ``voxelize SHARDS`` failed (an empty placeholder grid) was drawn with voxel
+    tiles all grey, "mask not covered by voxels", as if its voxels missed the object, and nothing
+    said why. It gets no voxel tiles now, and a warning names it."""
+    meshes = tmp_path / "m" / "chair"
+    meshes.mkdir(parents=True)
+    (meshes / "cube.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    out = tmp_path / "vf"
+    run_cli(data_main, ["render", "--meshes", meshes.parent, "--out", out, *FAST])
+    (meshes / "cube.obj").write_text(obj_text(CUBE_V, CUBE_F, header="# re-exported"))  # changed since rendered
+    run_cli(data_main, ["voxelize", out, "--no-progress"], expect_exit=1)
+    res = run_cli(data_main, ["preview", out, "--out", tmp_path / "sheet.png", "--scale", "1"])
+    assert "03001627/cube" in res.output and "voxelization failed" in res.output, res.output
+    assert Image.open(tmp_path / "sheet.png").size[0] == 150 + 2 * 4 * 66  # images and masks only

@@ -2,15 +2,19 @@
 
 One row per object: ``views`` rendered images, then the masks of the same views, then (when
 the shards hold ``voxels``) the silhouettes of the voxels through the same stored cameras
-(``sc3d_data.geometry.projection``), each tile the stored image size times ``scale``. A label on
-the left names the category, model id and split (``io.names.printable``: a tab is drawn
-``\\t``). Objects are picked round-robin over categories so every category shows up. A view
+(``sc3d_data.geometry.projection``), each tile the stored image size times ``scale`` (default:
+:func:`auto_scale`). A label on the left names the category, model id and split
+(``io.names.printable``: a tab is drawn ``\\t``; a name too long for it is cut with ``...``), the row
+at least as tall as the label. Objects are picked round-robin over categories so every category
+shows up. An object whose voxelization failed (an empty placeholder grid, ``io.failed_grids``)
+gets no voxel tiles, "voxels failed" in its label and a line in ``notes``. A view
 whose camera has occupied voxels behind it (a ``--distance`` under sqrt(3)/2 that an earlier
 sc3d accepted) gets an empty voxel tile, and a line naming the object and its views is added
 to ``notes``.
 """
 from __future__ import annotations
 
+import math
 from collections import defaultdict
 from pathlib import Path
 
@@ -20,6 +24,27 @@ from sc3d_data.formats.shapenet import category_name
 from sc3d_data.io.names import printable
 
 LABEL_WIDTH = 150
+#: tiles of the default scale are at most this many pixels a side (:func:`auto_scale`)
+MAX_AUTO_TILE = 256
+
+
+def auto_scale(image_size: int) -> int:
+    """The default ``scale``: 2 (a 64x64 view drawn 128 pixels a side) up to 64 pixels, 1 up to
+    :data:`MAX_AUTO_TILE`, and above it ``-k``, every ``k``-th pixel of images, masks and voxel
+    silhouettes alike: a sheet of 1024-pixel views at scale 2 was 37,086 pixels wide, more than
+    image viewers and browsers open."""
+    if image_size <= 64:
+        return 2
+    return 1 if image_size <= MAX_AUTO_TILE else -math.ceil(image_size / MAX_AUTO_TILE)
+
+
+def _fitted(draw, text: str, width: int) -> str:
+    """``text``, cut and ended with ``...`` where it is wider than ``width`` pixels."""
+    if draw.textlength(text) <= width:
+        return text
+    while text and draw.textlength(text + "...") > width:
+        text = text[:-1]
+    return text + "..."
 
 
 def pick_objects(shard_dir: Path, max_objects: int) -> list[dict]:
@@ -30,8 +55,11 @@ def pick_objects(shard_dir: Path, max_objects: int) -> list[dict]:
     from sc3d_data.io.shard_reader import ShardReader
     from sc3d_data.io.shards import shard_path
 
+    from sc3d_data.io.failed_grids import voxelize_failures
+
     by_cat = defaultdict(list)
     with ShardReader(shard_dir) as reader:
+        failed = voxelize_failures(reader.index)
         for entry in reader.index.get("objects", []):
             if len(by_cat[entry["category"]]) < max_objects:
                 by_cat[entry["category"]].append(entry)
@@ -42,9 +70,12 @@ def pick_objects(shard_dir: Path, max_objects: int) -> list[dict]:
         objects = []
         for entry in picked[:max_objects]:
             path = shard_path(Path(shard_dir), entry["shard"])
-            fields = ("images", "masks", "K", "R", "t") + (("voxels",) if reader.holds(path, "voxels") else ())
+            voxels_failed = (path.name, int(entry["row"])) in failed
+            held = reader.holds(path, "voxels") and not voxels_failed
+            fields = ("images", "masks", "K", "R", "t") + (("voxels",) if held else ())
             objects.append({**{k: entry.get(k, "") for k in ("category", "model_id", "split")},
-                            "shard": path.name, "row": int(entry["row"]), **reader.read(path, int(entry["row"]), fields)})
+                            "shard": path.name, "row": int(entry["row"]), "voxels_failed": voxels_failed,
+                            **reader.read(path, int(entry["row"]), fields)})
     return objects
 
 
@@ -62,17 +93,17 @@ def _silhouettes(o: dict, S: int, sel, notes: list[str] | None) -> np.ndarray:
     return sil
 
 
-def contact_sheet(shard_dir: Path, max_objects: int = 8, views: int = 6, scale: int = 2,
+def contact_sheet(shard_dir: Path, max_objects: int = 8, views: int = 6, scale: int | None = None,
                   notes: list[str] | None = None) -> np.ndarray:
-    """RGB uint8 ``[H, W, 3]`` contact sheet (see module doc); lines for the user go to ``notes``."""
-    from PIL import Image, ImageDraw
-
+    """RGB uint8 ``[H, W, 3]`` contact sheet (see module doc; ``scale`` None: :func:`auto_scale`, a
+    negative one shrinks by its size); lines for the user go to ``notes``."""
     objects = pick_objects(shard_dir, max_objects)
     if not objects:
         raise ValueError(f"{shard_dir}: no objects in the shards")
     rows = []
     for o in objects:
         V, S = o["images"].shape[:2]
+        k = auto_scale(S) if scale is None else scale
         sel = np.linspace(0, V, min(views, V), endpoint=False).astype(int)
         tiles = [o["images"][v] for v in sel]
         tiles += [np.repeat(o["masks"][v][..., None] * 255, 3, -1).astype(np.uint8) for v in sel]
@@ -85,13 +116,30 @@ def contact_sheet(shard_dir: Path, max_objects: int = 8, views: int = 6, scale: 
                 tile[s & ~o["masks"][v].astype(bool)] = (90, 140, 255)
                 tile[s & o["masks"][v].astype(bool)] = (30, 60, 200)
                 tiles.append(tile)
+        if o["voxels_failed"] and notes is not None:
+            notes.append(f"{printable(o['category'] + '/' + o['model_id'])} ({o['shard']} row {o['row']}): its "
+                         "voxelization failed (index.json failures): no voxel tiles")
+        if k < 0:  # every -k-th pixel: images, masks and silhouettes stay aligned
+            tiles = [t[::-k, ::-k] for t in tiles]
         row = np.concatenate([np.pad(t, ((1, 1), (1, 1), (0, 0)), constant_values=200) for t in tiles], 1)
-        row = np.kron(row, np.ones((scale, scale, 1), np.uint8))
-        label = Image.new("RGB", (LABEL_WIDTH, row.shape[0]), "white")
-        draw = ImageDraw.Draw(label)
-        draw.text((4, 4), "\n".join(printable(s) for s in (category_name(o["category"]), o["model_id"][:22], o["split"])),
-                  fill="black")
-        rows.append(np.concatenate([np.asarray(label), row], 1))
+        row = np.kron(row, np.ones((max(k, 1), max(k, 1), 1), np.uint8))
+        rows.append(_labelled(row, [category_name(o["category"]), o["model_id"], o["split"]]
+                              + (["voxels failed"] if o["voxels_failed"] else [])))
     width = max(r.shape[1] for r in rows)
     rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)), constant_values=255) for r in rows]
     return np.concatenate(rows, 0)
+
+
+def _labelled(row: np.ndarray, lines: list[str]) -> np.ndarray:
+    """``row`` with a label of ``lines`` (``printable``, each cut to :data:`LABEL_WIDTH`) on its
+    left, padded below with white where the label is taller (16-pixel views at scale 2 are 36
+    pixels high: the split line was cut off)."""
+    from PIL import Image, ImageDraw
+
+    draw = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    text = "\n".join(_fitted(draw, printable(s), LABEL_WIDTH - 8) for s in lines)
+    height = max(row.shape[0], draw.multiline_textbbox((4, 4), text)[3] + 4)
+    label = Image.new("RGB", (LABEL_WIDTH, height), "white")
+    ImageDraw.Draw(label).text((4, 4), text, fill="black")
+    row = np.pad(row, ((0, height - row.shape[0]), (0, 0), (0, 0)), constant_values=255)
+    return np.concatenate([np.asarray(label), row], 1)
