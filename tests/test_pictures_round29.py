@@ -118,3 +118,36 @@ def test_preview_names_objects_whose_voxelization_failed(tmp_path):
     res = run_cli(data_main, ["preview", out, "--out", tmp_path / "sheet.png", "--scale", "1"])
     assert "03001627/cube" in res.output and "voxelization failed" in res.output, res.output
     assert Image.open(tmp_path / "sheet.png").size[0] == 150 + 2 * 4 * 66  # images and masks only
+
+
+def test_claims_picture_of_the_13_r2n2_categories_has_readable_labels(tmp_path, monkeypatch):
+    """claims.png of the paper's 13 categories ran their names into each other along the x axis
+    ("lamploudspeakerrifle") and its legend covered the last categories' bars. The names are
+    slanted and do not overlap, and the legend lies outside the panels."""
+    import sc3d_train.evaluation.claims_report as report
+    from sc3d_data.formats.shapenet import R2N2_SYNSETS
+
+    boxes = {}
+
+    def measure(fig, path, dpi, metadata=None):
+        renderer = fig.canvas.get_renderer()
+        fig.draw(renderer)
+        labels = fig.axes[0].get_xticklabels()
+        boxes["ticks"] = [t.get_window_extent(renderer) for t in labels]
+        boxes["slant"] = [t.get_rotation() for t in labels]
+        boxes["line"] = labels[0].get_fontsize() * fig.dpi / 72  # pixels
+        boxes["axes"] = [ax.get_window_extent(renderer) for ax in fig.axes]
+        boxes["legend"] = fig.legends[0].get_window_extent(renderer) if fig.legends else fig.axes[0].get_legend().get_window_extent(renderer)
+
+    monkeypatch.setattr(report, "write_figure", measure)
+    figures = {"per_category": {c: {"voxel_iou_0.4": 0.5, "pose_rotation_acc30": 0.5} for c in R2N2_SYNSETS},
+               "mean": {"voxel_iou_0.4": 0.5, "pose_rotation_acc30": 0.5}, "overall": {}}
+    report.plot_report({name: figures for name in report.RUNS + report.REFERENCES}, tmp_path / "claims.png")
+    ticks = boxes["ticks"]
+    assert len(ticks) == 14
+    if boxes["slant"][0] == 0:  # level names: their boxes may not overlap
+        assert not any(a.overlaps(b) for i, a in enumerate(ticks) for b in ticks[i + 1:]), "category names overlap"
+    else:  # slanted (parallel) names: a line's height apart, measured across them
+        gap = min(b.x1 - a.x1 for a, b in zip(ticks, ticks[1:])) * np.sin(np.radians(boxes["slant"][0]))
+        assert gap >= boxes["line"], (gap, boxes["line"])
+    assert not any(boxes["legend"].overlaps(ax) for ax in boxes["axes"]), "the legend covers a panel"
