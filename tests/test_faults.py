@@ -279,7 +279,8 @@ def test_d8_checkpoint_on_a_full_disk_removes_its_temp_and_resume_finds_the_newe
         {sys.executable} - <<'EOF'
         import os, torch
         from pathlib import Path
-        from sc3d_train.loop.checkpoint import CheckpointError, resume_checkpoint, save_checkpoint
+        from sc3d_train.loop.checkpoint import CheckpointError, save_checkpoint
+        from sc3d_train.loop.checkpoint_resume import resume_checkpoint
         run = Path(os.environ["T"]) / "run"
         def payload(step, mb):
             return {{"model": {{"w": torch.ones(mb * 2**18)}}, "config": {{}}, "step": step, "optimizer": {{}},
@@ -346,8 +347,8 @@ def test_d10_a_crafted_checkpoint_runs_nothing_and_a_real_one_loads(tmp_path, co
     import torch
 
     from sc3d_cli.train import main as train_main
-    from sc3d_train.loop.checkpoint import (CheckpointError, load_checkpoint, resume_checkpoint, rng_state,
-                                            save_checkpoint)
+    from sc3d_train.loop.checkpoint import CheckpointError, load_checkpoint, rng_state, save_checkpoint
+    from sc3d_train.loop.checkpoint_resume import resume_checkpoint
 
     marker = tmp_path / "pwned"
     evil = tmp_path / "evil.pt"

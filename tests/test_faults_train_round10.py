@@ -100,7 +100,7 @@ def test_a_semi_run_extended_on_resume_keeps_no_pretraining_best(sample_shards, 
 def test_ctrl_c_advice_names_how_the_command_resumes(tmp_path):
     """``fit`` said "resume with --resume" under ``claims`` (which has no ``--resume``: it resumes
     by running it again), and also when there was no checkpoint to resume from."""
-    from sc3d_train.loop.checkpoint import interrupted_line
+    from sc3d_train.loop.checkpoint_resume import interrupted_line
 
     run = tmp_path / "run"
     assert interrupted_line(run, "resume with --resume") == \

@@ -208,7 +208,8 @@ def saved_config(out: Path) -> RunConfig:
     newest checkpoint holds (the one ``config.yaml`` must equal anyway: ``--resume`` refuses a
     difference), written back as ``config.yaml`` on rank 0 with one ``note:`` line.
     ``CheckpointError`` when there is neither, or a folder stands where ``config.yaml`` goes."""
-    from sc3d_train.loop.checkpoint import CheckpointError, checkpoint_config, checkpoint_dir, resume_checkpoint
+    from sc3d_train.loop.checkpoint import CheckpointError, checkpoint_config, checkpoint_dir
+    from sc3d_train.loop.checkpoint_resume import resume_checkpoint
 
     saved_path = RunConfig.path_in(out)
     problem = "is missing"

@@ -44,8 +44,9 @@ from pathlib import Path
 
 import torch
 
-from sc3d_train.loop.checkpoint import (CheckpointError, check_saved_ranks, checkpoint_config, interrupted_line,
-                                        last_path, resume_checkpoint, rng_state, save_checkpoint, set_rng_state)
+from sc3d_train.loop.checkpoint import (CheckpointError, checkpoint_config, last_path, rng_state, save_checkpoint,
+                                        set_rng_state)
+from sc3d_train.loop.checkpoint_resume import check_saved_ranks, interrupted_line, restore_last, resume_checkpoint
 from sc3d_train.loop.checkpoint_model import build_model, state_dict_mismatch
 from sc3d_train.settings.config import CONFIG_NAME, RESUMABLE_FIELDS, RunConfig
 from sc3d_train.data.dataset import ShardDataset
@@ -215,6 +216,8 @@ def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --
     if resume:
         start_step, ckpt_file = restore(t)
         last_good = str(last_path(t.run_dir))
+        if t.dist.is_main and ckpt_file != last_path(t.run_dir):  # last.pt older: its copy was cut off
+            restore_last(t.run_dir, ckpt_file)
         if start_step > cfg.steps or (start_step == cfg.steps and not final_validation_owed(cfg, start_step)):
             return {"step": start_step, "last_losses": {}, "samples_per_s": 0.0, "checkpoint": str(ckpt_file),
                     "best": None, "already_done": True}

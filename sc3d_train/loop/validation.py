@@ -251,6 +251,7 @@ class Validator:
         figures = {"val_iou": mean["voxel_iou_0.4"], "val_rot_median": mean["pose_rotation_median"],
                    "val_rot_acc30": mean["pose_rotation_acc30"]}
         figures["val_score"] = score(figures, self.cfg.select_by)
+        kept = self.best is not None and self.best["step"] == done  # its best.pt written, its row cut off (a kill)
         better = self.selects and in_last_phase(self.cfg, done) and (
             self.best is None or figures["val_score"] > self.best["val_score"] or not np.isfinite(self.best["val_score"]))
         if better:
@@ -259,7 +260,7 @@ class Validator:
             save_best(self.run_dir, {"model": model.state_dict(), "step": done, "config": self.cfg.to_dict(),
                                      "validation": self.best})
         row = {"step": done, **{k: round(v, 6) for k, v in figures.items()},
-               "seconds": round(time.perf_counter() - t0, 3), "best": int(better)}
+               "seconds": round(time.perf_counter() - t0, 3), "best": int(better or kept)}
         with open(self.path, "a", newline="") as f:
             csv.DictWriter(f, fieldnames=FIELDS).writerow(row)
         self._to_tb(figures, done)
