@@ -48,7 +48,10 @@ def test_a_run_stopped_by_ctrl_c_before_its_first_checkpoint_can_be_started_agai
     out = tmp_path / "run"
     args = ["fit", "--shards", sample_shards, "--out", out, "--batch-size", 2, *TINY, "--checkpoint-every", 1000,
             "--val-every", 2, "--val-min-objects", 1]
-    first = subprocess.Popen([sys.executable, "-c", "import sc3d_cli.train as t; t.main()", *map(str, args),
+    # Python's Ctrl-C handler whatever this process inherited: a suite started in the background by
+    # a shell (`nohup ... &`) ignores SIGINT, and a child then ignored the test's Ctrl-C and trained on
+    first = subprocess.Popen([sys.executable, "-c", "import signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+                              "import sc3d_cli.train as t; t.main()", *map(str, args),
                               "--steps", "1000"], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                              text=True, env=dict(os.environ, PYTHONPATH=str(REPO)))
     try:
