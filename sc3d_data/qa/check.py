@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from sc3d_data.geometry.projection import project_voxels_views
+from sc3d_data.io.drawn_names import mpl_name
 from sc3d_data.io.failed_grids import voxelize_failures
 from sc3d_data.io.names import printable, shell_word
 from sc3d_data.io.pictures import write_figure
@@ -240,7 +241,10 @@ def check_shards(shard_dir: Path, min_iou: float = DEFAULT_MIN_IOU,
 def write_worst_png(shard_dir: Path, report: CheckReport, path: Path, n: int = 8) -> Path:
     """PNG with one row per worst object (its worst view): image | mask | projected voxels,
     plus a fourth panel showing their difference (green = both, red = mask only,
-    blue = voxels only)."""
+    blue = voxels only). The image's title names the object as the text report does,
+    ``category/model_id`` (one model id can be in two categories), written by
+    ``io.drawn_names.mpl_name`` (what the font cannot draw as ``\\uXXXX``, cut with ``...`` to its
+    column), then its worst view and scores."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -250,6 +254,7 @@ def write_worst_png(shard_dir: Path, report: CheckReport, path: Path, n: int = 8
     if not worst:
         raise ValueError("no objects to draw")
     fig, axes = plt.subplots(len(worst), 4, figsize=(8, 2.1 * len(worst)), squeeze=False)
+    name_pt = 0.9 * 8 / 4 * 72  # a column's width: a longer name ran off the picture's left edge
     reader = ShardReader(shard_dir)
     for r, o in enumerate(worst):
         v = o.worst_view
@@ -267,7 +272,8 @@ def write_worst_png(shard_dir: Path, report: CheckReport, path: Path, n: int = 8
             ax.imshow(img, cmap="gray" if img.ndim == 2 else None, interpolation="nearest")
             ax.set_xticks([])
             ax.set_yticks([])
-            ax.set_title(title if c else f"{printable(o.model_id)[:16]} v{v} cov {o.coverage[v]:.2f} IoU {o.iou[v]:.2f}", fontsize=7)
+            ax.set_title(title if c else f"{mpl_name(f'{o.category}/{o.model_id}', name_pt, 7)}\n"
+                         f"v{v} cov {o.coverage[v]:.2f} IoU {o.iou[v]:.2f}", fontsize=7, parse_math=False)
     reader.close()
     fig.tight_layout()
     path = Path(path)

@@ -4,7 +4,8 @@ One row per object: ``views`` rendered images, then the masks of the same views,
 the shards hold ``voxels``) the silhouettes of the voxels through the same stored cameras
 (``sc3d_data.geometry.projection``), each tile the stored image size times ``scale`` (default:
 :func:`auto_scale`). A label on the left names the category, model id and split
-(``io.names.printable``: a tab is drawn ``\\t``; a name too long for it is cut with ``...``), the row
+(``io.drawn_names``: a tab is drawn ``\\t``, a character PIL's default font has no glyph for as
+``\\uXXXX``, a name too long for it is cut with ``...``), the row
 at least as tall as the label. Objects are picked round-robin over categories so every category
 shows up. An object whose voxelization failed (an empty placeholder grid, ``io.failed_grids``)
 gets no voxel tiles, "voxels failed" in its label and a line in ``notes``. A view
@@ -21,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from sc3d_data.formats.shapenet import category_name
+from sc3d_data.io.drawn_names import pil_name
 from sc3d_data.io.names import printable
 
 LABEL_WIDTH = 150
@@ -36,15 +38,6 @@ def auto_scale(image_size: int) -> int:
     if image_size <= 64:
         return 2
     return 1 if image_size <= MAX_AUTO_TILE else -math.ceil(image_size / MAX_AUTO_TILE)
-
-
-def _fitted(draw, text: str, width: int) -> str:
-    """``text``, cut and ended with ``...`` where it is wider than ``width`` pixels."""
-    if draw.textlength(text) <= width:
-        return text
-    while text and draw.textlength(text + "...") > width:
-        text = text[:-1]
-    return text + "..."
 
 
 def pick_objects(shard_dir: Path, max_objects: int) -> list[dict]:
@@ -131,15 +124,16 @@ def contact_sheet(shard_dir: Path, max_objects: int = 8, views: int = 6, scale: 
 
 
 def _labelled(row: np.ndarray, lines: list[str]) -> np.ndarray:
-    """``row`` with a label of ``lines`` (``printable``, each cut to :data:`LABEL_WIDTH`) on its
-    left, padded below with white where the label is taller (16-pixel views at scale 2 are 36
+    """``row`` with a label of ``lines`` (``io.drawn_names.pil_name``: escaped where the font has no
+    glyph, each cut to :data:`LABEL_WIDTH`) on its left, padded below with white where the label is taller (16-pixel views at scale 2 are 36
     pixels high: the split line was cut off)."""
     from PIL import Image, ImageDraw
 
     draw = ImageDraw.Draw(Image.new("RGB", (1, 1)))
-    text = "\n".join(_fitted(draw, printable(s), LABEL_WIDTH - 8) for s in lines)
-    height = max(row.shape[0], draw.multiline_textbbox((4, 4), text)[3] + 4)
+    font = draw.getfont()  # PIL's default font
+    text = "\n".join(pil_name(s, LABEL_WIDTH - 8, font) for s in lines)
+    height = max(row.shape[0], draw.multiline_textbbox((4, 4), text, font=font)[3] + 4)
     label = Image.new("RGB", (LABEL_WIDTH, height), "white")
-    ImageDraw.Draw(label).text((4, 4), text, fill="black")
+    ImageDraw.Draw(label).text((4, 4), text, fill="black", font=font)
     row = np.pad(row, ((0, height - row.shape[0]), (0, 0), (0, 0)), constant_values=255)
     return np.concatenate([np.asarray(label), row], 1)

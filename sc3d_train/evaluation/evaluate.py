@@ -32,6 +32,7 @@ import numpy as np
 import torch
 
 from sc3d_data.formats.shapenet import category_label
+from sc3d_data.io.drawn_names import mpl_name
 from sc3d_data.io.outlock import exclusive_lock
 from sc3d_data.io.pictures import write_figure
 from sc3d_data.io.shards import atomic_write_bytes
@@ -82,11 +83,14 @@ def voxel_silhouette(voxels: np.ndarray, azimuth: float, elevation: float, dista
     return project_voxels(voxels, K, R, t, image_size)
 
 
-def example_label(example: dict) -> str:
-    """The object and view of an example of :func:`plot_examples`, whole, a line each: category,
-    model id, ``view N`` (a ShapeNet id is 32 characters; a cut one loses the view and can match
-    another object's)."""
-    return f"{example['category']}\n{example['model_id']}\nview {example['view']}"
+def example_label(example: dict, height_pt: float | None = None) -> str:
+    """The object and view of an example of :func:`plot_examples`, a line each: category, model
+    id, ``view N``; whole (a ShapeNet id is 32 characters; a cut one loses the view and can match
+    another object's), or as drawn in ``height_pt`` points at fontsize 5 (``io.drawn_names.mpl_name``:
+    what the font cannot draw as ``\\uXXXX``; a name longer than a ShapeNet id, which ran off the
+    figure, cut with ``...``)."""
+    lines = (example["category"], example["model_id"], f"view {example['view']}")
+    return "\n".join(line if height_pt is None else mpl_name(line, height_pt, 5) for line in lines)
 
 
 def example_figures(example: dict) -> str:
@@ -127,7 +131,8 @@ def plot_examples(examples: list[dict], path: Path, per_row: int = 2) -> None:
             ax.imshow(img, cmap=None if img.ndim == 3 else "gray", vmin=0, vmax=1)
             if r == 0:
                 ax.set_title(titles[c], fontsize=7)
-        axes[r, c0].set_ylabel(example_label(ex), fontsize=5)
+        # within its row (1.55 inches): a 32-character ShapeNet id stays whole, 200 m's ran off the figure
+        axes[r, c0].set_ylabel(example_label(ex, 0.93 * 1.55 * 72), fontsize=5, parse_math=False)
         axes[r, c0 + 4].set_xlabel(example_figures(ex), fontsize=5)
     fig.tight_layout()
     write_figure(fig, path, dpi=90, metadata={"Description": EVALUATION_PICTURE})
