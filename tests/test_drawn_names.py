@@ -189,3 +189,33 @@ def test_names_with_dollar_signs_are_names_not_formulas(tmp_path, monkeypatch):
                    iou=0.5)
     plot_examples([example], tmp_path / "p.png")
     assert (tmp_path / "p.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("extra", [0, 10])
+def test_claims_picture_names_cjk_and_long_categories(tmp_path, monkeypatch, recwarn, extra):
+    """claims.png's category names (a study of a user's categories): CJK escaped, not boxes with
+    warnings; a 200-character name cut so that no two names overlap and all stay in the picture
+    (level with few categories, slanted with many); ``chair (old)`` whole, not cut at `` (``."""
+    import sc3d_train.evaluation.claims_report as report
+
+    boxes = {}
+
+    def measure(fig, path, dpi, metadata=None):
+        renderer = fig.canvas.get_renderer()
+        fig.draw(renderer)
+        ticks = fig.axes[0].get_xticklabels()
+        boxes.update(texts=[t.get_text() for t in ticks], ticks=[t.get_window_extent(renderer) for t in ticks],
+                     figure=fig.bbox)
+
+    monkeypatch.setattr(report, "write_figure", measure)
+    cats = [CHAIR, LONG, "chair (old)"] + [f"c{k}" for k in range(extra)]
+    figures = {"per_category": {c: {"voxel_iou_0.4": 0.5, "pose_rotation_acc30": 0.5} for c in cats},
+               "mean": {"voxel_iou_0.4": 0.5, "pose_rotation_acc30": 0.5}, "overall": {}}
+    report.plot_report({name: figures for name in report.RUNS + report.REFERENCES}, tmp_path / "claims.png")
+    _no_glyph_warnings(recwarn)
+    texts, ticks = boxes["texts"], boxes["ticks"]
+    assert CHAIR_U in texts and "chair (old)" in texts, texts
+    assert any(t.startswith("mmm") and t.endswith("...") for t in texts), texts
+    assert all(_inside(box, boxes["figure"]) for box in ticks), ticks
+    if not extra:
+        assert not any(a.overlaps(b) for i, a in enumerate(ticks) for b in ticks[i + 1:]), ticks

@@ -155,16 +155,22 @@ def check_claims(results: dict) -> list[dict]:
 
 def plot_report(results: dict, path: Path) -> None:
     """IoU@0.4 per category (bars per run) and the rotation-error share within 30 deg (error bars:
-    the standard deviation over seeds)."""
+    the standard deviation over seeds). Categories are named as ``io.drawn_names.mpl_name`` writes
+    them (a synset id by its name; a user's category whole, not cut at its first `` (``)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from sc3d_data.formats.shapenet import category_label
+    from sc3d_data.formats.shapenet import category_name
+    from sc3d_data.io.drawn_names import mpl_name
 
     cats = _categories(results)
-    labels = [category_label(c).split(" (")[0] for c in cats] + ["mean"]
+    slanted = len(cats) + 1 > 6
+    # a name no wider than its bar group (5.8 inches of panel), or than 1.25 inches slanted; what
+    # the font cannot draw (CJK) as \uXXXX: it was drawn as empty boxes, with warnings on stderr
+    room = 90 if slanted else 0.9 * 5.8 * 72 / (len(cats) + 1)
+    labels = [mpl_name(category_name(c), room, 8) for c in cats] + ["mean"]
     fig, axes = plt.subplots(1, 2, figsize=(13, 4))
     names = list(results)
     width = 0.8 / max(len(names), 1)
@@ -182,8 +188,8 @@ def plot_report(results: dict, path: Path) -> None:
     for ax, title in zip(axes, ("voxel IoU@0.4 (held-out objects)", "share of views with rotation error <= 30 deg")):
         ax.set_xticks(x + 0.4 - width / 2)
         # 3D-R2N2's 13 categories side by side ran into each other ("lamploudspeakerrifle"): slanted
-        slant = {"rotation": 35, "ha": "right", "rotation_mode": "anchor"} if len(labels) > 6 else {}
-        ax.set_xticklabels(labels, fontsize=8, **slant)
+        slant = {"rotation": 35, "ha": "right", "rotation_mode": "anchor"} if slanted else {}
+        ax.set_xticklabels(labels, fontsize=8, parse_math=False, **slant)
         ax.set_title(title)
         ax.set_ylim(0, 1)
     # above the panels, not over the bars (in the IoU panel it hid the last categories' bars)
