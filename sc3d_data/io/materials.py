@@ -117,6 +117,7 @@ class MaterialReport:
     texture_moves: dict[str, TextureMove] = field(default_factory=dict)
     wraps: dict[str, tuple[int, int]] = field(default_factory=dict)
     replaced: list[Path] = field(default_factory=list)
+    leaving: list[str] = field(default_factory=list)  # of ``replaced``, those named by a ``../`` out of the root
 
 
 def mtllib_names(path: Path, text: str | None = None) -> list[str]:
@@ -133,12 +134,17 @@ def mtllib_names(path: Path, text: str | None = None) -> list[str]:
 def _read_as(folder: Path, ref: Path, root: Path, report: MaterialReport, what: str, beside: str) -> Path:
     """The file the loader reads for companion file ``ref`` (its name joined to ``folder``): ``ref``,
     or the file of its bare name in ``folder`` (``io.stand_ins``), then noted in ``report`` and, for
-    a relative name, warned about (``what``: how the warning names ``ref``; ``beside``: ``folder``)."""
+    a relative name, warned about (``what``: how the warning names ``ref``; ``beside``: ``folder``); one whose
+    ``../`` leaves ``root`` also in ``report.leaving``, so that ``--outside-textures refuse`` still refuses it."""
     local = stand_in(folder, ref, root)
     if local is None:
         return ref
     report.replaced.append(ref)
-    warning = f"{what} not found; {printable(local.name)} beside {beside} is read in its place"
+    leaves = not _inside(ref, root) and not silent(folder, ref)  # this tree's ../ out of it: --outside-textures refuse
+    if leaves:
+        report.leaving.append(f"{ref.resolve()} lies outside the dataset folder {Path(root).resolve()}")
+    why = "lies outside the dataset folder, not read" if leaves else "not found"
+    warning = f"{what} {why}; {printable(local.name)} beside {beside} is read in its place"
     if not silent(folder, ref) and warning not in report.warnings:
         report.warnings.append(warning)
     return local
@@ -243,8 +249,8 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn",
         elif str(ref.resolve()) not in report.reported:
             report.reported.add(str(ref.resolve()))
             report.outside.append(f"{ref.resolve()} lies outside the dataset folder {top.resolve()}")
-    if report.outside and outside == "refuse":
-        raise ValueError("; ".join(report.outside))
+    if (report.outside or report.leaving) and outside == "refuse":  # a stand-in does not excuse a ../ out
+        raise ValueError("; ".join(report.outside + report.leaving))
     report.outside = [f"{o}: not read; rendered without it (--outside-textures)" for o in report.outside]
     for name, ref in dict.fromkeys(inside):  # a texture several materials name: judged and named once
         report.reported.add(str(ref.resolve()))
