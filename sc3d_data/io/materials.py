@@ -238,6 +238,11 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn",
             in_binary = any(isinstance(im, dict) and "bufferView" in im for im in gltf.doc.get("images", []))
             refs, embedded = gltf_image_refs(path, gltf.doc, gltf.binary if in_binary else None)
             refs = [(name, _read_as(path.parent, ref, top, report, f"texture {name}", "the glTF")) for name, ref in refs]
+        elif suffix == ".ply":  # its TextureFile files there (a stand-in warned about) decoded as any; one
+            # missing or outside is the resolver's to report (io.texture_resolver.loader_misses), as before
+            refs = [(printable(name), _read_as(path.parent, path.parent / name, top, report,
+                                               f"texture {printable(name)}", "the PLY")) for name in texture_names(path)]
+            refs, embedded = [(name, ref) for name, ref in refs if _inside(ref, top) and ref.is_file()], []
         else:
             return report
     except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):
