@@ -165,12 +165,13 @@ def drawn_meshes(doc: dict, safe: bool = False) -> set[int]:
 def shared_children(doc: dict) -> list[str]:
     """The nodes of the drawn scene that are children of several nodes, or a root of the scene and
     a child (glTF 2.0 allows one parent: the loader draws such a node once, where other readers,
-    the draco project's among them, draw it once per parent), one phrase each."""
-    parents = _parents(doc)
-    roots = set(scene_roots(doc)) if doc.get("scenes") else set()
+    the draco project's among them, draw it once per parent), one phrase each. Only drawn parents
+    count: one outside the scene (UniGLTF's ``tmpParent``, Kenney's kits) draws nothing."""
+    parents, drawn = _parents(doc), drawn_nodes(doc)
+    roots, reached = (set(scene_roots(doc)) if doc.get("scenes") else set()), set(drawn)
     problems = []
-    for i in drawn_nodes(doc):
-        of = parents.get(i, [])
+    for i in drawn:
+        of = [p for p in parents.get(i, []) if p in reached]
         if len(of) > 1 or (of and i in roots):
             whose = f"a root of the scene and a child of node {of[0]}" if i in roots else \
                 f"a child of nodes {', '.join(map(str, of))}"
