@@ -60,6 +60,16 @@ def _camera_nodes(doc: dict) -> list[dict]:
     return [node for node in doc.get("nodes", []) if isinstance(node, dict) and "camera" in node]
 
 
+def _json_after_bom(path) -> bool:
+    """Whether the JSON of glTF/GLB ``path`` starts with a UTF-8 byte order mark: ``json.loads``
+    of bytes (``gltf_check.read_gltf``) skips it, trimesh's loader decodes to text first and fails
+    ("model.gltf: not found" for a .gltf), three.js reads past it. The loader gets the document."""
+    with open(path, "rb") as f:
+        head = f.read(23)
+    start = 20 if Path(path).suffix.lower() == ".glb" else 0
+    return head[start:start + 3] == b"\xef\xbb\xbf"
+
+
 def loader_gltf_bytes(gltf: GltfFile, resolver=None) -> bytes | None:
     """The glTF/GLB to give the loader in place of file ``gltf`` (``io.gltf_check.GltfFile``:
     its path, JSON document and binary chunk, read once), or None for the file as
@@ -82,7 +92,7 @@ def loader_gltf_bytes(gltf: GltfFile, resolver=None) -> bytes | None:
     except (AttributeError, TypeError):  # malformed materials: the loader reports them
         renamed = {}
     if not (_ushort_colours_alone(doc) or _camera_nodes(doc) or skinned or quantized or sceneless or instanced
-            or renamed or gltf.texcoord_sets_read):
+            or renamed or gltf.texcoord_sets_read or _json_after_bom(path)):
         return None
     doc = copy.deepcopy(doc)
     for i, name in renamed.items():  # apply_texture_transforms and apply_wraps find their geometries by these names
