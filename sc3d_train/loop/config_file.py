@@ -53,3 +53,17 @@ def file_settings(config_file: Path, options: dict) -> dict:
     plain = RunConfig.load(config_file, {**given, "mode": mode}, without=tuple(reset)).to_dict()
     plain.update({k: defaults[k] for k in reset})
     return plain
+
+
+def data_changes(in_file: dict, plain: dict, facts: dict) -> list[str]:
+    """How the shards' ``facts`` (``loop.resolve.shard_facts``) differ from those a run's
+    ``config.yaml`` (``in_file``) recorded, one phrase each (``"camera_distance 2.0 -> 3.0"``):
+    its shards re-rendered in place, or other ``--shards``. A new run (``plain``: its settings)
+    trains on them, but is then no repeat of that run, which ``fit`` says in a note. Facts a
+    hand-written file leaves out are not compared, nor the objects of a split the run renames."""
+    was = {**in_file, **{f"model.{k}": v for k, v in (in_file.get("model") or {}).items()}}
+    skip = {"objects_sha256": plain.get("split") != in_file.get("split"),
+            "val_objects_sha256": not plain.get("val_every") or plain.get("val_split") != in_file.get("val_split")}
+    return [(f"the objects of split {plain.get('split' if k == 'objects_sha256' else 'val_split')!r}"
+             if k in skip else f"{k} {was[k]!r} -> {now!r}")
+            for k, now in facts.items() if was.get(k) is not None and was[k] != now and not skip.get(k)]

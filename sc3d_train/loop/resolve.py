@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from sc3d_train.loop.config_file import MODE_ONLY_OPTIONS, file_settings
+from sc3d_train.loop.config_file import MODE_ONLY_OPTIONS, data_changes, file_settings
 from sc3d_train.loop.run_folder import check_no_foreign_files, check_no_linked_files, check_path_names
 from sc3d_train.settings.config import CONFIG_NAME, OBJECT_ORDERS, RESUMABLE_FIELDS, TINY_MODEL, RunConfig
 from sc3d_train.settings.config_io import defaults_of, load_yaml
@@ -63,6 +63,10 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     check_no_linked_files(out)
     check_no_foreign_files(out)
     facts = shard_facts(Path(plain["shards"]), plain.get("split", "train"), plain.get("val_split", "val"))
+    changes = data_changes(in_file, plain, facts) if config_file is not None else []
+    if changes and os.environ.get("RANK", "0") == "0":  # trained on, but no repeat of the file's run
+        print(f"note: {plain['shards']}: not the data the run of {config_file} was trained on "
+              f"({', '.join(changes)}); this run does not repeat it")
     model = dict(plain.get("model", {}))
     if tiny:
         model.update(TINY_MODEL)
