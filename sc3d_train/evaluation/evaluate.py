@@ -180,7 +180,7 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
         if dataset.info["voxel_resolution"] != cfg.model.voxel_resolution:
             raise ValueError(f"{shards}: voxels are {dataset.info['voxel_resolution']}^3 but the checkpoint "
                              f"predicts {cfg.model.voxel_resolution}^3")
-        differences = differences_from_training(cfg, dataset.info)
+        differences = differences_from_training(cfg, dataset.info, shards)
         run_refs = run_objects(cfg, shards)  # the run's objects, scanned once for both questions
         trained_on = training_objects_among(cfg, dataset.objects, run_refs)
         unseen = untrained_categories(cfg, dataset.objects, run_refs)
@@ -243,9 +243,9 @@ def _span(low: float, high: float) -> str:
     return f"{low:g}" if math.isclose(low, high, rel_tol=1e-4) else f"{low:.3g} to {high:.3g}"
 
 
-def differences_from_training(cfg, info: dict) -> list[str]:
+def differences_from_training(cfg, info: dict, shards: Path | None = None) -> list[str]:
     """How the evaluated shards' images differ from those the checkpoint was trained on
-    (``cfg``: its run config; ``info``: ``ShardDataset.info``), one phrase each; empty when
+    (``cfg``: its run config; ``info``: ``ShardDataset.info`` of ``shards``), one phrase each; empty when
     they are alike (camera distances: where the evaluated shards hold views outside the range of those
     trained on; focal lengths within 0.1%). Background, intrinsics, camera distance and the view setup (axes,
     normalisation, shading: ``loop.resolve.view_setup``) change what the network sees
@@ -253,6 +253,7 @@ def differences_from_training(cfg, info: dict) -> list[str]:
     legitimate experiment, but its figures must say so (``eval`` prints a note, and
     ``metrics.json`` keeps the list under ``differs_from_training``)."""
     from sc3d_train.data.dataset import background_of
+    from sc3d_train.loop.front_axis import front_as_auto
     from sc3d_train.loop.resolve import view_setup, view_setup_but_elevations
 
     found = []
@@ -267,7 +268,7 @@ def differences_from_training(cfg, info: dict) -> list[str]:
     if near < trained[0] * (1 - 1e-4) or far > trained[1] * (1 + 1e-4):  # views at distances never trained on
         found.append(f"camera distance {_span(near, far)} (trained at {_span(*trained)})")
     if cfg.view_setup is not None:  # elevations: outside_pose_grid
-        now, was = (view_setup_but_elevations(v) for v in (view_setup(info.get("settings", {})), cfg.view_setup))
+        now, was = (view_setup_but_elevations(v) for v in (view_setup(front_as_auto(info.get("settings", {}), shards)), cfg.view_setup))
         if now != was:
             found.append(f"views of {now} (trained on {was})")
     return found

@@ -92,6 +92,7 @@ def shard_facts(shards: Path, split: str, val_split: str) -> dict:
     two resolutions, or a render left them incomplete."""
     from sc3d_train.data.completeness import require_complete
     from sc3d_train.data.dataset import DataError, background_of, require_one_voxel_resolution, scan_objects
+    from sc3d_train.loop.front_axis import front_as_auto
 
     require_complete(Path(shards))
     refs, info = scan_objects(Path(shards))
@@ -102,7 +103,7 @@ def shard_facts(shards: Path, split: str, val_split: str) -> dict:
             "image_size": info["image_size"], "num_views": info["num_views"], "background": background_of(info),
             "intrinsics": info["K"], "camera_distance": info["distance"], "camera_distance_range": info["distance_range"],
             "objects_sha256": objects_digest(refs, split), "val_objects_sha256": objects_digest(refs, val_split),
-            "view_setup": view_setup(info["settings"])}
+            "view_setup": view_setup(front_as_auto(info["settings"], shards))}
 
 
 #: render settings that change the images without changing their size, camera K or distance
