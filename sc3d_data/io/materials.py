@@ -34,7 +34,7 @@ from sc3d_data.io.names import printable
 from sc3d_data.io.mtl_text import TextureMove, mtl_materials, read_obj_text
 from sc3d_data.io.obj_statements import statement_values
 from sc3d_data.io.ply_textures import texture_names
-from sc3d_data.io.stand_ins import silent, stand_in
+from sc3d_data.io.stand_ins import inside, silent, stand_in
 from sc3d_data.io.texture_wraps import CLAMP_TO_BORDER
 
 __all__ = ["SHAPENET_V2_MESH", "MaterialReport", "dataset_folder", "material_report", "mtllib_names",
@@ -44,10 +44,6 @@ __all__ = ["SHAPENET_V2_MESH", "MaterialReport", "dataset_folder", "material_rep
 MOOT = "; sc3d draws base colour textures only, so the object renders the same without it"
 #: ShapeNetCore v2's mesh inside a model folder
 SHAPENET_V2_MESH = ("models", "model_normalized.obj")
-
-
-def _inside(path: Path, folder: Path) -> bool:
-    return Path(path).resolve().is_relative_to(Path(folder).resolve())
 
 
 def real_file(path: Path) -> Path:
@@ -73,7 +69,7 @@ def texture_root(path: Path, root: Path | None) -> Path:
         base = path.parent
     if path.parts[-2:] == SHAPENET_V2_MESH:
         model = path.parent.parent
-        if _inside(base, model):
+        if inside(base, model):
             return model
     return base
 
@@ -140,7 +136,7 @@ def _read_as(folder: Path, ref: Path, root: Path, report: MaterialReport, what: 
     if local is None:
         return ref
     report.replaced.append(ref)
-    leaves = not _inside(ref, root) and not silent(folder, ref)  # this tree's ../ out of it: --outside-textures refuse
+    leaves = not inside(ref, root) and not silent(folder, ref)  # this tree's ../ out of it: --outside-textures refuse
     if leaves:
         report.leaving.append(f"{ref.resolve()} lies outside the dataset folder {Path(root).resolve()}")
     why = "lies outside the dataset folder, not read" if leaves else "not found"
@@ -158,7 +154,7 @@ def _obj_refs(path: Path, root: Path, report: MaterialReport, text: str | None =
     refs, defined, text = [], None, read_obj_text(path) if text is None else text
     for lib in mtllib_names(path, text):
         mtl = _read_as(path.parent, path.parent / lib, root, report, f"material file {printable(lib)}", "the OBJ")
-        if not _inside(mtl, root):
+        if not inside(mtl, root):
             refs.append((printable(lib), mtl))
             continue
         if not mtl.is_file() or (pointer := file_lfs_pointer(mtl)) is not None:
@@ -215,7 +211,7 @@ def named_files(path: Path, root: Path | None = None) -> list[Path]:
             refs += [(name, local) for name, ref in refs if (local := stand_in(path.parent, ref, top)) is not None]
     except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):
         return []
-    return sorted({Path(os.path.abspath(ref)) for _, ref in refs if _inside(ref, top)})
+    return sorted({Path(os.path.abspath(ref)) for _, ref in refs if inside(ref, top)})
 
 
 def material_report(path: Path, root: Path | None = None, outside: str = "warn",
@@ -242,22 +238,22 @@ def material_report(path: Path, root: Path | None = None, outside: str = "warn",
             # missing or outside is the resolver's to report (io.texture_resolver.loader_misses), as before
             refs = [(printable(name), _read_as(path.parent, path.parent / name, top, report,
                                                f"texture {printable(name)}", "the PLY")) for name in texture_names(path)]
-            refs, embedded = [(name, ref) for name, ref in refs if _inside(ref, top) and ref.is_file()], []
+            refs, embedded = [(name, ref) for name, ref in refs if inside(ref, top) and ref.is_file()], []
         else:
             return report
     except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):
         return report  # not parseable: the loader reports it
-    inside = []
+    kept = []
     for name, ref in refs:
-        if _inside(ref, top):
-            inside.append((name, ref))
+        if inside(ref, top):
+            kept.append((name, ref))
         elif str(ref.resolve()) not in report.reported:
             report.reported.add(str(ref.resolve()))
             report.outside.append(f"{ref.resolve()} lies outside the dataset folder {top.resolve()}")
     if (report.outside or report.leaving) and outside == "refuse":  # a stand-in does not excuse a ../ out
         raise ValueError("; ".join(report.outside + report.leaving))
     report.outside = [f"{o}: not read; rendered without it (--outside-textures)" for o in report.outside]
-    for name, ref in dict.fromkeys(inside):  # a texture several materials name: judged and named once
+    for name, ref in dict.fromkeys(kept):  # a texture several materials name: judged and named once
         report.reported.add(str(ref.resolve()))
         moot = not_drawn(name)  # a glTF image the renderer does not draw: a warning (io.gltf_images)
         if not ref.is_file():

@@ -19,10 +19,11 @@ import os
 import re
 from pathlib import Path
 
-__all__ = ["silent", "stand_in"]
+__all__ = ["inside", "silent", "stand_in"]
 
 
-def _inside(path: Path, folder: Path) -> bool:
+def inside(path: Path, folder: Path) -> bool:
+    """Whether ``path``, links followed, lies in ``folder``."""
     return Path(path).resolve().is_relative_to(Path(folder).resolve())
 
 
@@ -30,10 +31,10 @@ def stand_in(folder: Path, ref: Path, root: Path) -> Path | None:
     """The file the loader reads for companion file ``ref`` (its name joined to ``folder``, the
     folder it is relative to) when ``ref`` is no file inside ``root``: the file of its bare name in
     ``folder``, where that is one inside ``root`` (module doc); else None (``ref`` is read, or none)."""
-    if _inside(ref, root) and ref.is_file():
+    if inside(ref, root) and ref.is_file():
         return None
     local = Path(folder) / Path(ref).name
-    if local != Path(ref) and _inside(local, root) and local.is_file():
+    if local != Path(ref) and inside(local, root) and local.is_file():
         return local
     return None
 
