@@ -145,18 +145,15 @@ def save_checkpoint(run_dir: Path, payload: dict) -> Path:
     payload = {"format_version": FORMAT_VERSION, **payload}
     tmp = path.with_name(path.name + ".tmp")
     last = last_path(run_dir)
-    tmp_last = last.with_name(last.name + ".tmp")
     target = path
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         save_atomically(payload, tmp, path)
         target = last
-        shutil.copyfile(path, tmp_last)
-        os.replace(tmp_last, last)
+        copy_to_last(run_dir, path)
     except (OSError, RuntimeError, KeyboardInterrupt) as e:
-        for t in (tmp, tmp_last):
-            with suppress(OSError):
-                t.unlink()
+        with suppress(OSError):
+            tmp.unlink()
         if isinstance(e, KeyboardInterrupt):  # Ctrl-C: the run says it was interrupted (trainer)
             raise
         reason = e.strerror if isinstance(e, OSError) and e.strerror else " ".join(str(e).split())
@@ -166,6 +163,20 @@ def save_checkpoint(run_dir: Path, payload: dict) -> Path:
                 "nothing to continue)")
         raise CheckpointError(f"{target}: cannot write checkpoint ({reason}){kept}; free space and {then}") from e
     return path
+
+
+def copy_to_last(run_dir: Path, step_file: Path) -> None:
+    """``last.pt`` of ``run_dir`` made a copy of ``step_file``, atomically (a temporary file
+    renamed into place); a failed copy (``OSError``, Ctrl-C) leaves no temporary file."""
+    last = last_path(run_dir)
+    tmp = last.with_name(last.name + ".tmp")
+    try:
+        shutil.copyfile(step_file, tmp)
+        os.replace(tmp, last)
+    except BaseException:
+        with suppress(OSError):
+            tmp.unlink()
+        raise
 
 
 #: what ``torch.save`` writes: a zip archive

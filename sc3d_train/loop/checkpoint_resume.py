@@ -4,13 +4,10 @@ stop cut off, then made ``last.pt`` again), the number of ranks it was saved wit
 ``fit`` prints on Ctrl-C. Checkpoints themselves: :mod:`sc3d_train.loop.checkpoint`."""
 from __future__ import annotations
 
-import os
 import re
-import shutil
-from contextlib import suppress
 from pathlib import Path
 
-from sc3d_train.loop.checkpoint import CheckpointError, checkpoint_dir, last_path, load_checkpoint
+from sc3d_train.loop.checkpoint import CheckpointError, checkpoint_dir, copy_to_last, last_path, load_checkpoint
 
 __all__ = ["RESUME_KEYS", "check_saved_ranks", "interrupted_line", "restore_last", "resume_checkpoint"]
 
@@ -82,14 +79,11 @@ def check_saved_ranks(path: Path, ckpt: dict, world_size: int) -> None:
 def restore_last(run_dir: Path, ckpt_file: Path) -> None:
     """``last.pt`` made a copy of ``ckpt_file``, the newer step file a resume continues from (a stop cut off
     its copy): a resume with nothing left to train left ``last.pt``, which eval and predict read, older."""
-    last = last_path(run_dir)
     try:
-        shutil.copyfile(ckpt_file, last.with_name(last.name + ".tmp"))
-        os.replace(last.with_name(last.name + ".tmp"), last)
+        copy_to_last(run_dir, ckpt_file)
     except OSError as e:
-        with suppress(OSError):
-            last.with_name(last.name + ".tmp").unlink()
-        raise CheckpointError(f"{last}: cannot write checkpoint ({e.strerror or e}); free space and rerun with --resume") from e
+        raise CheckpointError(f"{last_path(run_dir)}: cannot write checkpoint ({e.strerror or e}); free space and "
+                              "rerun with --resume") from e
 
 
 def interrupted_line(run_dir: Path, resume_hint: str) -> str:
