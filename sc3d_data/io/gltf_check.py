@@ -28,8 +28,11 @@ moved by ``KHR_texture_transform``, which the loader ignores, are refused the sa
 cannot be applied (:mod:`sc3d_data.io.gltf_skins`, which reads their accessors' data), files
 whose quantized attributes cannot be read (:mod:`sc3d_data.io.gltf_dequantize`) and drawn Draco
 primitives whose data does not decode (:mod:`sc3d_data.io.gltf_draco`), and instanced nodes whose
-instances cannot be read (:mod:`sc3d_data.io.gltf_instancing`). A document malformed
-otherwise (its scenes, nodes, materials) is left for the loader.
+instances cannot be read (:mod:`sc3d_data.io.gltf_instancing`). A document without meshes, with root
+arrays of other than objects, or whose drawn scene names a scene, node or mesh it lacks or moves a drawn
+mesh by a transform that is not finite is refused naming it (:mod:`sc3d_data.io.gltf_structure`: the
+loader failed in Python's words, "IndexError: list index out of range", or drew nothing for the node).
+A document malformed otherwise (its materials, animations) is left for the loader.
 """
 from __future__ import annotations
 
@@ -46,6 +49,7 @@ from sc3d_data.io.gltf_instancing import instanced_nodes, instancing_problems
 from sc3d_data.io.gltf_dequantize import dequantize_problems, quantized_accessors
 from sc3d_data.io.gltf_draco import draco_primitives, draco_problems
 from sc3d_data.io.gltf_skins import skin_problems, skinned_nodes
+from sc3d_data.io.gltf_structure import parents, scene_roots, structure_problems
 
 __all__ = ["GLTF_SUFFIXES", "GltfFile", "MALFORMED_SCENE", "SKIPPED_SURFACE_MODES", "drawn_meshes", "drawn_nodes", "gltf_refusal",
            "judge_gltf", "read_gltf"]
@@ -106,29 +110,6 @@ class GltfFile:
         return read_gltf(self.path, binary=True)[1] if Path(self.path).suffix.lower() == ".glb" else None
 
 
-def _parents(doc: dict) -> dict[int, list[int]]:
-    """``{node: [the nodes that list it among their children]}``; a malformed ``children`` (no
-    list, or no index) is passed over: the loader reports it."""
-    parents: dict[int, list[int]] = {}
-    for i, node in enumerate(doc.get("nodes", [])):
-        if isinstance(node, dict) and isinstance(node.get("children"), list):
-            for c in node["children"]:
-                if isinstance(c, int):
-                    parents.setdefault(c, []).append(i)
-    return parents
-
-
-def scene_roots(doc: dict) -> list[int]:
-    """The root nodes of the scene the loader draws: the nodes of ``scene`` (else scene 0); in a
-    document without ``scenes`` (glTF calls it a library), every node that is no node's child, as
-    Blender's importer draws it (``io.gltf_loader_doc`` gives the loader such a scene)."""
-    nodes, scenes = doc.get("nodes", []), doc.get("scenes")
-    if scenes:
-        return list(scenes[doc.get("scene", 0)].get("nodes", []))
-    children = _parents(doc)
-    return [i for i in range(len(nodes)) if i not in children]
-
-
 def drawn_nodes(doc: dict, safe: bool = False) -> list[int]:
     """Indices of the nodes reachable from the root nodes the loader draws (:func:`scene_roots`),
     in the order they are found; ``safe``: none where the document's scenes or nodes cannot be
@@ -167,11 +148,11 @@ def shared_children(doc: dict) -> list[str]:
     a child (glTF 2.0 allows one parent: the loader draws such a node once, where other readers,
     the draco project's among them, draw it once per parent), one phrase each. Only drawn parents
     count: one outside the scene (UniGLTF's ``tmpParent``, Kenney's kits) draws nothing."""
-    parents, drawn = _parents(doc), drawn_nodes(doc)
+    parents_of, drawn = parents(doc), drawn_nodes(doc)
     roots, reached = (set(scene_roots(doc)) if doc.get("scenes") else set()), set(drawn)
     problems = []
     for i in drawn:
-        of = [p for p in parents.get(i, []) if p in reached]
+        of = [p for p in parents_of.get(i, []) if p in reached]
         if len(of) > 1 or (of and i in roots):
             whose = f"a root of the scene and a child of node {of[0]}" if i in roots else \
                 f"a child of nodes {', '.join(map(str, of))}"
@@ -284,7 +265,7 @@ def judge_gltf(path: Path, shown: int = 3, resolver=None) -> tuple[GltfFile | No
     except (KeyError, IndexError, TypeError, AttributeError):
         pass  # a malformed document: the loader reports it
     problems = []  # each judge alone: what one cannot follow (a node that is no object) hides nothing of the other
-    for judge, args in ((layout_problems, (path, doc)), (gltf_problems, (doc,)),
+    for judge, args in ((layout_problems, (path, doc)), (structure_problems, (doc,)), (gltf_problems, (doc,)),
                         (lambda d: feature_problems(d, drawn_meshes(d)), (doc,)), (_skin_problems, (gltf, resolver)),
                         (_dequantize_problems, (gltf, resolver)), (_draco_problems, (gltf, resolver)),
                         (_instancing_problems, (gltf, resolver))):

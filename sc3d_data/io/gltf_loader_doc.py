@@ -10,7 +10,7 @@ white matte material in a copy of the document.
 
 A document without ``scenes`` (glTF calls it a library and leaves drawing it to the viewer) was
 drawn empty: the loader reads its meshes but draws no node ("empty mesh (no triangles)"). The copy
-draws its root nodes (``gltf_check.scene_roots``), as Blender's importer does.
+draws its root nodes (``gltf_structure.scene_roots``), as Blender's importer does.
 
 It also takes the first node with a ``camera`` for the scene's camera and skips the rest of that
 node: a mesh on the same node was not drawn (glTF allows both on one node), and a child of it
@@ -36,12 +36,13 @@ import json
 import struct
 from pathlib import Path
 
-from sc3d_data.io.gltf_check import GltfFile, drawn_nodes, scene_roots
+from sc3d_data.io.gltf_check import GltfFile, drawn_nodes
 from sc3d_data.io.gltf_features import material_name, transform_names
 from sc3d_data.io.texture_wraps import gltf_wraps
 from sc3d_data.io.gltf_dequantize import dequantize, quantized_accessors
 from sc3d_data.io.gltf_instancing import apply_instancing, instanced_nodes
 from sc3d_data.io.gltf_skins import apply_skins, skinned_nodes
+from sc3d_data.io.gltf_structure import scene_roots
 
 __all__ = ["loader_gltf_bytes"]
 

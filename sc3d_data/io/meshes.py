@@ -66,7 +66,9 @@ def load_scene(path: Path, resolver=None, text: bytes | None = None, text_type: 
     try:
         source = dict(file_obj=str(path)) if text is None else dict(file_obj=io.BytesIO(text),
                                                                      file_type=text_type or path.suffix.lower().lstrip("."))
-        with quiet_loader():  # what its logger says of the files it asks for, one line naming the mesh says
+        # NumPy's warnings of NaN/inf (a glTF node transform of 1e309) named no file: what reaches the drawn
+        # triangles is refused naming it (io.gltf_structure, validate_triangles), the rest draws nothing
+        with quiet_loader(), np.errstate(invalid="ignore", over="ignore", divide="ignore"):
             scene = trimesh.load(**source, force="scene", process=False, resolver=resolver)
     except (UnicodeDecodeError, ModuleNotFoundError) as e:  # text formats: bytes that no charset decodes
         raise MeshError(f"{path}: cannot decode the file as text (not UTF-8 and no other encoding "
