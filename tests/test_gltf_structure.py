@@ -22,6 +22,8 @@ from test_faults_round19_data import _objects
 from test_gltf_accessors import CUBE
 from test_gltf_primitives import _gltf_doc
 
+#: the one-cube document's mesh (a second copy of it makes a file of two meshes)
+_MESH = _gltf_doc(CUBE)[0]["meshes"][0]
 #: (name, change to a one-cube document of 1 mesh, 1 node, 1 scene, the refusal after the file name)
 REFUSED = [
     ("no_meshes", {"meshes": None, "accessors": None, "nodes": None, "scenes": None},
@@ -36,6 +38,8 @@ REFUSED = [
     ("scene_past", {"scene": 3}, "it names scene 3 to draw, but the file has 1 scene; not read"),
     ("mesh_past", {"nodes": [{"mesh": 0}, {"mesh": 2}], "scenes": [{"nodes": [0, 1]}]},
      "node 1 names mesh 2, but the file has 1 mesh; not read"),
+    ("mesh_past_of_two", {"meshes": [_MESH, _MESH], "nodes": [{"mesh": 0}, {"mesh": 5}], "scenes": [{"nodes": [0, 1]}]},
+     "node 1 names mesh 5, but the file has 2 meshes; not read"),
     ("children_no_list", {"nodes": [{"mesh": 0, "children": 1}, {}]}, "node 0's children is 1, not a list; not read"),
     ("node_no_object", {"nodes": [{"mesh": 0}, "x"], "scenes": [{"nodes": [0, 1]}]},
      'node 1 is "x", not an object; not read'),

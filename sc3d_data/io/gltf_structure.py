@@ -55,8 +55,8 @@ def scene_roots(doc: dict) -> list[int]:
 
 
 def _count(n: int, what: str) -> str:
-    """``"no nodes"``, ``"1 node"``, ``"3 nodes"``."""
-    return f"{n or 'no'} {what}{'s' * (n != 1)}"
+    """``"no nodes"``, ``"1 node"``, ``"3 nodes"``, ``"2 meshes"``."""
+    return f"{n or 'no'} {what}{('es' if what.endswith('sh') else 's') * (n != 1)}"
 
 
 def _names(index, n: int) -> bool:
