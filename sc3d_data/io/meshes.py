@@ -188,6 +188,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
     from sc3d_data.io.loaded_scene import finish_visuals
     from sc3d_data.io.loader_visuals import keep_obj_vertex_colours
     from sc3d_data.io.materials import material_report
+    from sc3d_data.io.obj_keyword_case import check_keyword_case
     from sc3d_data.io.obj_loader_text import check_obj_indices, loader_obj_bytes
     from sc3d_data.io.off_colours import coloured_off_as_ply
     from sc3d_data.io.off_polygons import faces_one_per_line, loader_off_bytes
@@ -226,6 +227,7 @@ def load_mesh(path: Path, max_faces: int = DEFAULT_MAX_FACES, bad_texture: str =
         data = path.read_bytes()
         try:
             check_obj_indices(data)
+            report.warnings += check_keyword_case(data)  # MTLLIB, USEMTL: not read, as by OBJ readers; V, F: refused
             text = loader_obj_bytes(data)  # relative indices as the format counts them; a non-UTF-8 file as Latin-1
         except ValueError as e:
             raise MeshError(f"{path}: {e}; not read") from e
