@@ -104,3 +104,11 @@ def test_obj_keywords_in_another_case_are_warned_of_or_refused(rendered):
     np.testing.assert_array_equal(images["upper_map_kd"], images["ref_texture"])
     assert not {"upper_mtl_keys", "upper_map_kd", "ref_red", "ref_texture", "ref_default"} & set(warnings)
 
+
+def test_a_texture_name_in_the_other_encoding_than_the_file_on_disk_is_drawn(rendered):
+    images, warnings, failures = rendered
+    for name in ("latin1_mtl_utf8_file", "utf8_mtl_latin1_file"):
+        assert name not in failures, failures.get(name)
+        np.testing.assert_array_equal(images[name], images["ref_texture"], err_msg=name)
+        assert "is read in its place" in warnings[name]
+
