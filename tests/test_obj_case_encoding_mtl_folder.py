@@ -112,3 +112,10 @@ def test_a_texture_name_in_the_other_encoding_than_the_file_on_disk_is_drawn(ren
         np.testing.assert_array_equal(images[name], images["ref_texture"], err_msg=name)
         assert "is read in its place" in warnings[name]
 
+
+def test_a_texture_of_a_material_file_in_a_subfolder_is_read_beside_that_file(rendered):
+    images, warnings, failures = rendered
+    for name in ("mtl_in_subfolder", "mtl_in_subfolder_alone"):
+        assert name not in failures, failures.get(name)
+        np.testing.assert_array_equal(images[name], images["ref_texture"], err_msg=name)  # blue, not green
+        assert name not in warnings

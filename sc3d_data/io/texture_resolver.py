@@ -9,7 +9,11 @@ URIs), then as the bare file name of each: the file read in place of one that is
 material file that is not UTF-8 is served as the UTF-8 text of its Latin-1 reading (each byte one
 character), so trimesh reads the same text whatever its encoding guess, and a texture name of
 such a file is also tried as the bytes it was written in (``io.names``: a name that is not UTF-8
-is a ``str`` with lone surrogates).
+is a ``str`` with lone surrogates). trimesh asks for every texture relative to the OBJ's folder,
+but an MTL names its textures relative to its own (``mtllib mats/m.mtl`` naming ``map_Kd t.png``
+means ``mats/t.png``, as Blender's importer and sc3d's checks, ``io.materials``, read it): a material
+file in another folder is served with each ``map_Kd`` named by a key that the resolver reads from
+that folder, so a ``t.png`` beside the OBJ is not drawn in its place.
 """
 from __future__ import annotations
 
@@ -85,6 +89,7 @@ def make_resolver(path: Path, root: Path | None):
         def __init__(self, folder: Path, top: Path, misses: list):
             self.parent, self.top, self.misses = Path(os.path.abspath(folder)), top.resolve(), misses
             self.file_name = printable(Path(path).name)  # trimesh names (and hashes) geometry by it
+            self.map_folders = {}  # {name a served material file's map_Kd is given as: (its folder, name as written)}
 
         def _candidates(self, name: str) -> list[str]:
             names = [name.strip(), map_file_name(name.strip())]
@@ -107,14 +112,32 @@ def make_resolver(path: Path, root: Path | None):
             return None
 
         def _read(self, name: str) -> bytes:
+            if name.strip() in self.map_folders:  # a map_Kd of a material file in another folder: named from there
+                folder, written = self.map_folders[name.strip()]
+                return _RootResolver(folder, self.top, self.misses)._read(written)
             first = (self.parent / map_file_name(name.strip())).resolve()
             if (p := self._find(name)) is not None:
                 with open(p, "rb") as f:
-                    return _served_material(f.read()) if p.suffix.lower() == ".mtl" else f.read()
+                    data = f.read()
+                return self._material(p, data) if p.suffix.lower() == ".mtl" else data
             inside = first.is_relative_to(self.top)
             self.misses.append((name.strip(), str(first), "not found" if inside else
                                 f"outside the dataset folder {self.top}, not read"))
             raise FileNotFoundError(f"{name.strip()}: " + self.misses[-1][2])
+
+        def _material(self, p: Path, data: bytes) -> bytes:
+            """Material file ``p`` (``data``) as served (:func:`_served_material`); one in another folder
+            than the OBJ with each ``map_Kd`` named so that :meth:`_read` reads it from that folder."""
+            text = _served_material(data).decode("utf-8")
+            if p.parent == self.parent.resolve():
+                return text.encode("utf-8")
+            lines = text.split("\n")
+            for n, line in enumerate(lines):
+                if (words := line.split(None, 1))[:1] and words[0].lower() == "map_kd" and len(words) == 2:
+                    key = f"{printable(os.path.relpath(p.parent, self.parent.resolve()))}/{words[1].strip()}"
+                    self.map_folders[key] = (p.parent, words[1].strip())
+                    lines[n] = f"map_Kd {key}"
+            return "\n".join(lines).encode("utf-8")
 
         def namespaced(self, namespace: str):
             return _RootResolver(self.parent / namespace, self.top, self.misses)
