@@ -9,7 +9,8 @@ compared with a reference written independently (the same cube written the plain
    case (``NEWMTL``, ``KD``, ``MAP_KD``) are read, as trimesh reads them.
 2. A Latin-1 ``.mtl`` naming ``caf\\xe9.png`` where the file on disk is ``café.png`` in UTF-8, and
    the reverse: the texture is drawn (``io.stand_ins.respelled``), with a warning. Before, the
-   object failed "texture ... not found" (the loader itself would have read it).
+   object failed "texture ... not found" (the loader itself would have read it). Where both files
+   lie there, the one of the bytes written is drawn (before, the UTF-8 one, without a word).
 3. ``mtllib mats/m.mtl`` naming ``map_Kd t.png``: the texture is ``mats/t.png``, beside the
    ``.mtl``, as Blender's importer (``mtl_dir_path``) and sc3d's own checks read it. Before, the
    loader read ``t.png`` beside the OBJ: a different texture drawn without a word where one lies
@@ -78,6 +79,8 @@ def rendered(tmp_path_factory):
           textures={"café.png".encode(): BLUE})
     _case(meshes, "utf8_mtl_latin1_file", _obj_text(), "newmtl mat\nKd 1 1 1\nmap_Kd café.png\n".encode(),
           textures={b"caf\xe9.png": BLUE})
+    _case(meshes, "latin1_mtl_both_files", _obj_text(), b"newmtl mat\nKd 1 1 1\nmap_Kd caf\xe9.png\n",
+          textures={b"caf\xe9.png": BLUE, "café.png".encode(): GREEN})  # the bytes as written are drawn
     # 3: a material file in a subfolder, its texture beside it (and another beside the OBJ)
     _case(meshes, "mtl_in_subfolder", _obj_text("mtllib mats/m.mtl"), textured, "mats/m.mtl",
           textures={b"mats/t.png": BLUE, b"t.png": GREEN})
@@ -111,6 +114,8 @@ def test_a_texture_name_in_the_other_encoding_than_the_file_on_disk_is_drawn(ren
         assert name not in failures, failures.get(name)
         np.testing.assert_array_equal(images[name], images["ref_texture"], err_msg=name)
         assert "is read in its place" in warnings[name]
+    np.testing.assert_array_equal(images["latin1_mtl_both_files"], images["ref_texture"])  # blue, not green
+    assert "latin1_mtl_both_files" not in warnings
 
 
 def test_a_texture_of_a_material_file_in_a_subfolder_is_read_beside_that_file(rendered):

@@ -8,8 +8,9 @@ URIs), then as the bare file name of each: the file read in place of one that is
 ``io.materials`` warns about, fingerprints and checks as the file drawn (``io.stand_ins``). A
 material file that is not UTF-8 is served as the UTF-8 text of its Latin-1 reading (each byte one
 character), so trimesh reads the same text whatever its encoding guess, and a texture name of
-such a file is also tried as the bytes it was written in (``io.names``: a name that is not UTF-8
-is a ``str`` with lone surrogates). trimesh asks for every texture relative to the OBJ's folder,
+such a file is tried as the bytes it was written in first (``io.names``: a name that is not UTF-8
+is a ``str`` with lone surrogates), then as the UTF-8 of its characters (``io.stand_ins.respelled``;
+tried first, the UTF-8 file was drawn where both lie there, while the checks judged the other). trimesh asks for every texture relative to the OBJ's folder,
 but an MTL names its textures relative to its own (``mtllib mats/m.mtl`` naming ``map_Kd t.png``
 means ``mats/t.png``, as Blender's importer and sc3d's checks, ``io.materials``, read it): a material
 file in another folder is served with each ``map_Kd`` named by a key that the resolver reads from
@@ -29,6 +30,7 @@ from sc3d_data.io.materials import MaterialReport, mtllib_names, real_file, text
 from sc3d_data.io.mtl_text import loader_mtl_text, loader_reading, map_file_name, read_obj_text
 from sc3d_data.io.names import printable
 from sc3d_data.io.obj_statements import loader_lines
+from sc3d_data.io.stand_ins import respelled
 
 __all__ = ["loader_misses", "make_resolver", "quiet_loader"]
 
@@ -94,7 +96,7 @@ def make_resolver(path: Path, root: Path | None):
         def _candidates(self, name: str) -> list[str]:
             names = [name.strip(), map_file_name(name.strip())]
             names += [urllib.parse.unquote(n) for n in names]  # glTF URIs
-            names += [n for n in map(_as_written, names) if n is not None]
+            names += [n for n in map(respelled, names) if n is not None]  # io.stand_ins: Latin-1 <-> UTF-8
             return list(dict.fromkeys(names + [os.path.basename(n) for n in names]))  # bare: io.stand_ins
 
         def get(self, name: str) -> bytes:
@@ -127,15 +129,16 @@ def make_resolver(path: Path, root: Path | None):
 
         def _material(self, p: Path, data: bytes) -> bytes:
             """Material file ``p`` (``data``) as served (:func:`_served_material`); one in another folder
-            than the OBJ with each ``map_Kd`` named so that :meth:`_read` reads it from that folder."""
-            text = _served_material(data).decode("utf-8")
-            if p.parent == self.parent.resolve():
+            than the OBJ, or not UTF-8, with each ``map_Kd`` named so that :meth:`_read` reads it from that
+            folder, by the bytes it was written in first (the name's UTF-8 spelling only where no such file is)."""
+            text, utf8 = _served_material(data).decode("utf-8"), loader_reading(data.removeprefix(b"\xef\xbb\xbf"))[1]
+            if p.parent == self.parent.resolve() and utf8:
                 return text.encode("utf-8")
             lines = text.split("\n")
             for n, line in enumerate(lines):
                 if (words := line.split(None, 1))[:1] and words[0].lower() == "map_kd" and len(words) == 2:
                     key = f"{printable(os.path.relpath(p.parent, self.parent.resolve()))}/{words[1].strip()}"
-                    self.map_folders[key] = (p.parent, words[1].strip())
+                    self.map_folders[key] = (p.parent, words[1].strip() if utf8 else _as_written(words[1].strip()))
                     lines[n] = f"map_Kd {key}"
             return "\n".join(lines).encode("utf-8")
 
