@@ -98,7 +98,7 @@ def _render_locked(config: RenderConfig, out: Path, executor=None) -> dict:
             "failed": len(index.failures) + len(index.problems), "retried": len(run.retry - run.unlisted),
             "added": len(run.unlisted),
             "warned": len({w.get("source") for w in index.warnings}),
-            "repaired": len(run.repaired), "notes": run.repaired + run.notes,
+            "repaired": len(run.repaired), "notes": plan.split_notes + run.repaired + run.notes,
             "seconds": seconds, "views": views, "views_per_s": views / seconds if seconds > 0 else 0.0,
             "out": str(out), "backend": settings["backend"], "workers": n_workers if run.todo else 0,
             "part": str(config.part), "executor": config.executor}
