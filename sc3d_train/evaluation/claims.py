@@ -144,8 +144,7 @@ def check_study_options(preset: ClaimsPreset, seeds: int, device: str) -> list[i
 
 
 def run_folder(out: Path, name: str, seed: int) -> Path:
-    """``OUT/runs/NAME/seed-S``: the ``fit`` run of ``name`` with ``seed`` (its evaluation in
-    :func:`eval_folder`)."""
+    """``OUT/runs/NAME/seed-S``: the ``fit`` run of ``name`` with ``seed`` (its evaluation in :func:`eval_folder`)."""
     return Path(out) / "runs" / name / f"seed-{seed}"
 
 
@@ -170,8 +169,8 @@ def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path
     Returns ``(metrics, seconds spent or None when read back)``."""
     from sc3d_train.loop.checkpoint import run_checkpoint
     from sc3d_train.evaluation.evaluate import evaluate
+    from sc3d_data.io.outlock import exclusive_lock
     from sc3d_train.loop.trainer import fit
-
     run_dir = run_folder(out, name, seed)
     metrics_file = eval_folder(run_dir, pick) / "metrics.json"
     saved = RunConfig.path_in(run_dir).is_file()
@@ -185,8 +184,9 @@ def train_and_evaluate(name: str, seed: int, p: ClaimsPreset, train_shards: Path
     resume = (run_dir / "checkpoints" / "last.pt").is_file()
     echo(f"{name} seed {seed}: {cfg.mode}, {cfg.steps} steps of {cfg.batch_size}" + (resumed_state(run_dir, cfg.steps)
                                                                                    if resume else ""))
-    fit(cfg, resume=resume, resume_hint="run the same claims command again to resume")
-    drop_intermediate_checkpoints(run_dir, cfg.steps)
+    with exclusive_lock(run_dir, "sc3d-train claims", create=True):  # as `fit` holds its run folder's: one trains it
+        fit(cfg, resume=resume, resume_hint="run the same claims command again to resume")
+        drop_intermediate_checkpoints(run_dir, cfg.steps)
     res = evaluate(run_checkpoint(run_dir, pick), eval_shards, eval_split, eval_folder(run_dir, pick), device)
     seconds = time.perf_counter() - t0
     echo(f"    {name} seed {seed} (step {res['step']}): mean IoU@0.4 {res['mean']['voxel_iou_0.4']:.3f}, median "
