@@ -30,3 +30,19 @@ def test_claims_holds_the_lock_of_the_run_folder_it_trains(sample_shards, tmp_pa
     run_all(sample_shards, sample_shards, tmp_path / "study", preset, eval_split="test", device="cpu",
             runs=["sup-3tube"], echo=lambda line: None)
     assert len(seen) == 1
+
+
+def test_an_index_whose_object_source_is_no_text_is_no_traceback(tmp_path):
+    """``front_axis.auto_fronts`` (846e95f) read each object's ``source`` of ``index.json`` and gave
+    it to ``resolve_front``: a hand-edited or foreign index whose ``source`` was a number or null
+    (an import's objects have none) stopped ``eval``, ``fit --resume`` and ``fit --config`` of
+    shards rendered with an explicit ``--front`` with ``TypeError: expected str, bytes or
+    os.PathLike object, not int``. Such a source gives no ``auto`` front: the front stays as given."""
+    import json
+
+    from sc3d_train.loop.front_axis import auto_fronts, front_as_auto
+
+    for bad in (5, None, ["a.glb"], {"x": 1}):
+        (tmp_path / "index.json").write_text(json.dumps({"objects": [{"source": "/m/car/a.glb"}, {"source": bad}]}))
+        assert auto_fronts(tmp_path) == set()
+        assert front_as_auto({"front": "+Z"}, tmp_path) == {"front": "+Z"}

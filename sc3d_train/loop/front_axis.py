@@ -11,7 +11,8 @@ from pathlib import Path
 
 def auto_fronts(shards: Path) -> set[str]:
     """The fronts ``auto`` gives the objects of ``shards`` (from each object's ``source`` in
-    ``index.json``); empty where the index lists none or an object has no source (an import)."""
+    ``index.json``); empty where the index lists none or an object has no source (an import) or
+    one that is no text (a hand-edited or foreign index: no front can be read from it)."""
     from sc3d_data.formats.shapenet import AUTO_FRONT, resolve_front
     from sc3d_data.geometry.normalize import axis_name
 
@@ -20,7 +21,7 @@ def auto_fronts(shards: Path) -> set[str]:
     except (OSError, ValueError, AttributeError):
         return set()
     sources = [o.get("source") if isinstance(o, dict) else None for o in objects]
-    if not sources or None in sources:
+    if not sources or not all(isinstance(s, str) for s in sources):
         return set()
     return {axis_name(resolve_front(AUTO_FRONT, s)) for s in sources}
 
