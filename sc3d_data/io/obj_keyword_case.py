@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import re
 
+from sc3d_data.io.line_ends import lf_lines
+
 __all__ = ["check_keyword_case"]
 
 #: keywords of statements that hold the geometry drawn, and of those that give it its materials
@@ -35,7 +37,7 @@ def _other_case(data: bytes) -> dict[str, tuple[int, str]]:
     file without an upper-case letter costs one ``bytes.translate``; else one regex over it."""
     if len(data.translate(None, _UPPER)) == len(data):
         return {}
-    text = b"\n" + data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+    text = b"\n" + lf_lines(data)
     found = {}
     for match in _UPPER_FIRST_WORD.finditer(text):
         word = match.group(1).decode("ascii")

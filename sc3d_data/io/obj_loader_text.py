@@ -36,6 +36,7 @@ import re
 
 import numpy as np
 
+from sc3d_data.io.line_ends import lf_lines, lone_cr
 from sc3d_data.io.mtl_text import loader_reading
 
 __all__ = ["absolute_indices", "check_obj_indices", "loader_obj_bytes", "plain_statements", "without_number_comments"]
@@ -57,15 +58,10 @@ def _is_any(values: np.ndarray, chars: bytes) -> np.ndarray:
     return np.logical_or.reduce([values == c for c in chars])
 
 
-def _lone_cr(data: bytes) -> bool:
-    """Whether a line of ``data`` ends with CR alone (two counts, no scan in Python)."""
-    return data.count(b"\r") != data.count(b"\r\n")
-
-
 def _loose_statements(data: bytes) -> bool:
     """Whether OBJ ``data`` holds a statement the loader would not find, or lines it would not
     split (module doc)."""
-    return _lone_cr(data) or ((b"\t" in data or b"\n " in data or data[:1] == b" ")
+    return lone_cr(data) or ((b"\t" in data or b"\n " in data or data[:1] == b" ")
                               and _LOOSE_STATEMENT.search(data) is not None)
 
 
@@ -74,7 +70,7 @@ def plain_statements(data: bytes) -> bytes:
     ``\\`` joined to the next (before any line is trimmed: the space before the ``\\`` stays),
     and each statement written ``KEYWORD VALUE`` without indentation; the value is kept as written
     (a material name may hold a tab)."""
-    data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n").replace(b"\\\n", b"")
+    data = lf_lines(data).replace(b"\\\n", b"")
     lines = data.split(b"\n")
     for n, line in enumerate(lines):
         if line[:1] in (b" ", b"\t") or b"\t" in line[:8]:
@@ -90,7 +86,7 @@ def check_obj_indices(data: bytes) -> None:
     (0 becomes the last vertex). Such a file is refused, not rendered wrong. Vectorised (a
     70 MB OBJ in a fraction of its parse time): every token ``0`` between separators is a
     candidate, kept when its line is an ``f`` statement and it comes before any ``#``."""
-    data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n") if _lone_cr(data) else data  # lines ended by CR alone
+    data = lf_lines(data) if lone_cr(data) else data  # lines ended by CR alone
     text = b"\n" + data + b"\n"  # padded: a byte each side
     b = np.frombuffer(text, dtype=np.uint8)
     zeros = np.flatnonzero(b == ord("0"))

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import re
 
+from sc3d_data.io.line_ends import lf_lines
+
 __all__ = ["loader_lines", "statement_values"]
 
 
@@ -12,7 +14,7 @@ def loader_lines(text: str) -> str:
     ended by LF where CRLF or CR alone (classic Mac OS), a line continued by ``\\`` joined to the
     next. The text itself where it needs neither (no copy of an OBJ of megabytes)."""
     if "\r" in text:
-        text = text.replace("\r\n", "\n").replace("\r", "\n")
+        text = lf_lines(text)
     return text.replace("\\\n", "") if "\\\n" in text else text
 
 

@@ -28,6 +28,8 @@ import re
 import struct
 from pathlib import Path
 
+from sc3d_data.io.line_ends import lf_lines, lone_cr
+
 __all__ = ["loader_stl_bytes"]
 
 _HEADER, _TRIANGLE = 84, 50
@@ -44,9 +46,7 @@ def _lf_lines(path: Path) -> bytes | None:
     """The text of ASCII STL ``path`` with its lines ended by LF where one ends with CR alone
     (module doc); None where none does (CRLF is read as it is)."""
     data = Path(path).read_bytes()
-    if data.count(b"\r") == data.count(b"\r\n"):
-        return None
-    return data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+    return lf_lines(data) if lone_cr(data) else None
 
 
 def loader_stl_bytes(path: Path) -> bytes | None:
