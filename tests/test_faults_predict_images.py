@@ -61,3 +61,37 @@ def test_another_image_of_the_same_name_does_not_replace_a_prediction(sample_sha
     monkeypatch.chdir(tmp_path / "day1")  # the same image by a relative path: its own prediction, replaced
     run_cli(train_main, ["predict", "--checkpoint", ckpt, "IMG_0001.png", "--out", out])
     assert json.loads((out / "IMG_0001.json").read_text())["image"] == "IMG_0001.png"
+
+
+def test_a_prediction_of_an_earlier_version_is_not_replaced_by_another_image(sample_shards, tiny_run, tmp_path):
+    """Upgrade attack: ``NAME.json`` of a version before ``image_realpath`` records the image as
+    given (``image``). Predicting ``day2/IMG_0001.png`` into a folder holding such a record of
+    ``day1/IMG_0001.png`` replaced it without a word (exit 0), the refusal above applying only to
+    folders written by this version. A record whose ``image`` is absolute names its file and is
+    judged by it (refused, files untouched); the same image again replaces its own prediction; a
+    relative one, relative to a folder no record names, is not judged (control)."""
+    import h5py
+
+    with h5py.File(next(sample_shards.glob("*.h5")), "r") as f:
+        views = [Image.fromarray(f["images"][i, 3]) for i in (0, 1)]
+    for day, view in zip(("day1", "day2"), views):
+        (tmp_path / day).mkdir()
+        view.save(tmp_path / day / "IMG_0001.png")
+    ckpt, out = tiny_run / "checkpoints" / "last.pt", tmp_path / "pred"
+    predict = ["predict", "--checkpoint", ckpt, "--out", out]
+
+    def make_earlier(image: str) -> None:  # the record as an earlier version wrote it
+        record = json.loads((out / "IMG_0001.json").read_text())
+        del record["image_realpath"]
+        record["image"] = image
+        (out / "IMG_0001.json").write_text(json.dumps(record))
+
+    run_cli(train_main, [*predict, tmp_path / "day1" / "IMG_0001.png"])
+    make_earlier(str(tmp_path / "day1" / "IMG_0001.png"))
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    res = run_cli(train_main, [*predict, tmp_path / "day2" / "IMG_0001.png"], expect_exit=1)
+    assert res.output.count("\n") == 1 and f"{tmp_path}/day1/IMG_0001.png" in res.output, res.output
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    run_cli(train_main, [*predict, tmp_path / "day1" / "IMG_0001.png"])  # its own image: replaced
+    make_earlier("IMG_0001.png")
+    run_cli(train_main, [*predict, tmp_path / "day2" / "IMG_0001.png"])  # relative: not judged

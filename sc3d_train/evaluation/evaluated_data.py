@@ -111,7 +111,8 @@ def selection_objects_among(cfg, validation: dict | None, objects, shards: Path,
 
 
 #: how :func:`replaced_provenance` names what an output was made from
-PROVENANCE_LABELS = {"checkpoint": "checkpoint", "shards": "shards", "pose_from": "--pose", "image_realpath": "image"}
+PROVENANCE_LABELS = {"checkpoint": "checkpoint", "shards": "shards", "pose_from": "--pose", "image_realpath": "image",
+                     "image": "image"}
 
 
 def replaced_provenance(record: Path, given: dict) -> tuple[str, str] | None:

@@ -85,12 +85,30 @@ def check_same_images(images: list[Path], outputs: list[dict], out: Path) -> Non
     prediction of another image file of the same name: camera names restart per folder
     (``day1/IMG_0001.jpg``, then ``day2/IMG_0001.jpg`` into the same ``--out``), and the second
     call replaced the first one's files without a word. The same file again, by any path,
-    replaces its own prediction; records without ``image_realpath`` (earlier versions) are not judged."""
+    replaces its own prediction; a record of an earlier version is judged by its ``image``
+    (:func:`_image_key`)."""
     from sc3d_data.io.names import printable
     from sc3d_train.evaluation.evaluated_data import replaced_provenance
 
     for path, files in zip(images, outputs):
-        if changed := replaced_provenance(files["json"], {"image_realpath": str(path)}):
+        key = _image_key(files["json"])
+        if key and (changed := replaced_provenance(files["json"], {key: str(path)})):
             raise ImageError(f"--out {out}: {files['json'].name} holds the prediction of another {printable(changed[0])} "
                              f"of that name, which this one ({printable(path)}) would replace; choose another --out "
                              "(or remove those files)")
+
+
+def _image_key(record: Path) -> str | None:
+    """The key of ``record`` (a ``NAME.json``) naming the image it was predicted from:
+    ``image_realpath``; in a record of an earlier version, which has only the path as given,
+    ``image`` where that is absolute (a relative one is relative to a folder no record names:
+    not judged); None where neither, or no readable record."""
+    try:
+        was = json.loads(Path(record).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(was, dict):
+        return None
+    if "image_realpath" in was:
+        return "image_realpath"
+    return "image" if isinstance(was.get("image"), str) and os.path.isabs(was["image"]) else None
