@@ -95,3 +95,30 @@ def test_a_prediction_of_an_earlier_version_is_not_replaced_by_another_image(sam
     run_cli(train_main, [*predict, tmp_path / "day1" / "IMG_0001.png"])  # its own image: replaced
     make_earlier("IMG_0001.png")
     run_cli(train_main, [*predict, tmp_path / "day2" / "IMG_0001.png"])  # relative: not judged
+
+
+def test_a_relative_checkpoint_of_an_earlier_version_is_the_same_checkpoint_from_another_folder(
+        tiny_run, tmp_path, monkeypatch):
+    """Upgrade attack: an earlier version recorded ``checkpoint`` in ``RUN/predictions/NAME.json``
+    as given (``run/checkpoints/last.pt``, relative to the folder it ran in). Predicting the same
+    image with the same checkpoint from another folder was refused ('holds the prediction of
+    checkpoint run/checkpoints/last.pt, which this one (checkpoint /abs/run/...) would replace'):
+    the relative path was resolved against today's folder. It names the same file where the
+    checkpoint given ends with it; another checkpoint is still refused (control)."""
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run, run)
+    shutil.copy(run / "checkpoints" / "last.pt", run / "checkpoints" / "step_000001.pt")
+    image = tmp_path / "view.png"
+    Image.fromarray(np.full((64, 64, 3), 200, dtype=np.uint8)).save(image)
+    run_cli(train_main, ["predict", "--checkpoint", run / "checkpoints" / "last.pt", image, "--device", "cpu"])
+    record = run / "predictions" / "view.json"
+    record.write_text(json.dumps({**json.loads(record.read_text()), "checkpoint": "run/checkpoints/last.pt"}))
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    run_cli(train_main, ["predict", "--checkpoint", run / "checkpoints" / "last.pt", image, "--device", "cpu"])
+    record.write_text(json.dumps({**json.loads(record.read_text()), "checkpoint": "run/checkpoints/last.pt"}))
+    res = run_cli(train_main, ["predict", "--checkpoint", run / "checkpoints" / "step_000001.pt", image,
+                               "--device", "cpu"], expect_exit=1)
+    assert "holds the prediction of checkpoint run/checkpoints/last.pt" in res.output, res.output

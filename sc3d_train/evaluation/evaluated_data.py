@@ -129,10 +129,20 @@ def replaced_provenance(record: Path, given: dict) -> tuple[str, str] | None:
         return None
 
     def same(key, recorded, now) -> bool:
-        return recorded == now if key == "pose_from" else os.path.realpath(str(recorded)) == os.path.realpath(now)
+        return recorded == now if key == "pose_from" else _same_path(str(recorded), now)
 
     changed = [k for k, v in given.items() if k in was and not same(k, was[k], v)]
     if not changed:
         return None
     return (", ".join(f"{PROVENANCE_LABELS[k]} {was[k]}" for k in changed),
             ", ".join(f"{PROVENANCE_LABELS[k]} {given[k]}" for k in changed))
+
+
+def _same_path(recorded: str, now: str) -> bool:
+    """Whether a recorded path names the file ``now``: by real path, or, for a relative path (an
+    earlier version recorded the path as given, relative to a folder no record names), where
+    ``now``'s real path ends with it; resolved against today's folder it named another file."""
+    if os.path.realpath(recorded) == os.path.realpath(now):
+        return True
+    tail = Path(os.path.normpath(recorded)).parts
+    return not os.path.isabs(recorded) and ".." not in tail and Path(os.path.realpath(now)).parts[-len(tail):] == tail
