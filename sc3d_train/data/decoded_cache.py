@@ -26,7 +26,8 @@ costs a few ``stat`` and header reads per shard; only changed files are read who
 Concurrency: a missing or failing entry is built under an exclusive ``flock`` on
 ``DIR/<key>.lock`` (other ranks or runs wait for it, then find it built), into a temporary
 folder renamed into place when complete, so a crash leaves no half-written entry (its temporary
-folder is removed by the next build of that entry).
+folder is removed by the next build of that entry; a build that fails, e.g. on a full disk, or
+is interrupted removes its own).
 """
 from __future__ import annotations
 
@@ -35,7 +36,7 @@ import json
 import os
 import re
 import shutil
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Iterator
 
@@ -76,23 +77,22 @@ def shard_keys(shard_dir: Path) -> dict[str, str]:
 
 
 def _build(reader: ShardReader, path: str, folder: Path, mask_size: int, voxels: bool) -> None:
-    """Write the ``.npy`` files of shard ``path`` into ``folder`` (module doc), row by row."""
+    """Write the ``.npy`` files of shard ``path`` into ``folder`` (module doc), row by row, with
+    plain writes: a full disk is then an ``OSError`` (ENOSPC), where a store into the memory map
+    of a sparse file killed the process with SIGBUS."""
     fields = ("images", "masks") + (("voxels",) if voxels else ())
-    out = {}
-    first = reader.read(path, 0, fields)
     n = reader.num_rows(path)
-    for k, a in first.items():
-        out[k] = np.lib.format.open_memmap(folder / f"{k}.npy", mode="w+", dtype=a.dtype, shape=(n,) + a.shape)
-    m = sc_masks_bool(first["masks"], mask_size)
-    out["masks_sc"] = np.lib.format.open_memmap(folder / f"masks_sc{mask_size}.npy", mode="w+", dtype=bool,
-                                                shape=(n,) + m.shape)
-    for row in range(n):
-        arrays = first if row == 0 else reader.read(path, row, fields)
-        for k, a in arrays.items():
-            out[k][row] = a
-        out["masks_sc"][row] = sc_masks_bool(arrays["masks"], mask_size)
-    for a in out.values():
-        a.flush()
+    with ExitStack() as files:
+        out = {}
+        for row in range(n):
+            arrays = reader.read(path, row, fields)
+            arrays[f"masks_sc{mask_size}"] = sc_masks_bool(arrays["masks"], mask_size)
+            for k, a in arrays.items():
+                if k not in out:
+                    out[k] = files.enter_context(open(folder / f"{k}.npy", "wb"))
+                    np.lib.format.write_array_header_1_0(out[k], {
+                        "descr": np.lib.format.dtype_to_descr(a.dtype), "fortran_order": False, "shape": (n,) + a.shape})
+                out[k].write(np.ascontiguousarray(a).tobytes())
 
 
 def _stamp(path: Path) -> list[int]:
@@ -205,11 +205,15 @@ class DecodedCache:
                     shutil.rmtree(stale, ignore_errors=True)
                 tmp = self.cache_dir / f"{folder.name}.tmp-{os.getpid()}"
                 tmp.mkdir()
-                _build(reader, path, tmp, self.mask_size, self.voxels)
-                for p in _intact_others(folder, tmp):  # an entry built for another mask size or without voxels
-                    os.replace(p, tmp / p.name)
-                _write_manifest(tmp, {"shard_sha256": folder.name, "source": Path(path).name,
-                                      "arrays": {p.name: _describe(p) for p in sorted(tmp.glob("*.npy"))}})
+                try:
+                    _build(reader, path, tmp, self.mask_size, self.voxels)
+                    for p in _intact_others(folder, tmp):  # an entry built for another mask size or without voxels
+                        os.replace(p, tmp / p.name)
+                    _write_manifest(tmp, {"shard_sha256": folder.name, "source": Path(path).name,
+                                          "arrays": {p.name: _describe(p) for p in sorted(tmp.glob("*.npy"))}})
+                except BaseException:  # a full disk or a Ctrl-C: the partial copy is not left filling the disk
+                    shutil.rmtree(tmp, ignore_errors=True)
+                    raise
                 shutil.rmtree(folder, ignore_errors=True)
                 os.replace(tmp, folder)
         except OSError as e:
