@@ -50,3 +50,27 @@ def test_a_full_disk_while_building_is_one_line_and_leaves_no_partial_entry(samp
     lines = got.stdout.splitlines()
     assert lines[-2:] == ["rc=0", load_index(sample_shards)["shards"][0]["sha256"] + ".lock"], (lines, got.stderr)
     assert lines[0].startswith(f"ERROR {small / 'cache'}: cannot write the decoded cache") and "space" in lines[0]
+
+
+def test_a_shard_replaced_behind_its_index_is_not_served_stale(sample_shards, tmp_path):
+    """A shard file replaced without its index (restored from a backup, copied from another
+    render, a voxelize killed before it wrote the index) is what reading the shards gives; the
+    cache, keyed by the index's SHA-256, served the old pixels with exit 0."""
+    from sc3d_train.data.dataset import ShardDataset
+
+    data = tmp_path / "data"
+    shutil.copytree(sample_shards, data)
+    cache = tmp_path / "cache"
+    ShardDataset(data, "train", decoded_cache=cache).close()
+    name = load_index(data)["shards"][0]["file"]
+    with h5py.File(data / name, "r+") as f:  # the index is left as it was
+        f["images"][...] = 255 - f["images"][...]
+    plain, cached = ShardDataset(data, "train"), ShardDataset(data, "train", decoded_cache=cache)
+    every = list(range(len(plain)))
+    a, b = plain.compact_batch(every)[0], cached.compact_batch(every)[0]
+    for k in ("images", "masks", "masks_sc", "voxels"):
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    plain.close()
+    cached.close()
+    again = ShardDataset(data, "train", decoded_cache=cache)  # known now: served without hashing
+    np.testing.assert_array_equal(again.compact_batch(every)[0]["images"], a["images"])

@@ -9,9 +9,9 @@ Layout: ``DIR/<SHA-256 of the shard file>/`` holds, for every row of that shard,
 ``images.npy [N,V,S,S,3]`` uint8, ``masks.npy [N,V,S,S]`` as stored, ``masks_sc<M>.npy
 [N,V,M,M]`` bool (``batch_format.sc_masks_bool``, the 48 px masks) and, with voxels,
 ``voxels.npy [N,G,G,G]`` uint8: the values h5py decodes, unchanged. The key is the SHA-256 that
-the dataset's ``index.json`` records for the shard (computed from the file when the index has
-none), so a rewritten shard gets a new folder and a stale copy is never read; old folders are not
-deleted (remove ``DIR`` to reclaim the space).
+``index.json`` records for the shard, where the entry has seen the file's stamp (manifest
+``shard_stamps``), else the file's (a shard replaced behind its index's back: ``_shard_key``), so
+a rewritten shard gets a new folder and a stale copy is never read; old folders are not deleted.
 
 Verification: each entry holds ``manifest.json``, written when it is built: the shard's SHA-256
 and, per array file, its shape, dtype, size in bytes and SHA-256, and a stamp (inode, size,
@@ -180,7 +180,7 @@ class DecodedCache:
     def __init__(self, cache_dir: Path, shard_dir: Path, paths: list[str], mask_size: int, voxels: bool):
         self.cache_dir, self.mask_size, self.voxels = Path(cache_dir), mask_size, voxels
         keys = shard_keys(shard_dir)
-        self.folders = [self.cache_dir / keys[str(p)] for p in paths]
+        self.folders = [self.cache_dir / _shard_key(Path(p), keys[str(p)], self.cache_dir) for p in paths]
         self._names = ("images", "masks", f"masks_sc{mask_size}") + (("voxels",) if voxels else ())
         self._maps: list[dict] | None = None
         self._pid = None
@@ -195,12 +195,12 @@ class DecodedCache:
         """Make ``folder`` the verified decoded copy of shard ``path`` (module doc): keep it when
         it passes :func:`verify_entry`, else (re)build it under the entry's lock."""
         if verify_entry(folder, self._names, folder.name) is None:
-            return
+            return _remember_shard(folder, Path(path))
         try:
             self.cache_dir.mkdir(parents=True, exist_ok=True)
             with _locked(self.cache_dir / f"{folder.name}.lock"):
                 if verify_entry(folder, self._names, folder.name) is None:  # another process built it
-                    return
+                    return _remember_shard(folder, Path(path))
                 for stale in self.cache_dir.glob(f"{folder.name}.tmp-*"):  # left by a crash
                     shutil.rmtree(stale, ignore_errors=True)
                 tmp = self.cache_dir / f"{folder.name}.tmp-{os.getpid()}"
@@ -210,6 +210,7 @@ class DecodedCache:
                     for p in _intact_others(folder, tmp):  # an entry built for another mask size or without voxels
                         os.replace(p, tmp / p.name)
                     _write_manifest(tmp, {"shard_sha256": folder.name, "source": Path(path).name,
+                                          "shard_stamps": [_stamp(Path(path))],
                                           "arrays": {p.name: _describe(p) for p in sorted(tmp.glob("*.npy"))}})
                 except BaseException:  # a full disk or a Ctrl-C: the partial copy is not left filling the disk
                     shutil.rmtree(tmp, ignore_errors=True)
@@ -245,6 +246,35 @@ class DecodedCache:
                     out[k] = np.empty((len(rows),) + got.shape[1:], dtype=got.dtype)
                 out[k][sel] = got
         return out
+
+
+def _shard_key(path: Path, key: str, cache_dir: Path) -> str:
+    """The SHA-256 of shard ``path`` as it is now: the index's ``key`` where entry ``key`` was
+    built from, or has checked, a file of this stamp (its manifest's ``shard_stamps``); else
+    hashed from the file. A shard replaced behind its index's back (restored from a backup,
+    copied from another render, a ``voxelize`` killed before it wrote the index) so gets the
+    entry of what reading it gives, not the old copy of the bytes the index names."""
+    try:
+        seen = json.loads((cache_dir / key / MANIFEST).read_text()).get("shard_stamps") or []
+    except (OSError, ValueError, AttributeError):
+        seen = []
+    try:
+        return key if _stamp(path) in seen else file_sha256(path)
+    except OSError as e:
+        raise ShardError(f"{printable(path)}: cannot read the shard ({io_reason(e, path)})") from e
+
+
+def _remember_shard(folder: Path, path: Path) -> None:
+    """Add the stamp of shard ``path`` (its bytes hash to the key of entry ``folder``) to the
+    entry's manifest, so that the next open need not hash it (where the folder allows)."""
+    try:
+        manifest = json.loads((folder / MANIFEST).read_text())
+        stamps = manifest.get("shard_stamps") or []
+        if _stamp(path) not in stamps:  # the last 8: copies of the dataset sharing the cache
+            manifest["shard_stamps"] = (stamps + [_stamp(path)])[-8:]
+            _write_manifest(folder, manifest)
+    except (OSError, ValueError, AttributeError):
+        pass  # read-only: hashed again next time
 
 
 def _intact_others(folder: Path, tmp: Path) -> list[Path]:
