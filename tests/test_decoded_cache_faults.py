@@ -74,3 +74,32 @@ def test_a_shard_replaced_behind_its_index_is_not_served_stale(sample_shards, tm
     cached.close()
     again = ShardDataset(data, "train", decoded_cache=cache)  # known now: served without hashing
     np.testing.assert_array_equal(again.compact_batch(every)[0]["images"], a["images"])
+
+
+CUT = """
+import os, sys
+import numpy as np
+from pathlib import Path
+from sc3d_data.io.shards import ShardError, load_index, shard_path
+from sc3d_train.data.decoded_cache import DecodedCache
+data, cache = Path(sys.argv[1]), Path(sys.argv[2])
+paths = [str(shard_path(data, load_index(data)["shards"][0]["file"]))]
+c = DecodedCache(cache, data, paths, 48, True)
+one = np.zeros(1, dtype=int)
+c.views(one, one, one)
+images = c.folders[0] / "images.npy"
+os.truncate(images, 1000)
+try:
+    c.views(one, one + 5, one)
+except ShardError as e:
+    print("ERROR", e)
+"""
+
+
+def test_a_cache_file_cut_short_while_mapped_is_one_line(sample_shards, tmp_path):
+    """docs/training.md: "a file cut short while a run has it open fails in one line naming it";
+    a batch read from the mapped pages past the new end was a SIGBUS."""
+    got = _python(CUT, str(sample_shards), str(tmp_path / "cache"))
+    assert got.returncode == 0, (got.returncode, got.stderr[-2000:])
+    images = tmp_path / "cache" / load_index(sample_shards)["shards"][0]["sha256"] / "images.npy"
+    assert got.stdout.startswith(f"ERROR {images}: cut short"), got.stdout
