@@ -75,6 +75,15 @@ def _row(res: dict, cats: list[str], key: str, fmt: str, scale: float = 1.0) -> 
     return cells + [_cell(res["mean"].get(key), std.get("mean", {}).get(key), fmt, scale)]
 
 
+def _header(category: str) -> str:
+    """A category's column header: its name (``airplane`` for ``02691156``; a user's category whole,
+    as claims.png names it: cut at `` (``, ``chair (metal)`` and ``chair (wood)`` were two columns
+    headed ``chair``), a ``|`` escaped (it split the cell: the table had a column too many)."""
+    from sc3d_data.formats.shapenet import category_name
+
+    return category_name(category).replace("|", "\\|")
+
+
 TITLES = {"sup-3tube": "Ours (Sup), 3 tubes", "sup-1tube": "Ours (Sup), 1 tube", "labeled-only": "labelled only",
           "semi": "Ours (Semi)", "ray": "Ray (true pose)", "ray-proj": "Ray + Projection (true pose)",
           "mean-shape": "*reference:* category mean shape (no image)",
@@ -88,7 +97,7 @@ def format_report(results: dict) -> str:
     from sc3d_data.formats.shapenet import category_label
 
     cats = _categories(results)
-    names = [category_label(c).split(" (")[0] for c in cats]
+    names = [_header(c) for c in cats]
     head = "| run | " + " | ".join(names) + " | Mean |\n|---|" + "---|" * (len(cats) + 1) + "\n"
     seeds = sorted({len(r["seeds"]) for r in results.values() if "seeds" in r})
     over = f" (mean ± standard deviation over {seeds[0]} seeds)" if seeds and seeds[-1] > 1 else ""
