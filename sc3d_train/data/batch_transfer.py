@@ -106,6 +106,14 @@ def unpack(p: PackedBatch) -> dict[str, np.ndarray]:
     return unpack_buffer(p.buffer.numpy(), p.layout)
 
 
+def shm_full(what: str, e: Exception) -> OSError:
+    """The one-line error of a loader that could not ``what`` in /dev/shm (``e``: the error met):
+    it names /dev/shm and what to do, where the bare ``No space left on device`` reads like a
+    full disk."""
+    return OSError(f"the loader could not {what} ({str(e).splitlines()[0][:120]}); use fewer --workers "
+                   f"(0: none), or give the machine more /dev/shm (docker run --shm-size)")
+
+
 class SharedRing:
     """``slots`` buffers of ``capacity`` bytes in shared memory, made in the main process before
     the loader's workers start (forked workers inherit the mapping; spawned ones receive it once
@@ -119,13 +127,12 @@ class SharedRing:
     copying and raises if a worker overwrote it (it never should)."""
 
     def __init__(self, slots: int, capacity: int):
-        try:
+        try:  # both in the try: /dev/shm may hold the batches but not the page of the positions
             self.data = torch.zeros(slots, capacity, dtype=torch.uint8).share_memory_()
+            self.seqs = torch.full((slots,), -1, dtype=torch.int64).share_memory_()
         except RuntimeError as e:  # /dev/shm full or too small (a container's 64 MB default)
-            raise OSError(f"the loader could not map {slots * capacity / 2 ** 20:.0f} MiB of shared memory "
-                          f"for its workers' batches ({str(e).splitlines()[0][:120]}); use fewer --workers "
-                          f"(0: none), or give the machine more /dev/shm (docker run --shm-size)") from e
-        self.seqs = torch.full((slots,), -1, dtype=torch.int64).share_memory_()
+            raise shm_full(f"map {slots * capacity / 2 ** 20:.0f} MiB of shared memory for its workers' batches",
+                           e) from e
 
     @property
     def slots(self) -> int:

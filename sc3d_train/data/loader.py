@@ -16,6 +16,7 @@ traceback.
 """
 from __future__ import annotations
 
+import errno
 import math
 from dataclasses import dataclass
 from typing import Iterator
@@ -24,7 +25,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset, Sampler
 
-from sc3d_train.data.batch_transfer import PackedBatch, RingBatch, SharedRing, pack, unpack
+from sc3d_train.data.batch_transfer import PackedBatch, RingBatch, SharedRing, pack, shm_full, unpack
 from sc3d_train.data.batch_format import BINARY_KEYS, compact_tensors
 from sc3d_data.io.shards import ShardError
 from sc3d_train.data.dataset import DataError, ShardDataset
@@ -166,7 +167,13 @@ class BatchLoader(torch.utils.data.DataLoader):
         if self.num_workers:
             ring = SharedRing(ring_slots(self.num_workers, self.prefetch_factor, self.group), self.batch_bytes)
             self.dataset.ring = ring  # the workers this iteration starts take this ring with them
-        for task in super().__iter__():
+        try:  # the workers start here; their queues' semaphores take pages of /dev/shm too
+            tasks = super().__iter__()
+        except OSError as e:
+            if e.errno != errno.ENOSPC:
+                raise
+            raise shm_full("start its workers in /dev/shm", e) from e
+        for task in tasks:
             for item in task:
                 if isinstance(item, WorkerError):
                     raise item.error  # as --workers 0 raises it (module doc)

@@ -1,0 +1,38 @@
+"""Loader worker faults (attack on ``fit --workers``, 2026-12-07): a /dev/shm with room for the
+batch ring but not for the rest the workers need, with the real loader."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+
+def _private_shm_works() -> bool:
+    probe = subprocess.run(["unshare", "-m", "sh", "-c", "mount -t tmpfs -o size=4m tmpfs /dev/shm"],
+                           capture_output=True)
+    return probe.returncode == 0
+
+
+@pytest.mark.parametrize("pages_over", [0, 1], ids=["ring-positions", "worker-queues"])
+def test_a_dev_shm_that_holds_the_ring_but_not_the_rest_is_one_line(sample_shards, pages_over):
+    """/dev/shm with room for the ring's batches and ``pages_over`` 4 KiB pages more: the page of
+    the ring's positions (0) or the workers' queue semaphores (1) do not fit. The first was a
+    RuntimeError traceback (the positions were mapped outside the ring's ``try``), the second a
+    bare ``No space left on device`` that reads like a full disk; both must be the ring's one
+    OSError naming /dev/shm and --workers. Own mount namespace (root), skipped elsewhere."""
+    from sc3d_train.data.dataset import ShardDataset
+    from sc3d_train.data.loader import _RingBatches, ring_slots
+
+    if not _private_shm_works():
+        pytest.skip("needs unshare -m and mount (root in a namespace-capable container)")
+    ring = _RingBatches(ShardDataset(sample_shards, "train")).slot_bytes(4) * ring_slots(2)
+    fill = 1024 - (ring + 4095) // 4096 - pages_over  # pages of the 4 MiB tmpfs taken by a file
+    code = ("from sc3d_train.data.dataset import ShardDataset\nfrom sc3d_train.data.loader import make_loader\n"
+            f"try:\n    next(iter(make_loader(ShardDataset({str(sample_shards)!r}, 'train'), 4, seed=0, workers=2)))\n"
+            "except Exception as e:\n    print(type(e).__name__, e)\nelse:\n    print('no error')\n")
+    res = subprocess.run(["unshare", "-m", "sh", "-c", "mount -t tmpfs -o size=4m tmpfs /dev/shm && "
+                          f"dd if=/dev/zero of=/dev/shm/fill bs=4096 count={fill} 2>/dev/null && "
+                          f"{sys.executable} -c \"$0\"", code], capture_output=True, text=True)
+    out = res.stdout.strip().splitlines()[-1] if res.stdout.strip() else res.stderr
+    assert out.startswith("OSError ") and "/dev/shm" in out and "--workers" in out, res.stdout + res.stderr
