@@ -1,11 +1,18 @@
 """Loader worker faults (attack on ``fit --workers``, 2026-12-07): a /dev/shm with room for the
-batch ring but not for the rest the workers need, with the real loader."""
+batch ring but not for the rest the workers need, and a worker killed from outside (the kernel's
+out-of-memory killer, ``kill -9``), each with the real loader and command."""
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import sys
 
 import pytest
+
+from conftest import one_error, run_cli
+
+TINY_FIT = ["--tiny", "--batch-size", "4", "--val-every", "0", "--no-progress", "--device", "cpu", "--log-every", "1"]
 
 
 def _private_shm_works() -> bool:
@@ -36,3 +43,29 @@ def test_a_dev_shm_that_holds_the_ring_but_not_the_rest_is_one_line(sample_shard
                           f"{sys.executable} -c \"$0\"", code], capture_output=True, text=True)
     out = res.stdout.strip().splitlines()[-1] if res.stdout.strip() else res.stderr
     assert out.startswith("OSError ") and "/dev/shm" in out and "--workers" in out, res.stdout + res.stderr
+
+
+def test_a_loader_worker_killed_mid_run_stops_fit_in_one_line_naming_the_checkpoint(sample_shards, tmp_path,
+                                                                                  monkeypatch):
+    """``kill -9`` of a loader worker (as the out-of-memory killer does) ended ``fit`` in PyTorch's
+    RuntimeError traceback, raised by its SIGCHLD handler wherever the main process was (in
+    backward). It must be one line saying a loader worker died and naming the last good
+    checkpoint and --resume, as Ctrl-C does. The worker kills itself when given the fifth task
+    (batches 16-19), after the checkpoint of step 4."""
+    from sc3d_cli.train import main
+    from sc3d_train.data import loader
+
+    assemble = loader._RingBatches.__getitem__
+
+    def dies_at_task_16(self, key):
+        if key[0] >= 16 and loader.torch.utils.data.get_worker_info() is not None:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return assemble(self, key)
+
+    monkeypatch.setattr(loader._RingBatches, "__getitem__", dies_at_task_16)
+    out = tmp_path / "run"
+    res = run_cli(main, ["fit", "--shards", sample_shards, "--out", out, "--steps", "40", "--checkpoint-every", "4",
+                         "--workers", "1", *TINY_FIT], expect_exit=1)
+    error = one_error(res.output)
+    assert "loader worker" in error and "killed by signal" in error and "--resume" in error, error
+    assert str(out / "checkpoints") in error, error

@@ -42,6 +42,25 @@ TASKS_AHEAD = 2
 DATA_ERRORS = (DataError, ShardError)
 
 
+class LoaderWorkerDied(OSError):
+    """A loader worker process that died outside Python (killed by a signal: the kernel's
+    out-of-memory killer, ``kill -9``; a Bus error). PyTorch reports it as a RuntimeError raised
+    by its SIGCHLD handler wherever the main process is (in the backward pass, a checkpoint's
+    write), which ended ``fit`` in a traceback; an OSError is one line (:func:`worker_death`)."""
+
+
+def worker_death(e: BaseException, then: str = "") -> LoaderWorkerDied | None:
+    """``e`` as a :class:`LoaderWorkerDied` (its message followed by ``then``, e.g. the last good
+    checkpoint) where it is PyTorch's report of a dead loader worker; None for any other error."""
+    text = str(e)
+    if not isinstance(e, RuntimeError) or not text.startswith("DataLoader worker (pid"):
+        return None
+    cause = ("/dev/shm full? give the machine more (docker run --shm-size)" if "Bus error" in text else
+             "out of memory? (the kernel's OOM killer: see dmesg)")
+    return LoaderWorkerDied(f"a loader worker process died ({text.split('. ')[0].strip().rstrip('.')}): {cause}; "
+                            f"use fewer --workers (0: none){'; ' + then if then else ''}")
+
+
 @dataclass
 class WorkerError:
     """A :data:`DATA_ERRORS` exception that a loader worker met assembling a batch, sent in that

@@ -51,6 +51,7 @@ from sc3d_train.loop.checkpoint_model import build_model, state_dict_mismatch
 from sc3d_train.settings.config import CONFIG_NAME, RESUMABLE_FIELDS, RunConfig
 from sc3d_train.data.dataset import ShardDataset
 from sc3d_train.data.device_prefetch import DevicePrefetcher
+from sc3d_train.data.loader import worker_death
 from sc3d_train.loop.loss_window import LossWindow, check_finite
 from sc3d_train.loop.memory_check import check_cpu_batch_fits
 from sc3d_train.loop.metrics_log import DataWaitClock, GpuUtilisation, MetricsLog, in_loop_rate
@@ -289,6 +290,8 @@ def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --
         if t.dist.is_main:
             print("\n" + interrupted_line(t.run_dir, resume_hint))
         raise
+    except RuntimeError as e:  # a loader worker killed (OOM killer, kill -9): one line (worker_death)
+        raise worker_death(e, interrupted_line(t.run_dir, resume_hint)) or e
     finally:
         if progress is not None:
             progress.close()
