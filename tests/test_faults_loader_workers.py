@@ -69,3 +69,34 @@ def test_a_loader_worker_killed_mid_run_stops_fit_in_one_line_naming_the_checkpo
     error = one_error(res.output)
     assert "loader worker" in error and "killed by signal" in error and "--resume" in error, error
     assert str(out / "checkpoints") in error, error
+
+
+def test_a_loader_worker_death_reported_during_a_checkpoint_write_is_raised_as_itself(tmp_path, monkeypatch):
+    """PyTorch raises a dead worker's RuntimeError from its SIGCHLD handler wherever the main
+    process is; where that is a write of ``torch.save`` (a checkpoint), torch.save turned it into
+    "unexpected pos N vs M", which ``fit`` does not know as a worker's death: a traceback, and
+    the temporary file left. It must come out as itself (then one line: ``worker_death``), the
+    temporary file removed."""
+    import io
+
+    import torch
+
+    from sc3d_train.loop import atomic_save
+
+    died = RuntimeError("DataLoader worker (pid 123) is killed by signal: Killed. ")
+
+    class DiesOnSecondWrite(io.BytesIO):
+        writes = 0
+
+        def write(self, data):
+            self.writes += 1
+            if self.writes == 2:
+                raise died
+            return super().write(data)
+
+    monkeypatch.setattr(atomic_save, "create_new_file", lambda path: (path.write_bytes(b"partial"),
+                                                                     DiesOnSecondWrite())[1])
+    tmp = tmp_path / "last.pt.tmp"
+    with pytest.raises(RuntimeError) as caught:
+        atomic_save.save_atomically({"w": torch.zeros(1000)}, tmp, tmp_path / "last.pt")
+    assert caught.value is died and not tmp.exists() and not (tmp_path / "last.pt").exists()

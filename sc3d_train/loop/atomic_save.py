@@ -16,14 +16,15 @@ def save_atomically(payload: dict, tmp: Path, path: Path) -> None:
     "unexpected pos 704 vs 598", so the write's own ``OSError`` ("No space left on device") is
     raised instead; a Ctrl-C that lands in a write (``KeyboardInterrupt``, which ``torch.save``
     turns into the same ``RuntimeError``) is raised as itself, ``tmp`` removed, so the run says it
-    was interrupted, not that the disk is full."""
+    was interrupted, not that the disk is full; so is any other error raised in a write (PyTorch's
+    report of a dead loader worker comes from a signal handler, wherever the main process is)."""
     with create_new_file(tmp) as f:  # never through a link planted at the temporary name
         out = _WatchedFile(f)
         try:
             torch.save(payload, out)
         except RuntimeError as e:
             if out.error is not None:
-                if isinstance(out.error, KeyboardInterrupt):
+                if not isinstance(out.error, OSError):  # Ctrl-C, a loader worker's death: the run stops
                     tmp.unlink(missing_ok=True)
                 raise out.error from e
             raise
@@ -32,7 +33,7 @@ def save_atomically(payload: dict, tmp: Path, path: Path) -> None:
 
 class _WatchedFile:
     """A binary file for ``torch.save`` that keeps what made a write fail (an ``OSError``, or a
-    ``KeyboardInterrupt`` raised during it)."""
+    ``KeyboardInterrupt`` or other error raised during it)."""
 
     def __init__(self, f):
         self.f, self.error = f, None
@@ -40,7 +41,7 @@ class _WatchedFile:
     def write(self, data) -> int:
         try:
             return self.f.write(data)
-        except (OSError, KeyboardInterrupt) as e:
+        except BaseException as e:  # noqa: BLE001 - also a dead loader worker's RuntimeError (SIGCHLD)
             self.error = e
             raise
 
