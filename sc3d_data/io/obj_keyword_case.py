@@ -8,10 +8,12 @@ an unknown statement. Read so, ``MTLLIB`` or ``USEMTL`` drew the object in the d
 without a word, a ``VT`` lost its texture coordinates (the texture drawn as one texel), and a
 ``V`` or ``F`` lost vertices or faces (every later index off, or no triangles). sc3d reads the
 file as those readers do, and says so: :func:`check_keyword_case` fails the object, naming the
-line, where a statement of its geometry (``v``, ``vt``, ``vn``, ``f``, ``l``, ``p``) is not read, and
+line, where a statement of the geometry drawn (``v``, ``vt``, ``f``) is not read, and
 returns one warning naming the keywords where a material statement (``mtllib``, ``usemtl``) is
 not (the object renders, without the look those statements give it). Other statements in
-another case (``O``, ``G``, ``S``) change nothing drawn and are left alone. Material files are
+another case (``O``, ``G``, ``S``; ``VN``, whose normals the renderer does not use: it shades by
+face normals; ``L`` and ``P``, lines and points, which are not drawn) change nothing drawn and are
+left alone: the file renders as with those statements in lower case. Material files are
 another matter: trimesh reads their keywords in any case (``NEWMTL``, ``KD``, ``MAP_KD``), and
 so do sc3d's checks (``io.mtl_text``).
 """
@@ -24,7 +26,8 @@ from sc3d_data.io.line_ends import lf_lines
 __all__ = ["check_keyword_case"]
 
 #: keywords of statements that hold the geometry drawn, and of those that give it its materials
-GEOMETRY_KEYS = ("v", "vt", "vn", "f", "l", "p")
+#: (``vn``, ``l``, ``p``: nothing drawn, module doc)
+GEOMETRY_KEYS = ("v", "vt", "f")
 MATERIAL_KEYS = ("mtllib", "usemtl")
 #: a line whose first word holds an upper-case letter (the only lines that can be such a statement)
 _UPPER_FIRST_WORD = re.compile(rb"\n[ \t]*([A-Za-z_]*[A-Z][A-Za-z_]*)[ \t]")
