@@ -42,3 +42,24 @@ def test_an_upper_case_statement_that_draws_is_still_refused(extra):
 
     with pytest.raises(ValueError, match=f"{extra.split()[0]!r} statement"):
         check_keyword_case(_cube(extra))
+
+
+def test_an_earlier_relative_shards_path_is_not_any_folder_of_that_name(tmp_path, monkeypatch):
+    from sc3d_train.evaluation.evaluated_data import replaced_provenance
+
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "checkpoints" / "last.pt").write_bytes(b"x")
+    other = tmp_path / "project-b" / "data" / "shards"
+    other.mkdir(parents=True)
+    record = run / "eval_test" / "metrics.json"
+    record.parent.mkdir()
+    record.write_text(json.dumps({"checkpoint": "run/checkpoints/last.pt", "shards": "data/shards",
+                                  "split": "test", "pose_from": "true"}))  # project-a's data/shards, as given
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    given = {"checkpoint": str(run / "checkpoints" / "last.pt"), "shards": str(other), "pose_from": "true"}
+    assert replaced_provenance(record, given) == ("shards data/shards", f"shards {other}")
+    # the same checkpoint named from another folder is still the same file (b3445a3)
+    assert replaced_provenance(record, {"checkpoint": given["checkpoint"]}) is None
+    assert os.getcwd() == str(tmp_path / "elsewhere")

@@ -129,7 +129,9 @@ def replaced_provenance(record: Path, given: dict) -> tuple[str, str] | None:
         return None
 
     def same(key, recorded, now) -> bool:
-        return recorded == now if key == "pose_from" else _same_path(str(recorded), now)
+        if key == "pose_from":
+            return recorded == now
+        return _same_path(str(recorded), now, tail=key == "checkpoint")
 
     changed = [k for k, v in given.items() if k in was and not same(k, was[k], v)]
     if not changed:
@@ -138,11 +140,16 @@ def replaced_provenance(record: Path, given: dict) -> tuple[str, str] | None:
             ", ".join(f"{PROVENANCE_LABELS[k]} {given[k]}" for k in changed))
 
 
-def _same_path(recorded: str, now: str) -> bool:
-    """Whether a recorded path names the file ``now``: by real path, or, for a relative path (an
-    earlier version recorded the path as given, relative to a folder no record names), where
-    ``now``'s real path ends with it; resolved against today's folder it named another file."""
+def _same_path(recorded: str, now: str, tail: bool) -> bool:
+    """Whether a recorded path names the file ``now``: by real path, or, with ``tail``, for a relative
+    path (an earlier version recorded the path as given, relative to a folder no record names), where
+    ``now``'s real path ends with it; resolved against today's folder it named another file. Only a
+    checkpoint's is judged by its tail: the default folder holding the record lies in the run folder of
+    the checkpoint given, so a path in it that ends so is that file; shards of the same folder name
+    elsewhere (``data/shards``) are other shards, whose evaluation must not replace it."""
     if os.path.realpath(recorded) == os.path.realpath(now):
         return True
+    if not tail:
+        return False
     tail = Path(os.path.normpath(recorded)).parts
     return not os.path.isabs(recorded) and ".." not in tail and Path(os.path.realpath(now)).parts[-len(tail):] == tail
