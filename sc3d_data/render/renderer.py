@@ -55,6 +55,9 @@ from sc3d_data.render.gl_backend import activate
 #: OpenCV camera axes -> OpenGL camera axes (flip y and z)
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
 ZNEAR = 0.01
+#: farthest point of the canonical cube [-0.5, 0.5]^3 from the origin, rounded up: no object
+#: point is nearer a camera at distance d than d - this
+_OBJECT_RADIUS = 1.0
 DEFAULT_GREY = (0.3, 0.3, 0.3, 1.0)  # pyrender's colour for meshes without material
 #: larger textures are box-downscaled by an integer factor to at most max(this, 8 x image size)
 MAX_TEXTURE_SIZE = 1024
@@ -74,6 +77,17 @@ def gl_view_matrices(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     V = np.zeros((len(R), 4, 4))
     V[:, :3, :3], V[:, :3, 3], V[:, 3, 3] = R, t, 1.0
     return _CV_TO_GL @ V
+
+
+def depth_range(distance: float) -> tuple[float, float]:
+    """``(znear, zfar)`` of the cameras at ``distance``. The 24-bit depth buffer's step at the
+    object grows as distance^2 / znear: with znear fixed at ``ZNEAR`` it was 2.4e-5 at the default
+    distance 2 but 0.02 at 60 and 6 units at 1000 (``--fov 0.1``, near-orthographic), so depth
+    maps were off by units and surfaces drawn in the wrong order. znear grows with distance^2
+    beyond 2 (the default's resolution everywhere, its bytes unchanged), and stays in front of
+    the object (at most ``distance - 1``). Cameras passed to ``render`` explicitly share it."""
+    znear = max(ZNEAR, min(ZNEAR * (distance / 2.0) ** 2, distance - _OBJECT_RADIUS))
+    return znear, distance + 10.0
 
 
 def gl_projection(K: np.ndarray, size: int, znear: float, zfar: float) -> np.ndarray:
@@ -335,8 +349,8 @@ class MeshRenderer:
         self.V = V = len(self.cameras["R"])
         self.cols = math.ceil(math.sqrt(V))
         self.rows = math.ceil(V / self.cols)
-        self.zfar = views.distance + 10.0
-        self.proj = gl_projection(self.cameras["K"][0], S, ZNEAR, self.zfar)
+        self.znear, self.zfar = depth_range(views.distance)
+        self.proj = gl_projection(self.cameras["K"][0], S, self.znear, self.zfar)
         self.views_gl = gl_view_matrices(self.cameras["R"], self.cameras["t"])
         self._platform = self._context(backend, S * self.cols, S * self.rows)
         self._pending: tuple[dict, bool] | None = None  # draw() submitted, read() not yet
@@ -557,7 +571,7 @@ class MeshRenderer:
                 d = np.frombuffer(GL.glReadPixels(0, 0, W, H, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT),
                                   dtype=np.float32).reshape(H, W)
                 d = self._tiles(d)
-                n, f = ZNEAR, self.zfar
+                n, f = self.znear, self.zfar
                 z = (2.0 * n * f / ((f + n) - (2.0 * d.astype(np.float64) - 1.0) * (f - n)))
                 out["depth"] = np.where(out["masks"] > 0, z, 0.0).astype(np.float32)
         finally:
