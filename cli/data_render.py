@@ -114,11 +114,33 @@ def render(elevations, background, part, slurm, **options):
         click.echo(f"{listed} are listed with reasons by `sc3d-data info {shell_word(s['out'])}`")
     if (note := part_from_slurm_note(part)) is not None:
         click.echo(note)
+    if (note := _clipped_note(Path(s["out"]))) is not None:
+        click.echo(note, err=True)
     if s["failed"] and not s["done"] and not s["resumed"]:
         raise click.ClickException(f"no object was rendered: all {s['failed']} failed{_first_reason(s['out'])}")
     if s["skipped"] and not (s["done"] or s["resumed"] or s["failed"]) and s.get("part", "0/1") == "0/1":
         raise click.ClickException(f"no object was rendered: all {s['skipped']} were skipped"
                                    f"{_first_reason(s['out'], 'skipped')}; `sc3d-data info {shell_word(s['out'])}` lists them")
+
+
+def _clipped_note(out: Path) -> str | None:
+    """A ``warning:`` line counting the dataset's clipped views (the mask touches the image
+    border), or None: only ``info`` counted them, so a ``--fov`` given in radians (every mask the
+    whole image, which ``check`` passes and ``fit`` trains on) rendered with exit 0 and no word."""
+    from sc3d_data.io.shards import load_index
+
+    try:
+        index = load_index(out, listing=False)
+    except Exception:  # no index (a --part run of another machine, nothing rendered): nothing to count
+        return None
+    clipped, st = index.get("clipped") or {}, index["settings"]
+    if not clipped.get("views"):
+        return None
+    objects = len(index.get("objects") or [])
+    views = objects * st["num_views"] * len(st["elevations"])
+    return (f"warning: {clipped['views']} of {views} views ({clipped.get('objects', 0)} of {objects} objects) are "
+            f"clipped: the object leaves the frame (--fov is in degrees, {st['fov_deg']:g} here; a wider "
+            f"--fov or a larger --distance fits it); `sc3d-data preview` shows them")
 
 
 def _rate(s: dict) -> str:
