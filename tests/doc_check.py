@@ -100,7 +100,8 @@ def cli_groups() -> dict[str, click.Group]:
     groups = {}
     for name in CLI_NAMES:
         module, attr = scripts[name].split(":")
-        groups[name] = getattr(import_module(module), attr)
+        entry = getattr(import_module(module), attr)  # a click group, or a function running one (its .group)
+        groups[name] = entry if isinstance(entry, click.Command) else entry.group
     return groups
 
 

@@ -39,6 +39,25 @@ def test_resume_accepts_precision_settings_that_are_the_runs_own_on_this_device(
 
 
 # ----------------------------------------------------------------------------- D1: best.pt before the first checkpoint
+#: the ``sc3d-train`` console script as a child runs it (``python -c``), with Python's Ctrl-C handler
+#: whatever this process inherited (a suite started in the background by a shell, ``nohup ... &``,
+#: ignores SIGINT, and a child then ignored the test's Ctrl-C and trained on) and an ``atexit`` hook
+#: that writes the file ``SC3D_TEST_FINALISED`` names: whether the interpreter was finalised
+CONSOLE_SCRIPT = ("import atexit, os, signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+                  "atexit.register(lambda: open(os.environ['SC3D_TEST_FINALISED'], 'w').close()); "
+                  "import sc3d_cli.train as t; t.console_main()")
+
+
+def test_the_console_script_is_finalised_as_usual_when_not_interrupted(tmp_path):
+    """The control of the Ctrl-C test below: an ``sc3d-train`` that ends otherwise (here
+    ``--version``, and a refusal) exits through Python's finalisation (its atexit hook runs)."""
+    for args, code in ((["--version"], 0), (["fit", "--out", str(tmp_path / "none"), "--resume"], 1)):
+        finalised = tmp_path / f"finalised-{code}"
+        r = subprocess.run([sys.executable, "-c", CONSOLE_SCRIPT, *args], cwd=REPO, capture_output=True, text=True,
+                           timeout=120, env=dict(os.environ, PYTHONPATH=str(REPO), SC3D_TEST_FINALISED=str(finalised)))
+        assert r.returncode == code and finalised.exists(), r.stdout + r.stderr
+
+
 def test_a_run_stopped_by_ctrl_c_before_its_first_checkpoint_can_be_started_again(sample_shards, tmp_path):
     """Validation every 2 steps, checkpoints every 1000: Ctrl-C once ``best.pt`` exists left a
     run that said 'nothing to resume (start the run again)', whose ``--resume`` said 'start it
@@ -48,12 +67,10 @@ def test_a_run_stopped_by_ctrl_c_before_its_first_checkpoint_can_be_started_agai
     out = tmp_path / "run"
     args = ["fit", "--shards", sample_shards, "--out", out, "--batch-size", 2, *TINY, "--checkpoint-every", 1000,
             "--val-every", 2, "--val-min-objects", 1]
-    # Python's Ctrl-C handler whatever this process inherited: a suite started in the background by
-    # a shell (`nohup ... &`) ignores SIGINT, and a child then ignored the test's Ctrl-C and trained on
-    first = subprocess.Popen([sys.executable, "-c", "import signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
-                              "import sc3d_cli.train as t; t.main()", *map(str, args),
-                              "--steps", "1000"], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                             text=True, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    finalised = tmp_path / "finalised"
+    first = subprocess.Popen([sys.executable, "-c", CONSOLE_SCRIPT, *map(str, args), "--steps", "1000"], cwd=REPO,
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                             env=dict(os.environ, PYTHONPATH=str(REPO), SC3D_TEST_FINALISED=str(finalised)))
     try:
         deadline = time.monotonic() + 240
         while not (out / "checkpoints" / "best.pt").is_file():
@@ -64,6 +81,9 @@ def test_a_run_stopped_by_ctrl_c_before_its_first_checkpoint_can_be_started_agai
     finally:
         first.kill()
     assert "interrupted before the first checkpoint: nothing to resume (start the run again)" in printed, printed
+    # the console script left at once, without Python's finalisation, which could spin forever after
+    # an interrupt (cli/interrupted_exit.py): its atexit hook did not run; its last line was printed
+    assert first.returncode == 1 and printed.rstrip().endswith("Aborted!") and not finalised.exists(), printed
     assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["best.pt"]
     res = run_cli(main, [*args, "--steps", 3, "--seed", 5])  # started again, with another seed
     assert "removed best.pt of step" in res.output and "stopped before its first checkpoint" in res.output
