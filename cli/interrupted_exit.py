@@ -1,4 +1,4 @@
-"""How a ``sc3d-train`` process ends after Ctrl-C: at once, without Python's finalisation.
+"""How a ``sc3d-train`` process ends after Ctrl-C or SIGTERM: at once, without Python's finalisation.
 
 After a Ctrl-C (a ``KeyboardInterrupt`` unwound through a training step, a validation, a
 TensorBoard write), the interpreter's finalisation sometimes never ended: the process had
@@ -26,23 +26,28 @@ __all__ = ["console_script", "run_console"]
 
 
 def run_console(group: click.Group) -> None:
-    """Run console script ``group`` (standalone, as click runs it); after a Ctrl-C, leave at once
-    (module doc) instead of finalising. Where this process has Python's Ctrl-C handler, it is
-    replaced by one that also notes the signal (a process started with SIGINT ignored, under
-    ``nohup``, keeps ignoring it)."""
+    """Run console script ``group`` (standalone, as click runs it); after a Ctrl-C (SIGINT) or a
+    SIGTERM (``docker stop``, a scheduler's preemption, ``kill``), leave at once (module doc)
+    instead of finalising. SIGTERM is made a Ctrl-C, so the command says what it kept
+    (``interrupted ...; last good checkpoint ...``; before, it died without a word), and the
+    status is then 143 (128 + SIGTERM), what a scheduler reads of a terminated job. A signal this
+    process inherited ignored (``nohup`` ignores SIGINT) stays ignored."""
     interrupted: list[int] = []
-    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
-        def on_ctrl_c(signum, frame):
-            interrupted.append(signum)
-            raise KeyboardInterrupt
 
-        signal.signal(signal.SIGINT, on_ctrl_c)
+    def on_signal(signum, frame):
+        interrupted.append(signum)
+        raise KeyboardInterrupt
+
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, on_signal)
+    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, on_signal)
     try:
         group()
     except SystemExit as e:
         if not interrupted:
             raise
-        code = e.code if isinstance(e.code, int) else 1
+        code = 128 + signal.SIGTERM if interrupted[0] == signal.SIGTERM else e.code if isinstance(e.code, int) else 1
         for stream in (sys.stdout, sys.stderr):
             try:
                 stream.flush()

@@ -58,12 +58,15 @@ def test_the_console_script_is_finalised_as_usual_when_not_interrupted(tmp_path)
         assert r.returncode == code and finalised.exists(), r.stdout + r.stderr
 
 
-def test_a_run_stopped_by_ctrl_c_before_its_first_checkpoint_can_be_started_again(sample_shards, tmp_path):
+@pytest.mark.parametrize("stop,status", [(signal.SIGINT, 1), (signal.SIGTERM, 128 + signal.SIGTERM)],
+                         ids=["ctrl_c", "sigterm"])
+def test_a_run_stopped_by_ctrl_c_before_its_first_checkpoint_can_be_started_again(sample_shards, tmp_path, stop, status):
     """Validation every 2 steps, checkpoints every 1000: Ctrl-C once ``best.pt`` exists left a
     run that said 'nothing to resume (start the run again)', whose ``--resume`` said 'start it
     again without --resume' and whose start again was refused ('holds checkpoints ... (best.pt)
     but no last.pt; use --resume'). Now the same command starts it again and drops that
-    ``best.pt`` (its weights are of the run being replaced)."""
+    ``best.pt`` (its weights are of the run being replaced). A SIGTERM (``docker stop``, a
+    scheduler's preemption) is the same stop, ending with status 143: it ended ``fit`` without a word."""
     out = tmp_path / "run"
     args = ["fit", "--shards", sample_shards, "--out", out, "--batch-size", 2, *TINY, "--checkpoint-every", 1000,
             "--val-every", 2, "--val-min-objects", 1]
@@ -76,14 +79,14 @@ def test_a_run_stopped_by_ctrl_c_before_its_first_checkpoint_can_be_started_agai
         while not (out / "checkpoints" / "best.pt").is_file():
             assert first.poll() is None and time.monotonic() < deadline, first.stdout.read() if first.poll() else "timeout"
             time.sleep(0.1)
-        first.send_signal(signal.SIGINT)
+        first.send_signal(stop)
         printed = first.communicate(timeout=120)[0]
     finally:
         first.kill()
     assert "interrupted before the first checkpoint: nothing to resume (start the run again)" in printed, printed
     # the console script left at once, without Python's finalisation, which could spin forever after
     # an interrupt (cli/interrupted_exit.py): its atexit hook did not run; its last line was printed
-    assert first.returncode == 1 and printed.rstrip().endswith("Aborted!") and not finalised.exists(), printed
+    assert first.returncode == status and printed.rstrip().endswith("Aborted!") and not finalised.exists(), printed
     assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["best.pt"]
     res = run_cli(main, [*args, "--steps", 3, "--seed", 5])  # started again, with another seed
     assert "removed best.pt of step" in res.output and "stopped before its first checkpoint" in res.output
