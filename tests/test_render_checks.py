@@ -20,10 +20,12 @@ from conftest import SAMPLE_MESHES, run_cli, error_lines
                                  "pole the camera sees the object upside down)"),
     (["--elevations", "-90.5"], "Error: --elevations -90.5: must lie between -90 and 90 degrees (past the pole "
                                 "the camera sees the object upside down)"),
+    (["--elevations", "30,15,30.0"], "Error: --elevations 30.0,15.0,30.0: lists an elevation twice; each elevation "
+                                     "gives its own views"),
     (["--views", "5000", "--objects-per-shard", "100000"], "Error: --views 5000 x 1 elevation(s) / --image-size 64 / "
                                                            "--voxel-resolution 32 / --objects-per-shard 100000 / "
                                                            "--workers 1: would need about"),
-], ids=["fov", "distance", "elevation-450", "elevation-below-pole", "views-memory"])
+], ids=["fov", "distance", "elevation-450", "elevation-below-pole", "elevation-twice", "views-memory"])
 def test_options_that_cannot_render_are_refused_before_any_work(tmp_path, options, line):
     out = tmp_path / "out"
     res = run_cli(data_main, ["render", "--meshes", SAMPLE_MESHES / "car", "--out", out, "--workers", 1,

@@ -4,7 +4,8 @@ as one worker failure per object blaming the mesh.
 
 Among them, the camera: a camera inside the object's unit cube (``--distance`` at most
 ``sqrt(3) / 2``), elevations outside [-90, 90] degrees (a camera past the pole sees the object
-upside down, while the shards would record the elevation as given), and a camera that shows the
+upside down, while the shards would record the elevation as given) or listed twice (every view
+stored, and trained on, twice), and a camera that shows the
 object smaller than a pixel (the object, normalised to at most 1 unit, spans ``f / distance``
 pixels at the focal length ``f = (S / 2) / tan(fov / 2)``: with ``--fov 179.9`` or ``--distance
 1e6`` every silhouette would be empty and every object fail as if its mesh were broken).
@@ -59,6 +60,9 @@ def check_render_config(config, n_workers: int = 1) -> None:
     if not all(-90 <= e <= 90 for e in config.elevations):
         raise ValueError(f"--elevations {','.join(map(str, config.elevations))}: must lie between -90 and 90 "
                          "degrees (past the pole the camera sees the object upside down)")
+    if len(set(config.elevations)) < len(config.elevations):  # the same views stored twice, trained on twice
+        raise ValueError(f"--elevations {','.join(map(str, config.elevations))}: lists an elevation twice; "
+                         "each elevation gives its own views")
     if (px := object_pixels(config.fov_deg, config.distance, config.image_size)) < 1:
         raise ValueError(f"--fov {config.fov_deg} with --distance {config.distance} and --image-size "
                          f"{config.image_size}: the object (at most 1 unit) would span {px:.2g} pixels; every "
