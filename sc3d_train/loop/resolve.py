@@ -67,6 +67,11 @@ def resolve_config(options: dict, model_options: dict | None = None, resume: boo
     if changes and os.environ.get("RANK", "0") == "0":  # trained on, but no repeat of the file's run
         print(f"note: {plain['shards']}: not the data the run of {config_file} was trained on "
               f"({', '.join(changes)}); this run does not repeat it")
+    if (size := facts["model.image_size"]) % 32:  # ModelConfig's own refusal named no shards
+        from sc3d_train.data.dataset import DataError
+
+        raise DataError(f"{plain['shards']}: its views are {size}x{size} px; the model takes a multiple of 32 "
+                        "(5 stride-2 blocks): render them with --image-size 64 (or 32, 128)")
     model = dict(plain.get("model", {}))
     if tiny:
         model.update(TINY_MODEL)
