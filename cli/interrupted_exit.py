@@ -47,6 +47,10 @@ def run_console(group: click.Group) -> None:
     except SystemExit as e:
         if not interrupted:
             raise
+        # a second Ctrl-C (or SIGTERM) from here on, while a child is stopped or an output flushed, would
+        # raise KeyboardInterrupt out of this function: a traceback and the finalisation skipped here
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, signal.SIG_IGN)
         code = 128 + signal.SIGTERM if interrupted[0] == signal.SIGTERM else e.code if isinstance(e.code, int) else 1
         for stream in (sys.stdout, sys.stderr):
             try:
