@@ -5,7 +5,7 @@ TensorBoard write), the interpreter's finalisation sometimes never ended: the pr
 printed its last lines (``interrupted ...``, ``Aborted!``) and then spun at 100% CPU until
 killed. gdb showed its one thread in the collector's final pass (``Py_FinalizeEx`` ->
 ``finalize_modules`` -> ``_PyGC_CollectNoFail``), looping over a corrupted object list (the
-tuple free list; ``subtract_refs``): 3 of 100 runs of the Ctrl-C test's ``fit`` (``tests/
+tuple free list; ``subtract_refs``): 4 of 55 runs of the Ctrl-C test's ``fit`` (``tests/
 test_faults_train_round14.py``) pinned to one core beside three busy loops, and the CI flake of
 that test; never after a command that ended otherwise. What corrupts the list lies below sc3d
 (PyTorch or CPython); the command has written everything by then (checkpoints atomically,
