@@ -63,6 +63,14 @@ def drop_event_files(tb_dir: Path) -> None:
         f.unlink(missing_ok=True)
 
 
+#: seconds between TensorBoard's writes to disk (its default, 120, is also the longest its writer
+#: thread sleeps): a Ctrl-C inside its queue's ``Condition.notify`` (CPython 3.11) leaves a stale
+#: waiter that takes the next notify, so closing the writer after that Ctrl-C waited for the thread's
+#: sleep to end: ``fit`` stopped up to 2 minutes after its "interrupted" line (3 of 96 Ctrl-C'd runs
+#: with the CPU contended; py-spy: ``SummaryWriter.close`` joining a thread asleep in ``Queue.get``)
+TB_FLUSH_S = 5
+
+
 class MetricsLog:
     """Scalars to ``metrics.csv`` (one row per logged step) and TensorBoard (``tb/``).
     On resume, rows at or after the resume step (written after the checkpoint by the
@@ -87,7 +95,7 @@ class MetricsLog:
 
         if start_step == 0:
             drop_event_files(Path(run_dir) / "tb")
-        self.tb = SummaryWriter(str(Path(run_dir) / "tb"), purge_step=start_step or None)
+        self.tb = SummaryWriter(str(Path(run_dir) / "tb"), purge_step=start_step or None, flush_secs=TB_FLUSH_S)
 
     def _rewrite(self):
         write_csv_atomic(self.path, self.fields, self.rows)
