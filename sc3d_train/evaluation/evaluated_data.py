@@ -115,18 +115,28 @@ PROVENANCE_LABELS = {"checkpoint": "checkpoint", "shards": "shards", "pose_from"
                      "image": "image"}
 
 
+def read_record(record: Path) -> dict | None:
+    """The JSON object in file ``record`` (an evaluation's ``metrics.json``, a prediction's
+    ``NAME.json``); None where it is missing, unreadable or no object."""
+    try:
+        was = json.loads(Path(record).read_text())
+    except (OSError, ValueError):
+        return None
+    return was if isinstance(was, dict) else None
+
+
 def replaced_provenance(record: Path, given: dict) -> tuple[str, str] | None:
     """Whether the JSON file ``record`` (an evaluation's ``metrics.json``, a prediction's
     ``NAME.json``) holds the output of another ``checkpoint``, ``shards`` or ``image_realpath`` (paths,
     compared by real path) or ``pose_from`` than ``given`` records: ``(what it holds, what is given)``, each as
     ``"LABEL VALUE, ..."`` (:data:`PROVENANCE_LABELS`), which a default output folder must not
     replace without a word; None where it holds the same, or is no readable record."""
-    try:
-        was = json.loads(Path(record).read_text())
-    except (OSError, ValueError):
-        return None
-    if not isinstance(was, dict):
-        return None
+    was = read_record(record)
+    return None if was is None else provenance_changes(was, given)
+
+
+def provenance_changes(was: dict, given: dict) -> tuple[str, str] | None:
+    """:func:`replaced_provenance` of a record already read (``was``)."""
 
     def same(key, recorded, now) -> bool:
         if key == "pose_from":

@@ -4,11 +4,10 @@ and that its files replace no file of someone else and, in the default folder, n
 another checkpoint, shards or ``--pose`` (as ``prediction_files`` checks for ``predict``)."""
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
-from sc3d_train.evaluation.evaluated_data import replaced_provenance
+from sc3d_train.evaluation.evaluated_data import read_record, replaced_provenance
 from sc3d_train.evaluation.prediction_files import listed_files
 
 #: keys every ``metrics.json`` that ``eval`` wrote holds
@@ -40,11 +39,8 @@ def check_default_folder_free(out: Path, checkpoint: Path, shards: Path, pose_fr
 
 def _is_evaluation(path: Path) -> bool:
     """Whether ``path`` is a ``metrics.json`` that ``eval`` wrote (:data:`EVALUATION_KEYS`)."""
-    try:
-        record = json.loads(Path(path).read_text())
-    except (OSError, ValueError):
-        return False
-    return isinstance(record, dict) and all(k in record for k in EVALUATION_KEYS)
+    record = read_record(path)
+    return record is not None and all(k in record for k in EVALUATION_KEYS)
 
 
 def _drawn_by_eval(path: Path) -> bool:

@@ -3,7 +3,6 @@ anything is written, that they replace no input image, no file of someone else a
 folder, no prediction of another checkpoint or ``--pose``."""
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -39,11 +38,10 @@ def check_inputs_kept(images: list[Path], outputs: list[dict], out: Path) -> Non
 def listed_files(record: Path) -> set[str]:
     """The names of the files that the prediction record ``record`` (a ``NAME.json`` that
     ``predict`` wrote, in its output folder) lists as its own; empty where it is none."""
-    try:
-        info = json.loads(Path(record).read_text())
-    except (OSError, ValueError):
-        return set()
-    if not (isinstance(info, dict) and "checkpoint" in info and isinstance(info.get("files"), dict)):
+    from sc3d_train.evaluation.evaluated_data import read_record
+
+    info = read_record(record)
+    if not (info is not None and "checkpoint" in info and isinstance(info.get("files"), dict)):
         return set()
     return {Path(v).name for v in info["files"].values() if isinstance(v, str)}  # all in its folder
 
@@ -88,27 +86,22 @@ def check_same_images(images: list[Path], outputs: list[dict], out: Path) -> Non
     replaces its own prediction; a record of an earlier version is judged by its ``image``
     (:func:`_image_key`)."""
     from sc3d_data.io.names import printable
-    from sc3d_train.evaluation.evaluated_data import replaced_provenance
+    from sc3d_train.evaluation.evaluated_data import provenance_changes, read_record
 
     for path, files in zip(images, outputs):
-        key = _image_key(files["json"])
-        if key and (changed := replaced_provenance(files["json"], {key: str(path)})):
+        was = read_record(files["json"])
+        key = _image_key(was) if was is not None else None
+        if key and (changed := provenance_changes(was, {key: str(path)})):
             raise ImageError(f"--out {out}: {files['json'].name} holds the prediction of another {printable(changed[0])} "
                              f"of that name, which this one ({printable(path)}) would replace; choose another --out "
                              "(or remove those files)")
 
 
-def _image_key(record: Path) -> str | None:
-    """The key of ``record`` (a ``NAME.json``) naming the image it was predicted from:
+def _image_key(was: dict) -> str | None:
+    """The key of record ``was`` (a ``NAME.json``'s object) naming the image it was predicted from:
     ``image_realpath``; in a record of an earlier version, which has only the path as given,
     ``image`` where that is absolute (a relative one is relative to a folder no record names:
-    not judged); None where neither, or no readable record."""
-    try:
-        was = json.loads(Path(record).read_text())
-    except (OSError, ValueError):
-        return None
-    if not isinstance(was, dict):
-        return None
+    not judged); None where neither."""
     if "image_realpath" in was:
         return "image_realpath"
     return "image" if isinstance(was.get("image"), str) and os.path.isabs(was["image"]) else None
