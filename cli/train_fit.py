@@ -85,10 +85,10 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
             for warning in (pose_grid_warning(cfg), no_semi_phase_warning(cfg)) if main_rank else ():
                 if warning:
                     click.echo(f"warning: {warning}", err=True)
-            if main_rank:
-                click.echo(f"training {cfg.mode} for {cfg.steps} steps, batch {cfg.batch_size}, "
-                           f"model {cfg.model}, run dir {cfg.out}")
-            summary = run_fit(cfg, resume=resume)
+            line = (f"training {cfg.mode} for {cfg.steps} steps, batch {cfg.batch_size}, model {cfg.model}, "
+                    f"run dir {cfg.out}")
+            # said once steps will run: a resumed run already at --steps says only 'nothing to train'
+            summary = run_fit(cfg, resume=resume, announce=lambda: click.echo(line) if main_rank else None)
     except (DataError, CheckpointError, TrainingDiverged, LockError, ValueError, OSError) as e:  # OSError: disk full...
         from sc3d_data.io.shards import one_line
 

@@ -173,13 +173,16 @@ def test_r7_a_shard_file_of_a_newer_schema_is_refused(sample_shards, tiny_run, t
 
 def test_r7_resume_of_a_run_already_at_its_steps_says_so(sample_shards, tmp_path):
     """`fit --resume --steps 4` of a 6-step run printed 'done: step 6, 0.0 samples/s; ' with an
-    empty loss list; now one line says nothing is trained and why."""
+    empty loss list; now one line says nothing is trained and why, and no 'training ... for 4
+    steps' line comes before it (found by fix_small)."""
     from sc3d_cli.train import main as train_main
 
     run = tmp_path / "run"
     run_cli(train_main, ["fit", "--shards", sample_shards, "--out", run, *QUICK, "--steps", "6"])
     res = run_cli(train_main, ["fit", "--out", run, "--resume", "--steps", "4", "--no-progress"])
     assert "done:" not in res.output and "samples/s" not in res.output
+    # it said 'training supervised for 4 steps, ...' first, then that nothing was trained
+    assert "training " not in res.output, res.output
     assert f"nothing to train: {run / 'checkpoints' / 'last.pt'} is already at step 6 >= --steps 4" \
         in one_line(res.output), res.output
 

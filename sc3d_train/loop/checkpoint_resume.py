@@ -8,8 +8,10 @@ import re
 from pathlib import Path
 
 from sc3d_train.loop.checkpoint import CheckpointError, checkpoint_dir, copy_to_last, last_path, load_checkpoint
+from sc3d_train.loop.validation import final_validation_owed
+from sc3d_train.settings.config import RunConfig
 
-__all__ = ["RESUME_KEYS", "check_saved_ranks", "interrupted_line", "restore_last", "resume_checkpoint"]
+__all__ = ["RESUME_KEYS", "check_saved_ranks", "finished_run", "interrupted_line", "restore_last", "resume_checkpoint"]
 
 
 RESUME_KEYS = ("optimizer", "rng", "step", "data_position")
@@ -64,6 +66,16 @@ def resume_checkpoint(run_dir: Path, say=None) -> tuple[Path, dict]:
     raise CheckpointError(f"{last_path(run_dir)}: checkpoint not found"
                           + ("; the run stopped before its first checkpoint: start it again without --resume"
                              if early else ""))
+
+
+def finished_run(cfg: RunConfig, step: int, ckpt_file: Path) -> dict | None:
+    """``fit``'s summary of a run resumed at ``step`` (from ``ckpt_file``) with nothing left to do: at or
+    past ``cfg.steps``, and the last step's validation done (``already_done``: the CLI says so, and said
+    no 'training ...' line before); None where steps, or that validation, remain."""
+    if step > cfg.steps or (step == cfg.steps and not final_validation_owed(cfg, step)):
+        return {"step": step, "last_losses": {}, "samples_per_s": 0.0, "checkpoint": str(ckpt_file),
+                "best": None, "already_done": True}
+    return None
 
 
 def check_saved_ranks(path: Path, ckpt: dict, world_size: int) -> None:

@@ -160,6 +160,12 @@ def all_mean(t: torch.Tensor, info: DistInfo) -> torch.Tensor:
     return t
 
 
+def mean_scalars(losses: dict, info: DistInfo) -> dict:
+    """The scalar losses of ``losses`` as floats, averaged over the ranks (one collective)."""
+    scalars = {k: v.detach().float() for k, v in losses.items() if torch.is_tensor(v) and v.ndim == 0}
+    return dict(zip(scalars, all_mean(torch.stack(list(scalars.values())), info).tolist()))
+
+
 def all_gather(obj, info: DistInfo) -> list:
     """``[obj of rank 0, obj of rank 1, ...]`` (picklable objects)."""
     if info.world_size == 1:

@@ -46,7 +46,8 @@ import torch
 
 from sc3d_train.loop.checkpoint import (CheckpointError, checkpoint_config, last_path, rng_state, save_checkpoint,
                                         set_rng_state)
-from sc3d_train.loop.checkpoint_resume import check_saved_ranks, interrupted_line, restore_last, resume_checkpoint
+from sc3d_train.loop.checkpoint_resume import (check_saved_ranks, finished_run, interrupted_line, restore_last,
+                                               resume_checkpoint)
 from sc3d_train.loop.checkpoint_model import build_model, state_dict_mismatch
 from sc3d_train.settings.config import CONFIG_NAME, RESUMABLE_FIELDS, RunConfig
 from sc3d_train.data.dataset import ShardDataset
@@ -56,13 +57,13 @@ from sc3d_train.loop.loss_window import LossWindow, check_finite
 from sc3d_train.loop.memory_check import check_cpu_batch_fits
 from sc3d_train.loop.metrics_log import DataWaitClock, GpuUtilisation, MetricsLog, in_loop_rate
 from sc3d_train.loop.phase_step import augment_step, training_batch
-from sc3d_train.loop.runtime import (DistInfo, all_gather, all_mean, channels_last_on, resolve_amp,
+from sc3d_train.loop.runtime import (DistInfo, all_gather, channels_last_on, mean_scalars, resolve_amp,
                                      check_same_weights, resolve_device, seed_everything, setup_distributed)
 from sc3d_train.loop.batch_floor import check_batch_parts
 from sc3d_train.loop.schedule import data_position, lr_at, phase_at, step_samples
 from sc3d_train.loop.streams import labeled_dataset, phase_loaders, run_datasets, write_labeled_objects
 from sc3d_train.loop.train_step import TrainStep, compile_plan
-from sc3d_train.loop.validation import Validator, final_validation_owed, validation_due
+from sc3d_train.loop.validation import Validator, validation_due
 from sc3d_train.paper.pose import PoseGrid
 from sc3d_train.paper.pose_search import dataset_pose_targets
 
@@ -200,18 +201,16 @@ def train_step(t: Training, step_fn: TrainStep, batches: dict, step: int, window
     return losses
 
 
-def mean_scalars(t: Training, losses: dict) -> dict:
-    """The scalar losses as floats, averaged over the ranks."""
-    scalars = {k: v.detach().float() for k, v in losses.items() if torch.is_tensor(v) and v.ndim == 0}
-    return dict(zip(scalars, all_mean(torch.stack(list(scalars.values())), t.dist).tolist()))
-
-
-def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --resume") -> dict:
-    """Train according to ``cfg`` (see module doc); ``resume_hint``: printed on Ctrl-C. Returns a summary dict: ``step``, ``last_losses``,
+def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --resume", announce=lambda: None) -> dict:
+    """Train according to ``cfg`` (see module doc); ``resume_hint``: printed on Ctrl-C; ``announce``: called once
+    steps will run (a new run: first; a resumed one: not where :func:`finished_run` finds nothing left to do).
+    Returns a summary dict: ``step``, ``last_losses``,
     ``samples_per_s`` (:func:`in_loop_rate`), ``device`` (e.g. ``cuda:0``), ``checkpoint`` (last.pt), ``best``.
 
     Raises :class:`~sc3d_train.loop.loss_window.TrainingDiverged` on a non-finite loss, ``DataError`` / ``CheckpointError``
     on bad inputs, before any training step."""
+    if not resume:
+        announce()
     t = prepare(cfg, resume)
     start_step, last_good = 0, None
     if resume:
@@ -219,9 +218,9 @@ def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --
         last_good = str(last_path(t.run_dir))
         if t.dist.is_main and ckpt_file != last_path(t.run_dir):  # last.pt older: its copy was cut off
             restore_last(t.run_dir, ckpt_file)
-        if start_step > cfg.steps or (start_step == cfg.steps and not final_validation_owed(cfg, start_step)):
-            return {"step": start_step, "last_losses": {}, "samples_per_s": 0.0, "checkpoint": str(ckpt_file),
-                    "best": None, "already_done": True}
+        if (done := finished_run(cfg, start_step, ckpt_file)) is not None:
+            return done
+        announce()
     else:
         torch.manual_seed(cfg.seed + 1000003 * t.dist.rank)  # per-rank noise (reparameterisation)
     wrap_ddp(t)
@@ -269,7 +268,7 @@ def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --
                 wait_share = wait.seconds / max(now - t_log, 1e-9)
                 rates.append(rate := n_log / max(now - t_log, 1e-9))
                 t_log, n_log, wait.seconds = now, 0, 0.0
-                last_losses = mean_scalars(t, losses)
+                last_losses = mean_scalars(losses, t.dist)
                 gpu = gpu_util()
                 log.log(step, {"phase": phase, **last_losses, "lr": lr_at(cfg, step),
                                "samples_per_s": round(rate, 2), "data_wait": round(wait_share, 4),
