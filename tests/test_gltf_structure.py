@@ -48,6 +48,10 @@ REFUSED = [
     ("infinite_translation", {"nodes": [{"children": [1], "translation": [1e309, 0, 0]}, {"mesh": 0}]},
      "node 0's translation holds a number that is not finite (JSON reads numbers past 1.8e308 as infinity), "
      "so the mesh(es) it moves would be drawn nowhere; not read"),
+    # failed 'empty mesh (no triangles)' and "cannot parse mesh file (KeyError: 'primitives')" (found by fix_small)
+    ("no_primitives", {"meshes": [{"primitives": []}]},
+     "mesh 0 has no primitives (its primitives list is empty), so there is nothing to draw; not read"),
+    ("no_primitives_key", {"meshes": [_MESH, {}]}, "mesh 1 has no primitives list; not read"),
 ]
 
 
@@ -102,3 +106,12 @@ def test_refusals_reach_the_index_and_harmless_transforms_render_quietly(tmp_pat
     for name in ("inf_beside", "inf_child"):
         for field in ("images", "masks", "voxels"):
             np.testing.assert_array_equal(objects[name][field], objects["plain"][field], err_msg=f"{name} {field}")
+
+
+def test_an_empty_mesh_beside_a_drawn_one_loads_as_before(tmp_path):
+    """Only a file with nothing else to draw is refused for meshes without primitives: an empty mesh
+    drawn beside the cube draws nothing for its node and the cube as before (fix_small)."""
+    path = tmp_path / "beside.gltf"
+    _write(path, {"meshes": [_MESH, {"primitives": []}], "nodes": [{"mesh": 0}, {"mesh": 1}],
+                  "scenes": [{"nodes": [0, 1]}]})
+    assert len(load_mesh(path)[2]) == 12  # the cube's triangles

@@ -12,7 +12,9 @@ whose elements are not objects, a document without meshes (nothing to draw), and
 an index that names no scene, node or mesh, and a node transform holding a number that is not
 finite (JSON's ``1e309`` reads as infinity) above a drawn mesh, which put it nowhere (the loader's
 NumPy printed "RuntimeWarning: invalid value encountered in dot" naming no file). A non-finite
-transform of a node that moves no drawn mesh changes nothing drawn and is left alone.
+transform of a node that moves no drawn mesh changes nothing drawn and is left alone. A mesh without
+a ``primitives`` list ("KeyError: 'primitives'"), and drawn meshes whose lists are all empty ("empty
+mesh (no triangles)"), are named too.
 
 ``scenes: []`` is read as no ``scenes`` (the root nodes are drawn, :func:`scene_roots`), and so
 is ``scene`` beside it: glTF requires a non-empty list, but what to draw is as clear as without one.
@@ -116,9 +118,10 @@ def _not_finite(node: dict) -> list[str]:
             and any(isinstance(x, float) and not math.isfinite(x) for x in node[key])]
 
 
-def _graph_problems(doc: dict) -> list[str]:
+def _graph_problems(doc: dict, drawn: set[int]) -> list[str]:
     """The drawn scene's indices that name nothing (scene, root node, child, mesh) and the non-finite
-    transforms above its drawn meshes, one phrase each, in the order the nodes are reached."""
+    transforms above its drawn meshes, one phrase each, in the order the nodes are reached; the meshes
+    drawn are added to ``drawn``."""
     problems: list[str] = []
     nodes, n_meshes = doc.get("nodes", []), len(doc.get("meshes", []))
     queue = [(r, None) for r in reversed(_drawn_roots(doc, problems))]
@@ -142,6 +145,7 @@ def _graph_problems(doc: dict) -> list[str]:
                 problems.append(f"node {i} names mesh {_shown(nodes[i]['mesh'])}, but the file has "
                                 f"{_count(n_meshes, 'mesh')}")
                 continue
+            drawn.add(nodes[i]["mesh"])
             j = i
             while j is not None and j not in placing:
                 placing.add(j)
@@ -153,14 +157,31 @@ def _graph_problems(doc: dict) -> list[str]:
     return problems
 
 
+def _primitive_problems(doc: dict, drawn: set[int]) -> list[str]:
+    """The meshes without a list of primitives (the loader reads every mesh's: it stopped with
+    "KeyError: 'primitives'"), and, where every drawn mesh's list is empty, those meshes: nothing is
+    drawn (the loader's "empty mesh (no triangles)" named no cause). An empty mesh beside drawn
+    ones draws nothing for its nodes and hides nothing: left alone."""
+    meshes = doc.get("meshes", [])
+    problems = [f"mesh {m} has no primitives list" if "primitives" not in mesh
+                else f"mesh {m}'s primitives is {_shown(mesh['primitives'])}, not a list"
+                for m, mesh in enumerate(meshes) if not isinstance(mesh.get("primitives"), list)]
+    if not problems and drawn and not any(meshes[m]["primitives"] for m in drawn):
+        problems += [f"mesh {m} has no primitives (its primitives list is empty), so there is nothing to draw"
+                     for m in sorted(drawn)]
+    return problems
+
+
 def structure_problems(doc: dict) -> list[str]:
     """What glTF document ``doc``'s structure names that it does not hold (module doc), one phrase
     each: root arrays of other than objects first (nothing else is followed then), a document
-    without meshes, then the drawn scene's indices and transforms."""
+    without meshes, then the drawn scene's indices and transforms, then meshes without primitives."""
     problems = _not_objects(doc)
     if problems:
         return problems
     if not doc.get("meshes"):
         problems.append("it holds no mesh (its meshes list is empty), so there is nothing to draw" if "meshes" in doc
                         else "it holds no mesh (the document has no meshes), so there is nothing to draw")
-    return problems + _graph_problems(doc)
+    drawn: set[int] = set()
+    problems += _graph_problems(doc, drawn)
+    return problems + _primitive_problems(doc, drawn)
