@@ -52,6 +52,18 @@ REFUSED = [
     ("no_primitives", {"meshes": [{"primitives": []}]},
      "mesh 0 has no primitives (its primitives list is empty), so there is nothing to draw; not read"),
     ("no_primitives_key", {"meshes": [_MESH, {}]}, "mesh 1 has no primitives list; not read"),
+    # failed "cannot parse mesh file (FileNotFoundError: data:application/octet-stream;base64: not found)", or
+    # "(Error: Invalid base64-encoded string: ...)", or "data:image/png;base64 named by the mesh or its materials
+    # was not loaded (not found)" (found by fix_small)
+    ("buffer_uri_no_comma", {"buffers": [{"byteLength": 240, "uri": "data:application/octet-stream;base64"}]},
+     "buffer 0 has a malformed data URI (no 'base64,' before its data: glTF embeds data as base64); not read"),
+    ("buffer_uri_not_base64", {"buffers": [{"byteLength": 240, "uri": "data:application/octet-stream;base64,AAA@"}]},
+     "buffer 0 has a malformed data URI (its base64 does not decode: Only base64 data is allowed); not read"),
+    ("buffer_uri_cut", {"buffers": [{"byteLength": 240, "uri": "data:application/octet-stream;base64,AAAAA"}]},
+     "buffer 0 has a malformed data URI (its base64 does not decode: Invalid base64-encoded string: number of data "
+     "characters (5) cannot be 1 more than a multiple of 4); not read"),
+    ("image_uri_no_comma", {"images": [{"uri": "data:image/png;base64"}]},
+     "image 0 has a malformed data URI (no 'base64,' before its data: glTF embeds data as base64); not read"),
 ]
 
 

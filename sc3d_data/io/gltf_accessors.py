@@ -9,7 +9,10 @@ bufferView and accessor is judged here, and every primitive's accessor reference
 (:func:`layout_problems`); an accessor is named with its first use (``POSITION of mesh 0``).
 
 Judged: a buffer of a .gltf without ``uri``; in a .glb, buffer 0 without ``uri`` and no BIN
-chunk, or another buffer without ``uri``; a bufferView naming no buffer of the file or reaching
+chunk, or another buffer without ``uri``; a buffer whose ``data:`` URI has no ``base64,`` or a
+base64 that does not decode, and an image whose ``data:`` URI has no ``base64,``
+(:func:`data_uri_fault`: the loader said "FileNotFoundError: data:...: not found" or binascii's
+"Invalid base64-encoded string", naming neither); a bufferView naming no buffer of the file or reaching
 beyond its buffer's ``byteLength`` (or the data there is: the BIN chunk's header, the length of
 a base64 data URI, or the size of an external file named as written that lies in the mesh's own
 folder; nothing else is opened, no uri is followed out of the folder, a missing file is left to
@@ -24,6 +27,8 @@ with ``UnboundLocalError`` (a Draco-compressed file's accessors have none: its o
 """
 from __future__ import annotations
 
+import base64
+import binascii
 import json
 import os
 import stat
@@ -32,7 +37,7 @@ from pathlib import Path
 
 from sc3d_data.io.lfs_pointers import file_lfs_pointer
 
-__all__ = ["COMPONENT_BYTES", "TYPE_COMPONENTS", "layout_problems"]
+__all__ = ["COMPONENT_BYTES", "TYPE_COMPONENTS", "data_uri_fault", "layout_problems"]
 
 #: bytes of one component of each glTF ``componentType``
 COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
@@ -72,6 +77,29 @@ def _base64_bytes(text: str) -> int:
     return len(text.strip().rstrip("=")) * 3 // 4
 
 
+def data_uri_fault(uri: str) -> str | None:
+    """Why the loader cannot read the data of ``data:`` URI ``uri``, or None: it decodes what follows
+    ``base64,`` (without one it looks for a file of that name, "not found"), and a base64 that does
+    not decode stopped it with binascii's words; characters outside base64 it would skip, reading
+    other bytes than the file's."""
+    if "base64," not in uri:
+        return "no 'base64,' before its data: glTF embeds data as base64"
+    try:
+        base64.b64decode("".join(uri.partition("base64,")[2].split()), validate=True)
+    except binascii.Error as e:
+        return f"its base64 does not decode: {e}"
+    return None
+
+
+def _image_uri_problems(doc: dict) -> list[str]:
+    """The images whose ``data:`` URI has no ``base64,``: the loader asks for a file of that name
+    whether a texture draws the image or not. (One whose base64 does not decode is judged where
+    it is drawn: ``io.materials``; undrawn, it changes nothing.)"""
+    return [f"image {i} has a malformed data URI ({fault})" for i, image in enumerate(doc.get("images", []))
+            if isinstance(uri := image.get("uri"), str) and uri.startswith("data:") and "base64," not in uri
+            and (fault := data_uri_fault(uri))]
+
+
 def _file_bytes(path: Path, uri: str) -> int | None:
     """Size of the regular file ``uri`` names beside ``path`` (symlinks resolved), as written:
     the first name the resolver tries, so the file it reads when that lies in this folder; None
@@ -103,7 +131,9 @@ def _buffer_ends(path: Path, doc: dict, problems: list[str]) -> list[tuple[int, 
                                                         else ", which a .gltf needs to name its data"))
         elif not isinstance(uri, str):
             problems.append(f"buffer {i} has uri {json.dumps(uri)}, which is not text")
-        elif uri.startswith("data:") and "base64," in uri:
+        elif uri.startswith("data:") and (fault := data_uri_fault(uri)):
+            problems.append(f"buffer {i} has a malformed data URI ({fault})")
+        elif uri.startswith("data:"):
             size = _base64_bytes(uri.split("base64,", 1)[1])
             known.append((size, f"buffer {i}, whose data URI holds {size:,} bytes"))
         elif "base64," not in uri and (size := _file_bytes(path, uri)) is not None:
@@ -190,9 +220,9 @@ def _primitive_uses(doc: dict, problems: list[str]) -> dict[int, str]:
 
 def layout_problems(path: Path, doc: dict) -> list[str]:
     """What of glTF/GLB ``path``'s data layout (its JSON ``doc``; module doc) the loader cannot
-    read, one phrase each: buffers, bufferViews, accessors, then primitives' references."""
+    read, one phrase each: buffers, bufferViews, accessors, then primitives' references, then images' data URIs."""
     problems, references = [], []
     uses = _primitive_uses(doc, references)
     _view_problems(doc, _buffer_ends(path, doc, problems), problems)
     _accessor_problems(doc, uses, problems)
-    return problems + references
+    return problems + references + _image_uri_problems(doc)
