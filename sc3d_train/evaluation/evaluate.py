@@ -46,6 +46,7 @@ from sc3d_train.evaluation.evaluated_data import (evaluated_data_digest, run_obj
 from sc3d_train.evaluation.evaluation_files import (EVALUATION_PICTURE, check_default_folder_free,
                                                     check_outputs_replaceable, check_split_name)
 from sc3d_train.paper.metrics import MASK_THRESHOLD, VOXEL_THRESHOLDS, predict_dataset, summarize
+from sc3d_train.paper.pose import PoseGrid
 
 TABLE_COLUMNS = (("images", "n", "{:d}"), ("voxel_iou_0.4", "IoU@.4", "{:.3f}"),
                  ("voxel_iou_0.5", "IoU@.5", "{:.3f}"), ("mask_iou", "maskIoU", "{:.3f}"),
@@ -194,6 +195,8 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
                   "split": split, "pose_from": pose_from, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
                   "differs_from_training": differences, "outside_pose_grid": outside_pose_grid(cfg, dataset.info),
                   "pose_grid_elevations": [cfg.model.elevation_min, cfg.model.elevation_max],
+                  "pose_grid_azimuth_step": PoseGrid.of(cfg.model).azimuth_step,  # the floor: eval's note
+                  "azimuth_grid_floor": round(PoseGrid.of(cfg.model).azimuth_floor([r["azimuth_true"] for r in rows]), 2),
                   "trained_on": trained_on, "categories_not_trained_on": unseen,
                   "selected_on_this_split": selected_on, "data_sha256": data_sha256,
                   "shards_complete": dataset.info["complete"], **summary}

@@ -61,6 +61,14 @@ class PoseGrid:
         grid poses."""
         return sorted({float(e) for e in elevations or [] if not self.elevation_min <= e <= self.elevation_max})
 
+    def azimuth_floor(self, azimuths) -> float:
+        """The mean angle (degrees) from ``azimuths`` (the true azimuths of evaluated views) to the
+        nearest grid azimuth: 0 where every view lies on the grid (``render``'s default 24 views);
+        else the least mean azimuth error of poses on the grid, which the self-consistent pose is and
+        the head's targets are (``render --views 7``: 3.7 deg)."""
+        off = [abs(a / self.azimuth_step - round(a / self.azimuth_step)) * self.azimuth_step for a in azimuths]
+        return float(sum(off) / len(off)) if off else 0.0
+
     @property
     def size(self) -> int:
         """P = A * E candidates."""
