@@ -95,7 +95,12 @@ def _convert(value, hint, key: str):
     check = ok.get(hint) or ok.get(origin) or (lambda v: isinstance(v, origin or hint))
     if not check(value):
         raise ConfigError(f"{key}: expected {_type_name(hint)}, got {value!r}")
-    return float(value) if hint is float else value
+    if hint is not float:
+        return value
+    try:
+        return float(value)
+    except OverflowError:  # an int of 400 digits (YAML reads 1000...0 as int): float() cannot hold it
+        raise ConfigError(f"{key}: expected float, got an integer too large for one (above 1.8e308)") from None
 
 
 def from_plain(cls, data, prefix: str = ""):
@@ -186,6 +191,8 @@ def load_yaml(path: Path) -> dict:
         mark = getattr(e, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark is not None else ""
         raise ConfigError(f"{path}: not valid YAML{where} ({getattr(e, 'problem', None) or e})") from e
+    except ValueError as e:  # a value its reader cannot build: an int over Python's 4300-digit limit
+        raise ConfigError(f"{path}: a value that YAML cannot read ({' '.join(str(e).split(';')[0].split())[:160]})") from e
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping of settings, got {type(data).__name__}")
     return data
