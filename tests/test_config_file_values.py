@@ -33,3 +33,10 @@ def test_an_integer_yaml_cannot_read_is_refused_naming_the_file(tmp_path):
     assert "Traceback" not in output and len(output.strip().splitlines()) == 1, output
     assert str(config) in output, output
 
+
+def test_a_steps_of_the_wrong_type_beside_pretrain_steps_is_no_traceback(tmp_path):
+    # defaulted_pretraining computed file_steps // 2 on the file's "100" (TypeError) with --steps given
+    for steps in ('"100"', "[100]", "100.5"):
+        config, output = fit_with(tmp_path, f"mode: semi\nsteps: {steps}\npretrain_steps: 50\n", "--steps", "10")
+        assert "Traceback" not in output and len(output.strip().splitlines()) == 1, output
+        assert str(config) in output and "pretrain_steps" in output, output

@@ -36,7 +36,9 @@ def defaulted_pretraining(in_file, file_steps: int | None, options: dict) -> boo
     if in_file is None:
         return True
     new_steps = options.get("steps")
-    return file_steps is not None and new_steps is not None and new_steps != file_steps and in_file == file_steps // 2
+    if type(file_steps) is not int:  # no steps, or a wrong type that the file's load names
+        return False
+    return new_steps is not None and new_steps != file_steps and in_file == file_steps // 2
 
 
 def file_settings(config_file: Path, options: dict) -> dict:
