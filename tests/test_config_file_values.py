@@ -40,3 +40,11 @@ def test_a_steps_of_the_wrong_type_beside_pretrain_steps_is_no_traceback(tmp_pat
         config, output = fit_with(tmp_path, f"mode: semi\nsteps: {steps}\npretrain_steps: 50\n", "--steps", "10")
         assert "Traceback" not in output and len(output.strip().splitlines()) == 1, output
         assert str(config) in output and "pretrain_steps" in output, output
+
+
+def test_a_network_no_memory_holds_is_refused_in_one_line(tmp_path, sample_shards):
+    # model.shape_dim of 1e11 made torch.empty fail inside nn.Linear: a RuntimeError traceback
+    # (given as an option: fit_with's --tiny replaces a file's shape_dim; the option wins over both)
+    config, output = fit_with(tmp_path, "val_every: 0\n", "--shards", sample_shards, "--shape-dim",
+                              "100000000000", "--steps", "1", "--batch-size", "4")
+    assert "Traceback" not in output and "weights alone need" in output and "shape_dim 100000000000" in output, output
