@@ -8,8 +8,10 @@ Checked: ``schema_version`` an integer no newer than the one this sc3d reads (sh
 object whose ``background`` (a number, or a list of 3 numbers: RGB 0..255, or 0..1 floats),
 ``elevations`` (a list of numbers, degrees), ``image_size`` / ``num_views`` / ``voxel_resolution``
 (integers) and ``distance`` / ``fov_deg`` (numbers) have those types where present and not null;
-``objects``, ``failures``, ``skipped`` and ``warnings`` lists of objects. Other keys are left to
-their readers."""
+``objects``, ``failures``, ``skipped`` and ``warnings`` lists of objects; ``part`` (where present) an
+object with its integers and strings, ``counts`` (where present) an object of integers per split and
+category (``info`` and ``merge`` read both: a hand-edited one crashed them with a traceback). Other
+keys are left to their readers."""
 from __future__ import annotations
 
 
@@ -35,6 +37,9 @@ SETTING_TYPES = {
     "distance": (_number, "a number (world units)"),
     "fov_deg": (_number, "a number (degrees)"),
 }
+#: keys of a ``part`` record (``partition.part_record``) that ``merge`` and ``info`` read -> its type
+PART_KEYS = {"index": _integer, "count": _integer, "assigned": _integer, "planned_total": _integer,
+             "plan_sha256": lambda v: isinstance(v, str), "rule": lambda v: isinstance(v, str)}
 #: top-level lists whose entries readers use as objects (``entry.get(...)``)
 OBJECT_LISTS = ("objects", "failures", "skipped", "warnings")
 
@@ -52,6 +57,36 @@ def version_problem(version, present: bool, newest: int) -> str | None:
         return (f"schema_version {version} is newer than the {newest} this sc3d reads (written by a newer "
                 "sc3d): upgrade sc3d to read it")
     return None
+
+
+def _part_problem(part) -> str | None:
+    """What is wrong with an index's ``part`` record (``merge`` compares parts by it), or None."""
+    if not isinstance(part, dict):
+        return f"malformed: part is {part!r}, not an object"
+    for key, test in PART_KEYS.items():
+        if not test(part.get(key)):
+            what = "a string" if key in ("plan_sha256", "rule") else "an integer"
+            value = repr(part[key]) if key in part else "missing"
+            return f"malformed: part.{key} is {value}, not {what}"
+    return None
+
+
+def _counts_problem(counts) -> str | None:
+    """What is wrong with an index's ``counts`` (``index_counts``: ``info`` prints them), or None."""
+    def per(v):
+        return isinstance(v, dict) and all(_integer(n) for n in v.values())
+
+    if not isinstance(counts, dict):
+        return f"malformed: counts is {counts!r}, not an object"
+    if not _integer(counts.get("total", 0)):
+        return f"malformed: counts.total is {counts['total']!r}, not an integer"
+    if not per(counts.get("by_split", {})):
+        return f"malformed: counts.by_split is {counts['by_split']!r}, not an object of integers"
+    by_cat = counts.get("by_category", {})
+    if not isinstance(by_cat, dict):
+        return f"malformed: counts.by_category is {by_cat!r}, not an object"
+    bad = next((c for c, v in by_cat.items() if not per(v)), None)
+    return None if bad is None else f"malformed: counts.by_category.{bad} is {by_cat[bad]!r}, not an object of integers"
 
 
 def index_problem(index, schema_version: int) -> str | None:
@@ -76,7 +111,9 @@ def index_problem(index, schema_version: int) -> str | None:
         bad = next((i for i, e in enumerate(entries) if not isinstance(e, dict)), None)
         if bad is not None:
             return f"malformed: {key}[{bad}] is {entries[bad]!r}, not an object"
-    return None
+    if "part" in index and (problem := _part_problem(index["part"])):
+        return problem
+    return _counts_problem(index["counts"]) if "counts" in index else None
 
 
 def listing_problems(index: dict) -> dict[str, str]:
