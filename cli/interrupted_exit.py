@@ -1,4 +1,5 @@
-"""How a ``sc3d-train`` process ends after Ctrl-C or SIGTERM: at once, without Python's finalisation.
+"""How a ``sc3d-train`` process ends after Ctrl-C or SIGTERM, and a torchrun rank after any end:
+at once, without Python's finalisation.
 
 After a Ctrl-C (a ``KeyboardInterrupt`` unwound through a training step, a validation, a
 TensorBoard write), the interpreter's finalisation sometimes never ended: the process had
@@ -12,6 +13,14 @@ that test; never after a command that ended otherwise. What corrupts the list li
 ``metrics.csv`` line by line, TensorBoard closed in ``fit``'s ``finally``), so nothing is lost by
 not finalising: :func:`run_console` flushes the output, stops this process's child processes
 (``--workers`` loader workers) and leaves with ``os._exit`` and the status click gives (1).
+
+A torchrun rank (a process that joined a process group: ``fit`` on several GPUs or gloo ranks)
+leaves the same way after any end, once it has left its group: a DDP model keeps the group's
+gloo threads (``pt_gloo_runloop``, ``gloo_tcp_loop``) alive after ``destroy_process_group``
+(measured: present after it and a collection with DDP, gone without), so they ran on through the
+interpreter's finalisation and the C++ static destructors, where a rank that had finished its
+work aborted, rarely ("terminate called without an active exception"; torchrun then stopped
+the other ranks and the job failed: once in five full test-suite runs, 2026-12-07).
 """
 from __future__ import annotations
 
@@ -19,10 +28,11 @@ import multiprocessing
 import os
 import signal
 import sys
+import traceback
 
 import click
 
-__all__ = ["console_script", "run_console"]
+__all__ = ["console_script", "leave_now", "left_process_group", "run_console"]
 
 
 def run_console(group: click.Group) -> None:
@@ -31,7 +41,8 @@ def run_console(group: click.Group) -> None:
     instead of finalising. SIGTERM is made a Ctrl-C, so the command says what it kept
     (``interrupted ...; last good checkpoint ...``; before, it died without a word), and the
     status is then 143 (128 + SIGTERM), what a scheduler reads of a terminated job. A signal this
-    process inherited ignored (``nohup`` ignores SIGINT) stays ignored."""
+    process inherited ignored (``nohup`` ignores SIGINT) stays ignored. A torchrun rank leaves
+    at once after any end, having left its process group (module doc)."""
     interrupted: list[int] = []
 
     def on_signal(signum, frame):
@@ -45,22 +56,45 @@ def run_console(group: click.Group) -> None:
     try:
         group()
     except SystemExit as e:
-        if not interrupted:
-            raise
-        # a second Ctrl-C (or SIGTERM) from here on, while a child is stopped or an output flushed, would
-        # raise KeyboardInterrupt out of this function: a traceback and the finalisation skipped here
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(signum, signal.SIG_IGN)
-        code = 128 + signal.SIGTERM if interrupted[0] == signal.SIGTERM else e.code if isinstance(e.code, int) else 1
-        for stream in (sys.stdout, sys.stderr):
-            try:
-                stream.flush()
-            except (OSError, ValueError):
-                pass
-        for child in multiprocessing.active_children():
-            child.terminate()
-            child.join(5)
-        os._exit(code)
+        if interrupted:
+            # a second Ctrl-C (or SIGTERM) from here on, while a child is stopped or an output flushed, would
+            # raise KeyboardInterrupt out of this function: a traceback and the finalisation skipped here
+            for signum in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(signum, signal.SIG_IGN)
+            leave_now(128 + signal.SIGTERM if interrupted[0] == signal.SIGTERM else e.code if isinstance(e.code, int)
+                      else 1)
+        if left_process_group():
+            leave_now(e.code if isinstance(e.code, int) else 0 if e.code is None else 1)
+        raise
+    except BaseException:  # a bug's traceback (click reports the others as SystemExit)
+        if left_process_group():
+            traceback.print_exc()
+            leave_now(1)
+        raise
+
+
+def left_process_group() -> bool:
+    """Whether this process had joined a torchrun process group, which it has now left (module
+    doc). Imports nothing: a command that never trained has not loaded the runtime."""
+    runtime = sys.modules.get("sc3d_train.loop.runtime")
+    if runtime is None or not runtime.joined_process_group():
+        return False
+    runtime.teardown_distributed()
+    return True
+
+
+def leave_now(code: int) -> None:
+    """Flush the output, stop this process's child processes and end it with status ``code``,
+    without Python's finalisation (module doc)."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    for child in multiprocessing.active_children():
+        child.terminate()
+        child.join(5)
+    os._exit(code)
 
 
 def console_script(group: click.Group):

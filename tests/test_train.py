@@ -315,25 +315,41 @@ def test_nan_loss_stops_with_step_and_checkpoint(sample_shards, tmp_path):
     assert sorted(p.name for p in (out / "checkpoints").glob("step_*.pt")) == ["step_000002.pt"]
 
 
+#: the ``sc3d-train`` console script (``console_main``) with an ``atexit`` hook that marks, per rank,
+#: a finalised interpreter in the folder ``SC3D_TEST_FINALISED`` names
+RANK_SCRIPT = """import atexit, os, sys
+atexit.register(lambda: open(os.path.join(os.environ["SC3D_TEST_FINALISED"], "rank" + os.environ["RANK"]), "w").close())
+sys.argv[0] = "sc3d-train"
+from sc3d_cli.train import console_main
+console_main()
+"""
+
+
 def _torchrun_fit(*args) -> str:
     """stdout of ``sc3d-train fit`` under torchrun with 2 CPU ranks (gloo; ``--device cpu`` also on a
     GPU machine: on one with a single GPU the default ``auto`` would give rank 1 a ``cuda:1`` that
-    does not exist), batch 4, the tiny network, ``args`` after; asserts exit 0 within 300 s."""
+    does not exist), batch 4, the tiny network, ``args`` after; asserts exit 0 within 300 s, and that
+    no rank went through Python's finalisation: the console script leaves a process group's rank with
+    ``os._exit`` (``cli/interrupted_exit.py``; DDP keeps the group's gloo threads alive into the
+    finalisation, where a finished rank rarely aborted, failing the job)."""
     import os
     import subprocess
     import sys
+    import tempfile
 
-    script = Path(sys.executable).parent / "sc3d-train"  # the installed console script
-    if not script.is_file():
-        pytest.skip(f"{script} not installed")
-    # --standalone: torchrun binds a free port itself (picking one here and handing it over
-    # raced with other processes taking it in between)
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
-           str(script), "fit", "--device", "cpu", "--batch-size", "4", *TINY, *map(str, args)]
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env,
-                       cwd=Path(__file__).resolve().parents[1])
-    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
+    repo = Path(__file__).resolve().parents[1]
+    with tempfile.TemporaryDirectory() as folder:
+        script, finalised = Path(folder) / "sc3d_train_rank.py", Path(folder) / "finalised"
+        script.write_text(RANK_SCRIPT)
+        finalised.mkdir()
+        # --standalone: torchrun binds a free port itself (picking one here and handing it over
+        # raced with other processes taking it in between)
+        cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+               str(script), "fit", "--device", "cpu", "--batch-size", "4", *TINY, *map(str, args)]
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(repo), "SC3D_TEST_FINALISED": str(finalised)}
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env, cwd=repo)
+        assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
+        assert not any(finalised.iterdir()), sorted(p.name for p in finalised.iterdir())
     return r.stdout
 
 

@@ -48,7 +48,18 @@ def setup_distributed(device_name: str) -> DistInfo:
         use_cuda = torch.cuda.is_available() and kind != "cpu"
         dist.init_process_group("nccl" if use_cuda else "gloo")
         atexit.register(teardown_distributed)  # once, when this process exits (several fits may share the group)
+        _JOINED.append(True)
     return info
+
+
+#: not empty once :func:`setup_distributed` joined a process group in this process
+_JOINED: list[bool] = []
+
+
+def joined_process_group() -> bool:
+    """Whether :func:`setup_distributed` joined a torchrun process group in this process (left or
+    not): the console script then leaves without finalising (``cli/interrupted_exit.py``)."""
+    return bool(_JOINED)
 
 
 def teardown_distributed() -> None:
