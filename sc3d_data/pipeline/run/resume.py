@@ -247,6 +247,27 @@ def remaining(tasks: list[Task], state: dict, K: int) -> tuple[list[Task], int]:
     return todo, resumed
 
 
+def shards_layout(out: Path, old: dict) -> str | None:
+    """The chunk layout (``io.shards.CHUNK_LAYOUTS``) of the first shard listed in ``out``'s index
+    ``old`` that opens, read from its ``images``; None when none opens (their chunks are done
+    again). For an index that does not record ``chunks``: render wrote one object per chunk
+    before it had ``--chunks`` (whose default is one view), import-r2n2 one view per chunk for a
+    while before it recorded it, so only the shards tell; a rerun that took the default kept
+    them and recorded ``view`` (``info`` named the wrong layout) and wrote new chunks per view."""
+    from sc3d_data.io.shards import ShardError, shard_path
+    from sc3d_data.io.shard_reader import open_shard
+
+    for entry in old.get("shards", []):
+        try:
+            with open_shard(shard_path(out, entry["file"])) as f:
+                chunks = f["images"].chunks
+        except (ShardError, KeyError, TypeError, OSError):
+            continue
+        if chunks and len(chunks) > 1:
+            return "view" if chunks[1] == 1 else "object"
+    return None
+
+
 def check_resume(out: Path, old: dict, settings: dict, defaults: dict, part: dict) -> None:
     """``ValueError`` when ``out``'s index cannot be resumed by this run: other settings, another
     ``--part`` or a merged dataset."""
@@ -254,9 +275,14 @@ def check_resume(out: Path, old: dict, settings: dict, defaults: dict, part: dic
         made_by = "import-r2n2" if settings.get("source") == "3D-R2N2" else "render"
         raise ValueError(f"{out}: is a merged dataset (sc3d-data merge); {made_by} parts into their own "
                          "folders and merge again, or use another --out")
-    diff = settings_differ(old.get("settings", {}), settings, defaults)
+    recorded = old.get("settings", {})
+    layout = None if "chunks" in recorded else shards_layout(out, old)
+    if layout:  # an older index did not record it; the default is not what older code wrote
+        recorded = {**recorded, "chunks": layout}
+    diff = settings_differ(recorded, settings, defaults)
     if diff:
-        raise ValueError(f"{out}: existing shards were made with other settings ({', '.join(diff)} differ); "
+        held = f"; its shards hold one {recorded['chunks']} per chunk" if {"chunks"} & set(diff) & set(recorded) else ""
+        raise ValueError(f"{out}: existing shards were made with other settings ({', '.join(diff)} differ){held}; "
                          "use another --out or --overwrite")
     old_part = old.get("part", {"index": 0, "count": 1})
     if (old_part.get("index"), old_part.get("count")) != (part["index"], part["count"]):
