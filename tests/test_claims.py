@@ -130,6 +130,31 @@ def test_claims_with_two_seeds_reports_mean_and_standard_deviation(sample_shards
     assert again.count("done before") == 3 and "semi seed 1: semi, " in again and "(trained; evaluating)" in again
 
 
+def test_claims_keeps_the_timings_of_the_runs_it_reads_back(sample_shards, tmp_path):
+    """A rerun with ``--runs`` reports the study's finished runs too, but its claims.json dropped
+    their timings (only the runs this call trained had one). A run read back keeps the seconds
+    of the earlier report; where that report does not hold them, or holds other figures for
+    the run (an evaluation redone since), they are null, not left out (noticed in an earlier
+    round)."""
+    from sc3d_train.evaluation.claims import ClaimsPreset, run_all
+
+    preset = ClaimsPreset(steps=2, batch_size=4, lr=1e-3, tiny=True, extra={"base_channels": 4})
+    out = tmp_path / "claims"
+
+    def timings(runs):
+        run_all(sample_shards, sample_shards, out, preset, "test", "cpu", runs=runs, echo=lambda line: None)
+        return json.loads((out / "claims.json").read_text())["meta"]["timings"]
+
+    first = timings(["ray"])
+    second = timings(["ray-proj"])
+    assert second["ray/seed-0"] == first["ray/seed-0"] > 0 and second["ray-proj/seed-0"] > 0, second
+    saved = json.loads((out / "claims.json").read_text())
+    del saved["meta"]["timings"]["ray/seed-0"]
+    saved["results"]["ray-proj"]["per_seed"]["0"]["mean"]["voxel_iou_0.4"] = -1.0
+    (out / "claims.json").write_text(json.dumps(saved))
+    assert timings(["ray"]) == {"ray/seed-0": None, "ray-proj/seed-0": None}
+
+
 def test_cpu_preset_pretrains_semi_for_200_steps_and_leaves_the_other_runs_alone(sample_shards, tmp_path):
     """The cpu preset's semi run pretrains on its labelled objects for 200 of its 700 steps (the
     setting adopted by the rule in docs/training.md); the other runs keep fit's settings (their

@@ -36,7 +36,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 from sc3d_train.evaluation.claims_data import check_evaluable, check_held_out, check_not_selection
-from sc3d_train.evaluation.claims_report import RUNS, aggregate, write_report
+from sc3d_train.evaluation.claims_report import RUNS, aggregate, kept_timings, write_report
 from sc3d_train.evaluation.evaluated_data import split_digest
 from sc3d_train.evaluation.shape_baselines import shape_baselines
 from sc3d_train.data.completeness import require_complete
@@ -285,14 +285,14 @@ def run_all(train_shards: Path, eval_shards: Path, out: Path,
             res, seconds = train_and_evaluate(name, seed, p, train_shards, eval_shards, out, eval_split,
                                               device, workers, pick, echo, data_digest)
             per_seed[name][seed] = res
-            if seconds is not None:
-                timings[f"{name}/seed-{seed}"] = seconds
+            timings[f"{name}/seed-{seed}"] = seconds  # None: read back (kept_timings)
     results = {name: aggregate(by_seed) for name, by_seed in per_seed.items()}
     try:  # the reference rows (read no image); without them the report still stands
         results.update(shape_baselines(train_shards, eval_shards, eval_split))
     except DataError as e:
         echo(f"no reference rows: {e}")
     stem = report_stem(pick)
+    timings = kept_timings(timings, out / f"{stem}.json", per_seed)
     report = write_report(results, out, stem, preset=asdict(p), seeds=seed_values, pick=pick, eval_split=eval_split,
                           train_shards=str(train_shards), eval_shards=str(eval_shards), timings=timings)
     echo(f"wrote {out / (stem + '.md')}, {out / (stem + '.json')}, {out / (stem + '.png')}")

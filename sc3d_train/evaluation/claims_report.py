@@ -208,6 +208,35 @@ def plot_report(results: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def kept_timings(timings: dict, earlier: Path, per_seed: dict) -> dict:
+    """``timings`` (``"RUN/seed-S"``: seconds this call spent training and evaluating it, None
+    where it read the evaluation back) with each None replaced by the seconds that the report
+    ``earlier`` (this study's ``STEM.json``, written by the call that did it or kept from one)
+    records for it, where that report holds the same figures for it (``per_seed``: run -> seed
+    -> metrics); else left None, written as null: not known (a call stopped before its report,
+    an evaluation redone since, a report of a version that dropped them)."""
+    try:
+        old = json.loads(Path(earlier).read_text())
+        old_times, old_results = old["meta"]["timings"], old["results"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return dict(timings)
+
+    def same(name: str, seed: int) -> bool:
+        figures = {k: per_seed[name][seed][k] for k in ("per_category", "mean", "overall")}
+        try:
+            theirs = old_results[name]["per_seed"][str(seed)]
+        except (KeyError, TypeError):
+            return False
+        return json.dumps(theirs, sort_keys=True, default=str) == json.dumps(figures, sort_keys=True, default=str)
+
+    out = dict(timings)
+    for key, seconds in timings.items():
+        name, seed = key.rsplit("/seed-", 1)
+        if seconds is None and isinstance(old_times, dict) and same(name, int(seed)):
+            out[key] = old_times.get(key)
+    return out
+
+
 def write_report(results: dict, out: Path, stem: str = "claims", **meta) -> str:
     """``STEM.md`` (:func:`format_report`), ``STEM.json`` (``meta``; per run the means, ``std``,
     ``seeds`` and ``per_seed`` blocks; ``claims``: :func:`check_claims`) and ``STEM.png``, each
