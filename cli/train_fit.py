@@ -43,7 +43,7 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
     from sc3d_train.data.dataset import DataError
     from sc3d_train.loop.config_file import file_settings
     from sc3d_train.loop.resolve import check_mode_options, pose_grid_warning, resolve_config
-    from sc3d_train.loop.schedule import no_semi_phase_warning
+    from sc3d_train.loop.schedule import no_label_warning, no_semi_phase_warning
     from sc3d_train.loop.runtime import check_device_name
     from sc3d_train.loop.loss_window import TrainingDiverged
     from sc3d_train.loop.trainer import fit as run_fit
@@ -82,7 +82,8 @@ def fit(ctx, config_file, shards, out, semi, labeled_only, tiny, resume, **_sett
             cfg = resolve_config(options, model_options, resume, config_file)
             check_mode_options(cfg, options, config_file)
             check_device_name(cfg.device)  # before the run's first line
-            for warning in (pose_grid_warning(cfg), no_semi_phase_warning(cfg)) if main_rank else ():
+            warnings = (pose_grid_warning(cfg), no_semi_phase_warning(cfg), no_label_warning(cfg))
+            for warning in warnings if main_rank else ():
                 if warning:
                     click.echo(f"warning: {warning}", err=True)
             line = (f"training {cfg.mode} for {cfg.steps} steps, batch {cfg.batch_size}, model {cfg.model}, "

@@ -90,3 +90,15 @@ def no_semi_phase_warning(cfg: RunConfig) -> str | None:
     return (f"--pretrain-steps {cfg.pretrain_steps} >= --steps {cfg.steps}: this semi run never reaches its phase "
             f"on unlabelled images and trains on the labelled objects only (as --labeled-only); give --steps above "
             f"{cfg.pretrain_steps}")
+
+
+def no_label_warning(cfg: RunConfig) -> str | None:
+    """The warning ``fit`` prints for a ``semi`` run that never reads a label: no pretraining
+    (``pretrain_steps`` 0) and no labelled share in its mixed batches (``semi_labeled_share`` 0).
+    Its labelled objects (``labeled_objects.txt``) are then left out of training altogether and the
+    pose head gets no target that pins the canonical frame; None for any other run."""
+    if cfg.mode != "semi" or cfg.pretrain_steps or cfg.semi_labeled_share:
+        return None
+    return ("--pretrain-steps 0 with --semi-labeled-share 0: this semi run reads no label and never trains on its "
+            "labelled objects (labeled_objects.txt), only on the unlabelled rest; give --pretrain-steps above 0 "
+            "(the paper's fine-tuning on unlabelled images follows a supervised pretraining) or a labelled share")
