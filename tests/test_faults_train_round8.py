@@ -200,7 +200,9 @@ def test_p2_mesh_of_probabilities_saturated_at_the_threshold():
     ~17) in an 8^3 grid of zeros, meshed at threshold 1: marching cubes found no surface at the
     grid's maximum and ``predict --threshold 1`` crashed. Now the surface passes through the
     centres of the block's outer voxels (indices 2 and 4), i.e. -0.5 + 2.5/8 = -0.1875 and
-    -0.5 + 4.5/8 = 0.0625 on each axis. All-zero probabilities give an empty mesh."""
+    -0.5 + 4.5/8 = 0.0625 on each axis. All-zero probabilities give an empty mesh (at threshold
+    0 every voxel is occupied, zeros too, as the .binvox says: the whole cube,
+    ``tests/test_predict_threshold_zero.py``)."""
     from sc3d_train.evaluation.predict import voxel_mesh
 
     probs = np.zeros((8, 8, 8), dtype=np.float32)
@@ -209,7 +211,7 @@ def test_p2_mesh_of_probabilities_saturated_at_the_threshold():
     assert len(faces) > 0
     np.testing.assert_allclose(verts.min(axis=0), [-0.1875] * 3, atol=1e-5)
     np.testing.assert_allclose(verts.max(axis=0), [0.0625] * 3, atol=1e-5)
-    verts, faces = voxel_mesh(np.zeros((8, 8, 8), dtype=np.float32), 0.0)
+    verts, faces = voxel_mesh(np.zeros((8, 8, 8), dtype=np.float32), 0.5)
     assert verts.shape == (0, 3) and faces.shape == (0, 3)
 
 

@@ -93,6 +93,9 @@ def voxel_mesh(probabilities: np.ndarray, threshold: float) -> tuple[np.ndarray,
     from sc3d_data.geometry.voxel_grid import voxel_centres
 
     G = probabilities.shape[0]
+    if threshold <= 0.0:  # every voxel is occupied (p >= 0), also those whose probability underflowed
+        # to exactly 0.0, which marching cubes at level 0 cannot tell from the zero padding: the cube
+        probabilities, threshold = np.ones_like(probabilities), 0.5
     padded = np.pad(probabilities.astype(np.float32), 1)
     top = float(padded.max())
     if top < threshold or top <= 0.0:  # all zero: no level separates the grid from its zero padding
