@@ -8,7 +8,7 @@ Per input image ``NAME.png`` (written to the output directory):
 * ``NAME.obj``: marching-cubes surface (scikit-image) of the probabilities at ``threshold``, in
   the canonical frame (the grid cube [-0.5, 0.5]^3, +Y up, front +Z),
 * ``NAME.json``: the predicted pose (azimuth, elevation in degrees; the camera distance of the
-  training data), the image's path as given and its real path, and the paths above,
+  training data), the image's path as given and its real path, and the absolute paths above,
 * ``NAME.png``: the input, the predicted mask, and the predicted voxels' silhouette seen from the
   predicted pose (``sc3d_data.geometry.projection`` through ``sc3d_data.geometry.camera``).
 
@@ -39,7 +39,8 @@ from sc3d_data.io.shards import atomic_write_bytes
 from sc3d_train.loop.checkpoint import run_checkpoint
 from sc3d_train.loop.checkpoint_model import load_model
 from sc3d_train.evaluation.prediction_files import (ImageError, check_default_folder_free, check_inputs_kept,
-                                                    check_outputs_replaceable, check_same_images, output_files)
+                                                    check_outputs_replaceable, check_same_images, output_files,
+                                                    recorded_files)
 from sc3d_train.settings.command_config import PredictConfig, check_pose_source
 
 ACCEPTED_MODES = ("RGB", "RGBA", "LA", "L", "P")
@@ -204,7 +205,7 @@ def predict(checkpoint: Path, images: list[Path], out: Path | None, device: str 
             voxels = probs >= threshold
             info = {"image": str(path), "image_realpath": os.path.realpath(path), "checkpoint": os.path.abspath(checkpoint), "azimuth_deg": az, "elevation_deg": el, "pose_from": pose_from,
                     "camera_distance": cfg.camera_distance, "threshold": threshold,
-                    "occupied_voxels": int(voxels.sum()), "files": {k: str(v) for k, v in files.items()}}
+                    "occupied_voxels": int(voxels.sum()), "files": recorded_files(files)}
             # the listing first (whole or not at all): a run stopped before the image's other files
             # are written leaves them listed, so running it again may replace them
             write_json_atomic(files["json"], info)

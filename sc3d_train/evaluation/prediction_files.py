@@ -24,6 +24,15 @@ def output_files(images: list[Path], out: Path) -> list[dict]:
     return outputs
 
 
+def recorded_files(files: dict) -> dict[str, str]:
+    """``files`` (one image's of :func:`output_files`) as ``NAME.json`` records them: absolute
+    paths, as its ``checkpoint`` and ``image_realpath`` are, so that a reader who opens the record
+    from another folder finds them (an ``--out`` given relative was recorded as given, relative to
+    the folder predict ran in, which no record names). A record of an earlier version may hold such
+    relative paths: its files are the ones of those names beside it (:func:`listed_files`)."""
+    return {kind: os.path.abspath(path) for kind, path in files.items()}
+
+
 def check_inputs_kept(images: list[Path], outputs: list[dict], out: Path) -> None:
     """``ImageError`` naming ``--out`` when a file of ``outputs`` (:func:`output_files`) is one of
     the input ``images`` (``--out`` the images' folder: ``NAME.png`` would replace ``NAME.png``)."""
