@@ -155,9 +155,10 @@ def test_merge_refuses_missing_unfinished_foreign_and_duplicate_parts(tmp_path):
     dup = tmp_path / "dup"
     shutil.copytree(p[1], dup)
     i1 = json.loads((dup / "index.json").read_text())
-    i1["objects"].append(dict(i0["objects"][0], shard=i1["shards"][0]["file"]))
+    # at a row of its own: the index's own lists agree (else it is refused as malformed first)
+    i1["objects"].append(dict(i0["objects"][0], shard=i1["shards"][0]["file"], row=i1["shards"][0]["objects"]))
     i1["part"]["assigned"] += 1
-    i1["shards"][0]["objects"] += 1  # the index's own lists agree (else it is refused as malformed first)
+    i1["shards"][0]["objects"] += 1
     (dup / "index.json").write_text(json.dumps(i1))
     assert "duplicate" in refused(p[0], dup, p[2])
     # a part into the folder of another part is refused at render time

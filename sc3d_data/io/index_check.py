@@ -119,7 +119,8 @@ def index_problem(index, schema_version: int) -> str | None:
 def listing_problems(index: dict) -> dict[str, str]:
     """``{shard file name: problem}`` where the index's ``shards`` and ``objects`` disagree: a
     file listed twice, an object (category/model_id) listed twice, an object naming a file
-    ``shards`` lacks, a file whose ``objects`` count differs from the objects naming it. Readers
+    ``shards`` lacks, a file whose ``objects`` count differs from the objects naming it, an object
+    whose ``row`` is not one of its file's (:func:`row_problems`). Readers
     trust these lists (training reads every listed file, eval counts its rows), so a hand-edited
     index that lists a shard twice trained and evaluated its objects twice with exit 0; checks of
     the files themselves (``info --verify``) cannot see it. A duplicated object names every file
@@ -151,4 +152,35 @@ def listing_problems(index: dict) -> dict[str, str]:
         if isinstance(e.get("objects"), int) and e["objects"] != named.get(e["file"], 0):
             out.setdefault(e["file"], f"shards says {printable(e['file'])} holds {e['objects']} objects, "
                                       f"objects name it {named.get(e['file'], 0)} times")
+    for file, problem in row_problems(index).items():
+        out.setdefault(file, problem)
+    return out
+
+
+def row_problems(index: dict) -> dict[str, str]:
+    """``{shard file name: problem}`` where an object's ``row`` is not a row of its shard: not an
+    integer, outside ``0 .. count-1`` where ``shards`` gives the file's object ``count``, or the row
+    of another object too. ``preview`` reads the object at that row: row 99 of a shard of 3 ended
+    in an h5py ``IndexError`` traceback, row -1 drew the shard's last object under another one's
+    name with exit 0. Where ``shards`` gives no count, the reader checks the row when it opens the
+    shard (``sc3d_data.qa.preview``)."""
+    from sc3d_data.io.names import printable
+
+    counts = {e["file"]: e["objects"] for e in index.get("shards", []) if _integer(e.get("objects"))}
+    out: dict[str, str] = {}
+    taken: dict[tuple, str] = {}
+    for o in index.get("objects", []):
+        file, row = o.get("shard"), o.get("row")
+        if not isinstance(file, str):  # as listing_problems: not a reader's concern here
+            continue
+        name = f"{printable(str(o.get('category')))}/{printable(str(o.get('model_id')))}"
+        if not _integer(row):
+            out.setdefault(file, f"{name} has row {row!r} in {printable(file)}, not an integer")
+        elif file in counts and not 0 <= row < counts[file]:
+            out.setdefault(file, f"{name} has row {row} in {printable(file)}, which holds {counts[file]} objects "
+                                 f"(rows 0 to {counts[file] - 1})")
+        elif (file, row) in taken:
+            out.setdefault(file, f"{taken[file, row]} and {name} both have row {row} in {printable(file)}")
+        else:
+            taken[file, row] = name
     return out

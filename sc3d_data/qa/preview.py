@@ -63,6 +63,7 @@ def pick_objects(shard_dir: Path, max_objects: int) -> list[dict]:
         objects = []
         for entry in picked[:max_objects]:
             path = shard_path(Path(shard_dir), entry["shard"])
+            check_row(reader, shard_dir, path, entry)
             voxels_failed = (path.name, int(entry["row"])) in failed
             held = reader.holds(path, "voxels") and not voxels_failed
             fields = ("images", "masks", "K", "R", "t") + (("voxels",) if held else ())
@@ -70,6 +71,20 @@ def pick_objects(shard_dir: Path, max_objects: int) -> list[dict]:
                             "shard": path.name, "row": int(entry["row"]), "voxels_failed": voxels_failed,
                             **reader.read(path, int(entry["row"]), fields)})
     return objects
+
+
+def check_row(reader, shard_dir: Path, path: Path, entry: dict) -> None:
+    """``ShardError`` naming the index when the row of index object ``entry`` is not one of shard
+    file ``path``: the index's own check (``index_check.row_problems``) needs the file's object
+    count from ``shards``, which a hand-edited index may lack; h5py would read row -1 as the last
+    object and fail on row 99 of 3 with a traceback."""
+    from sc3d_data.io.names import printable
+    from sc3d_data.io.shards import ShardError, index_path
+
+    rows = reader.num_rows(path)
+    if not 0 <= entry["row"] < rows:  # an integer: index_check.row_problems refused any other
+        raise ShardError(f"{index_path(shard_dir)}: malformed: {printable(entry['category'] + '/' + entry['model_id'])} "
+                         f"has row {entry['row']} in {path.name}, which holds {rows} objects (hand-edited?)")
 
 
 def _silhouettes(o: dict, S: int, sel, notes: list[str] | None) -> np.ndarray:
