@@ -69,3 +69,24 @@ def test_a_rerun_over_an_older_index_records_the_layout_its_shards_have(tmp_path
     assert "done 0, resumed 2" in run_cli(data_main, ["render", "--meshes", meshes, "--out", views, *FAST]).output
     assert json.loads((views / "index.json").read_text())["settings"]["chunks"] == "view"
     assert _view_chunks(views) == {1}
+
+
+def test_merge_counts_an_older_part_as_the_layout_its_shards_have(tmp_path):
+    """docs/data.md: a setting an older index does not record counts as its default, except
+    ``chunks``, which counts as the layout its shards have, and ``merge`` compares its parts the
+    same way. It took the default there: an older part (one object per chunk) merged with a new
+    one (one view per chunk) without a word, into a dataset of two layouts (exit 0). Now that is
+    refused as other settings; the part rendered again with ``--chunks object`` merges."""
+    meshes = tmp_path / "meshes"
+    for name in ("car/jeep_psionic.glb", "chair/chair2_blendswap.glb", "table/coffee_table_blendswap_ccby.glb"):
+        (meshes / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(Path(SAMPLE_MESHES) / name, meshes / name)
+    old, new, same = tmp_path / "p0", tmp_path / "p1", tmp_path / "p1_object"
+    run_cli(data_main, ["render", "--meshes", meshes, "--out", old, "--chunks", "object", "--part", "0/2", *FAST])
+    _older_sc3d(old, drop_last=False)
+    run_cli(data_main, ["render", "--meshes", meshes, "--out", new, "--part", "1/2", *FAST])
+    error = one_error(run_cli(data_main, ["merge", tmp_path / "m", old, new], expect_exit=1).output)
+    assert "chunks differ" in error, error
+    run_cli(data_main, ["render", "--meshes", meshes, "--out", same, "--chunks", "object", "--part", "1/2", *FAST])
+    run_cli(data_main, ["merge", tmp_path / "m", old, same])
+    assert _view_chunks(tmp_path / "m") == {2}
