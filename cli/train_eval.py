@@ -47,8 +47,10 @@ def eval_cmd(ctx, checkpoint, shards, out, pose_from, device, split, pick, batch
         click.echo(f"note: elevations {result['outside_pose_grid']} deg of these shards lie outside the checkpoint's "
                    f"pose grid [{low:g}, {high:g}] deg (model.elevation_min/max): their pose error has a floor")
     if result["azimuth_grid_floor"] >= 0.05:  # render --views 7, R2N2's azimuths: the pose error has a floor
+        # the search's azimuth is a grid azimuth; the head's is refined between bins, but trained towards them
+        floor = ("is at least" if pose_from == "search" else "tends towards (the head was trained on grid poses)")
         click.echo(f"note: the views' azimuths lie between the checkpoint's pose grid azimuths (every "
-                   f"{result['pose_grid_azimuth_step']:g} deg): their azimuth error is at least "
+                   f"{result['pose_grid_azimuth_step']:g} deg): their azimuth error {floor} "
                    f"{result['azimuth_grid_floor']:.1f} deg on average however good the model")
     if result["trained_on"] is None:
         click.echo(f"note: the checkpoint's training shards cannot be read or no longer hold the objects it trained on "
