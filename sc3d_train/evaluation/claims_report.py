@@ -78,10 +78,12 @@ def _row(res: dict, cats: list[str], key: str, fmt: str, scale: float = 1.0) -> 
 def _header(category: str) -> str:
     """A category's column header: its name (``airplane`` for ``02691156``; a user's category whole,
     as claims.png names it: cut at `` (``, ``chair (metal)`` and ``chair (wood)`` were two columns
-    headed ``chair``), a ``|`` escaped (it split the cell: the table had a column too many)."""
+    headed ``chair``), a ``|`` escaped (it split the cell: the table had a column too many), and control
+    characters as ``io.names.printable`` writes them (a newline cut the header row in two)."""
     from sc3d_data.formats.shapenet import category_name
+    from sc3d_data.io.names import printable
 
-    return category_name(category).replace("|", "\\|")
+    return printable(category_name(category)).replace("|", "\\|")
 
 
 TITLES = {"sup-3tube": "Ours (Sup), 3 tubes", "sup-1tube": "Ours (Sup), 1 tube", "labeled-only": "labelled only",
@@ -95,6 +97,7 @@ def format_report(results: dict) -> str:
     rotation error, share within 30 deg), the claims. With several seeds every cell is
     ``mean ± sample standard deviation`` over the seeds."""
     from sc3d_data.formats.shapenet import category_label
+    from sc3d_data.io.names import printable
 
     cats = _categories(results)
     names = [_header(c) for c in cats]
@@ -113,7 +116,7 @@ def format_report(results: dict) -> str:
                    "reads the answer). A model near the first row has learnt its categories' average shape.\n")
         left_out = next((results[n].get("left_out") for n in REFERENCES if results.get(n, {}).get("left_out")), None)
         if left_out:
-            out.append(f"\nThe reference rows have no figure for {', '.join(category_label(c) for c in left_out)}: "
+            out.append(f"\nThe reference rows have no figure for {', '.join(printable(category_label(c)) for c in left_out)}: "
                        "no training object of that category to take a shape from; and so no Mean, as the runs' "
                        f"Mean is over all {len(cats)} categories.\n")
     out.append("\n### Pose (no pose labels in training): median rotation error (deg) / share within 30 deg"

@@ -33,6 +33,7 @@ import torch
 
 from sc3d_data.formats.shapenet import category_label
 from sc3d_data.io.drawn_names import mpl_name
+from sc3d_data.io.names import printable
 from sc3d_data.io.outlock import exclusive_lock
 from sc3d_data.io.pictures import write_figure
 from sc3d_data.io.shards import atomic_write_bytes
@@ -59,12 +60,12 @@ TABLE_COLUMNS = (("images", "n", "{:d}"), ("voxel_iou_0.4", "IoU@.4", "{:.3f}"),
 
 
 def format_table(summary: dict) -> str:
-    """A fixed-width text table: one row per category, then ``mean`` and ``overall``."""
+    """A fixed-width text table: one row per category (``io.names.printable``), then ``mean`` and ``overall``."""
     lines = [f"{'category':<22}" + "".join(f"{h:>9}" for _, h, _ in TABLE_COLUMNS)]
     rows = list(summary["per_category"].items()) + [("mean", summary["mean"]), ("overall", summary["overall"])]
     for name, vals in rows:
         if name in summary["per_category"]:
-            name = category_label(name)
+            name = printable(category_label(name))
         cells = []
         for key, _, fmt in TABLE_COLUMNS:
             v = vals.get(key)
@@ -236,7 +237,7 @@ def require_finite_predictions(checkpoint: Path, rows: list[dict]) -> None:
     if bad:
         first = bad[0]
         raise CheckpointError(f"{checkpoint}: its predictions are not finite (NaN or inf voxels, mask or pose) for "
-                              f"{len(bad)} of {len(rows)} images (first: {first['category']}/{first['model_id']} "
+                              f"{len(bad)} of {len(rows)} images (first: {printable(first['category'] + '/' + first['model_id'])} "
                               f"view {first['view']}) although its weights are: the network overflows on these "
                               "inputs; nothing written")
 
