@@ -32,3 +32,24 @@ def test_claims_tables_escape_control_characters_in_category_names():
                                                  "pose_rotation_acc30": 0.5}}})
     assert "\x1b" not in text
     assert "| run | esc\\x1b[2Jx | new\\nline | Mean |\n|---|---|---|---|\n" in text
+
+
+def test_training_note_on_left_out_objects_escapes_their_names(tmp_path, capsys):
+    """``fit``'s note naming objects whose voxelization failed printed a category folder
+    ``esc\\x1b[2Jx`` as it is: the escape sequence reached the terminal."""
+    from conftest import run_cli
+    from sc3d_cli.data import main as data_main
+    from test_faults import CUBE_F, CUBE_V, FAST, obj_text
+    from sc3d_train.data.dataset import scan_objects
+
+    meshes, shards = tmp_path / "m", tmp_path / "s"
+    (meshes / NAMES[1]).mkdir(parents=True)
+    for name in "ab":
+        (meshes / NAMES[1] / f"{name}.obj").write_text(obj_text(CUBE_V, CUBE_F))
+    run_cli(data_main, ["render", "--meshes", meshes, "--out", shards, *FAST])
+    (meshes / NAMES[1] / "a.obj").rename(tmp_path / "gone.obj")
+    run_cli(data_main, ["voxelize", shards, "--no-progress"])
+    capsys.readouterr()
+    scan_objects(shards)
+    err = capsys.readouterr().err
+    assert "\x1b" not in err and err.rstrip().endswith("(index.json failures): esc\\x1b[2Jx/a"), err

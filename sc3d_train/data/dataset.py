@@ -29,7 +29,7 @@ from torch.utils.data import Dataset
 from sc3d_data.geometry.camera import scale_intrinsics
 from sc3d_data.io.failed_grids import voxelize_failures
 from sc3d_data.io.shard_reader import ShardReader
-from sc3d_data.io.names import shell_word
+from sc3d_data.io.names import printable, shell_word
 from sc3d_data.io.shards import ShardError
 from sc3d_train.data.batch_format import compact_tensors, expand_batch, sc_masks_bool
 from sc3d_train.settings.config import MASK_SIZE, OBJECT_ORDERS
@@ -88,7 +88,7 @@ def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
         refs = [r for r in refs if (Path(r.shard).name, r.row) not in failed]
         tell_once(f"note: {shard_dir}: {len(left_out)} object(s) left out, their voxelization failed and their "
                   f"grid is an empty placeholder (index.json failures): "
-                  + ", ".join(f"{r.category}/{r.model_id}" for r in left_out[:3]) + (", ..." if len(left_out) > 3 else ""))
+                  + ", ".join(printable(f"{r.category}/{r.model_id}") for r in left_out[:3]) + (", ..." if len(left_out) > 3 else ""))
     image_sizes = {sm.image_size for sm in summaries}
     views = {sm.num_views for sm in summaries}
     vres = {sm.voxel_resolution for sm in summaries if sm.voxel_resolution is not None}
