@@ -30,6 +30,7 @@ from typing import Iterable
 
 from sc3d_data.formats.shapenet import is_synset_id, resolve_categories, resolve_category
 from sc3d_data.io.materials import SHAPENET_V2_MESH
+from sc3d_data.io.names import normal_form_note, normal_forms
 
 MESH_EXTENSIONS = (".obj", ".glb", ".gltf", ".ply", ".off", ".stl")
 SHAPENET_V1_MESH = ("model.obj",)
@@ -214,7 +215,8 @@ def discover_meshes(root, categories=None, category_override=None
         wanted = resolve_categories(categories)
         present = {e.category for e in found}
         for c in sorted(wanted - present):
-            problems.append(_problem(root, f"requested category {c!r} matches no mesh"))
+            problems.append(_problem(root, f"requested category {c!r} matches no mesh"
+                                           + normal_form_note(c, normal_forms(present))))
         found = [e for e in found if e.category in wanted]
 
     found.sort(key=lambda e: (e.category, e.model_id, str(e.path)))

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Iterable, Sequence
 
 from sc3d_data.formats.shapenet import resolve_category
-from sc3d_data.io.names import printable
+from sc3d_data.io.names import normal_form_note, normal_forms, printable
 
 DEFAULT_SPLIT = "random:0.7,0.1,0.2"
 #: the ``--split`` / ``--split-file`` rules as the CLIs' ``--help`` shows them (module doc)
@@ -178,6 +178,9 @@ def _file_splits(keys: Sequence[tuple[str, str]], files: list[Path], problems: l
     for cat, mid in keys:
         by_model.setdefault(mid, []).append((cat, mid))
     present_cats = {cat for cat, _ in keys}
+    # for the note on an id typed in another Unicode normalisation than the mesh's name (NFC/NFD)
+    id_forms, mid_forms = normal_forms(f"{c}/{m}" for c, m in keys), normal_forms(by_model)
+    cat_forms = normal_forms(present_cats)
     out: dict[tuple[str, str], str] = {}
     origin: dict[tuple[str, str], str] = {}
     absent_cats: dict[str, int] = {}
@@ -188,14 +191,15 @@ def _file_splits(keys: Sequence[tuple[str, str]], files: list[Path], problems: l
                 cat, mid = ident.split("/", 1)
                 cat = resolve_category(cat)
                 targets = [(cat, mid)] if (cat, mid) in keyset else []
-                if not targets and cat not in present_cats:
+                if not targets and cat not in present_cats and not normal_form_note(cat, cat_forms):
                     absent_cats[cat] = absent_cats.get(cat, 0) + 1
                     continue
             else:
                 targets = by_model.get(ident, [])
             if not targets:
-                problems.append(_problem(where, f"split file names {ident!r} ({split}), "
-                                                "which matches no mesh"))
+                note = (normal_form_note(f"{cat}/{mid}", id_forms) if "/" in ident
+                        else normal_form_note(ident, mid_forms))
+                problems.append(_problem(where, f"split file names {ident!r} ({split}), which matches no mesh{note}"))
                 continue
             for key in targets:
                 if key in out and out[key] != split:

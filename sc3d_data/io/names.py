@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import unicodedata
 
-__all__ = ["not_utf8", "printable", "shell_word", "split_not_utf8"]
+__all__ = ["not_utf8", "printable", "shell_word", "split_not_utf8", "normal_forms", "normal_form_note"]
 
 _NAMED = {"\n": "\\n", "\r": "\\r", "\t": "\\t"}
 _CONTROL = ("Cc", "Cf", "Cs", "Zl", "Zp")
@@ -126,3 +126,21 @@ def split_not_utf8(items: list, path_of, root, verb: str = "not rendered") -> tu
         problems.append({"source": str(prefix), "reason": f"{printable(prefix)}: the name is not valid UTF-8 "
                          f"(shards store names as UTF-8 text); {verb}{what}: rename it, e.g. with convmv"})
     return kept, problems
+
+
+def normal_forms(names) -> dict[str, str]:
+    """``{NFC form: name}`` of ``names``, for :func:`normal_form_note` (built once: a split file
+    may name thousands of ids that match no mesh)."""
+    return {unicodedata.normalize("NFC", n): n for n in names}
+
+
+def normal_form_note(name: str, forms: dict[str, str]) -> str:
+    """``"; the meshes have 'cafe\\u0301', ..."`` where ``name`` matches none of the names of ``forms``
+    (:func:`normal_forms`) but is one of them in another Unicode normalisation, else ``""``: ``café``
+    typed in an editor (NFC, one code point for ``é``) and a file named ``café`` on macOS or in a zip made
+    there (NFD, ``e`` and a combining accent) look alike in every message but are different names."""
+    twin = forms.get(unicodedata.normalize("NFC", name))
+    if twin is None or twin == name:
+        return ""
+    return (f"; the meshes have {ascii(twin)}, the same text in another Unicode normalisation (NFC/NFD; "
+            f"{ascii(name)} here), which looks alike but is another name: write it as the mesh is named")
