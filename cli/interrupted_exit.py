@@ -32,7 +32,7 @@ import traceback
 
 import click
 
-__all__ = ["console_script", "leave_now", "left_process_group", "run_console"]
+__all__ = ["console_script", "ignore_child_deaths", "leave_now", "left_process_group", "run_console"]
 
 
 def run_console(group: click.Group) -> None:
@@ -47,6 +47,7 @@ def run_console(group: click.Group) -> None:
 
     def on_signal(signum, frame):
         interrupted.append(signum)
+        ignore_child_deaths()
         raise KeyboardInterrupt
 
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
@@ -86,6 +87,7 @@ def left_process_group() -> bool:
 def leave_now(code: int) -> None:
     """Flush the output, stop this process's child processes and end it with status ``code``,
     without Python's finalisation (module doc)."""
+    ignore_child_deaths()  # the children it stops here would otherwise be reported as failed workers
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
@@ -95,6 +97,18 @@ def leave_now(code: int) -> None:
         child.terminate()
         child.join(5)
     os._exit(code)
+
+
+def ignore_child_deaths() -> None:
+    """Take PyTorch's SIGCHLD handler off (a DataLoader's): a signal sent to the whole process
+    group (torchrun's agent stopping a rank's session, ``timeout``, a scheduler) also ends the
+    ``--workers`` processes, and that handler reported their deaths as a ``RuntimeError``
+    ("DataLoader worker ... killed by signal") that replaced the interrupt: a traceback and status
+    1 (also from inside :func:`leave_now`'s ``join``, into the finalisation), or 'a loader worker
+    process died ... out of memory?'. After an interrupt no worker's death is news. A handler
+    that does nothing, not ``SIG_DFL``: a SIGCHLD already pending would be reported on stderr as
+    "Signal 17 ignored due to race condition"."""
+    signal.signal(signal.SIGCHLD, lambda signum, frame: None)
 
 
 def console_script(group: click.Group):

@@ -67,3 +67,58 @@ def test_a_second_ctrl_c_while_leaving_does_not_escape_into_finalisation(monkeyp
         assert left.args == (1,)
     else:
         pytest.fail("run_console returned instead of leaving")
+
+
+#: a console script whose command has a loader worker (a child PyTorch watches with its SIGCHLD
+#: handler, as a DataLoader's) and receives SIGTERM with it, sent to the whole process group
+GROUP_SIGTERM_SCRIPT = """import multiprocessing, os, signal, sys, time
+import click, torch
+from torch.utils.data._utils import signal_handling
+from sc3d_cli.interrupted_exit import run_console
+
+def worker():
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a DataLoader worker dies of SIGTERM
+    time.sleep(60)
+
+@click.group()
+def group():
+    pass
+
+@group.command()
+def work():
+    child = multiprocessing.Process(target=worker, daemon=True)
+    child.start()
+    torch._C._set_worker_pids(1, (child.pid,))
+    signal_handling._set_SIGCHLD_handler()
+    time.sleep(0.5)
+    try:
+        os.killpg(0, signal.SIGTERM)
+        time.sleep(10)
+    except KeyboardInterrupt:
+        print("interrupted; last good checkpoint: ...", flush=True)
+        time.sleep(1)  # the worker's death is reported meanwhile
+        raise
+
+sys.argv = ["sc3d-train", "work"]
+run_console(group)
+"""
+
+
+def test_sigterm_to_the_process_group_is_not_reported_as_a_dead_loader_worker(tmp_path):
+    """SIGTERM to the whole process group (torchrun's agent stopping its ranks: each rank's
+    session, loader workers included; ``timeout``; a scheduler) also ends the ``--workers``
+    processes, and PyTorch's SIGCHLD handler reported their deaths as a ``RuntimeError`` that
+    replaced the interrupt: a traceback, status 1 instead of 143 (raised even inside the exit
+    path's ``join``, into Python's finalisation), or 'a loader worker process died ... out of
+    memory?' (measured: 3 of 4 SIGTERMs to a 2-rank torchrun fit with --workers 2)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = tmp_path / "group_sigterm.py"
+    script.write_text(GROUP_SIGTERM_SCRIPT)
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60, env=env,
+                       start_new_session=True)
+    assert (r.returncode, "Traceback" in r.stderr) == (143, False), r.stdout + r.stderr
+    assert "interrupted" in r.stdout
