@@ -72,6 +72,26 @@ def teardown_distributed() -> None:
         dist.destroy_process_group()
 
 
+class PeerStopped(OSError):
+    """This rank's collective lost another torchrun rank, which stopped on its own error (a killed
+    loader worker, a shard it could not read) and printed it: gloo's ``RuntimeError`` here ended
+    the healthy rank in a traceback after that one-line error; an OSError is one line (``fit``)."""
+
+
+#: what gloo raises in a rank whose peer's process ended during a collective
+PEER_GONE = ("Connection closed by peer", "Connection reset by peer")
+
+
+def peer_stopped(e: BaseException, then: str = "") -> PeerStopped | None:
+    """``e`` as a :class:`PeerStopped` (followed by ``then``, e.g. the last good checkpoint) where it
+    is gloo's report that another rank ended mid-collective; None for any other error."""
+    gone = next((s for s in PEER_GONE if s in str(e)), None) if isinstance(e, RuntimeError) else None
+    if gone is None:
+        return None
+    return PeerStopped(f"another rank stopped during this step (gloo: {gone}): its error is above"
+                       f"{'; ' + then if then else ''}")
+
+
 def auto_device() -> str:
     """``cpu`` or ``cuda``: what ``--device auto`` means here (:data:`AUTO_DEVICE_ENV`, else CUDA
     when torch sees a GPU). ``ValueError`` naming the variable when it is set to anything else."""

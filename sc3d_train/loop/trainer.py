@@ -58,7 +58,7 @@ from sc3d_train.loop.memory_check import check_cpu_batch_fits
 from sc3d_train.loop.metrics_log import DataWaitClock, GpuUtilisation, MetricsLog, in_loop_rate
 from sc3d_train.loop.phase_step import augment_step, training_batch
 from sc3d_train.loop.runtime import (DistInfo, all_gather, channels_last_on, mean_scalars, resolve_amp,
-                                     check_same_weights, resolve_device, seed_everything, setup_distributed)
+                                     check_same_weights, peer_stopped, resolve_device, seed_everything, setup_distributed)
 from sc3d_train.loop.batch_floor import check_batch_parts
 from sc3d_train.loop.schedule import data_position, lr_at, phase_at, step_samples
 from sc3d_train.loop.streams import labeled_dataset, phase_loaders, run_datasets, write_labeled_objects
@@ -289,8 +289,8 @@ def fit(cfg: RunConfig, resume: bool = False, resume_hint: str = "resume with --
         if t.dist.is_main:
             print("\n" + interrupted_line(t.run_dir, resume_hint))
         raise
-    except RuntimeError as e:  # a loader worker killed (OOM killer, kill -9): one line (worker_death)
-        raise worker_death(e, interrupted_line(t.run_dir, resume_hint)) or e
+    except RuntimeError as e:  # a loader worker killed (OOM killer, kill -9), another rank stopped: one line
+        raise worker_death(e, then := interrupted_line(t.run_dir, resume_hint)) or peer_stopped(e, then) or e
     finally:
         if progress is not None:
             progress.close()
