@@ -31,6 +31,7 @@ from sc3d_data.io.failed_grids import voxelize_failures
 from sc3d_data.io.shard_reader import ShardReader
 from sc3d_data.io.names import printable, shell_word
 from sc3d_data.io.shards import ShardError
+from sc3d_train.data.camera_values import nonfinite_camera
 from sc3d_train.data.batch_format import compact_tensors, expand_batch, sc_masks_bool
 from sc3d_train.settings.config import MASK_SIZE, OBJECT_ORDERS
 from sc3d_train.data.decoded_cache import DecodedCache
@@ -363,6 +364,9 @@ class ShardDataset(Dataset):
                 whole = self._reader.read_whole(path, CAMERA_FIELDS)
             except ShardError as e:
                 raise DataError(str(e)) from e
+            ids = [self.objects[i].model_id for i in mine]
+            if (problem := nonfinite_camera(path, whole, self._rows[mine], ids)) is not None:
+                raise DataError(problem)
             for k, a in whole.items():
                 if k not in out:
                     out[k] = np.empty((self.num_objects,) + a.shape[1:], dtype=a.dtype)
