@@ -31,7 +31,7 @@ from sc3d_data.io.failed_grids import voxelize_failures
 from sc3d_data.io.shard_reader import ShardReader
 from sc3d_data.io.names import printable, shell_word
 from sc3d_data.io.shards import ShardError
-from sc3d_train.data.camera_values import nonfinite_camera
+from sc3d_train.data.value_checks import nonbinary_voxels, nonfinite_camera
 from sc3d_train.data.batch_format import compact_tensors, expand_batch, sc_masks_bool
 from sc3d_train.settings.config import MASK_SIZE, OBJECT_ORDERS
 from sc3d_train.data.decoded_cache import DecodedCache
@@ -349,9 +349,16 @@ class ShardDataset(Dataset):
         out["index"] = idx
         if self.require_voxels:
             out["voxels"] = got["voxels"]
+            if (problem := nonbinary_voxels(got["voxels"], lambda i: self._where(int(objs[i])))) is not None:
+                raise DataError(problem)
         strings = {"category": [self.objects[o].category for o in objs],
                    "model_id": [self.objects[o].model_id for o in objs]}
         return out, strings
+
+    def _where(self, obj_i: int) -> str:
+        """``SHARD: row R (object ID)``: object ``obj_i`` as errors name it."""
+        ref = self.objects[obj_i]
+        return f"{self._shards[self._shard_index[obj_i]]}: row {ref.row} (object {ref.model_id})"
 
     def _read_cameras(self) -> dict[str, np.ndarray]:
         """``CAMERA_FIELDS`` of every object of the split, ``[num_objects, V, ...]`` as stored

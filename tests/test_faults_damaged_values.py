@@ -1,4 +1,4 @@
-"""Damaged shards, camera values: a NaN or infinity written into ``K``, ``R`` or ``t`` of one view
+"""Damaged shards, values: a NaN or infinity written into ``K``, ``R`` or ``t`` of one view
 of a shard (a hand edit with h5py, a bad import) passed the layout check, which reads metadata
 only; ``fit`` trained on it and ``eval`` scored it (rotation error 91.3 instead of 90.1 on the sample
 shards, exit 0) without a word. Now the split's cameras are checked when they are read, and the
@@ -39,3 +39,19 @@ def test_nonfinite_camera_refused_naming_shard(sample_shards, tmp_path, name, sp
 
 def test_clean_cameras_pass(sample_shards):
     assert len(ShardDataset(sample_shards, split="test")) > 0
+
+
+@pytest.mark.parametrize("workers_like", [False, True])
+def test_nonbinary_voxels_refused_naming_object(sample_shards, tmp_path, workers_like):
+    """Voxels of 7 (and 200) were BCE targets without a word; now the batch that holds them is refused."""
+    out = tmp_path / "shards"
+    shutil.copytree(sample_shards, out, ignore=shutil.ignore_patterns(".sc3d.lock"))
+    shard = out / "shard-00000.h5"
+    with h5py.File(shard, "r+") as f:
+        v = f["voxels"][()]
+        v[v == 1] = 7
+        f["voxels"][...] = v
+    ds = ShardDataset(out, split="train", cache_objects=0 if workers_like else None)
+    with pytest.raises(DataError) as e:
+        ds.get_batch(list(range(len(ds))))
+    assert str(shard) in str(e.value) and "'voxels' holds 7, not 0 or 1" in str(e.value)

@@ -1,9 +1,13 @@
-"""Checks of the camera and pose values a split is trained and evaluated with (read once per
+"""Checks of the values a split is trained and evaluated with that the shard layout check
+(``sc3d_data.io.shard_layout``, metadata only) cannot see. Cameras and poses (read once per
 split by ``ShardDataset._read_cameras``): a NaN or infinity in ``K``, ``R``, ``t``, ``distance``,
 ``azimuth`` or ``elevation`` of one view (a hand edit, a bad import, a disk that returned wrong
 bytes behind an unchanged checksum) would be trained on, or scored by ``eval``, without a word,
-since the shard layout check (``sc3d_data.io.shard_layout``) reads metadata only. The values
-are small (~2.3 KB per object), so checking them all costs nothing next to reading them.
+as the layout check reads no values. They are small (~2.3 KB per object), so checking them
+all costs nothing next to reading them. Voxels (per batch, ``ShardDataset.compact_batch``): a grid
+holding other values than 0 and 1 (the layout allows any integer dtype) was a BCE target of 7 or
+200 with one process and 1 where workers bit-pack it; a max over the batch's grids (~1.5 MB of
+bytes at batch 48 and 32^3) costs ~0.1 ms.
 """
 from __future__ import annotations
 
@@ -28,3 +32,16 @@ def nonfinite_camera(path: Path, whole: dict[str, np.ndarray], rows: np.ndarray,
                     f"{used[i, view].ravel()[~np.isfinite(used[i, view].ravel())][0]}, not a finite number "
                     "(a damaged or hand-edited shard); see `sc3d-data info --verify`")
     return None
+
+
+def nonbinary_voxels(voxels: np.ndarray, where) -> str | None:
+    """One line naming the sample of the first grid of ``voxels`` ``[B, G, G, G]`` that holds
+    a value other than 0 or 1 (``where(i)``: the shard, row and object of batch sample ``i``),
+    or None when all are 0/1."""
+    if voxels.dtype == bool or voxels.size == 0 or (voxels.max() <= 1 and voxels.min() >= 0):
+        return None
+    flat = voxels.reshape(len(voxels), -1)
+    i = int(np.flatnonzero(((flat > 1) | (flat < 0)).any(axis=1))[0])
+    value = flat[i][(flat[i] > 1) | (flat[i] < 0)][0]
+    return (f"{where(i)}: 'voxels' holds {value}, not 0 or 1 (a damaged or hand-edited shard); "
+            "see `sc3d-data info --verify`")
