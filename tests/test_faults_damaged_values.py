@@ -55,3 +55,20 @@ def test_nonbinary_voxels_refused_naming_object(sample_shards, tmp_path, workers
     with pytest.raises(DataError) as e:
         ds.get_batch(list(range(len(ds))))
     assert str(shard) in str(e.value) and "'voxels' holds 7, not 0 or 1" in str(e.value)
+
+
+def test_nonfinite_first_intrinsics_named_by_fit(sample_shards, tmp_path):
+    """A NaN in the first view's K (the one ``fit`` copies into its config) failed as "intrinsics
+    must be a 3x3 list of finite numbers", naming no file; now the shard is named."""
+    from sc3d_cli.train import main as train_main
+    from conftest import run_cli
+
+    out = tmp_path / "shards"
+    shutil.copytree(sample_shards, out, ignore=shutil.ignore_patterns(".sc3d.lock"))
+    with h5py.File(out / "shard-00000.h5", "r+") as f:
+        K = f["K"][()]
+        K[0, 0, 0, 0] = np.nan
+        f["K"][...] = K
+    result = run_cli(train_main, ["fit", "--shards", out, "--out", tmp_path / "run", "--tiny", "--steps", 1,
+                                  "--device", "cpu"], expect_exit=1)
+    assert f"{out / 'shard-00000.h5'}: 'K' holds nan" in result.output

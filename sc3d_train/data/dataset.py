@@ -31,7 +31,7 @@ from sc3d_data.io.failed_grids import voxelize_failures
 from sc3d_data.io.shard_reader import ShardReader
 from sc3d_data.io.names import printable, shell_word
 from sc3d_data.io.shards import ShardError
-from sc3d_train.data.value_checks import nonbinary_voxels, nonfinite_camera
+from sc3d_train.data.value_checks import nonbinary_voxels, nonfinite_camera, nonfinite_summary
 from sc3d_train.data.batch_format import compact_tensors, expand_batch, sc_masks_bool
 from sc3d_train.settings.config import MASK_SIZE, OBJECT_ORDERS
 from sc3d_train.data.decoded_cache import DecodedCache
@@ -98,6 +98,8 @@ def scan_objects(shard_dir: Path) -> tuple[list[ObjectRef], dict]:
         if sm.voxel_resolution is not None:
             vres_files.setdefault(sm.voxel_resolution, sm.path.name)
     no_vox = [str(sm.path) for sm in summaries if sm.voxel_resolution is None]
+    if (problem := nonfinite_summary(summaries)) is not None:
+        raise DataError(problem)
     distances = np.concatenate([sm.distances for sm in summaries])
     camera = {"K": summaries[0].K.tolist(), "distance": float(np.median(distances)),
               "distance_range": [float(distances.min()), float(distances.max())]}

@@ -45,3 +45,16 @@ def nonbinary_voxels(voxels: np.ndarray, where) -> str | None:
     value = flat[i][(flat[i] > 1) | (flat[i] < 0)][0]
     return (f"{where(i)}: 'voxels' holds {value}, not 0 or 1 (a damaged or hand-edited shard); "
             "see `sc3d-data info --verify`")
+
+
+def nonfinite_summary(summaries) -> str | None:
+    """One line naming the shard whose first view's ``K`` or whose ``distance`` values (the
+    dataset ``info`` that ``fit`` copies into the run's config and ``eval`` compares with) are
+    not finite, or None: without it a NaN there failed as "intrinsics must be a 3x3 list of
+    finite numbers", naming no file."""
+    for sm in summaries:
+        for name, values in (("K", np.asarray(sm.K)), ("distance", np.asarray(sm.distances))):
+            if not np.isfinite(values).all():
+                return (f"{sm.path}: '{name}' holds {values[~np.isfinite(values)].ravel()[0]}, not a finite number "
+                        "(a damaged or hand-edited shard); see `sc3d-data info --verify`")
+    return None
