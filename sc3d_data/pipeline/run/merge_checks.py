@@ -9,7 +9,7 @@ from typing import Callable
 
 from sc3d_data.io.shards import held_voxel_resolution, load_index
 from sc3d_data.io.shard_reader import verify_shard
-from sc3d_data.pipeline.run.resume import settings_differ, shards_layout
+from sc3d_data.pipeline.run.resume import held_settings, settings_differ
 from sc3d_data.pipeline.run.setting_meaning import split_record_meaning
 
 
@@ -37,16 +37,6 @@ def lost_objects(index: dict) -> list[dict]:
     return [f for f in index.get("failures", []) if object_key(f) and f.get("stage") != "voxelize"]
 
 
-def _held_settings(folder: Path, index: dict) -> dict:
-    """``index``'s settings, with ``chunks`` the layout its shards hold where it does not record one
-    (a part rendered before ``--chunks``: one object per chunk; ``resume.shards_layout``): parts
-    compare as a rerun over them does (docs/data.md), so an older part does not merge with one of
-    the other layout into a dataset of two."""
-    settings = index.get("settings", {})
-    layout = None if "chunks" in settings else shards_layout(folder, index)
-    return {**settings, "chunks": layout} if layout else settings
-
-
 def check_parts(dirs: list[Path], defaults_of: Callable[[dict], dict] = lambda settings: {}) -> list[dict]:
     """The parts' indexes, in part order, after every check of the module doc. ``defaults_of``:
     what a setting an index lacks stands for, given its settings (``recorded_defaults``: a part
@@ -72,10 +62,10 @@ def check_parts(dirs: list[Path], defaults_of: Callable[[dict], dict] = lambda s
     first, d0 = indexes[0], dirs[0]
     n = first["part"]["count"]
     seen: dict[int, Path] = {}
-    settings0 = _held_settings(d0, first)
+    settings0 = held_settings(d0, first)
     for d, index in zip(dirs, indexes):
         p = index["part"]
-        diff = [k for k in settings_differ(settings0, _held_settings(d, index),
+        diff = [k for k in settings_differ(settings0, held_settings(d, index),
                                            defaults_of(index.get("settings", {})))
                 if k not in VOXEL_SETTINGS + ("split_file",)]  # the grids they hold and the split, below
         if diff:

@@ -268,6 +268,16 @@ def shards_layout(out: Path, old: dict) -> str | None:
     return None
 
 
+def held_settings(folder: Path, index: dict) -> dict:
+    """``index``'s settings (of the dataset in ``folder``), with ``chunks`` the layout its shards hold
+    where it does not record one (:func:`shards_layout`): what a rerun over it (:func:`check_resume`)
+    and ``merge`` (its parts) compare, so an older dataset is neither recorded as the other layout
+    nor merged with a part of it into a dataset of two."""
+    settings = index.get("settings", {})
+    layout = None if "chunks" in settings else shards_layout(folder, index)
+    return {**settings, "chunks": layout} if layout else settings
+
+
 def check_resume(out: Path, old: dict, settings: dict, defaults: dict, part: dict) -> None:
     """``ValueError`` when ``out``'s index cannot be resumed by this run: other settings, another
     ``--part`` or a merged dataset."""
@@ -275,10 +285,7 @@ def check_resume(out: Path, old: dict, settings: dict, defaults: dict, part: dic
         made_by = "import-r2n2" if settings.get("source") == "3D-R2N2" else "render"
         raise ValueError(f"{out}: is a merged dataset (sc3d-data merge); {made_by} parts into their own "
                          "folders and merge again, or use another --out")
-    recorded = old.get("settings", {})
-    layout = None if "chunks" in recorded else shards_layout(out, old)
-    if layout:  # an older index did not record it; the default is not what older code wrote
-        recorded = {**recorded, "chunks": layout}
+    recorded = held_settings(out, old)  # an older index did not record chunks: not the default older code wrote
     diff = settings_differ(recorded, settings, defaults)
     if diff:
         held = f"; its shards hold one {recorded['chunks']} per chunk" if {"chunks"} & set(diff) & set(recorded) else ""
