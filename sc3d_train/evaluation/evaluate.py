@@ -192,12 +192,13 @@ def evaluate(checkpoint: Path, shards: Path, split: str, out: Path | None, devic
                                      loss_weights=cfg.loss_weights)
         require_finite_predictions(checkpoint, rows)
         summary = summarize(rows)
+        grid = PoseGrid.of(cfg.model)  # the pose error's floor of views off its azimuths: eval's note
         result = {"checkpoint": os.path.abspath(checkpoint), "step": int(ckpt.get("step", -1)), "shards": os.path.abspath(shards),
                   "split": split, "pose_from": pose_from, "voxel_thresholds": list(VOXEL_THRESHOLDS), "mask_threshold": MASK_THRESHOLD,
                   "differs_from_training": differences, "outside_pose_grid": outside_pose_grid(cfg, dataset.info),
                   "pose_grid_elevations": [cfg.model.elevation_min, cfg.model.elevation_max],
-                  "pose_grid_azimuth_step": PoseGrid.of(cfg.model).azimuth_step,  # the floor: eval's note
-                  "azimuth_grid_floor": round(PoseGrid.of(cfg.model).azimuth_floor([r["azimuth_true"] for r in rows]), 2),
+                  "pose_grid_azimuth_step": grid.azimuth_step,
+                  "azimuth_grid_floor": round(grid.azimuth_floor([r["azimuth_true"] for r in rows]), 2),
                   "trained_on": trained_on, "categories_not_trained_on": unseen,
                   "selected_on_this_split": selected_on, "data_sha256": data_sha256,
                   "shards_complete": dataset.info["complete"], **summary}
